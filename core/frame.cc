@@ -1,0 +1,167 @@
+// Trilinear sampling of intensity and central-difference gradient volumes with the
+// field-of-view validity rule (DESIGN.md section 2). See frame.h for the layout.
+#include "core/frame.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include <glog/logging.h>
+
+namespace dsr {
+namespace {
+
+// Box dilation of a byte map by `r` along one axis (separable, exact for a box).
+void DilateAlongAxis(const Eigen::Vector3i& n, int axis, int r, std::vector<uint8_t>* map) {
+  const int len = n[axis];
+  const int64_t stride = axis == 0 ? 1 : (axis == 1 ? n[0] : int64_t{n[0]} * n[1]);
+  const int a1 = (axis + 1) % 3, a2 = (axis + 2) % 3;
+  const int64_t stride1 = a1 == 0 ? 1 : (a1 == 1 ? n[0] : int64_t{n[0]} * n[1]);
+  const int64_t stride2 = a2 == 0 ? 1 : (a2 == 1 ? n[0] : int64_t{n[0]} * n[1]);
+  std::vector<uint8_t> line(len);
+  std::vector<int> prefix(len + 1);
+  for (int p = 0; p < n[a1]; ++p) {
+    for (int q = 0; q < n[a2]; ++q) {
+      const int64_t base = p * stride1 + q * stride2;
+      prefix[0] = 0;
+      for (int t = 0; t < len; ++t) {
+        line[t] = (*map)[base + t * stride];
+        prefix[t + 1] = prefix[t] + (line[t] ? 1 : 0);
+      }
+      for (int t = 0; t < len; ++t) {
+        const int lo = std::max(0, t - r), hi = std::min(len, t + r + 1);
+        (*map)[base + t * stride] = prefix[hi] - prefix[lo] > 0 ? 1 : 0;
+      }
+    }
+  }
+}
+
+}  // namespace
+
+Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
+  CHECK(image.geometry.SameGrid(mask.geometry)) << "mask and image grids differ";
+  CHECK_EQ(static_cast<int64_t>(image.voxels.size()), geometry_.NumVoxels());
+  index_from_physical_ = geometry_.PhysicalToIndexMatrix();
+  gradient_to_physical_ = index_from_physical_.transpose();
+
+  const Eigen::Vector3i n = geometry_.size;
+  const int64_t num = geometry_.NumVoxels();
+  interleaved_.assign(4 * num, 0.0f);
+  const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
+  const float* v = image.voxels.data();
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const int64_t l = geometry_.LinearIndex(i, j, k);
+        const int ijk[3] = {i, j, k};
+        float* out = &interleaved_[4 * l];
+        out[0] = v[l];
+        for (int a = 0; a < 3; ++a) {
+          // Central difference inside, one-sided on the border, 0 for a single slice.
+          const int lo = ijk[a] > 0 ? 1 : 0;
+          const int hi = ijk[a] < n[a] - 1 ? 1 : 0;
+          const int span = lo + hi;
+          out[1 + a] = span == 0 ? 0.0f
+                                 : (v[l + hi * stride[a]] - v[l - lo * stride[a]]) /
+                                       static_cast<float>(span);
+        }
+      }
+    }
+  }
+
+  valid_cells_.assign(num, 0);
+  for (int k = 0; k + 1 < n[2]; ++k) {
+    for (int j = 0; j + 1 < n[1]; ++j) {
+      for (int i = 0; i + 1 < n[0]; ++i) {
+        bool all = true;
+        for (int c = 0; c < 8 && all; ++c) {
+          all = mask.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) != 0;
+        }
+        if (all) {
+          valid_cells_[geometry_.LinearIndex(i, j, k)] = 1;
+          ++num_valid_cells_;
+          valid_index_box_.extend(Eigen::Vector3d(i, j, k));
+          valid_index_box_.extend(Eigen::Vector3d(i + 1, j + 1, k + 1));
+        }
+      }
+    }
+  }
+}
+
+bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {
+  const Eigen::Vector3i& n = geometry_.size;
+  const double fi = std::floor(ijk[0]), fj = std::floor(ijk[1]), fk = std::floor(ijk[2]);
+  // Compare as doubles first so huge or NaN coordinates never overflow an int.
+  if (!(fi >= 0.0 && fj >= 0.0 && fk >= 0.0 && fi <= n[0] - 2 && fj <= n[1] - 2 &&
+        fk <= n[2] - 2)) {
+    return false;
+  }
+  return valid_cells_[geometry_.LinearIndex(static_cast<int>(fi), static_cast<int>(fj),
+                                            static_cast<int>(fk))] != 0;
+}
+
+bool Frame::SampleAtIndex(const Eigen::Vector3d& ijk,
+                          double* value,
+                          Eigen::Vector3d* gradient_ijk) const {
+  if (!IsValidIndex(ijk)) return false;
+  const int i = static_cast<int>(std::floor(ijk[0]));
+  const int j = static_cast<int>(std::floor(ijk[1]));
+  const int k = static_cast<int>(std::floor(ijk[2]));
+  const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
+  const int64_t sx = 4, sy = 4 * int64_t{geometry_.size[0]},
+                sz = sy * int64_t{geometry_.size[1]};
+  const float* base = &interleaved_[4 * geometry_.LinearIndex(i, j, k)];
+  double acc[4] = {0.0, 0.0, 0.0, 0.0};
+  for (int c = 0; c < 8; ++c) {
+    const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
+    const double w = (dx ? fx : 1.0 - fx) * (dy ? fy : 1.0 - fy) * (dz ? fz : 1.0 - fz);
+    const float* p = base + dx * sx + dy * sy + dz * sz;
+    for (int q = 0; q < 4; ++q) acc[q] += w * p[q];
+  }
+  *value = acc[0];
+  if (gradient_ijk != nullptr) *gradient_ijk = Eigen::Vector3d(acc[1], acc[2], acc[3]);
+  return true;
+}
+
+bool Frame::Sample(const Eigen::Vector3d& x_in_frame_mm,
+                   double* value,
+                   Eigen::Vector3d* gradient_mm) const {
+  Eigen::Vector3d gradient_ijk;
+  if (!SampleAtIndex(ToIndex(x_in_frame_mm), value,
+                     gradient_mm != nullptr ? &gradient_ijk : nullptr)) {
+    return false;
+  }
+  if (gradient_mm != nullptr) *gradient_mm = gradient_to_physical_ * gradient_ijk;
+  return true;
+}
+
+double Frame::InterpolateValue(const Eigen::Vector3d& ijk) const {
+  const Eigen::Vector3i& n = geometry_.size;
+  if (!ijk.allFinite()) return 0.0;
+  double acc = 0.0;
+  const double fl[3] = {std::floor(ijk[0]), std::floor(ijk[1]), std::floor(ijk[2])};
+  for (int c = 0; c < 8; ++c) {
+    const int d[3] = {c & 1, (c >> 1) & 1, (c >> 2) & 1};
+    double w = 1.0;
+    int idx[3];
+    bool inside = true;
+    for (int a = 0; a < 3; ++a) {
+      const double corner = fl[a] + d[a];
+      const double f = ijk[a] - fl[a];
+      w *= d[a] ? f : 1.0 - f;
+      inside = inside && corner >= 0.0 && corner <= n[a] - 1;
+      idx[a] = inside ? static_cast<int>(corner) : 0;
+    }
+    if (inside && w != 0.0) acc += w * interleaved_[4 * geometry_.LinearIndex(idx[0], idx[1], idx[2])];
+  }
+  return acc;
+}
+
+std::vector<uint8_t> Frame::DilatedValidCells(int margin) const {
+  std::vector<uint8_t> map = valid_cells_;
+  if (margin > 0) {
+    for (int axis = 0; axis < 3; ++axis) DilateAlongAxis(geometry_.size, axis, margin, &map);
+  }
+  return map;
+}
+
+}  // namespace dsr

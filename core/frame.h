@@ -1,0 +1,85 @@
+// A frame prepared for sampling (DESIGN.md section 2).
+//
+// Sampling at a physical point x (mm, frame coordinates): u = (D S)^-1 (x - o); the value
+// I(u) by trilinear interpolation of the voxels, and the gradient by trilinear
+// interpolation of central-difference gradient volumes (index units, one-sided on the
+// image border), converted to physical units: grad_x I = (D S)^-T grad_u I (= D S^-1
+// grad_u I for an orthonormal D). The sample is valid (sigma_ij = 1) when all 8 trilinear
+// neighbours of u lie inside the frame and inside its field-of-view mask.
+//
+// Memory layout: one interleaved float4 [I, dI/du, dI/dv, dI/dw] per voxel, x-fastest, so
+// one trilinear gather reads value and gradient together; plus one byte per voxel for the
+// valid-cell map (cell (i,j,k) is valid when its 8 corners (i..i+1, j..j+1, k..k+1) are
+// inside the mask). 17 bytes per voxel in all.
+#ifndef DSR_CORE_FRAME_H_
+#define DSR_CORE_FRAME_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include "core/volume.h"
+
+namespace dsr {
+
+class Frame {
+ public:
+  Frame() = default;
+  // `mask` must lie on `image`'s grid (CHECKed; validate user input with ReadMask first).
+  Frame(const Image& image, const Mask& mask);
+
+  const ImageGeometry& geometry() const { return geometry_; }
+  int64_t num_valid_cells() const { return num_valid_cells_; }
+
+  // Continuous index of a physical point (frame coordinates, mm).
+  Eigen::Vector3d ToIndex(const Eigen::Vector3d& x_in_frame_mm) const {
+    return index_from_physical_ * (x_in_frame_mm - geometry_.origin_mm);
+  }
+  // (D S)^-1 and (D S)^-T, for callers that fold a pose into the index map.
+  const Eigen::Matrix3d& index_from_physical() const { return index_from_physical_; }
+  const Eigen::Matrix3d& gradient_to_physical() const { return gradient_to_physical_; }
+
+  // True when the trilinear cell of continuous index `ijk` is valid (sigma = 1).
+  bool IsValidIndex(const Eigen::Vector3d& ijk) const;
+
+  // Samples at a physical point. Returns false (sigma = 0) and leaves outputs untouched
+  // when the sample is not valid. `gradient_mm` may be null.
+  bool Sample(const Eigen::Vector3d& x_in_frame_mm,
+              double* value,
+              Eigen::Vector3d* gradient_mm) const;
+
+  // Same at a continuous index; the gradient is in index units (d/du).
+  bool SampleAtIndex(const Eigen::Vector3d& ijk,
+                     double* value,
+                     Eigen::Vector3d* gradient_ijk) const;
+
+  // Trilinear value without the mask rule, 0 outside the grid: for resampling and display.
+  double InterpolateValue(const Eigen::Vector3d& ijk) const;
+
+  // Valid-cell map dilated by `margin` cells (box of half-width `margin`), one byte per
+  // voxel: used to build candidate observations with a margin (core/panorama.h).
+  std::vector<uint8_t> DilatedValidCells(int margin) const;
+
+  // Bounding box (continuous index) of the valid cells: [min cell, max cell + 1]; empty
+  // when no cell is valid.
+  const Eigen::AlignedBox3d& ValidIndexBox() const { return valid_index_box_; }
+
+  // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell map (for fast paths).
+  const float* interleaved() const { return interleaved_.data(); }
+  const uint8_t* valid_cells() const { return valid_cells_.data(); }
+
+ private:
+  ImageGeometry geometry_;
+  Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
+  Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
+  std::vector<float> interleaved_;
+  std::vector<uint8_t> valid_cells_;
+  int64_t num_valid_cells_ = 0;
+  Eigen::AlignedBox3d valid_index_box_;
+};
+
+}  // namespace dsr
+
+#endif  // DSR_CORE_FRAME_H_

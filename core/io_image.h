@@ -1,0 +1,41 @@
+// Image and mask IO through ITK: NIfTI (.nii, .nii.gz), MetaImage (.mha, .mhd) and NRRD
+// (.nrrd, .nhdr). Geometry (size, origin, spacing, direction) is kept exactly; any scalar
+// pixel type is converted to float on read. Only core/io_* files include ITK.
+//
+// Every function returns false with a one-line `error` that names the file and the broken
+// rule (missing file, not 3D, non-scalar pixels, corrupt header, NaN/Inf voxels, invalid
+// geometry, mask on another grid, ...). Writes go to a temporary file in the target folder
+// that is renamed into place, so an interrupted run never leaves a truncated result.
+#ifndef DSR_CORE_IO_IMAGE_H_
+#define DSR_CORE_IO_IMAGE_H_
+
+#include <string>
+
+#include "core/volume.h"
+
+namespace dsr {
+
+// Reads a 3D scalar image (any integer or float pixel type) as float. Rejects 2D and 4D+
+// images (a 4D image with a last dimension of size 1 is accepted as 3D), vector/complex
+// pixels, invalid geometry and non-finite voxel values.
+bool ReadImage(const std::string& path, Image* image, std::string* error);
+
+// Reads a mask (any scalar pixel type, non-zero = inside) and checks that it lies on
+// `expected` (the image's grid): size must match exactly, origin/spacing/direction within
+// ImageGeometry::SameGrid's tolerance. Rejects a mask with no inside voxel.
+bool ReadMask(const std::string& path,
+              const ImageGeometry& expected,
+              Mask* mask,
+              std::string* error);
+
+// Writes float voxels (the format follows the extension). Atomic (temp file + rename).
+bool WriteImage(const Image& image, const std::string& path, std::string* error);
+// Writes a mask as unsigned char 0/1. Atomic.
+bool WriteMask(const Mask& mask, const std::string& path, std::string* error);
+
+// True for the extensions ITK can read/write here: .nii .nii.gz .mha .mhd .nrrd .nhdr.
+bool HasSupportedImageExtension(const std::string& path);
+
+}  // namespace dsr
+
+#endif  // DSR_CORE_IO_IMAGE_H_

@@ -1,0 +1,137 @@
+// Candidate observations and overlap connectivity (DESIGN.md section 2).
+#include "core/observation.h"
+
+#include <algorithm>
+#include <cmath>
+#include <queue>
+#include <sstream>
+
+#include <glog/logging.h>
+
+namespace dsr {
+
+int64_t CandidateSet::NumObservations() const {
+  int64_t total = 0;
+  for (uint32_t o : observers) total += __builtin_popcount(o);
+  return total;
+}
+
+Eigen::Vector3d CandidateSet::VoxelCenter(int64_t v) const {
+  const int64_t l = voxel[v];
+  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
+  const Eigen::Vector3d ijk(static_cast<double>(l % nx), static_cast<double>((l % nxy) / nx),
+                            static_cast<double>(l / nxy));
+  return grid.IndexToPhysical(ijk);
+}
+
+CandidateSet BuildCandidates(const std::vector<Frame>& frames,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const ImageGeometry& grid,
+                             int margin_cells) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_LE(m, kMaxFrames);
+  CHECK_EQ(frame_from_world.size(), frames.size());
+  CandidateSet out;
+  out.grid = grid;
+  out.num_frames = m;
+  std::vector<std::vector<uint8_t>> near(m);
+  std::vector<Eigen::Matrix3d> a(m);  // index_i = a p_j + b
+  std::vector<Eigen::Vector3d> b(m);
+  for (int i = 0; i < m; ++i) {
+    near[i] = frames[i].DilatedValidCells(margin_cells);
+    const Eigen::Matrix3d index_from_physical = frames[i].index_from_physical();
+    a[i] = index_from_physical * frame_from_world[i].linear();
+    b[i] = index_from_physical *
+           (frame_from_world[i].translation() - frames[i].geometry().origin_mm);
+  }
+  const Eigen::Vector3i n = grid.size;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        const Eigen::Vector3d p = grid.IndexToPhysical(Eigen::Vector3d(i, j, k));
+        uint32_t bits = 0;
+        for (int f = 0; f < m; ++f) {
+          const Eigen::Vector3d u = a[f] * p + b[f];
+          const Eigen::Vector3i& fs = frames[f].geometry().size;
+          // Cell containing u, clamped into the grid when within the margin outside it.
+          int c[3];
+          bool inside = true;
+          for (int ax = 0; ax < 3 && inside; ++ax) {
+            const double fl = std::floor(u[ax]);
+            if (!(fl >= -margin_cells && fl <= fs[ax] - 2 + margin_cells)) inside = false;
+            c[ax] = static_cast<int>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
+          }
+          if (inside && near[f][frames[f].geometry().LinearIndex(c[0], c[1], c[2])]) {
+            bits |= 1u << f;
+          }
+        }
+        if (__builtin_popcount(bits) >= 2) {
+          out.voxel.push_back(grid.LinearIndex(i, j, k));
+          out.observers.push_back(bits);
+        }
+      }
+    }
+  }
+  return out;
+}
+
+Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
+  const int m = candidates.num_frames;
+  Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);
+  for (uint32_t bits : candidates.observers) {
+    for (int a = 0; a < m; ++a) {
+      if (!(bits >> a & 1u)) continue;
+      for (int b = a; b < m; ++b) {
+        if (bits >> b & 1u) ++overlap(a, b);
+      }
+    }
+  }
+  overlap.triangularView<Eigen::StrictlyLower>() = overlap.transpose();
+  return overlap;
+}
+
+bool CheckConnected(const CandidateSet& candidates,
+                    int64_t min_shared_voxels,
+                    std::string* error) {
+  const int m = candidates.num_frames;
+  const Eigen::MatrixXi overlap = CandidateOverlap(candidates);
+  std::vector<bool> reached(m, false);
+  std::queue<int> todo;
+  reached[0] = true;
+  todo.push(0);
+  while (!todo.empty()) {
+    const int a = todo.front();
+    todo.pop();
+    for (int b = 0; b < m; ++b) {
+      if (!reached[b] && b != a && overlap(a, b) >= min_shared_voxels) {
+        reached[b] = true;
+        todo.push(b);
+      }
+    }
+  }
+  std::ostringstream missing;
+  int num_missing = 0;
+  for (int i = 0; i < m; ++i) {
+    if (!reached[i]) missing << (num_missing++ ? "," : "") << i;
+  }
+  if (num_missing == 0) return true;
+  if (error) {
+    *error = "frames " + missing.str() +
+             " do not overlap the others at the initial poses (fewer than " +
+             std::to_string(min_shared_voxels) +
+             " shared panorama voxels); give better initial poses with --init";
+  }
+  return false;
+}
+
+std::vector<Eigen::Isometry3d> RelativeToFrame0(
+    const std::vector<Eigen::Isometry3d>& frame_from_world) {
+  std::vector<Eigen::Isometry3d> out;
+  if (frame_from_world.empty()) return out;
+  const Eigen::Isometry3d world_from_frame0 = frame_from_world[0].inverse();
+  for (const auto& t : frame_from_world) out.push_back(t * world_from_frame0);
+  out[0] = Eigen::Isometry3d::Identity();
+  return out;
+}
+
+}  // namespace dsr

@@ -1,0 +1,85 @@
+// Options and reports shared by every solver mode, mapped onto ceres::Solver::Options.
+// Libraries take these structs; only tools/ parse flags into them (STYLE.md section 1).
+#ifndef DSR_CORE_SOLVE_OPTIONS_H_
+#define DSR_CORE_SOLVE_OPTIONS_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <ceres/iteration_callback.h>
+#include <ceres/solver.h>
+
+namespace dsr {
+
+struct SolveOptions {
+  // "LEVENBERG_MARQUARDT" or "DOGLEG".
+  std::string trust_region = "LEVENBERG_MARQUARDT";
+  // A ceres::LinearSolverType name; empty = the mode's default.
+  std::string linear_solver;
+  int max_iterations = 100;
+  double function_tolerance = 1e-8;
+  double gradient_tolerance = 1e-12;
+  double parameter_tolerance = 1e-10;
+  int num_threads = 0;  // <= 0: all hardware threads
+  bool log_progress = true;  // one line per iteration on stderr
+  // Ceres accepts a step only when the cost drops by at least this fraction of the model's
+  // prediction. Tests that study Gauss-Newton fixed points lower it (see DESIGN.md
+  // section 4); users keep Ceres's default.
+  double min_relative_decrease = 1e-3;
+
+  // Checks names and ranges; `error` names the option (as its command-line flag).
+  bool Validate(std::string* error) const;
+  // Fills a ceres::Solver::Options (linear solver = `default_linear_solver` when empty).
+  void ToCeres(const std::string& default_linear_solver, ceres::Solver::Options* out) const;
+};
+
+// Per-iteration record, kept for reports and convergence plots.
+struct IterationRecord {
+  int iteration = 0;
+  double cost = 0.0;       // Ceres cost = 0.5 * sum of squared residuals
+  double step_norm = 0.0;  // |delta| of the accepted step (tangent space)
+  double seconds = 0.0;    // cumulative wall time
+  bool step_accepted = true;
+};
+
+// Logs each iteration to stderr (when enabled) and keeps the records.
+class ProgressCallback final : public ceres::IterationCallback {
+ public:
+  ProgressCallback(std::string label, bool log) : label_(std::move(label)), log_(log) {}
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override;
+  const std::vector<IterationRecord>& records() const { return records_; }
+
+ private:
+  std::string label_;
+  bool log_;
+  std::vector<IterationRecord> records_;
+};
+
+// What every mode returns.
+struct SolveReport {
+  std::vector<Eigen::Isometry3d> frame_from_world;
+  std::vector<IterationRecord> iterations;
+  std::string termination;        // Ceres's message
+  bool usable = false;            // summary.IsSolutionUsable() and finite cost
+  double initial_cost = 0.0;      // 0.5 * f at the start (Ceres convention)
+  double final_cost = 0.0;
+  int num_iterations = 0;
+  double seconds = 0.0;
+  double seconds_per_iteration = 0.0;
+  int64_t observations_per_iteration = 0;  // intensity differences per evaluation
+};
+
+// Fills the common fields of a report from a Ceres summary.
+void FillReport(const ceres::Solver::Summary& summary,
+                const ProgressCallback& progress,
+                SolveReport* report);
+
+// Peak resident set size of this process in bytes (VmHWM), 0 when unknown.
+int64_t PeakResidentBytes();
+// Physical memory of the machine in bytes, 0 when unknown.
+int64_t PhysicalMemoryBytes();
+
+}  // namespace dsr
+
+#endif  // DSR_CORE_SOLVE_OPTIONS_H_

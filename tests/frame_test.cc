@@ -1,0 +1,165 @@
+// Sampler (DESIGN.md section 2): on a volume whose intensity is linear in physical space,
+// trilinear interpolation and central differences are exact, so values and physical
+// gradients must be reproduced up to float storage rounding.
+#include "core/frame.h"
+
+#include <random>
+
+#include <gtest/gtest.h>
+
+#include "core/observation.h"
+#include "core/se3.h"
+#include "core/volume.h"
+
+namespace dsr {
+namespace {
+
+// Voxels are stored as float: values up to ~300 carry ~2e-5 absolute rounding error.
+constexpr double kFloatValueTolerance = 1e-3;
+constexpr double kFloatGradientTolerance = 1e-4;
+
+ImageGeometry ObliqueAnisotropicGeometry() {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(12, 10, 9);
+  g.spacing_mm = Eigen::Vector3d(0.7, 1.3, 2.1);
+  g.origin_mm = Eigen::Vector3d(-5.0, 3.0, 12.5);
+  g.direction = Eigen::AngleAxisd(0.4, Eigen::Vector3d(1.0, 2.0, 3.0).normalized())
+                    .toRotationMatrix();
+  return g;
+}
+
+Image LinearImage(const ImageGeometry& g, const Eigen::Vector3d& slope, double offset) {
+  Image image(g);
+  for (int k = 0; k < g.size[2]; ++k)
+    for (int j = 0; j < g.size[1]; ++j)
+      for (int i = 0; i < g.size[0]; ++i)
+        image.at(i, j, k) = static_cast<float>(
+            slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + offset);
+  return image;
+}
+
+TEST(ImageGeometry, IndexPhysicalRoundTrip) {
+  const ImageGeometry g = ObliqueAnisotropicGeometry();
+  const Eigen::Vector3d ijk(1.25, 7.5, 3.0);
+  EXPECT_LT((g.PhysicalToIndex(g.IndexToPhysical(ijk)) - ijk).norm(), 1e-12);
+  // x = o + D S u
+  const Eigen::Vector3d expected =
+      g.origin_mm + g.direction * g.spacing_mm.cwiseProduct(ijk);
+  EXPECT_LT((g.IndexToPhysical(ijk) - expected).norm(), 1e-12);
+}
+
+TEST(ImageGeometry, ValidateRejectsBadGrids) {
+  std::string error;
+  ImageGeometry g = ObliqueAnisotropicGeometry();
+  EXPECT_TRUE(g.Validate("a.nii", &error)) << error;
+  g.spacing_mm[1] = 0.0;
+  EXPECT_FALSE(g.Validate("a.nii", &error));
+  EXPECT_NE(error.find("spacing"), std::string::npos);
+  g = ObliqueAnisotropicGeometry();
+  g.direction.col(2) = g.direction.col(1);
+  EXPECT_FALSE(g.Validate("a.nii", &error));
+  EXPECT_NE(error.find("direction"), std::string::npos);
+}
+
+TEST(Frame, LinearFieldIsReproducedExactly) {
+  for (const ImageGeometry& g : {ImageGeometry{Eigen::Vector3i(8, 9, 10)},
+                                 ObliqueAnisotropicGeometry()}) {
+    const Eigen::Vector3d slope(1.5, -2.0, 0.75);
+    const Image image = LinearImage(g, slope, 100.0);
+    const Frame frame(image, Mask(g, 1));
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int n = 0; n < 200; ++n) {
+      // Anywhere in the grid, the border included (one-sided differences are exact too).
+      const Eigen::Vector3d ijk(u(rng) * (g.size[0] - 1.001), u(rng) * (g.size[1] - 1.001),
+                                u(rng) * (g.size[2] - 1.001));
+      const Eigen::Vector3d x = g.IndexToPhysical(ijk);
+      double value;
+      Eigen::Vector3d gradient;
+      ASSERT_TRUE(frame.Sample(x, &value, &gradient));
+      EXPECT_NEAR(value, slope.dot(x) + 100.0, kFloatValueTolerance);
+      EXPECT_LT((gradient - slope).norm(), kFloatGradientTolerance) << gradient.transpose();
+      EXPECT_NEAR(frame.InterpolateValue(ijk), value, 1e-9);
+    }
+  }
+}
+
+TEST(Frame, ValidityNeedsAllEightNeighboursInsideTheMask) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(6, 6, 6);
+  Mask mask(g, 1);
+  mask.at(3, 3, 3) = 0;
+  const Frame frame(Image(g, 1.0f), mask);
+  double value;
+  // Cells (2..3)^3 touch the hole; (0.5, 0.5, 0.5) does not.
+  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(0.5, 0.5, 0.5), &value, nullptr));
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(2.5, 2.5, 2.5), &value, nullptr));
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(3.5, 3.5, 3.5), &value, nullptr));
+  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(4.0, 1.0, 1.0), &value, nullptr));
+  // Outside the grid, on the last index, or non-finite: invalid.
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(-0.01, 1.0, 1.0), &value, nullptr));
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(5.0, 1.0, 1.0), &value, nullptr));
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(NAN, 1.0, 1.0), &value, nullptr));
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(1e30, 1.0, 1.0), &value, nullptr));
+  EXPECT_EQ(frame.num_valid_cells(), 125 - 8);
+}
+
+TEST(Frame, DilatedValidCellsGrowByTheMargin) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(10, 10, 10);
+  Mask mask(g, 0);
+  mask.at(4, 4, 4) = mask.at(5, 4, 4) = mask.at(4, 5, 4) = mask.at(5, 5, 4) = 1;
+  mask.at(4, 4, 5) = mask.at(5, 4, 5) = mask.at(4, 5, 5) = mask.at(5, 5, 5) = 1;
+  const Frame frame(Image(g, 1.0f), mask);
+  EXPECT_EQ(frame.num_valid_cells(), 1);
+  const std::vector<uint8_t> dilated = frame.DilatedValidCells(2);
+  int count = 0;
+  for (uint8_t d : dilated) count += d;
+  EXPECT_EQ(count, 5 * 5 * 5);
+  EXPECT_EQ(dilated[g.LinearIndex(2, 6, 4)], 1);
+  EXPECT_EQ(dilated[g.LinearIndex(1, 4, 4)], 0);
+}
+
+TEST(MaskFromNonZero, ErodesByTheGivenNumberOfVoxels) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(12, 12, 12);
+  Image image(g, 0.0f);
+  for (int k = 2; k < 10; ++k)
+    for (int j = 2; j < 10; ++j)
+      for (int i = 2; i < 10; ++i) image.at(i, j, k) = 5.0f;
+  EXPECT_EQ(CountInside(MaskFromNonZero(image, 0)), 8 * 8 * 8);
+  EXPECT_EQ(CountInside(MaskFromNonZero(image, 2)), 4 * 4 * 4);
+  // The image border counts as outside.
+  const Mask full = MaskFromNonZero(Image(g, 1.0f), 1);
+  EXPECT_EQ(CountInside(full), 10 * 10 * 10);
+}
+
+TEST(ObserveSample, JacobianMatchesNumericDerivativeOnLinearField) {
+  const ImageGeometry g = ObliqueAnisotropicGeometry();
+  const Eigen::Vector3d slope(0.8, -1.1, 2.0);
+  const Frame frame(LinearImage(g, slope, 50.0), Mask(g, 1));
+  Vector6d d;
+  d << 0.3, -0.2, 0.1, 0.02, -0.01, 0.03;
+  const Eigen::Isometry3d frame_from_world = ExpSE3(d);
+  const Eigen::Vector3d p_world =
+      frame_from_world.inverse() * g.IndexToPhysical(Eigen::Vector3d(5.2, 4.4, 3.7));
+  double value;
+  RowVector6d jacobian;
+  ASSERT_TRUE(ObserveSample(frame, frame_from_world, p_world, &value, &jacobian));
+  RowVector6d numeric;
+  const double h = 1e-4;
+  for (int a = 0; a < 6; ++a) {
+    Vector6d e = Vector6d::Zero();
+    e[a] = h;
+    double plus, minus;
+    ASSERT_TRUE(ObserveSample(frame, ExpSE3(e) * frame_from_world, p_world, &plus, nullptr));
+    ASSERT_TRUE(ObserveSample(frame, ExpSE3(-e) * frame_from_world, p_world, &minus, nullptr));
+    numeric[a] = (plus - minus) / (2 * h);
+  }
+  // Float voxels: numeric differences carry ~2e-5 / 1e-4 rounding.
+  EXPECT_LT((numeric - jacobian).norm(), 2e-2 * std::max(1.0, jacobian.norm()))
+      << numeric << "\n" << jacobian;
+}
+
+}  // namespace
+}  // namespace dsr

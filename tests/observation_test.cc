@@ -1,0 +1,122 @@
+// Panorama grid, candidate rule and closed-form panorama (DESIGN.md section 2).
+#include "core/observation.h"
+
+#include <gtest/gtest.h>
+
+#include "core/panorama.h"
+
+namespace dsr {
+namespace {
+
+ImageGeometry Cube(int n) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(n, n, n);
+  return g;
+}
+
+Eigen::Isometry3d Translation(double x, double y, double z) {
+  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+  t.translation() = Eigen::Vector3d(x, y, z);
+  return t;
+}
+
+struct TwoFrames {
+  std::vector<Frame> frames;
+  std::vector<Eigen::Isometry3d> poses;
+};
+
+// Frame 0 at the world origin, frame 1 seeing world x in [5, 14] (x_frame = x_world - 5).
+TwoFrames MakeTwoFrames(float value0, float value1) {
+  TwoFrames t;
+  t.frames.emplace_back(Image(Cube(10), value0), Mask(Cube(10), 1));
+  t.frames.emplace_back(Image(Cube(10), value1), Mask(Cube(10), 1));
+  t.poses = {Eigen::Isometry3d::Identity(), Translation(-5, 0, 0)};
+  return t;
+}
+
+TEST(BuildPanoramaGrid, CoversEveryFieldOfView) {
+  const TwoFrames t = MakeTwoFrames(1, 2);
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error)) << error;
+  EXPECT_EQ(grid.size, Eigen::Vector3i(15, 10, 10));
+  EXPECT_LT(grid.origin_mm.norm(), 1e-12);
+  EXPECT_TRUE(grid.direction.isIdentity());
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 2.0, &grid, &error)) << error;
+  EXPECT_EQ(grid.size, Eigen::Vector3i(8, 6, 6));  // 14/2 + 1, 9/2 rounded up + 1
+}
+
+TEST(BuildPanoramaGrid, RefusesAbsurdSizes) {
+  TwoFrames t = MakeTwoFrames(1, 2);
+  t.poses[1] = Translation(-1e6, 1e6, 1e6);
+  ImageGeometry grid;
+  std::string error;
+  EXPECT_FALSE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error));
+  EXPECT_NE(error.find("too large"), std::string::npos) << error;
+}
+
+TEST(BuildCandidates, KeepsVoxelsWithTwoCandidateObservers) {
+  const TwoFrames t = MakeTwoFrames(1, 2);
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error));
+  const CandidateSet c0 = BuildCandidates(t.frames, t.poses, grid, 0);
+  // Both valid: world x in [5, 8] (cell floor <= 8), y and z in [0, 8].
+  EXPECT_EQ(c0.num_voxels(), 4 * 9 * 9);
+  EXPECT_EQ(c0.NumObservations(), 2 * 4 * 9 * 9);
+  for (uint32_t bits : c0.observers) EXPECT_EQ(bits, 3u);
+  const Eigen::Vector3d first = c0.VoxelCenter(0);
+  EXPECT_LT((first - Eigen::Vector3d(5, 0, 0)).norm(), 1e-12);
+  // A margin of 1 cell adds one layer on each side of each frame's valid region.
+  const CandidateSet c1 = BuildCandidates(t.frames, t.poses, grid, 1);
+  EXPECT_EQ(c1.num_voxels(), 6 * 10 * 10);
+}
+
+TEST(CheckConnected, NamesFramesWithoutOverlap) {
+  TwoFrames t = MakeTwoFrames(1, 2);
+  t.frames.emplace_back(Image(Cube(10), 3.0f), Mask(Cube(10), 1));
+  t.poses.push_back(Translation(-40, 0, 0));
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error));
+  const CandidateSet c = BuildCandidates(t.frames, t.poses, grid, 0);
+  EXPECT_FALSE(CheckConnected(c, 1, &error));
+  EXPECT_NE(error.find("frames 2 "), std::string::npos) << error;
+  EXPECT_EQ(CandidateOverlap(c)(0, 1), 4 * 9 * 9);
+  EXPECT_EQ(CandidateOverlap(c)(0, 2), 0);
+  const CandidateSet c2 = BuildCandidates({t.frames[0], t.frames[1]},
+                                          {t.poses[0], t.poses[1]}, grid, 0);
+  EXPECT_TRUE(CheckConnected(c2, 1, &error));
+  EXPECT_FALSE(CheckConnected(c2, 1000, &error));
+}
+
+TEST(FusePanoramaMean, AveragesTheObservingFrames) {
+  const TwoFrames t = MakeTwoFrames(10, 20);
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error));
+  for (int threads : {1, 2}) {
+    const PanoramaImages p = FusePanoramaMean(t.frames, t.poses, grid, threads);
+    EXPECT_FLOAT_EQ(p.mean.at(1, 1, 1), 10.0f);
+    EXPECT_EQ(p.count.at(1, 1, 1), 1);
+    EXPECT_FLOAT_EQ(p.mean.at(6, 1, 1), 15.0f);
+    EXPECT_EQ(p.count.at(6, 1, 1), 2);
+    EXPECT_FLOAT_EQ(p.mean.at(12, 1, 1), 20.0f);
+    EXPECT_EQ(p.count.at(14, 9, 9), 0);
+    EXPECT_FLOAT_EQ(p.mean.at(14, 9, 9), 0.0f);
+  }
+}
+
+TEST(RelativeToFrame0, MakesFrame0TheIdentity) {
+  std::vector<Eigen::Isometry3d> poses = {Translation(1, 2, 3), Translation(4, 5, 6)};
+  poses[1].linear() = Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  const auto rel = RelativeToFrame0(poses);
+  EXPECT_TRUE(rel[0].matrix().isIdentity());
+  // The relative transform frame1_from_frame0 is preserved.
+  EXPECT_LT(((rel[1] * rel[0].inverse()).matrix() - (poses[1] * poses[0].inverse()).matrix())
+                .norm(),
+            1e-12);
+}
+
+}  // namespace
+}  // namespace dsr
