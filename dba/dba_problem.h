@@ -1,0 +1,102 @@
+// DBA: full direct bundle adjustment (DESIGN.md section 3, paper eq. 2).
+//
+//   min over T_1..T_{m-1}, M_1..M_n of  sum_j sum_i sigma_ij (M_j - I_i(p_ij))^2
+//
+// One SE(3) parameter block per frame (PoseManifold, layout [qx qy qz qw tx ty tz], left
+// perturbation, tangent [rho; phi]; frame 0 constant = the gauge), one 1-D block per
+// candidate panorama voxel (the CandidateSet of core/observation.h, the rule shared with
+// DSR), one residual block per candidate observation (i, j):
+//   e_ij = M_j - I_i(p_ij),  d e / d delta_i = -J_ij,  d e / d M_j = 1,
+// zero residual and zero Jacobian while sigma_ij = 0. Solved by Ceres's Schur solvers with
+// every intensity block in elimination group 0 and the poses in group 1.
+#ifndef DSR_DBA_DBA_PROBLEM_H_
+#define DSR_DBA_DBA_PROBLEM_H_
+
+#include <array>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <ceres/ceres.h>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/se3.h"
+#include "core/solve_options.h"
+
+namespace dsr {
+
+// The residual of one candidate observation: SizedCostFunction<1, pose (7), intensity (1)>.
+class DbaResidual final : public ceres::SizedCostFunction<1, kPoseAmbientSize, 1> {
+ public:
+  DbaResidual(const Frame* frame, const Eigen::Vector3d& voxel_center_in_world)
+      : frame_(frame), voxel_center_in_world_(voxel_center_in_world) {}
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  const Frame* frame_;  // not owned
+  Eigen::Vector3d voxel_center_in_world_;
+};
+
+struct DbaOptions {
+  SolveOptions solve;  // linear solver default: DENSE_SCHUR
+  // Refuse problems whose estimated memory exceeds this; <= 0 means half the machine's RAM.
+  double memory_budget_bytes = 0.0;
+  bool Validate(std::string* error) const;
+};
+
+// Estimated peak memory of building and solving a DBA problem, from counts measured on
+// this implementation (see EstimateDbaMemory in dba_problem.cc for the per-item costs).
+struct DbaMemoryEstimate {
+  int64_t residual_blocks = 0;
+  int64_t intensity_blocks = 0;
+  int64_t bytes = 0;
+  std::string ToString() const;
+};
+DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
+                                    int num_frames,
+                                    const std::string& linear_solver);
+
+// The Ceres problem, kept as an object so tests can evaluate its Jacobian.
+class DbaProblem {
+ public:
+  // Builds the problem at `frame_from_world` (frame 0 held constant). Intensities start at
+  // the per-voxel mean of the observations at these poses (0 where none observes).
+  DbaProblem(const std::vector<Frame>& frames,
+             const CandidateSet& candidates,
+             const std::vector<Eigen::Isometry3d>& frame_from_world);
+
+  ceres::Problem& problem() { return *problem_; }
+  double* pose_parameters(int frame) { return poses_[frame].data(); }
+  double* intensity(int64_t voxel) { return &intensities_[voxel]; }
+  int64_t num_intensities() const { return static_cast<int64_t>(intensities_.size()); }
+  int64_t num_residual_blocks() const { return num_residual_blocks_; }
+  std::vector<Eigen::Isometry3d> Poses() const;
+  // Sets every pose from `frame_from_world` (tests).
+  void SetPoses(const std::vector<Eigen::Isometry3d>& frame_from_world);
+  // Orders intensities (group 0) before poses (group 1) for Schur elimination.
+  std::shared_ptr<ceres::ParameterBlockOrdering> MakeOrdering();
+
+ private:
+  std::unique_ptr<ceres::Problem> problem_;
+  std::vector<std::array<double, kPoseAmbientSize>> poses_;
+  std::vector<double> intensities_;
+  int64_t num_residual_blocks_ = 0;
+};
+
+// Builds and solves. Fails (false, `error`) when the memory estimate exceeds the budget,
+// naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
+// that runs but is not usable returns true with report->usable = false.
+bool SolveDba(const std::vector<Frame>& frames,
+              const CandidateSet& candidates,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const DbaOptions& options,
+              SolveReport* report,
+              std::vector<float>* intensities,
+              std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_DBA_DBA_PROBLEM_H_

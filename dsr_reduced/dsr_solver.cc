@@ -1,0 +1,115 @@
+// DSR solve in Ceres: LM or dogleg with a dense solver over the pose parameters.
+#include "dsr_reduced/dsr_solver.h"
+
+#include <glog/logging.h>
+
+#include "dsr_reduced/reduced_cost.h"
+
+namespace dsr {
+
+bool DsrOptions::Validate(std::string* error) const {
+  if (!solve.Validate(error)) return false;
+  const std::string& ls = solve.linear_solver;
+  if (!ls.empty() && ls != "DENSE_QR" && ls != "DENSE_NORMAL_CHOLESKY" &&
+      ls != "SPARSE_NORMAL_CHOLESKY") {
+    *error = "--linear_solver=" + ls +
+             ": --mode=dsr solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
+             "SPARSE_NORMAL_CHOLESKY";
+    return false;
+  }
+  if (num_chunks < 1) {
+    *error = "--num_chunks=" + std::to_string(num_chunks) + ": must be >= 1";
+    return false;
+  }
+  return true;
+}
+
+DsrProblem::DsrProblem(const std::vector<Frame>& frames,
+                       const CandidateSet& candidates,
+                       const std::vector<Eigen::Isometry3d>& frame_from_world,
+                       const DsrOptions& options) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_GE(m, 2);
+  CHECK_EQ(candidates.num_frames, m);
+  ceres::Problem::Options problem_options;
+  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  problem_ = std::make_unique<ceres::Problem>(problem_options);
+  static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
+  poses_.resize(m);
+  for (int i = 0; i < m; ++i) PoseToParameters(frame_from_world[i], poses_[i].data());
+
+  if (options.reference_cost) {
+    for (int i = 0; i < m; ++i) {
+      problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
+    }
+    problem_->SetParameterBlockConstant(poses_[0].data());
+    for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+      std::vector<const Frame*> observers;
+      std::vector<double*> blocks;
+      for (int i = 0; i < m; ++i) {
+        if (candidates.observers[v] >> i & 1u) {
+          observers.push_back(&frames[i]);
+          blocks.push_back(poses_[i].data());
+        }
+      }
+      problem_->AddResidualBlock(new VoxelReducedCost(observers, candidates.VoxelCenter(v)),
+                                 nullptr, blocks);
+    }
+    return;
+  }
+  std::vector<double*> free_blocks;
+  for (int i = 1; i < m; ++i) {
+    problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
+    free_blocks.push_back(poses_[i].data());
+  }
+  const int64_t n = candidates.num_voxels();
+  const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(options.num_chunks, n));
+  for (int64_t c = 0; c < chunks; ++c) {
+    const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
+    problem_->AddResidualBlock(new ReducedChunkCost(&frames, &candidates, frame_from_world[0],
+                                                    begin, end, options.solve.num_threads),
+                               nullptr, free_blocks);
+  }
+}
+
+std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
+  std::vector<Eigen::Isometry3d> out;
+  for (const auto& x : poses_) out.push_back(ParametersToPose(x.data()));
+  return out;
+}
+
+bool SolveDsr(const std::vector<Frame>& frames,
+              const CandidateSet& candidates,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const DsrOptions& options,
+              SolveReport* report,
+              std::string* error) {
+  DsrProblem dsr(frames, candidates, initial_frame_from_world, options);
+  ceres::Solver::Options solver_options;
+  options.solve.ToCeres(options.reference_cost ? "SPARSE_NORMAL_CHOLESKY" : "DENSE_QR",
+                        &solver_options);
+  if (!options.reference_cost) {
+    // The chunk costs thread internally over fixed voxel blocks (deterministic); Ceres
+    // itself evaluates the few chunks one after another.
+    solver_options.num_threads = 1;
+  }
+  ProgressCallback progress(options.reference_cost ? "dsr-ref" : "dsr",
+                            options.solve.log_progress);
+  solver_options.callbacks.push_back(&progress);
+  std::string why;
+  if (!solver_options.IsValid(&why)) {
+    *error = "invalid solver options: " + why;
+    return false;
+  }
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &dsr.problem(), &summary);
+  FillReport(summary, progress, report);
+  report->frame_from_world = dsr.Poses();
+  ReducedSystem counts;
+  AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,
+                          candidates.num_voxels(), false, options.solve.num_threads, &counts);
+  report->observations_per_iteration = counts.observations;
+  return true;
+}
+
+}  // namespace dsr

@@ -1,0 +1,55 @@
+// DSR solve: Ceres over the 6(m-1) free pose parameters only (DESIGN.md section 4).
+#ifndef DSR_DSR_REDUCED_DSR_SOLVER_H_
+#define DSR_DSR_REDUCED_DSR_SOLVER_H_
+
+#include <array>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <ceres/ceres.h>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/solve_options.h"
+
+namespace dsr {
+
+struct DsrOptions {
+  SolveOptions solve;  // linear solver default: DENSE_QR
+  // Fast path: the candidate voxels split into this many residual blocks (each streams
+  // its voxels with num_threads threads). Results do not depend on it beyond rounding.
+  int num_chunks = 1;
+  // Use the per-voxel reference cost instead (stores Jacobians: small problems only).
+  bool reference_cost = false;
+  bool Validate(std::string* error) const;
+};
+
+// The reduced Ceres problem over free poses (frame 0 constant, not a parameter block of
+// the fast cost; a constant block of the reference cost).
+class DsrProblem {
+ public:
+  DsrProblem(const std::vector<Frame>& frames,
+             const CandidateSet& candidates,
+             const std::vector<Eigen::Isometry3d>& frame_from_world,
+             const DsrOptions& options);
+  ceres::Problem& problem() { return *problem_; }
+  std::vector<Eigen::Isometry3d> Poses() const;
+  double* pose_parameters(int frame) { return poses_[frame].data(); }
+
+ private:
+  std::unique_ptr<ceres::Problem> problem_;
+  std::vector<std::array<double, kPoseAmbientSize>> poses_;
+};
+
+// Solves. A solve that runs but is not usable returns true with report->usable = false.
+bool SolveDsr(const std::vector<Frame>& frames,
+              const CandidateSet& candidates,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const DsrOptions& options,
+              SolveReport* report,
+              std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_DSR_REDUCED_DSR_SOLVER_H_

@@ -1,0 +1,98 @@
+// DSR: the reduced problem with the panorama intensities eliminated (DESIGN.md section 4).
+//
+// For fixed poses the optimal panorama is mu_j = (1/k_j) sum_i sigma_ij I_i(p_ij) (paper
+// eq. 10); substituting it gives
+//     f(T) = sum_j sum_i sigma_ij (I_i(p_ij) - mu_j)^2,   r_ij = I_i(p_ij) - mu_j,
+//     d r_ij / d delta_a = sigma_aj (delta_ia - 1/k_j) J_aj,
+//     H_ab = sum_j (delta_ab - 1/k_j) J_aj^T J_bj,   g_a = sum_j J_aj^T r_aj,
+// over voxels with k_j >= 2 (others contribute nothing). Candidates follow the rule of
+// core/observation.h, shared with DBA, so both modes minimise the same function.
+//
+// Two cost functions:
+//  * VoxelReducedCost: the faithful per-voxel reference (one residual per candidate
+//    observer). Ceres stores its Jacobians, so it is for small problems and tests.
+//  * ReducedChunkCost: the fast path. One residual block over all free poses streams a
+//    range of voxels, accumulates H_c, g_c, f_c and returns a compressed residual r' and
+//    Jacobian R with R^T R = H_c, R^T r' = g_c, |r'|^2 = f_c (R from the eigen-decomposition
+//    of H_c plus one extra residual sqrt(f_c - |r'|^2) with a zero Jacobian row), so the
+//    Gauss-Newton/LM model equals the uncompressed one. Nothing per observation is stored.
+#ifndef DSR_DSR_REDUCED_REDUCED_COST_H_
+#define DSR_DSR_REDUCED_REDUCED_COST_H_
+
+#include <vector>
+
+#include <ceres/ceres.h>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/se3.h"
+
+namespace dsr {
+
+// Reference: residuals r_ij for the candidate observers of one voxel. Parameter blocks are
+// the observers' poses (7 ambient each) in increasing frame order.
+class VoxelReducedCost final : public ceres::CostFunction {
+ public:
+  VoxelReducedCost(std::vector<const Frame*> observers, const Eigen::Vector3d& voxel_center_in_world);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  std::vector<const Frame*> observers_;  // not owned
+  Eigen::Vector3d voxel_center_in_world_;
+};
+
+// The reduced normal equations over all m frames (6m x 6m; frame 0's rows included).
+struct ReducedSystem {
+  Eigen::MatrixXd hessian;   // H = sum over voxels (Gauss-Newton matrix of f), full square
+  Eigen::VectorXd gradient;  // g = J^T r
+  double cost = 0.0;         // f = sum r^2
+  int64_t observations = 0;  // intensity differences counted (sum of k_j over k_j >= 2)
+};
+
+// Streams voxels [begin, end) of `candidates` at the given poses, in fixed blocks reduced
+// in block order: bit-identical for any `num_threads`. With `with_jacobian` false only the
+// cost (and observation count) is computed; hessian/gradient are left empty.
+void AccumulateReducedSystem(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             int64_t begin,
+                             int64_t end,
+                             bool with_jacobian,
+                             int num_threads,
+                             ReducedSystem* out);
+
+// Fast path: a chunk of voxels [begin, end) as one residual block over the free poses
+// (frames 1..m-1, in order). Frame 0's pose is the constant `frame0_from_world`.
+// num_residuals = 6 (m - 1) + 1.
+class ReducedChunkCost final : public ceres::CostFunction {
+ public:
+  ReducedChunkCost(const std::vector<Frame>* frames,
+                   const CandidateSet* candidates,
+                   const Eigen::Isometry3d& frame0_from_world,
+                   int64_t begin,
+                   int64_t end,
+                   int num_threads);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+  // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
+  static void Compress(const Eigen::MatrixXd& hessian_free,
+                       const Eigen::VectorXd& gradient_free,
+                       double cost,
+                       Eigen::VectorXd* residual,
+                       Eigen::MatrixXd* jacobian);
+
+ private:
+  const std::vector<Frame>* frames_;    // not owned
+  const CandidateSet* candidates_;      // not owned
+  Eigen::Isometry3d frame0_from_world_;
+  int64_t begin_, end_;
+  int num_threads_;
+};
+
+}  // namespace dsr
+
+#endif  // DSR_DSR_REDUCED_REDUCED_COST_H_

@@ -1,0 +1,224 @@
+// The paper's theorem (DESIGN.md section 4), checked on several small problems:
+//  1. DBA's undamped Gauss-Newton pose step after Schur elimination of the intensities
+//     equals the DSR step, whatever the current intensities;
+//  2. the fast chunked cost and the per-voxel reference give the same cost, gradient and
+//     Gauss-Newton matrix;
+//  3. f(T) equals the DBA cost minimised over the intensities (at M = the per-voxel mean).
+#include <ceres/ceres.h>
+#include <gtest/gtest.h>
+
+#include <random>
+
+#include "dba/dba_problem.h"
+#include "dsr_reduced/dsr_solver.h"
+#include "dsr_reduced/reduced_cost.h"
+#include "test_problems.h"
+
+namespace dsr {
+namespace {
+
+using testing_problems::Candidates;
+using testing_problems::MakeSequence;
+using testing_problems::Perturbed;
+using testing_problems::SequenceOptions;
+
+// Two exact linear-algebra routes to the same step: agreement to rounding.
+constexpr double kStepRelativeTolerance = 1e-9;
+// Same sums accumulated in a different order (blocks vs residual blocks).
+constexpr double kSystemRelativeTolerance = 1e-10;
+
+struct Case {
+  int num_frames, size;
+  double noise;
+  int erosion;
+};
+
+std::vector<Case> Cases() {
+  return {{2, 12, 0.0, 1}, {3, 14, 5.0, 1}, {4, 16, 25.0, 3}};
+}
+
+SequenceOptions OptionsFor(const Case& c, uint64_t seed) {
+  SequenceOptions o;
+  o.num_frames = c.num_frames;
+  o.size = c.size;
+  o.noise_sigma = c.noise;
+  o.erosion = c.erosion;
+  o.seed = seed;
+  return o;
+}
+
+// Dense Jacobian (tangent columns) of a Ceres problem at its current state.
+Eigen::MatrixXd DenseJacobian(ceres::Problem* problem,
+                              const std::vector<double*>& blocks,
+                              Eigen::VectorXd* residuals,
+                              double* cost) {
+  ceres::Problem::EvaluateOptions options;
+  options.parameter_blocks = blocks;
+  std::vector<double> r;
+  ceres::CRSMatrix crs;
+  problem->Evaluate(options, cost, &r, nullptr, &crs);
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int row = 0; row < crs.num_rows; ++row) {
+    for (int k = crs.rows[row]; k < crs.rows[row + 1]; ++k) j(row, crs.cols[k]) = crs.values[k];
+  }
+  *residuals = Eigen::Map<Eigen::VectorXd>(r.data(), r.size());
+  return j;
+}
+
+// DBA's Gauss-Newton pose step with the intensities eliminated (Schur complement), solved
+// densely; intensity columns with zero curvature (voxels nobody observes now) are dropped.
+Eigen::VectorXd DbaSchurStep(DbaProblem* dba, int num_frames) {
+  std::vector<double*> blocks;
+  for (int i = 1; i < num_frames; ++i) blocks.push_back(dba->pose_parameters(i));
+  for (int64_t v = 0; v < dba->num_intensities(); ++v) blocks.push_back(dba->intensity(v));
+  Eigen::VectorXd e;
+  double cost;
+  const Eigen::MatrixXd j = DenseJacobian(&dba->problem(), blocks, &e, &cost);
+  const int np = 6 * (num_frames - 1);
+  const Eigen::MatrixXd jp = j.leftCols(np), jm = j.rightCols(j.cols() - np);
+  const Eigen::VectorXd hmm = jm.colwise().squaredNorm().transpose();  // diagonal H_MM
+  Eigen::MatrixXd s = jp.transpose() * jp;
+  Eigen::VectorXd b = -jp.transpose() * e;
+  const Eigen::MatrixXd hpm = jp.transpose() * jm;
+  const Eigen::VectorXd bm = -jm.transpose() * e;
+  for (int c = 0; c < jm.cols(); ++c) {
+    if (hmm[c] == 0.0) continue;
+    s -= hpm.col(c) * hpm.col(c).transpose() / hmm[c];
+    b -= hpm.col(c) * bm[c] / hmm[c];
+  }
+  return s.ldlt().solve(b);
+}
+
+Eigen::VectorXd ReducedStep(const ReducedSystem& system) {
+  const int n = static_cast<int>(system.gradient.size()) - 6;
+  return system.hessian.bottomRightCorner(n, n).ldlt().solve(-system.gradient.tail(n));
+}
+
+double RelativeDifference(const Eigen::VectorXd& a, const Eigen::VectorXd& b) {
+  return (a - b).norm() / std::max(1e-300, b.norm());
+}
+
+TEST(Theorem, DbaSchurStepEqualsReducedStepForAnyIntensities) {
+  uint64_t seed = 11;
+  for (const Case& c : Cases()) {
+    const auto s = MakeSequence(OptionsFor(c, seed++));
+    const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
+    const CandidateSet cand = Candidates(s, poses);
+    ASSERT_GT(cand.num_voxels(), 100);
+    ReducedSystem reduced;
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &reduced);
+    const Eigen::VectorXd dsr_step = ReducedStep(reduced);
+
+    DbaProblem dba(s.frames, cand, poses);
+    const Eigen::VectorXd dba_step = DbaSchurStep(&dba, c.num_frames);
+    EXPECT_LT(RelativeDifference(dba_step, dsr_step), kStepRelativeTolerance)
+        << "m=" << c.num_frames << "\nDBA " << dba_step.transpose() << "\nDSR "
+        << dsr_step.transpose();
+
+    // Replace the intensities by arbitrary values: the pose step must not change.
+    std::mt19937_64 rng(seed++);
+    std::uniform_real_distribution<double> u(-500.0, 500.0);
+    for (int64_t v = 0; v < dba.num_intensities(); ++v) *dba.intensity(v) = u(rng);
+    const Eigen::VectorXd dba_step_random = DbaSchurStep(&dba, c.num_frames);
+    EXPECT_LT(RelativeDifference(dba_step_random, dsr_step), kStepRelativeTolerance)
+        << "m=" << c.num_frames;
+  }
+}
+
+TEST(Theorem, ReducedCostIsTheDbaCostMinimisedOverIntensities) {
+  uint64_t seed = 21;
+  for (const Case& c : Cases()) {
+    const auto s = MakeSequence(OptionsFor(c, seed++));
+    const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
+    const CandidateSet cand = Candidates(s, poses);
+    ReducedSystem reduced;
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, 1, &reduced);
+    // DbaProblem starts at M = the per-voxel mean, the minimiser over M for these poses.
+    DbaProblem dba(s.frames, cand, poses);
+    double dba_cost = 0.0;
+    dba.problem().Evaluate(ceres::Problem::EvaluateOptions(), &dba_cost, nullptr, nullptr,
+                           nullptr);
+    EXPECT_NEAR(2.0 * dba_cost, reduced.cost, 1e-9 * reduced.cost);
+    // Any other M costs more.
+    *dba.intensity(cand.num_voxels() / 2) += 1.0;
+    double perturbed_cost = 0.0;
+    dba.problem().Evaluate(ceres::Problem::EvaluateOptions(), &perturbed_cost, nullptr, nullptr,
+                           nullptr);
+    EXPECT_GT(perturbed_cost, dba_cost);
+  }
+}
+
+TEST(ReducedCost, FastPathMatchesPerVoxelReference) {
+  uint64_t seed = 31;
+  for (const Case& c : Cases()) {
+    const auto s = MakeSequence(OptionsFor(c, seed++));
+    for (int trial = 0; trial < 3; ++trial) {
+      const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, seed++);
+      const CandidateSet cand = Candidates(s, poses);
+      // Reference: per-voxel residual blocks, Jacobian from Ceres.
+      DsrOptions ref_options;
+      ref_options.reference_cost = true;
+      DsrProblem reference(s.frames, cand, poses, ref_options);
+      std::vector<double*> blocks;
+      for (int i = 1; i < c.num_frames; ++i) blocks.push_back(reference.pose_parameters(i));
+      Eigen::VectorXd r;
+      double ref_cost;
+      const Eigen::MatrixXd j = DenseJacobian(&reference.problem(), blocks, &r, &ref_cost);
+      const Eigen::MatrixXd ref_h = j.transpose() * j;
+      const Eigen::VectorXd ref_g = j.transpose() * r;
+
+      // Fast path, through Ceres as well (compressed residual and Jacobian), in 1 and 3 chunks.
+      for (int chunks : {1, 3}) {
+        DsrOptions fast_options;
+        fast_options.num_chunks = chunks;
+        fast_options.solve.num_threads = 2;
+        DsrProblem fast(s.frames, cand, poses, fast_options);
+        std::vector<double*> fast_blocks;
+        for (int i = 1; i < c.num_frames; ++i) fast_blocks.push_back(fast.pose_parameters(i));
+        Eigen::VectorXd fr;
+        double fast_cost;
+        const Eigen::MatrixXd fj = DenseJacobian(&fast.problem(), fast_blocks, &fr, &fast_cost);
+        EXPECT_NEAR(fast_cost, ref_cost, kSystemRelativeTolerance * ref_cost);
+        EXPECT_LT(RelativeDifference(fj.transpose() * fr, ref_g), kSystemRelativeTolerance * 10)
+            << "chunks=" << chunks;
+        EXPECT_LT((fj.transpose() * fj - ref_h).norm() / ref_h.norm(), kSystemRelativeTolerance)
+            << "chunks=" << chunks;
+      }
+    }
+  }
+}
+
+TEST(ReducedCost, AccumulationIsIdenticalForAnyThreadCount) {
+  const auto s = MakeSequence(OptionsFor({4, 14, 5.0, 1}, 41));
+  const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, 42);
+  const CandidateSet cand = Candidates(s, poses);
+  ReducedSystem one, two, four;
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 1, &one);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &two);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 4, &four);
+  EXPECT_EQ(one.cost, two.cost);
+  EXPECT_EQ(one.cost, four.cost);
+  EXPECT_TRUE(one.hessian == two.hessian && one.hessian == four.hessian);
+  EXPECT_TRUE(one.gradient == two.gradient && one.gradient == four.gradient);
+}
+
+TEST(ReducedCost, CompressionReproducesTheNormalEquations) {
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> n01;
+  Eigen::MatrixXd a(40, 12);
+  for (int i = 0; i < a.size(); ++i) a.data()[i] = n01(rng);
+  Eigen::VectorXd e(40);
+  for (int i = 0; i < 40; ++i) e[i] = n01(rng);
+  const Eigen::MatrixXd h = a.transpose() * a;
+  const Eigen::VectorXd g = a.transpose() * e;
+  const double f = e.squaredNorm();
+  Eigen::VectorXd r;
+  Eigen::MatrixXd j;
+  ReducedChunkCost::Compress(h, g, f, &r, &j);
+  EXPECT_LT((j.transpose() * j - h).norm(), 1e-10 * h.norm());
+  EXPECT_LT((j.transpose() * r - g).norm(), 1e-10 * g.norm());
+  EXPECT_NEAR(r.squaredNorm(), f, 1e-10 * f);
+}
+
+}  // namespace
+}  // namespace dsr

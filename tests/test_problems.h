@@ -1,0 +1,149 @@
+// Small synthetic registration problems for solver tests, without files or the simulator:
+// a smooth analytic "world" intensity (random Gaussian blobs plus a slow ramp), sampled
+// exactly at every frame voxel's world position under known poses, so ground truth is
+// exact and interpolation never compounds.
+#ifndef DSR_TESTS_TEST_PROBLEMS_H_
+#define DSR_TESTS_TEST_PROBLEMS_H_
+
+#include <cmath>
+#include <random>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/panorama.h"
+#include "core/se3.h"
+
+namespace dsr {
+namespace testing_problems {
+
+struct Blob {
+  Eigen::Vector3d center;
+  double amplitude, sigma;
+};
+
+struct TestSequence {
+  std::vector<Frame> frames;
+  std::vector<Image> images;
+  std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world, world = frame 0 (T_0 = I)
+};
+
+struct SequenceOptions {
+  int num_frames = 4;
+  int size = 20;               // frames are size^3 voxels
+  double spacing = 1.0;        // mm
+  double noise_sigma = 0.0;
+  double frame_offset = 5.0;   // mm between consecutive frame centres along x
+  double max_rotation = 0.05;  // rad, per axis
+  double max_translation = 1.5;  // mm, per axis
+  int erosion = 1;             // mask = box eroded by this many voxels
+  uint64_t seed = 1;
+};
+
+inline TestSequence MakeSequence(const SequenceOptions& o) {
+  std::mt19937_64 rng(o.seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const double extent = o.size * o.spacing;
+  std::vector<Blob> blobs;
+  for (int b = 0; b < 60; ++b) {
+    blobs.push_back({Eigen::Vector3d(u(rng) * (extent + o.num_frames * o.frame_offset),
+                                     u(rng) * extent, u(rng) * extent),
+                     60.0 * u(rng), (2.5 + 1.5 * std::abs(u(rng))) * o.spacing});
+  }
+  auto world_intensity = [&](const Eigen::Vector3d& x) {
+    double v = 100.0 + 0.5 * x[0] - 0.3 * x[1] + 0.2 * x[2];
+    for (const Blob& b : blobs) {
+      v += b.amplitude * std::exp(-(x - b.center).squaredNorm() / (2.0 * b.sigma * b.sigma));
+    }
+    return v;
+  };
+  TestSequence s;
+  std::normal_distribution<double> noise(0.0, 1.0);
+  const Eigen::Vector3d frame_center = Eigen::Vector3d::Constant(0.5 * (o.size - 1) * o.spacing);
+  std::vector<Eigen::Isometry3d> raw;
+  for (int i = 0; i < o.num_frames; ++i) {
+    Vector6d d;
+    d << o.max_translation * u(rng), o.max_translation * u(rng), o.max_translation * u(rng),
+        o.max_rotation * u(rng), o.max_rotation * u(rng), o.max_rotation * u(rng);
+    Eigen::Isometry3d center_from_world = Eigen::Isometry3d::Identity();
+    center_from_world.translation() =
+        -Eigen::Vector3d((i - 0.5 * (o.num_frames - 1)) * o.frame_offset, 0.0, 0.0);
+    Eigen::Isometry3d frame_from_center = Eigen::Isometry3d::Identity();
+    frame_from_center.translation() = frame_center;
+    raw.push_back(frame_from_center * ExpSE3(d) * center_from_world);
+  }
+  for (int i = 0; i < o.num_frames; ++i) {
+    ImageGeometry g;
+    g.size = Eigen::Vector3i::Constant(o.size);
+    g.spacing_mm = Eigen::Vector3d::Constant(o.spacing);
+    Image image(g);
+    const Eigen::Isometry3d world_from_frame = raw[i].inverse();
+    for (int k = 0; k < o.size; ++k)
+      for (int j = 0; j < o.size; ++j)
+        for (int a = 0; a < o.size; ++a)
+          image.at(a, j, k) = static_cast<float>(
+              world_intensity(world_from_frame * g.IndexToPhysical(Eigen::Vector3d(a, j, k))) +
+              o.noise_sigma * noise(rng));
+    Mask mask(g, 0);
+    for (int k = o.erosion; k < o.size - o.erosion; ++k)
+      for (int j = o.erosion; j < o.size - o.erosion; ++j)
+        for (int a = o.erosion; a < o.size - o.erosion; ++a) mask.at(a, j, k) = 1;
+    s.frames.emplace_back(image, mask);
+    s.images.push_back(std::move(image));
+  }
+  s.ground_truth = RelativeToFrame0(raw);
+  return s;
+}
+
+// Ground truth with every free pose perturbed by up to `rotation` rad / `translation` mm.
+inline std::vector<Eigen::Isometry3d> Perturbed(const std::vector<Eigen::Isometry3d>& poses,
+                                                double rotation,
+                                                double translation,
+                                                uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  std::vector<Eigen::Isometry3d> out = poses;
+  for (size_t i = 1; i < out.size(); ++i) {
+    Vector6d d;
+    d << translation * u(rng), translation * u(rng), translation * u(rng), rotation * u(rng),
+        rotation * u(rng), rotation * u(rng);
+    out[i] = ExpSE3(d) * out[i];
+  }
+  return out;
+}
+
+// Candidates and grid at `poses` with the shared rule.
+inline CandidateSet Candidates(const TestSequence& s,
+                               const std::vector<Eigen::Isometry3d>& poses,
+                               int margin = 0) {
+  ImageGeometry grid;
+  std::string error;
+  if (!BuildPanoramaGrid(s.frames, poses, 1.0, &grid, &error)) return CandidateSet();
+  return BuildCandidates(s.frames, poses, grid, margin);
+}
+
+// Rotation angle (rad) and translation (mm) between two poses.
+inline std::pair<double, double> PoseDifference(const Eigen::Isometry3d& a,
+                                                const Eigen::Isometry3d& b) {
+  const Eigen::Isometry3d d = a * b.inverse();
+  return {LogSO3(d.linear()).norm(), (a.translation() - b.translation()).norm()};
+}
+
+// Largest rotation and translation difference over frames.
+inline std::pair<double, double> MaxPoseDifference(const std::vector<Eigen::Isometry3d>& a,
+                                                   const std::vector<Eigen::Isometry3d>& b) {
+  double r = 0.0, t = 0.0;
+  for (size_t i = 0; i < a.size(); ++i) {
+    const auto [dr, dt] = PoseDifference(a[i], b[i]);
+    r = std::max(r, dr);
+    t = std::max(t, dt);
+  }
+  return {r, t};
+}
+
+}  // namespace testing_problems
+}  // namespace dsr
+
+#endif  // DSR_TESTS_TEST_PROBLEMS_H_
