@@ -3,6 +3,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
+#include <unistd.h>
 
 #include <gtest/gtest.h>
 
@@ -16,8 +17,9 @@ namespace {
 
 std::string TempDir() {
   static const std::string dir = [] {
-    std::string d = ::testing::TempDir() + "/dsr_io_test_XXXXXX";
-    return std::string(mkdtemp(d.data()));
+    const std::string d = ::testing::TempDir() + "/dsr_io_test_" + std::to_string(getpid());
+    std::filesystem::create_directories(d);
+    return d;
   }();
   return dir;
 }
