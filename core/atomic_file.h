@@ -24,6 +24,17 @@ bool WriteViaTemporaryFile(const std::string& path,
                                                     std::string* error)>& write,
                            std::string* error);
 
+// For writers that produce several files, such as the detached-header formats .mhd and
+// .nhdr (header plus data file named after it): calls `write(temp_path)`, where temp_path
+// has the file name of `path` but lies in a new private folder next to it, then moves every
+// file `write` created into `path`'s folder (data files first, `path` last, so the header
+// never names missing data) and removes the private folder. Each move is atomic; files of
+// the same names in `path`'s folder are replaced. If `write` fails, nothing is moved.
+bool WriteFilesViaTemporaryFolder(
+    const std::string& path,
+    const std::function<bool(const std::string& temp_path, std::string* error)>& write,
+    std::string* error);
+
 // Checks that `path` can be created: its folder exists and is writable, and `path` is not
 // a folder. Used by tools before long computations.
 bool CheckWritableOutputPath(const std::string& path, std::string* error);

@@ -1,11 +1,15 @@
 // Image and mask IO through ITK: NIfTI (.nii, .nii.gz), MetaImage (.mha, .mhd) and NRRD
-// (.nrrd, .nhdr). Geometry (size, origin, spacing, direction) is kept exactly; any scalar
-// pixel type is converted to float on read. Only core/io_* files include ITK.
+// (.nrrd, .nhdr). Geometry (size, origin, spacing, direction) is copied as stored: exactly
+// for MetaImage, to double rounding for NRRD (it stores D S, not D), to float32 precision
+// for NIfTI (its header is float32). Any scalar pixel type is converted to float on read.
+// Only core/io_* files include ITK.
 //
 // Every function returns false with a one-line `error` that names the file and the broken
-// rule (missing file, not 3D, non-scalar pixels, corrupt header, NaN/Inf voxels, invalid
-// geometry, mask on another grid, ...). Writes go to a temporary file in the target folder
-// that is renamed into place, so an interrupted run never leaves a truncated result.
+// rule (missing file, not 3D, non-scalar pixels, corrupt header, truncated or corrupt data,
+// NaN/Inf voxels, invalid geometry, mask on another grid, ...). Writes go to a temporary
+// file in the target folder that is renamed into place, so an interrupted run never leaves
+// a truncated result. .nii.gz, .mha and .nrrd are written compressed; .nii, .mhd and .nhdr
+// uncompressed (.mhd/.nhdr write a "<name>.raw" data file next to the header).
 #ifndef DSR_CORE_IO_IMAGE_H_
 #define DSR_CORE_IO_IMAGE_H_
 

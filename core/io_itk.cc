@@ -1,23 +1,92 @@
 // ITK image reading and writing with plain arrays (see io_itk.h for why no Eigen here).
+//
+// Reading goes through itk::ImageIOBase directly rather than itk::ImageFileReader: the
+// header is inspected (pixel type, dimension, geometry) before any voxel is allocated, the
+// geometry is copied exactly as stored (the reader would silently flip negative spacings
+// and replace the direction of 4D files by a default), and the voxels of any scalar
+// component type are converted to float here.
+//
+// ITK 5.2's NIfTI and MetaImage readers do not fail on a truncated or corrupt data block:
+// they return zeros or garbage for the missing part (MetaImage only prints to std::cerr).
+// So before ITK reads the voxels, the data block of those formats is checked here: its
+// size for uncompressed data, a full decompression (zlib checks its CRC/Adler-32) for
+// compressed data. That costs one extra decompression of .nii.gz and compressed .mha
+// files; NRRD (teem) already reports such errors itself.
 #include "core/io_itk.h"
 
 #include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <climits>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
 #include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <memory>
 #include <mutex>
+#include <new>
+#include <regex>
+#include <streambuf>
 
 #include <itkImage.h>
-#include <itkImageFileReader.h>
 #include <itkImageFileWriter.h>
 #include <itkImageIOBase.h>
 #include <itkImageIOFactory.h>
+#include <itkImageIORegion.h>
 #include <itkMetaImageIOFactory.h>
 #include <itkNiftiImageIOFactory.h>
 #include <itkNrrdImageIOFactory.h>
+#include <itk_zlib.h>
 
 namespace dsr {
 namespace itk_io {
 namespace {
 
+// MetaIO (and ITK's default OutputWindow) print diagnostics to std::cerr, several lines
+// each, on top of the exception or status that is turned into the one-line error. While
+// any ITK call of this file runs, std::cerr writes into a stateless sink. The count makes
+// overlapping calls from several threads restore the real buffer only once, at the end.
+class ScopedQuietStdErr {
+ public:
+  ScopedQuietStdErr() {
+    std::lock_guard<std::mutex> lock(Mutex());
+    if (Depth()++ == 0) Saved() = std::cerr.rdbuf(&Sink());
+  }
+  ~ScopedQuietStdErr() {
+    std::lock_guard<std::mutex> lock(Mutex());
+    if (--Depth() == 0) std::cerr.rdbuf(Saved());
+  }
+  ScopedQuietStdErr(const ScopedQuietStdErr&) = delete;
+  ScopedQuietStdErr& operator=(const ScopedQuietStdErr&) = delete;
+
+ private:
+  class NullBuffer : public std::streambuf {
+   protected:
+    int_type overflow(int_type c) override { return traits_type::not_eof(c); }
+    std::streamsize xsputn(const char*, std::streamsize n) override { return n; }
+  };
+  static std::mutex& Mutex() {
+    static std::mutex mutex;
+    return mutex;
+  }
+  static int& Depth() {
+    static int depth = 0;
+    return depth;
+  }
+  static std::streambuf*& Saved() {
+    static std::streambuf* saved = nullptr;
+    return saved;
+  }
+  static NullBuffer& Sink() {
+    static NullBuffer* sink = new NullBuffer();  // never destroyed: std::cerr may outlive statics
+    return *sink;
+  }
+};
+
+// Registered explicitly (not through ITK_USE_FILE's generated manager) and once.
 void RegisterFactories() {
   static std::once_flag once;
   std::call_once(once, [] {
@@ -27,103 +96,145 @@ void RegisterFactories() {
   });
 }
 
-bool EndsWith(const std::string& s, const std::string& suffix) {
-  return s.size() >= suffix.size() && s.compare(s.size() - suffix.size(), suffix.size(), suffix) == 0;
+// ITK descriptions span several lines and start with "ITK ERROR: Class(0x...): ". Keep the
+// text on one line without the object address.
+// NRRD (teem) errors are a chain "[nrrd] outer: trouble [nrrd] ... [nrrd] inner: cause";
+// only the innermost link says what is wrong.
+std::string OneLine(const std::string& message) {
+  static const std::regex kItkPrefix(R"(ITK ERROR: \w+\(0x[0-9a-fA-F]+\): )");
+  std::string text = std::regex_replace(message, kItkPrefix, "");
+  const size_t innermost = text.rfind("[nrrd] ");
+  if (innermost != std::string::npos) text = text.substr(innermost + 7);
+  for (char& c : text) {
+    if (c == '\n' || c == '\r' || c == '\t') c = ' ';
+  }
+  text.erase(
+      std::unique(text.begin(), text.end(), [](char a, char b) { return a == ' ' && b == ' '; }),
+      text.end());
+  while (!text.empty() && (text.back() == ' ' || text.back() == '.')) text.pop_back();
+  while (!text.empty() && text.front() == ' ') text.erase(text.begin());
+  return text.empty() ? "no details" : text;
 }
 
-// ITK messages span several lines: keep the description on one line.
-std::string OneLine(const itk::ExceptionObject& e) {
-  std::string what = e.GetDescription();
-  std::replace(what.begin(), what.end(), '\n', ' ');
-  what.erase(std::unique(what.begin(), what.end(), [](char a, char b) { return a == ' ' && b == ' '; }),
-             what.end());
-  while (!what.empty() && what.back() == ' ') what.pop_back();
-  return what;
+std::string Describe(const itk::ExceptionObject& e) { return OneLine(e.GetDescription()); }
+
+template <typename Component>
+void ConvertToFloat(const void* buffer, size_t count, float* out) {
+  const Component* in = static_cast<const Component*>(buffer);
+  std::transform(in, in + count, out, [](Component v) { return static_cast<float>(v); });
 }
 
-bool Inspect(const std::string& path, std::string* error, unsigned* num_dims) {
-  std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) {
-    *error = path + ": no such file";
-    return false;
+// Converts `count` components of type `type` to float; false for an unknown type.
+bool ConvertBuffer(itk::IOComponentEnum type, const void* buffer, size_t count, float* out) {
+  using C = itk::IOComponentEnum;
+  switch (type) {
+    case C::UCHAR:
+      ConvertToFloat<unsigned char>(buffer, count, out);
+      return true;
+    case C::CHAR:
+      ConvertToFloat<signed char>(buffer, count, out);
+      return true;
+    case C::USHORT:
+      ConvertToFloat<unsigned short>(buffer, count, out);
+      return true;
+    case C::SHORT:
+      ConvertToFloat<short>(buffer, count, out);
+      return true;
+    case C::UINT:
+      ConvertToFloat<unsigned int>(buffer, count, out);
+      return true;
+    case C::INT:
+      ConvertToFloat<int>(buffer, count, out);
+      return true;
+    case C::ULONG:
+      ConvertToFloat<unsigned long>(buffer, count, out);
+      return true;
+    case C::LONG:
+      ConvertToFloat<long>(buffer, count, out);
+      return true;
+    case C::ULONGLONG:
+      ConvertToFloat<unsigned long long>(buffer, count, out);
+      return true;
+    case C::LONGLONG:
+      ConvertToFloat<long long>(buffer, count, out);
+      return true;
+    case C::FLOAT:
+      ConvertToFloat<float>(buffer, count, out);
+      return true;
+    case C::DOUBLE:
+      ConvertToFloat<double>(buffer, count, out);
+      return true;
+    default:
+      return false;
   }
-  if (!std::filesystem::is_regular_file(path, ec)) {
-    *error = path + ": not a regular file";
-    return false;
-  }
-  RegisterFactories();
-  itk::ImageIOBase::Pointer io =
-      itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::ImageIOFactory::FileModeEnum::ReadMode);
-  if (!io) {
-    *error = path + ": not a readable image (corrupt or unknown header)";
-    return false;
-  }
-  try {
-    io->SetFileName(path);
-    io->ReadImageInformation();
-  } catch (const itk::ExceptionObject& e) {
-    *error = path + ": cannot read the header (" + OneLine(e) + ")";
-    return false;
-  }
-  const unsigned components = io->GetNumberOfComponents();
-  const auto pixel = io->GetPixelType();
-  if (components != 1 || pixel != itk::IOPixelEnum::SCALAR) {
-    *error = path + ": " + itk::ImageIOBase::GetPixelTypeAsString(pixel) + " pixels with " +
-             std::to_string(components) + " components; expected a scalar image";
-    return false;
-  }
-  *num_dims = io->GetNumberOfDimensions();
-  size_t volumes = 1;
-  for (unsigned d = 3; d < *num_dims; ++d) volumes *= io->GetDimensions(d);
-  if (*num_dims < 3) {
-    *error = path + ": " + std::to_string(*num_dims) + "D image; expected 3D";
-    return false;
-  }
-  if (*num_dims > 4 || volumes != 1) {
-    *error = path + ": " + std::to_string(*num_dims) + "D image with " + std::to_string(volumes) +
-             " volumes; expected one 3D volume";
-    return false;
-  }
-  return true;
 }
 
-template <unsigned Dim>
-bool ReadAs(const std::string& path, RawVolume* out, std::string* error) {
-  using ItkImage = itk::Image<float, Dim>;
-  auto reader = itk::ImageFileReader<ItkImage>::New();
-  reader->SetFileName(path);
-  try {
-    reader->Update();
-  } catch (const itk::ExceptionObject& e) {
-    *error = path + ": cannot read the voxels (" + OneLine(e) + ")";
+// Header checks that need only ITK: scalar pixels, a known component type, 3D (or 4D
+// with one volume), sizes that fit an int. Fills the geometry of `header`.
+bool InspectHeader(const std::string& path,
+                   const itk::ImageIOBase& io,
+                   RawVolume* header,
+                   std::string* error) {
+  const unsigned components = io.GetNumberOfComponents();
+  const itk::IOPixelEnum pixel = io.GetPixelType();
+  if (pixel != itk::IOPixelEnum::SCALAR || components != 1) {
+    *error = path + ": " + itk::ImageIOBase::GetPixelTypeAsString(pixel) + " pixels (" +
+             std::to_string(components) + " components); expected a scalar image";
     return false;
   }
-  const ItkImage* image = reader->GetOutput();
-  const auto size = image->GetLargestPossibleRegion().GetSize();
-  size_t n = 1;
+  const itk::IOComponentEnum component = io.GetComponentType();
+  if (!ConvertBuffer(component, nullptr, 0, nullptr)) {  // a known type converts nothing
+    *error =
+        path + ": unsupported voxel type " + itk::ImageIOBase::GetComponentTypeAsString(component);
+    return false;
+  }
+  const unsigned dims = io.GetNumberOfDimensions();
+  if (dims < 3) {
+    *error = path + ": " + std::to_string(dims) + "D image; expected a 3D image";
+    return false;
+  }
+  if (dims > 3) {
+    uint64_t volumes = 1;
+    for (unsigned d = 3; d < dims; ++d) volumes *= io.GetDimensions(d);
+    if (dims > 4 || volumes != 1) {
+      std::string extent;
+      for (unsigned d = 0; d < dims; ++d) {
+        extent += (d ? "x" : "") + std::to_string(io.GetDimensions(d));
+      }
+      *error = path + ": " + std::to_string(dims) + "D image of size " + extent +
+               "; expected a 3D image (4D only with a 4th size of 1)";
+      return false;
+    }
+  }
   for (int a = 0; a < 3; ++a) {
-    out->size[a] = static_cast<int>(size[a]);
-    out->origin[a] = image->GetOrigin()[a];
-    out->spacing[a] = image->GetSpacing()[a];
-    for (int b = 0; b < 3; ++b) out->direction[3 * a + b] = image->GetDirection()[a][b];
-    n *= size[a];
+    const uint64_t n = io.GetDimensions(a);
+    if (n > static_cast<uint64_t>(INT_MAX)) {
+      *error = path + ": size " + std::to_string(n) + " along axis " + std::to_string(a) +
+               " is too large";
+      return false;
+    }
+    header->size[a] = static_cast<int>(n);
+    header->origin[a] = io.GetOrigin(a);
+    header->spacing[a] = io.GetSpacing(a);
+    // GetDirection(a) is the direction of index axis a, i.e. column a of D.
+    const std::vector<double> axis = io.GetDirection(a);
+    for (int r = 0; r < 3; ++r) {
+      header->direction[3 * r + a] = r < static_cast<int>(axis.size()) ? axis[r] : 0.0;
+    }
   }
-  const float* data = image->GetBufferPointer();
-  out->voxels.assign(data, data + n);
   return true;
 }
 
 template <typename Pixel>
-bool WriteAs(const RawVolume& volume, const std::string& path, std::string* error) {
+void WriteAs(const RawVolume& volume, const std::string& path, bool compress) {
   using ItkImage = itk::Image<Pixel, 3>;
-  RegisterFactories();
   auto image = ItkImage::New();
   typename ItkImage::RegionType region;
   typename ItkImage::SpacingType spacing;
   typename ItkImage::PointType origin;
   typename ItkImage::DirectionType direction;
   for (int a = 0; a < 3; ++a) {
-    region.SetSize(a, volume.size[a]);
+    region.SetSize(a, static_cast<itk::SizeValueType>(volume.size[a]));
     spacing[a] = volume.spacing[a];
     origin[a] = volume.origin[a];
     for (int b = 0; b < 3; ++b) direction[a][b] = volume.direction[3 * a + b];
@@ -133,31 +244,347 @@ bool WriteAs(const RawVolume& volume, const std::string& path, std::string* erro
   image->SetOrigin(origin);
   image->SetDirection(direction);
   image->Allocate();
-  std::transform(volume.voxels.begin(), volume.voxels.end(), image->GetBufferPointer(),
-                 [](float v) { return static_cast<Pixel>(v); });
+  std::transform(
+      volume.voxels.begin(), volume.voxels.end(), image->GetBufferPointer(), [](float v) {
+        return static_cast<Pixel>(v);
+      });
   auto writer = itk::ImageFileWriter<ItkImage>::New();
   writer->SetFileName(path);
   writer->SetInput(image);
-  writer->SetUseCompression(EndsWith(path, ".gz") || EndsWith(path, ".mha") || EndsWith(path, ".nrrd"));
-  try {
-    writer->Update();
-  } catch (const itk::ExceptionObject& e) {
-    *error = path + ": cannot write (" + OneLine(e) + ")";
+  writer->SetUseCompression(compress);
+  writer->Update();
+}
+
+// ---- Data-block checks (see the file comment) ----
+
+// Chunk size for streaming decompression checks.
+constexpr size_t kChunkBytes = size_t{1} << 20;
+
+// `what` names the data block: "data" (in the image file) or "data file <name>".
+std::string DataEndsEarly(const std::string& what, uint64_t found, uint64_t expected) {
+  return what + " ends after " + std::to_string(found) + " of " + std::to_string(expected) +
+         " bytes; the file is truncated";
+}
+
+// zlib's gzerror() message starts with the file name, which the caller already gives.
+std::string Corrupt(const std::string& what, const std::string& zlib_message) {
+  return (what == "data" ? "compressed data" : what) + " is corrupt (zlib: " + zlib_message + ")";
+}
+
+std::string GzipMessage(const std::string& path, const char* message) {
+  const std::string text = message != nullptr ? message : "unknown error";
+  const std::string prefix = path + ": ";
+  return text.rfind(prefix, 0) == 0 ? text.substr(prefix.size()) : text;
+}
+
+template <typename T>
+T LoadAt(const unsigned char* bytes, size_t offset, bool swap) {
+  unsigned char raw[sizeof(T)];
+  std::memcpy(raw, bytes + offset, sizeof(T));
+  if (swap) std::reverse(raw, raw + sizeof(T));
+  T value;
+  std::memcpy(&value, raw, sizeof(T));
+  return value;
+}
+
+// NIfTI-1 (348-byte header) or NIfTI-2 (540-byte header), plain or gzip-compressed: the
+// file must hold vox_offset + product(dim) * bitpix / 8 bytes once decompressed.
+bool CheckNiftiData(const std::string& path, std::string* reason) {
+  gzFile file = gzopen(path.c_str(), "rb");  // also reads uncompressed files
+  if (file == nullptr) {
+    *reason = std::strerror(errno);
     return false;
+  }
+  std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
+  unsigned char header[540];
+  if (gzread(file, header, 348) != 348) {
+    *reason = "header ends early";
+    return false;
+  }
+  const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
+  const int32_t swapped_sizeof_hdr = LoadAt<int32_t>(header, 0, true);
+  const bool swap = sizeof_hdr != 348 && sizeof_hdr != 540;
+  const int32_t header_size = swap ? swapped_sizeof_hdr : sizeof_hdr;
+  uint64_t voxels = 1;
+  int bitpix = 0;
+  uint64_t data_start = 0;
+  if (header_size == 348) {
+    const int ndim = std::clamp<int>(LoadAt<int16_t>(header, 40, swap), 1, 7);
+    for (int d = 1; d <= ndim; ++d) {
+      voxels *=
+          static_cast<uint64_t>(std::max<int16_t>(LoadAt<int16_t>(header, 40 + 2 * d, swap), 1));
+    }
+    bitpix = LoadAt<int16_t>(header, 72, swap);
+    const float vox_offset = LoadAt<float>(header, 108, swap);  // NaN or huge: ITK's problem
+    data_start =
+        vox_offset > 348.0f && vox_offset < 1e15f ? static_cast<uint64_t>(vox_offset) : 348;
+  } else if (header_size == 540) {
+    if (gzread(file, header + 348, 540 - 348) != 540 - 348) {
+      *reason = "header ends early";
+      return false;
+    }
+    const int ndim = static_cast<int>(std::clamp<int64_t>(LoadAt<int64_t>(header, 16, swap), 1, 7));
+    for (int d = 1; d <= ndim; ++d) {
+      voxels *=
+          static_cast<uint64_t>(std::max<int64_t>(LoadAt<int64_t>(header, 16 + 8 * d, swap), 1));
+    }
+    bitpix = LoadAt<int16_t>(header, 14, swap);
+    data_start = static_cast<uint64_t>(std::max<int64_t>(LoadAt<int64_t>(header, 168, swap), 540));
+  } else {
+    return true;  // not a NIfTI header this check knows; ITK accepted it, so let ITK read it
+  }
+  const uint64_t expected = data_start + voxels * static_cast<uint64_t>(std::max(bitpix, 0) / 8);
+  if (gzdirect(file)) {  // uncompressed: the file size decides
+    std::error_code ec;
+    const uint64_t size = std::filesystem::file_size(path, ec);
+    if (!ec && size < expected) {
+      *reason =
+          DataEndsEarly("data", size > data_start ? size - data_start : 0, expected - data_start);
+      return false;
+    }
+    return true;
+  }
+  uint64_t total = static_cast<uint64_t>(header_size);
+  std::unique_ptr<unsigned char[]> chunk(new unsigned char[kChunkBytes]);
+  for (;;) {
+    const int got = gzread(file, chunk.get(), static_cast<unsigned>(kChunkBytes));
+    if (got <= 0) break;
+    total += static_cast<uint64_t>(got);
+  }
+  int status = Z_OK;
+  const char* message = gzerror(file, &status);
+  if (status != Z_OK) {
+    *reason = status == Z_BUF_ERROR
+                  ? DataEndsEarly(
+                        "data", total > data_start ? total - data_start : 0, expected - data_start)
+                  : Corrupt("data", GzipMessage(path, message));
+    return false;
+  }
+  if (total < expected) {
+    *reason =
+        DataEndsEarly("data", total > data_start ? total - data_start : 0, expected - data_start);
+    return false;
+  }
+  return true;
+}
+
+// Inflates the zlib (or gzip) stream that starts at `offset` of `path`; it must end
+// cleanly and produce at least `expected` bytes.
+bool CheckCompressedStream(const std::string& path,
+                           uint64_t offset,
+                           uint64_t expected,
+                           const std::string& what,
+                           std::string* reason) {
+  std::ifstream in(path, std::ios::binary);
+  in.seekg(static_cast<std::streamoff>(offset));
+  z_stream stream{};
+  if (inflateInit2(&stream, 15 + 32) != Z_OK) {  // 15 + 32: zlib or gzip header
+    *reason = "cannot start zlib";
+    return false;
+  }
+  std::unique_ptr<z_stream, int (*)(z_stream*)> ender(&stream, inflateEnd);
+  std::unique_ptr<unsigned char[]> input(new unsigned char[kChunkBytes]);
+  std::unique_ptr<unsigned char[]> output(new unsigned char[kChunkBytes]);
+  uint64_t total = 0;
+  int status = Z_OK;
+  while (status != Z_STREAM_END) {
+    in.read(reinterpret_cast<char*>(input.get()), static_cast<std::streamsize>(kChunkBytes));
+    const std::streamsize got = in.gcount();
+    if (got <= 0) {
+      *reason = DataEndsEarly(what, total, expected);
+      return false;
+    }
+    stream.next_in = input.get();
+    stream.avail_in = static_cast<uInt>(got);
+    while (stream.avail_in > 0 && status != Z_STREAM_END) {
+      stream.next_out = output.get();
+      stream.avail_out = static_cast<uInt>(kChunkBytes);
+      status = inflate(&stream, Z_NO_FLUSH);
+      if (status != Z_OK && status != Z_STREAM_END && status != Z_BUF_ERROR) {
+        *reason = Corrupt(
+            what,
+            stream.msg != nullptr ? std::string(stream.msg) : "error " + std::to_string(status));
+        return false;
+      }
+      total += kChunkBytes - stream.avail_out;
+    }
+  }
+  if (total < expected) {
+    *reason = DataEndsEarly(what, total, expected);
+    return false;
+  }
+  return true;
+}
+
+bool IsTrue(const std::string& value) {
+  return !value.empty() && (value[0] == 'T' || value[0] == 't' || value[0] == '1');
+}
+
+std::string Trim(const std::string& text) {
+  const size_t begin = text.find_first_not_of(" \t\r");
+  if (begin == std::string::npos) return "";
+  return text.substr(begin, text.find_last_not_of(" \t\r") - begin + 1);
+}
+
+// MetaImage (.mha with LOCAL data, .mhd with a data file): `bytes` of voxel data must
+// follow the header (LOCAL) or be in the data file, compressed or not. Multi-file data
+// (LIST, file patterns) is left to ITK.
+bool CheckMetaImageData(const std::string& path, uint64_t bytes, std::string* reason) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  std::string data_file;
+  bool compressed = false;
+  int64_t header_size = 0;
+  while (data_file.empty() && std::getline(in, line)) {
+    const size_t equals = line.find('=');
+    if (equals == std::string::npos) continue;
+    const std::string key = Trim(line.substr(0, equals));
+    const std::string value = Trim(line.substr(equals + 1));
+    if (key == "CompressedData") compressed = IsTrue(value);
+    if (key == "HeaderSize") header_size = std::atoll(value.c_str());
+    if (key == "ElementDataFile") data_file = value;
+  }
+  if (data_file.empty()) return true;  // ITK parsed a header this check does not follow
+  std::string lower = data_file;
+  std::transform(
+      lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::string file = path;
+  uint64_t offset = 0;
+  if (lower == "local") {
+    offset = static_cast<uint64_t>(in.tellg());
+  } else if (lower.rfind("list", 0) == 0 || data_file.find('%') != std::string::npos) {
+    return true;
+  } else {
+    const std::filesystem::path data_path(data_file);
+    file = (data_path.is_absolute() ? data_path
+                                    : std::filesystem::path(path).parent_path() / data_path)
+               .string();
+    if (!std::filesystem::exists(file)) {
+      *reason = "data file " + file + " does not exist";
+      return false;
+    }
+    offset = header_size > 0 ? static_cast<uint64_t>(header_size) : 0;
+  }
+  const std::string what =
+      file == path ? "data" : "data file " + std::filesystem::path(file).filename().string();
+  if (compressed) return CheckCompressedStream(file, offset, bytes, what, reason);
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(file, ec);
+  const uint64_t available = !ec && size > offset ? size - offset : 0;
+  if (available < bytes) {
+    *reason = DataEndsEarly(what, available, bytes);
+    return false;
+  }
+  return true;
+}
+
+// Checks the data block of the formats whose ITK readers do not (see the file comment).
+bool CheckDataBlock(const itk::ImageIOBase& io, const std::string& path, std::string* reason) {
+  const std::string name = io.GetNameOfClass();
+  if (name == "NiftiImageIO") return CheckNiftiData(path, reason);
+  if (name == "MetaImageIO") {
+    return CheckMetaImageData(path, static_cast<uint64_t>(io.GetImageSizeInBytes()), reason);
   }
   return true;
 }
 
 }  // namespace
 
-bool Read(const std::string& path, RawVolume* volume, std::string* error) {
-  unsigned num_dims = 0;
-  if (!Inspect(path, error, &num_dims)) return false;
-  return num_dims == 3 ? ReadAs<3>(path, volume, error) : ReadAs<4>(path, volume, error);
+bool Read(const std::string& path,
+          const HeaderCheck& check_header,
+          RawVolume* volume,
+          std::string* error) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  const fs::file_status status = fs::status(path, ec);
+  if (!fs::exists(status)) {
+    *error = path + ": no such file";
+    return false;
+  }
+  if (fs::is_directory(status)) {
+    *error = path + ": is a folder, expected an image file";
+    return false;
+  }
+  if (!fs::is_regular_file(status)) {
+    *error = path + ": not a regular file";
+    return false;
+  }
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  const char* stage = "cannot read the header";
+  try {
+    itk::ImageIOBase::Pointer io =
+        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+    if (!io) {
+      *error = path + ": cannot read the header (not a valid NIfTI, MetaImage or NRRD file)";
+      return false;
+    }
+    io->SetFileName(path);
+    io->ReadImageInformation();
+    RawVolume out;
+    if (!InspectHeader(path, *io, &out, error)) return false;
+    if (check_header && !check_header(out, error)) return false;
+
+    stage = "cannot read the voxels";
+    std::string reason;
+    if (!CheckDataBlock(*io, path, &reason)) {
+      *error = path + ": " + stage + " (" + reason + ")";
+      return false;
+    }
+    const unsigned dims = io->GetNumberOfDimensions();
+    itk::ImageIORegion region(dims);
+    for (unsigned d = 0; d < dims; ++d) {
+      region.SetIndex(d, 0);
+      region.SetSize(d, io->GetDimensions(d));
+    }
+    io->SetIORegion(region);
+    const size_t count = static_cast<size_t>(out.size[0]) * static_cast<size_t>(out.size[1]) *
+                         static_cast<size_t>(out.size[2]);
+    const size_t bytes = static_cast<size_t>(io->GetImageSizeInBytes());
+    // 8-byte aligned storage for any component type.
+    std::unique_ptr<uint64_t[]> buffer(new uint64_t[bytes / sizeof(uint64_t) + 1]);
+    io->Read(buffer.get());
+    out.voxels.resize(count);
+    ConvertBuffer(io->GetComponentType(), buffer.get(), count, out.voxels.data());
+    *volume = std::move(out);
+    return true;
+  } catch (const itk::ExceptionObject& e) {
+    std::string what = Describe(e);
+    // MetaImageIO appends strerror(errno) to any header it cannot parse, even though the
+    // file was opened: "Reason: No such file or directory" would mislead.
+    const size_t reason = what.find(" for reading. Reason: ");
+    if (reason != std::string::npos) what.erase(reason);
+    *error = path + ": " + stage + " (" + what + ")";
+  } catch (const std::bad_alloc&) {
+    *error = path + ": " + stage + " (out of memory; is the header's size right?)";
+  } catch (const std::exception& e) {
+    *error = path + ": " + stage + " (" + OneLine(e.what()) + ")";
+  }
+  return false;
 }
 
-bool Write(const RawVolume& volume, const std::string& path, bool as_bytes, std::string* error) {
-  return as_bytes ? WriteAs<unsigned char>(volume, path, error) : WriteAs<float>(volume, path, error);
+bool Write(const RawVolume& volume,
+           const std::string& path,
+           PixelType pixel_type,
+           bool compress,
+           std::string* error) {
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  try {
+    if (pixel_type == PixelType::kUint8) {
+      WriteAs<unsigned char>(volume, path, compress);
+    } else {
+      WriteAs<float>(volume, path, compress);
+    }
+    return true;
+  } catch (const itk::ExceptionObject& e) {
+    *error = path + ": cannot write (" + Describe(e) + ")";
+  } catch (const std::bad_alloc&) {
+    *error = path + ": cannot write (out of memory)";
+  } catch (const std::exception& e) {
+    *error = path + ": cannot write (" + OneLine(e.what()) + ")";
+  }
+  return false;
 }
 
 }  // namespace itk_io

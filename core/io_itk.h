@@ -1,31 +1,49 @@
 // The ITK side of image IO, kept free of Eigen: ITK 5.2 bundles its own Eigen 3.3, which
 // cannot share a translation unit with the system Eigen 3.4 the rest of dsr uses. Only
-// io_itk.cc includes ITK; io_image.cc converts RawVolume to and from dsr::Volume.
+// io_itk.cc includes ITK; io_image.cc converts RawVolume to and from dsr::Volume and owns
+// the rules that need Eigen (geometry validation, masks, atomic writes).
 #ifndef DSR_CORE_IO_ITK_H_
 #define DSR_CORE_IO_ITK_H_
 
+#include <functional>
 #include <string>
 #include <vector>
 
 namespace dsr {
 namespace itk_io {
 
+// A 3D scalar volume in plain arrays. Geometry follows ITK: x = origin + D S index, with
+// index[0] = i varying fastest in `voxels`.
 struct RawVolume {
   int size[3] = {0, 0, 0};
   double origin[3] = {0, 0, 0};
   double spacing[3] = {1, 1, 1};
-  double direction[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major, columns = index axes
-  std::vector<float> voxels;                           // x fastest
+  double direction[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major D, columns = index axes
+  std::vector<float> voxels;                          // x fastest
 };
 
-// Reads a scalar 3D image (or 4D with one volume) as float. Errors are one line naming
-// `path`: no such file, unsupported extension, unreadable header, non-scalar pixels, 2D,
-// 4D with several volumes.
-bool Read(const std::string& path, RawVolume* volume, std::string* error);
+// Called with the header (voxels still empty) before any voxel is read; returns false with
+// an error to stop the read.
+using HeaderCheck = std::function<bool(const RawVolume& header, std::string* error)>;
 
-// Writes `volume` to `path` as float (as_bytes = false) or unsigned char (true). Not
-// atomic by itself (callers write to a temporary path).
-bool Write(const RawVolume& volume, const std::string& path, bool as_bytes, std::string* error);
+// Reads a scalar 3D image (or a 4D one whose 4th size is 1) and converts its voxels to
+// float. The header is inspected first: a missing file, an unreadable or corrupt header,
+// non-scalar pixels, a dimension other than 3 (or 4 with one volume) and a failing
+// `check_header` are reported before the voxels are read. Errors are one line naming `path`.
+bool Read(const std::string& path,
+          const HeaderCheck& check_header,
+          RawVolume* volume,
+          std::string* error);
+
+enum class PixelType { kFloat, kUint8 };
+
+// Writes `volume` to `path` (format from the extension) with voxels cast to `pixel_type`.
+// Not atomic by itself: callers write to a temporary path. Errors are one line naming `path`.
+bool Write(const RawVolume& volume,
+           const std::string& path,
+           PixelType pixel_type,
+           bool compress,
+           std::string* error);
 
 }  // namespace itk_io
 }  // namespace dsr

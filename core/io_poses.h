@@ -23,13 +23,17 @@ constexpr double kRigidTolerance = 1e-5;
 // Reads and validates a poses file. `expected_frames` < 0 accepts any count >= 1; otherwise
 // the count must match. Errors name the file, the frame and the broken rule (not JSON, no
 // "frames" array, T not 4x4 numbers, non-finite entry, not rigid beyond kRigidTolerance,
-// wrong frame count). Rotations are re-orthonormalised to double precision.
+// wrong frame count). A rotation not orthonormal to double precision (|R^T R - I| > 1e-14)
+// is projected to the nearest rotation; others are kept bit for bit, so that WritePoses
+// followed by ReadPoses returns exactly the poses written.
 bool ReadPoses(const std::string& path,
                int expected_frames,
                PosesFile* poses,
                std::string* error);
 
-// Serialises to the JSON text above (17 significant digits, exact round trip).
+// Serialises to the JSON text above, indented by 2, each number with the fewest digits
+// (at most 17) that parse back to the same double: the round trip is exact. `images` is
+// either empty (names written as "") or has one name per pose.
 std::string PosesToJson(const PosesFile& poses);
 
 // Writes atomically (temp file + rename).

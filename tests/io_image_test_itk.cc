@@ -1,0 +1,125 @@
+// Test-only ITK writers (see io_image_test_itk.h).
+#include "tests/io_image_test_itk.h"
+
+#include <cstdint>
+#include <exception>
+#include <type_traits>
+
+#include <itkImage.h>
+#include <itkImageFileWriter.h>
+#include <itkMetaImageIO.h>
+#include <itkNiftiImageIO.h>
+#include <itkNrrdImageIO.h>
+#include <itkVector.h>
+
+namespace dsr {
+namespace test_itk {
+namespace {
+
+bool EndsWith(const std::string& text, const std::string& suffix) {
+  return text.size() >= suffix.size() &&
+         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
+}
+
+// The IO is chosen explicitly, so these writers do not depend on factory registration.
+itk::ImageIOBase::Pointer IoFor(const std::string& path) {
+  if (EndsWith(path, ".nii") || EndsWith(path, ".nii.gz"))
+    return itk::NiftiImageIO::New().GetPointer();
+  if (EndsWith(path, ".mha") || EndsWith(path, ".mhd")) return itk::MetaImageIO::New().GetPointer();
+  return itk::NrrdImageIO::New().GetPointer();
+}
+
+template <typename PixelType, unsigned Dim>
+std::string WriteImage(const std::string& path,
+                       const Grid& grid,
+                       const std::vector<double>* values,
+                       const PixelType& fill) {
+  using ImageType = itk::Image<PixelType, Dim>;
+  if (grid.size.size() != Dim) return "grid has " + std::to_string(grid.size.size()) + " sizes";
+  auto image = ImageType::New();
+  typename ImageType::RegionType region;
+  typename ImageType::SpacingType spacing;
+  typename ImageType::PointType origin;
+  typename ImageType::DirectionType direction;
+  direction.SetIdentity();
+  spacing.Fill(1.0);
+  origin.Fill(0.0);
+  for (unsigned a = 0; a < Dim; ++a) {
+    region.SetSize(a, grid.size[a]);
+    if (a >= 3) continue;
+    spacing[a] = grid.spacing[a];
+    origin[a] = grid.origin[a];
+    for (unsigned b = 0; b < Dim && b < 3; ++b) direction[a][b] = grid.direction[3 * a + b];
+  }
+  image->SetRegions(region);
+  image->SetSpacing(spacing);
+  image->SetOrigin(origin);
+  image->SetDirection(direction);
+  image->Allocate();
+  image->FillBuffer(fill);
+  if constexpr (std::is_arithmetic_v<PixelType>) {
+    if (values != nullptr) {
+      const size_t n = image->GetLargestPossibleRegion().GetNumberOfPixels();
+      if (values->size() != n) return "expected " + std::to_string(n) + " values";
+      PixelType* buffer = image->GetBufferPointer();
+      for (size_t v = 0; v < n; ++v) buffer[v] = static_cast<PixelType>((*values)[v]);
+    }
+  }
+  auto writer = itk::ImageFileWriter<ImageType>::New();
+  writer->SetImageIO(IoFor(path));
+  writer->SetFileName(path);
+  writer->SetInput(image);
+  writer->SetUseCompression(EndsWith(path, ".gz"));
+  try {
+    writer->Update();
+  } catch (const std::exception& e) {
+    return e.what();
+  }
+  return "";
+}
+
+template <typename PixelType>
+std::string WriteScalar(const std::string& path,
+                        const Grid& grid,
+                        const std::vector<double>& values) {
+  switch (grid.size.size()) {
+    case 2:
+      return WriteImage<PixelType, 2>(path, grid, &values, PixelType{});
+    case 3:
+      return WriteImage<PixelType, 3>(path, grid, &values, PixelType{});
+    case 4:
+      return WriteImage<PixelType, 4>(path, grid, &values, PixelType{});
+    default:
+      return "unsupported dimension " + std::to_string(grid.size.size());
+  }
+}
+
+}  // namespace
+
+std::string WriteScalarImage(const std::string& path,
+                             const Grid& grid,
+                             Pixel pixel,
+                             const std::vector<double>& values) {
+  switch (pixel) {
+    case Pixel::kUint8:
+      return WriteScalar<uint8_t>(path, grid, values);
+    case Pixel::kInt16:
+      return WriteScalar<int16_t>(path, grid, values);
+    case Pixel::kFloat:
+      return WriteScalar<float>(path, grid, values);
+    case Pixel::kDouble:
+      return WriteScalar<double>(path, grid, values);
+  }
+  return "unknown pixel type";
+}
+
+std::string WriteVectorImage(const std::string& path, const Grid& grid) {
+  itk::Vector<float, 3> fill;
+  fill[0] = 1.0f;
+  fill[1] = 2.0f;
+  fill[2] = 3.0f;
+  return WriteImage<itk::Vector<float, 3>, 3>(path, grid, nullptr, fill);
+}
+
+}  // namespace test_itk
+}  // namespace dsr
