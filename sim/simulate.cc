@@ -1,122 +1,218 @@
+// The paper's simulation protocol (DESIGN.md section 6); conventions in simulate.h.
 #include "sim/simulate.h"
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <sstream>
 
+#include <glog/logging.h>
+
 #include "core/frame.h"
 #include "core/parallel.h"
-#include "core/se3.h"
 
 namespace dsr {
+namespace {
+
+constexpr int kMaxFrames = 1000;
+constexpr int kMaxFrameSize = 2048;
+
+std::vector<Eigen::Isometry3d> DrawPoses(const ImageGeometry& source,
+                                         const ImageGeometry& frame,
+                                         const SimulationOptions& o,
+                                         std::mt19937_64* rng) {
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  const Eigen::Vector3d source_center =
+      source.IndexToPhysical(0.5 * (source.size.cast<double>() - Eigen::Vector3d::Ones()));
+  const Eigen::Vector3d frame_center =
+      frame.IndexToPhysical(0.5 * (frame.size.cast<double>() - Eigen::Vector3d::Ones()));
+  const double max_angle = o.max_rotation_deg * M_PI / 180.0;
+  const double max_shift_mm = o.max_translation_voxels * frame.spacing_mm[0];
+  std::vector<Eigen::Isometry3d> poses;
+  for (int f = 0; f < o.num_frames; ++f) {
+    // Sequenced draws (argument evaluation order is unspecified in C++).
+    const double alpha = max_angle * u(*rng);
+    const double beta = max_angle * u(*rng);
+    const double gamma = max_angle * u(*rng);
+    Eigen::Vector3d shift_mm;
+    for (int a = 0; a < 3; ++a) shift_mm[a] = max_shift_mm * u(*rng);
+    const Eigen::Matrix3d rotation = (Eigen::AngleAxisd(gamma, Eigen::Vector3d::UnitZ()) *
+                                      Eigen::AngleAxisd(beta, Eigen::Vector3d::UnitY()) *
+                                      Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()))
+                                         .toRotationMatrix();
+    // Translate(c_f) * R * Translate(t - c_s).
+    Eigen::Isometry3d frame_from_world = Eigen::Isometry3d::Identity();
+    frame_from_world.linear() = rotation;
+    frame_from_world.translation() = frame_center + rotation * (shift_mm - source_center);
+    poses.push_back(frame_from_world);
+  }
+  return poses;
+}
+
+}  // namespace
 
 bool SimulationOptions::Validate(std::string* error) const {
-  auto fail = [&](const std::string& m) {
-    *error = m;
-    return false;
+  std::ostringstream s;
+  auto range = [](double v, double lo, double hi) {
+    return std::isfinite(v) && v >= lo && v <= hi;
   };
-  if (num_frames < 2) return fail("--num_frames=" + std::to_string(num_frames) + ": must be >= 2");
-  if (!(max_rotation_deg >= 0.0 && max_rotation_deg <= 90.0))
-    return fail("--max_rotation_deg: must be in [0, 90]");
-  if (!(max_translation_voxels >= 0.0)) return fail("--max_translation_voxels: must be >= 0");
-  if (!(noise_sigma >= 0.0) || !std::isfinite(noise_sigma)) return fail("--sigma: must be >= 0");
-  if ((frame_size.array() < 4).any()) return fail("--frame_size: every dimension must be >= 4");
-  if (!(frame_spacing_mm >= 0.0)) return fail("--frame_spacing: must be >= 0 (0 = source spacing)");
-  if (!(azimuth_deg > 0.0 && azimuth_deg < 170.0)) return fail("--azimuth_deg: must be in (0, 170)");
-  if (!(elevation_deg > 0.0 && elevation_deg < 170.0)) return fail("--elevation_deg: must be in (0, 170)");
-  if (!(min_depth_voxels >= 0.0 && min_depth_voxels < frame_size[2] - 2))
-    return fail("--min_depth_voxels: must be in [0, frame depth - 2)");
-  return true;
+  if (num_frames < 2 || num_frames > kMaxFrames) {
+    s << "--num_frames=" << num_frames << ": must be in [2, " << kMaxFrames << "]";
+  } else if (!range(max_rotation_deg, 0.0, 180.0)) {
+    s << "--max_rotation_deg=" << max_rotation_deg << ": must be in [0, 180]";
+  } else if (!range(max_translation_voxels, 0.0, std::numeric_limits<double>::max())) {
+    s << "--max_translation_voxels=" << max_translation_voxels << ": must be finite and >= 0";
+  } else if (!range(noise_sigma, 0.0, std::numeric_limits<double>::max())) {
+    s << "--sigma=" << noise_sigma << ": must be finite and >= 0";
+  } else if ((frame_size.array() < 4).any() || (frame_size.array() > kMaxFrameSize).any()) {
+    s << "--frame_size=" << frame_size[0] << "," << frame_size[1] << "," << frame_size[2]
+      << ": every size must be in [4, " << kMaxFrameSize << "]";
+  } else if (!range(frame_spacing_mm, 0.0, std::numeric_limits<double>::max())) {
+    s << "--frame_spacing=" << frame_spacing_mm << ": must be finite and >= 0 (0 = source spacing)";
+  } else if (!(std::isfinite(azimuth_deg) && azimuth_deg > 0.0 && azimuth_deg < 180.0)) {
+    s << "--azimuth_deg=" << azimuth_deg << ": must be in (0, 180)";
+  } else if (!(std::isfinite(elevation_deg) && elevation_deg > 0.0 && elevation_deg < 180.0)) {
+    s << "--elevation_deg=" << elevation_deg << ": must be in (0, 180)";
+  } else if (!range(min_depth_voxels, 0.0, frame_size[2] - 3.0)) {
+    s << "--min_depth_voxels=" << min_depth_voxels
+      << ": must be in [0, frame depth - 3 = " << frame_size[2] - 3 << "]";
+  } else {
+    return true;
+  }
+  if (error != nullptr) *error = s.str();
+  return false;
+}
+
+ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& o) {
+  ImageGeometry g;
+  g.size = o.frame_size;
+  g.spacing_mm = Eigen::Vector3d::Constant(o.frame_spacing_mm > 0.0 ? o.frame_spacing_mm
+                                                                    : source.spacing_mm[0]);
+  return g;  // origin 0, identity direction
 }
 
 Mask PyramidFieldOfView(const ImageGeometry& g, const SimulationOptions& o) {
   Mask mask(g, 0);
   const double cx = 0.5 * (g.size[0] - 1), cy = 0.5 * (g.size[1] - 1);
-  const double ta = std::tan(0.5 * o.azimuth_deg * M_PI / 180.0);
-  const double te = std::tan(0.5 * o.elevation_deg * M_PI / 180.0);
+  const double tan_azimuth = std::tan(0.5 * o.azimuth_deg * M_PI / 180.0);
+  const double tan_elevation = std::tan(0.5 * o.elevation_deg * M_PI / 180.0);
+  // Voxels exactly on a pyramid face are inside; the slack absorbs tan's rounding (e.g.
+  // tan(45 deg) = 1 - 1e-16), so the shape does not depend on the last bit.
+  constexpr double kSlack = 1e-9;
   for (int k = 0; k < g.size[2]; ++k) {
-    if (k < o.min_depth_voxels) continue;
-    for (int j = 0; j < g.size[1]; ++j)
-      for (int i = 0; i < g.size[0]; ++i)
-        mask.at(i, j, k) = std::abs(i - cx) <= k * ta && std::abs(j - cy) <= k * te;
+    if (k + kSlack < o.min_depth_voxels) continue;
+    for (int j = 0; j < g.size[1]; ++j) {
+      if (std::abs(j - cy) > k * tan_elevation + kSlack) continue;
+      for (int i = 0; i < g.size[0]; ++i) {
+        mask.at(i, j, k) = std::abs(i - cx) <= k * tan_azimuth + kSlack ? 1 : 0;
+      }
+    }
   }
   return mask;
 }
 
+Mask ErodeFieldOfView(const Mask& fov) {
+  const Eigen::Vector3i& n = fov.geometry.size;
+  Mask mask(fov.geometry, 0);
+  for (int k = 1; k + 1 < n[2]; ++k) {
+    for (int j = 1; j + 1 < n[1]; ++j) {
+      for (int i = 1; i + 1 < n[0]; ++i) {
+        mask.at(i, j, k) = fov.at(i, j, k) && fov.at(i - 1, j, k) && fov.at(i + 1, j, k) &&
+                                   fov.at(i, j - 1, k) && fov.at(i, j + 1, k) &&
+                                   fov.at(i, j, k - 1) && fov.at(i, j, k + 1)
+                               ? 1
+                               : 0;
+      }
+    }
+  }
+  return mask;
+}
+
+std::vector<Eigen::Isometry3d> SimulatedPoses(const ImageGeometry& source,
+                                              const SimulationOptions& options) {
+  std::string error;
+  CHECK(options.Validate(&error)) << error;
+  std::mt19937_64 rng(options.seed);
+  return DrawPoses(source, SimulatedFrameGeometry(source, options), options, &rng);
+}
+
 bool Simulate(const Image& source,
-              const SimulationOptions& o,
+              const SimulationOptions& options,
               SimulatedSequence* sequence,
               std::string* error) {
-  if (!o.Validate(error)) return false;
-  const double spacing = o.frame_spacing_mm > 0.0 ? o.frame_spacing_mm : source.geometry.spacing_mm[0];
-  ImageGeometry g;
-  g.size = o.frame_size;
-  g.spacing_mm = Eigen::Vector3d::Constant(spacing);
-  const Mask fov = PyramidFieldOfView(g, o);
-  const Frame source_frame(source, Mask(source.geometry, 1));
-  const Eigen::Vector3d source_center =
-      source.geometry.IndexToPhysical(0.5 * (source.geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
-  const Eigen::Vector3d frame_center = g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
-
-  std::mt19937_64 rng(o.seed);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  SimulatedSequence out;
-  for (int f = 0; f < o.num_frames; ++f) {
-    const double r = o.max_rotation_deg * M_PI / 180.0;
-    const Eigen::Matrix3d rotation = (Eigen::AngleAxisd(r * u(rng), Eigen::Vector3d::UnitZ()) *
-                                      Eigen::AngleAxisd(r * u(rng), Eigen::Vector3d::UnitY()) *
-                                      Eigen::AngleAxisd(r * u(rng), Eigen::Vector3d::UnitX()))
-                                         .toRotationMatrix();
-    const Eigen::Vector3d shift = o.max_translation_voxels * spacing * Eigen::Vector3d(u(rng), u(rng), u(rng));
-    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-    pose.linear() = rotation;
-    pose.translation() = frame_center + shift - rotation * source_center;
-    out.frame_from_world.push_back(pose);
+  CHECK(sequence != nullptr);
+  CHECK(error != nullptr);
+  if (!options.Validate(error)) return false;
+  if (source.empty() || static_cast<int64_t>(source.voxels.size()) != source.geometry.NumVoxels()) {
+    *error = "source volume is empty or its voxel count does not match its grid";
+    return false;
   }
-  std::normal_distribution<double> noise(0.0, 1.0);
-  for (int f = 0; f < o.num_frames; ++f) {
+  if (!source.geometry.Validate("source volume", error)) return false;
+
+  const ImageGeometry g = SimulatedFrameGeometry(source.geometry, options);
+  const Mask fov = PyramidFieldOfView(g, options);
+  const Mask mask = ErodeFieldOfView(fov);
+  if (CountInside(mask) == 0) {
+    *error =
+        "the field of view is empty after the 1-voxel erosion: increase --frame_size, "
+        "--azimuth_deg or --elevation_deg, or decrease --min_depth_voxels";
+    return false;
+  }
+  std::mt19937_64 rng(options.seed);
+  const std::vector<Eigen::Isometry3d> poses = DrawPoses(source.geometry, g, options, &rng);
+
+  const Frame source_frame(source, Mask(source.geometry, 1));
+  const Eigen::Vector3d upper = source.geometry.size.cast<double>() - Eigen::Vector3d::Ones();
+  // Slack for rounding: a voxel that maps to -1e-9 still samples the border voxel.
+  constexpr double kIndexSlack = 1e-6;
+  std::normal_distribution<double> normal(0.0, 1.0);
+  SimulatedSequence out;
+  for (int f = 0; f < options.num_frames; ++f) {
     Image frame(g, 0.0f);
-    const Eigen::Isometry3d world_from_frame = out.frame_from_world[f].inverse();
-    // Sample first (parallel, deterministic), then add noise in a fixed serial order.
-    bool outside = false;
+    const Eigen::Isometry3d world_from_frame = poses[f].inverse();
+    // Sample in parallel (each slice writes its own voxels and its own first-miss record),
+    // then add noise in a fixed serial order so the result does not depend on threads.
+    std::vector<int64_t> first_miss(g.size[2], -1);  // linear index of the first miss per slice
     ParallelFor(0, g.size[2], 0, [&](int64_t k) {
-      for (int j = 0; j < g.size[1]; ++j)
+      for (int j = 0; j < g.size[1]; ++j) {
         for (int i = 0; i < g.size[0]; ++i) {
-          if (!fov.at(i, j, static_cast<int>(k))) continue;
-          const Eigen::Vector3d u_src = source_frame.ToIndex(world_from_frame * g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
-          if ((u_src.array() < 0.0).any() || (u_src.array() > (source.geometry.size.cast<double>().array() - 1.0)).any()) {
-            outside = true;
+          const int64_t l = g.LinearIndex(i, j, static_cast<int>(k));
+          if (!fov.voxels[l]) continue;
+          const Eigen::Vector3d x_in_world =
+              world_from_frame * g.IndexToPhysical(Eigen::Vector3d(i, j, static_cast<double>(k)));
+          const Eigen::Vector3d ijk_source = source_frame.ToIndex(x_in_world);
+          if ((ijk_source.array() < -kIndexSlack).any() ||
+              (ijk_source.array() > upper.array() + kIndexSlack).any()) {
+            if (first_miss[k] < 0) first_miss[k] = l;
+            continue;
           }
-          frame.at(i, j, static_cast<int>(k)) = static_cast<float>(source_frame.InterpolateValue(u_src));
+          frame.voxels[l] = static_cast<float>(source_frame.InterpolateValue(ijk_source));
         }
+      }
     });
-    if (outside) {
+    for (int k = 0; k < g.size[2]; ++k) {
+      if (first_miss[k] < 0) continue;
+      const int64_t l = first_miss[k];
+      const Eigen::Vector3d ijk(l % g.size[0], (l / g.size[0]) % g.size[1], k);
+      const Eigen::Vector3d ijk_source =
+          source_frame.ToIndex(world_from_frame * g.IndexToPhysical(ijk));
       std::ostringstream s;
-      s << "frame " << f << " samples outside the source volume (" << source.geometry.DebugString()
-        << "); use a larger source, a smaller --frame_size or smaller motions";
+      s << "frame " << f << ": field-of-view voxel (" << ijk.transpose()
+        << ") maps to source index (" << ijk_source.transpose() << "), outside the source grid ("
+        << source.geometry.DebugString()
+        << "); use a larger source (--phantom_size), a smaller --frame_size or smaller motions";
       *error = s.str();
       return false;
     }
-    for (size_t v = 0; v < frame.voxels.size(); ++v) {
-      if (!fov.voxels[v]) continue;
-      const double value = frame.voxels[v] + o.noise_sigma * noise(rng);
-      frame.voxels[v] = static_cast<float>(std::clamp(value, 0.0, 255.0));
+    for (size_t l = 0; l < frame.voxels.size(); ++l) {
+      if (!fov.voxels[l]) continue;
+      const double noisy = frame.voxels[l] + options.noise_sigma * normal(rng);
+      frame.voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
     }
-    Mask mask = fov;
-    // Erode by 1 voxel: a voxel stays when its 6 neighbours are inside.
-    for (int k = 0; k < g.size[2]; ++k)
-      for (int j = 0; j < g.size[1]; ++j)
-        for (int i = 0; i < g.size[0]; ++i) {
-          if (!fov.at(i, j, k)) continue;
-          const bool interior = i > 0 && j > 0 && k > 0 && i < g.size[0] - 1 && j < g.size[1] - 1 &&
-                                k < g.size[2] - 1 && fov.at(i - 1, j, k) && fov.at(i + 1, j, k) &&
-                                fov.at(i, j - 1, k) && fov.at(i, j + 1, k) && fov.at(i, j, k - 1) &&
-                                fov.at(i, j, k + 1);
-          mask.at(i, j, k) = interior;
-        }
     out.frames.push_back(std::move(frame));
-    out.masks.push_back(std::move(mask));
+    out.masks.push_back(mask);
+    out.frame_from_world.push_back(poses[f]);
   }
   *sequence = std::move(out);
   return true;

@@ -1,7 +1,13 @@
-// dsr_simulate: a sequence following the paper's protocol (DESIGN.md section 6) from the
-// built-in phantom or any readable volume. Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz
-// and DIR/gt_poses.json (T = frame_from_world, world = the source's physical space).
+// dsr_simulate: a sequence following the paper's protocol (DESIGN.md section 6, sim/simulate.h)
+// cut from the built-in phantom (sim/phantom.h) or from any readable volume.
+// Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz and DIR/gt_poses.json, whose T are
+// frame_from_world with world = the source's physical space (not yet frame 0's: consumers
+// re-express them relative to frame 0).
+#include <chrono>
+#include <cinttypes>
+#include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 
 #include <gflags/gflags.h>
@@ -13,82 +19,199 @@
 #include "sim/simulate.h"
 #include "tools/tool_util.h"
 
-DEFINE_string(out_dir, "", "Output folder (created if missing). Required.");
-DEFINE_string(source, "", "Source volume (.nii/.nii.gz/.mha/.mhd/.nrrd); empty = built-in phantom.");
-DEFINE_uint64(seed, 1, "Random seed: poses, noise and phantom. Same seed, same sequence.");
-DEFINE_int32(num_frames, 11, "Number of frames m (>= 2).");
-DEFINE_double(sigma, 25.0, "Standard deviation of the additive Gaussian noise (intensity units, >= 0).");
-DEFINE_double(max_rotation_deg, 12.0, "Each Euler angle uniform in +/- this many degrees.");
-DEFINE_double(max_translation_voxels, 15.0, "Each translation component uniform in +/- this many voxels.");
-DEFINE_string(frame_size, "96,96,80", "Frame grid size in voxels, 'nx,ny,nz' (depth along z).");
-DEFINE_double(frame_spacing, 0.0, "Frame voxel spacing in mm; 0 = the source's spacing.");
-DEFINE_double(azimuth_deg, 75.0, "Full lateral opening angle of the pyramidal field of view.");
-DEFINE_double(elevation_deg, 75.0, "Full elevational opening angle of the pyramidal field of view.");
-DEFINE_double(min_depth_voxels, 4.0, "Near-field cut: voxels closer to the apex are outside the field of view.");
-DEFINE_int32(phantom_size, 192, "Built-in phantom size in voxels per axis (1 mm spacing).");
+DEFINE_string(out_dir,
+              "",
+              "Output folder for frame_XX.nii.gz, mask_XX.nii.gz and gt_poses.json; created if "
+              "missing. Required.");
+DEFINE_string(source,
+              "",
+              "Source volume to cut the frames from (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr). "
+              "Empty: the built-in heart-like phantom (see --phantom_size, --phantom_seed).");
+DEFINE_uint64(seed, 1, "Random seed of the poses and the noise: same seed, same sequence.");
+DEFINE_int32(num_frames, 11, "Number of frames m, in [2, 1000] (the paper: 11).");
+DEFINE_double(sigma,
+              25.0,
+              "Standard deviation of the additive Gaussian noise inside the field of view, in "
+              "intensity units (0..255 scale), >= 0 (the paper: 25).");
+DEFINE_double(max_rotation_deg,
+              12.0,
+              "Each of the three Euler angles of a frame's rotation is uniform in "
+              "[-this, +this] degrees, in [0, 180] (the paper: 12).");
+DEFINE_double(max_translation_voxels,
+              15.0,
+              "Each world-axis component of a frame's translation is uniform in [-this, +this] "
+              "frame voxels, >= 0 (the paper: 15).");
+DEFINE_string(frame_size,
+              "96,96,80",
+              "Frame grid size in voxels 'nx,ny,nz', each in [4, 2048]; the pyramid's depth "
+              "runs along z from the apex at the centre of the z = 0 face.");
+DEFINE_double(frame_spacing,
+              0.0,
+              "Isotropic frame voxel spacing in mm, >= 0; 0 = the source's spacing along x.");
+DEFINE_double(azimuth_deg,
+              75.0,
+              "Full lateral (x) opening angle of the pyramidal field of view, in (0, 180).");
+DEFINE_double(elevation_deg,
+              75.0,
+              "Full elevational (y) opening angle of the pyramidal field of view, in (0, 180).");
+DEFINE_double(min_depth_voxels,
+              4.0,
+              "Near-field cut: slices with depth z < this are outside the field of view; in "
+              "[0, nz - 3].");
+DEFINE_int32(phantom_size,
+             192,
+             "Built-in phantom size in voxels per axis (1 mm spacing), in [16, 512]. The "
+             "default fits the default frames and motions.");
+DEFINE_uint64(phantom_seed,
+              1,
+              "Seed of the built-in phantom's layout jitter and texture. Kept apart from "
+              "--seed so that sequences with different --seed are cut from the same volume, "
+              "as in the paper.");
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
-static bool ValidateNumFrames(const char* flag, int32_t v) { return v >= 2 && v <= 32; }
+namespace {
+
+bool ValidateNumFrames(const char* flag, int32_t v) {
+  return dsr::CheckFlag(v >= 2 && v <= 1000, flag, v, "must be in [2, 1000]");
+}
+bool ValidateNonNegative(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0, flag, v, "must be finite and >= 0");
+}
+bool ValidateRotation(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 180.0, flag, v, "must be in [0, 180]");
+}
+bool ValidateOpeningAngle(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v > 0.0 && v < 180.0, flag, v, "must be in (0, 180)");
+}
+bool ValidateFrameSize(const char* flag, const std::string& v) {
+  Eigen::Vector3i size;
+  return dsr::CheckFlag(dsr::ParseSize3(v, &size, 4, 2048),
+                        flag,
+                        v,
+                        "must be three integers 'nx,ny,nz', each in [4, 2048]");
+}
+bool ValidatePhantomSize(const char* flag, int32_t v) {
+  return dsr::CheckFlag(v >= 16 && v <= 512, flag, v, "must be in [16, 512]");
+}
+bool ValidateSource(const char* flag, const std::string& v) {
+  return dsr::CheckInputFileFlag(flag, v);
+}
+
+}  // namespace
+
 DEFINE_validator(num_frames, &ValidateNumFrames);
-static bool ValidateNonNegative(const char* flag, double v) { return v >= 0.0; }
 DEFINE_validator(sigma, &ValidateNonNegative);
-static bool ValidatePhantomSize(const char* flag, int32_t v) { return v >= 16 && v <= 1024; }
+DEFINE_validator(max_rotation_deg, &ValidateRotation);
+DEFINE_validator(max_translation_voxels, &ValidateNonNegative);
+DEFINE_validator(frame_size, &ValidateFrameSize);
+DEFINE_validator(frame_spacing, &ValidateNonNegative);
+DEFINE_validator(azimuth_deg, &ValidateOpeningAngle);
+DEFINE_validator(elevation_deg, &ValidateOpeningAngle);
+DEFINE_validator(min_depth_voxels, &ValidateNonNegative);
 DEFINE_validator(phantom_size, &ValidatePhantomSize);
+DEFINE_validator(source, &ValidateSource);
+
+namespace {
+
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
-  dsr::InitTool("Simulates a TEE-like sequence (paper protocol).\n  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=M] [--sigma=S] ...",
-                &argc, &argv);
-  if (FLAGS_out_dir.empty()) return dsr::Fail("--out_dir is required");
+  dsr::InitTool(
+      "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
+      "field of view, Gaussian noise) from the built-in phantom or --source.\n"
+      "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] ...\n"
+      "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
+      "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
+      {"out_dir"},
+      &argc,
+      &argv);
+
   dsr::SimulationOptions options;
   options.num_frames = FLAGS_num_frames;
-  options.noise_sigma = FLAGS_sigma;
-  options.seed = FLAGS_seed;
   options.max_rotation_deg = FLAGS_max_rotation_deg;
   options.max_translation_voxels = FLAGS_max_translation_voxels;
+  options.noise_sigma = FLAGS_sigma;
+  options.seed = FLAGS_seed;
+  CHECK(dsr::ParseSize3(FLAGS_frame_size, &options.frame_size));  // validated by its validator
   options.frame_spacing_mm = FLAGS_frame_spacing;
   options.azimuth_deg = FLAGS_azimuth_deg;
   options.elevation_deg = FLAGS_elevation_deg;
   options.min_depth_voxels = FLAGS_min_depth_voxels;
-  if (!dsr::ParseSize3(FLAGS_frame_size, &options.frame_size)) {
-    return dsr::Fail("--frame_size=" + FLAGS_frame_size + ": expected three positive integers 'nx,ny,nz'");
-  }
   std::string error;
   if (!options.Validate(&error)) return dsr::Fail(error);
 
+  auto start = std::chrono::steady_clock::now();
   dsr::Image source;
   if (FLAGS_source.empty()) {
     dsr::PhantomOptions phantom;
     phantom.size = FLAGS_phantom_size;
-    phantom.seed = FLAGS_seed;
+    phantom.seed = FLAGS_phantom_seed;
+    if (!phantom.Validate(&error)) return dsr::Fail(error);
     source = dsr::MakePhantom(phantom);
   } else if (!dsr::ReadImage(FLAGS_source, &source, &error)) {
     return dsr::Fail("--source: " + error);
   }
+  const double source_seconds = SecondsSince(start);
+  LOG(INFO) << (FLAGS_source.empty() ? "phantom " : "read ") << source.geometry.DebugString()
+            << " in " << source_seconds << " s";
+
   std::error_code ec;
   std::filesystem::create_directories(FLAGS_out_dir, ec);
-  if (ec || !std::filesystem::is_directory(FLAGS_out_dir)) {
-    return dsr::Fail("--out_dir=" + FLAGS_out_dir + ": cannot create the folder (" + ec.message() + ")");
+  if (!std::filesystem::is_directory(FLAGS_out_dir)) {
+    return dsr::Fail("--out_dir=" + FLAGS_out_dir + ": cannot create the folder" +
+                     (ec ? " (" + ec.message() + ")" : std::string()));
   }
+
+  start = std::chrono::steady_clock::now();
   dsr::SimulatedSequence sequence;
   if (!dsr::Simulate(source, options, &sequence, &error)) return dsr::Fail(error);
+  const double simulate_seconds = SecondsSince(start);
+  LOG(INFO) << "simulated " << options.num_frames << " frames in " << simulate_seconds << " s";
 
+  start = std::chrono::steady_clock::now();
+  const std::filesystem::path dir(FLAGS_out_dir);
   dsr::PosesFile poses;
-  const std::string dir = FLAGS_out_dir + "/";
   for (int f = 0; f < options.num_frames; ++f) {
-    char name[64];
-    std::snprintf(name, sizeof(name), "frame_%02d.nii.gz", f);
-    if (!dsr::WriteImage(sequence.frames[f], dir + name, &error)) return dsr::Fail(error, dsr::kExitFailed);
-    poses.images.push_back(name);
+    char frame_name[32], mask_name[32];
+    std::snprintf(frame_name, sizeof(frame_name), "frame_%02d.nii.gz", f);
+    std::snprintf(mask_name, sizeof(mask_name), "mask_%02d.nii.gz", f);
+    if (!dsr::WriteImage(sequence.frames[f], (dir / frame_name).string(), &error) ||
+        !dsr::WriteMask(sequence.masks[f], (dir / mask_name).string(), &error)) {
+      return dsr::Fail(error, dsr::kExitFailed);
+    }
+    poses.images.push_back(frame_name);
     poses.frame_from_world.push_back(sequence.frame_from_world[f]);
-    std::snprintf(name, sizeof(name), "mask_%02d.nii.gz", f);
-    if (!dsr::WriteMask(sequence.masks[f], dir + name, &error)) return dsr::Fail(error, dsr::kExitFailed);
   }
-  if (FLAGS_write_source && !dsr::WriteImage(source, dir + "source.nii.gz", &error)) {
+  if (FLAGS_write_source && !dsr::WriteImage(source, (dir / "source.nii.gz").string(), &error)) {
     return dsr::Fail(error, dsr::kExitFailed);
   }
-  if (!dsr::WritePoses(poses, dir + "gt_poses.json", &error)) return dsr::Fail(error, dsr::kExitFailed);
-  std::printf("dsr_simulate: %d frames of %dx%dx%d voxels (%lld field-of-view voxels each) written to %s\n",
-              options.num_frames, options.frame_size[0], options.frame_size[1], options.frame_size[2],
-              static_cast<long long>(dsr::CountInside(sequence.masks[0])), FLAGS_out_dir.c_str());
+  if (!dsr::WritePoses(poses, (dir / "gt_poses.json").string(), &error)) {
+    return dsr::Fail(error, dsr::kExitFailed);
+  }
+  const double write_seconds = SecondsSince(start);
+
+  const dsr::ImageGeometry& g = sequence.frames[0].geometry;
+  const int64_t fov_voxels = dsr::CountInside(dsr::PyramidFieldOfView(g, options));
+  std::printf("dsr_simulate: wrote %d frames of %dx%dx%d voxels at %g mm (%" PRId64
+              " field-of-view voxels, %" PRId64
+              " mask voxels each), %d masks and gt_poses.json%s to %s "
+              "(source %.2f s, simulation %.2f s, writing %.2f s)\n",
+              options.num_frames,
+              g.size[0],
+              g.size[1],
+              g.size[2],
+              g.spacing_mm[0],
+              fov_voxels,
+              dsr::CountInside(sequence.masks[0]),
+              options.num_frames,
+              FLAGS_write_source ? ", source.nii.gz" : "",
+              FLAGS_out_dir.c_str(),
+              source_seconds,
+              simulate_seconds,
+              write_seconds);
   return EXIT_SUCCESS;
 }

@@ -1,56 +1,128 @@
 #include "tools/tool_util.h"
 
+#include <cmath>
 #include <cstdio>
-#include <sstream>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
 
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
+// gflags calls this on parse errors and after printing --help (both with status 1). It is
+// exported by libgflags and used by its own tests; InitTool swaps it while parsing.
+namespace GFLAGS_NAMESPACE {
+extern void (*gflags_exitfunc)(int);
+}  // namespace GFLAGS_NAMESPACE
+
 namespace dsr {
 namespace {
-std::string tool_name = "dsr";
+
+std::string& ToolName() {
+  static std::string name = "dsr";
+  return name;
 }
 
-void InitTool(const char* usage, int* argc, char*** argv) {
-  tool_name = (*argv)[0];
-  const size_t slash = tool_name.rfind('/');
-  if (slash != std::string::npos) tool_name = tool_name.substr(slash + 1);
+void ExitWithBadInput(int) { std::exit(kExitBadInput); }
+void ExitAfterHelp(int) { std::exit(EXIT_SUCCESS); }
+
+std::string Trim(const std::string& text) {
+  const size_t begin = text.find_first_not_of(" \t");
+  if (begin == std::string::npos) return "";
+  const size_t end = text.find_last_not_of(" \t");
+  return text.substr(begin, end - begin + 1);
+}
+
+}  // namespace
+
+void InitTool(const char* usage,
+              const std::vector<std::string>& required_flags,
+              int* argc,
+              char*** argv) {
+  std::string name = (*argv)[0];
+  const size_t slash = name.rfind('/');
+  if (slash != std::string::npos) name = name.substr(slash + 1);
+  ToolName() = name;
   FLAGS_logtostderr = true;
-  FLAGS_minloglevel = 1;  // warnings and errors; --minloglevel=0 or --v=1 for more
   gflags::SetUsageMessage(usage);
-  gflags::ParseCommandLineFlags(argc, argv, true);
-  google::InitGoogleLogging(tool_name.c_str());
-  LOG(INFO) << "flags:\n" << gflags::CommandlineFlagsIntoString();
+
+  void (*const previous_exit)(int) = GFLAGS_NAMESPACE::gflags_exitfunc;
+  GFLAGS_NAMESPACE::gflags_exitfunc = &ExitWithBadInput;
+  gflags::ParseCommandLineNonHelpFlags(argc, argv, /*remove_flags=*/true);
+  GFLAGS_NAMESPACE::gflags_exitfunc = &ExitAfterHelp;
+  gflags::HandleCommandLineHelpFlags();
+  GFLAGS_NAMESPACE::gflags_exitfunc = previous_exit;
+
+  if (*argc > 1) {
+    std::exit(Fail(std::string("unexpected argument '") + (*argv)[1] +
+                   "' (every input is a --flag=value; see --helpshort)"));
+  }
+  for (const std::string& flag : required_flags) {
+    std::string value;
+    CHECK(gflags::GetCommandLineOption(flag.c_str(), &value)) << "no flag --" << flag;
+    if (value.empty()) std::exit(Fail("--" + flag + " is required (see --helpshort)"));
+  }
+  google::InitGoogleLogging((*argv)[0]);
+  VLOG(1) << "flags:\n" << gflags::CommandlineFlagsIntoString();
 }
 
 int Fail(const std::string& message, int code) {
-  std::fprintf(stderr, "%s: error: %s\n", tool_name.c_str(), message.c_str());
+  std::fprintf(stderr, "%s: error: %s\n", ToolName().c_str(), message.c_str());
+  std::fflush(stderr);
   return code;
 }
 
-std::vector<std::string> SplitCommaList(const std::string& text) {
-  std::vector<std::string> out;
-  std::stringstream s(text);
-  std::string item;
-  while (std::getline(s, item, ',')) {
-    if (!item.empty()) out.push_back(item);
-  }
-  return out;
+void ExitBadFlag(const char* flag, const std::string& value, const std::string& rule) {
+  std::exit(Fail(std::string("--") + flag + "=" + value + ": " + rule));
 }
 
-bool ParseSize3(const std::string& text, Eigen::Vector3i* size) {
-  const std::vector<std::string> parts = SplitCommaList(text);
-  if (parts.size() != 3) return false;
-  for (int a = 0; a < 3; ++a) {
-    try {
-      size_t used = 0;
-      const int v = std::stoi(parts[a], &used);
-      if (used != parts[a].size() || v <= 0) return false;
-      (*size)[a] = v;
-    } catch (const std::exception&) {
-      return false;
-    }
+bool CheckInputFileFlag(const char* flag, const std::string& path) {
+  if (path.empty()) return true;
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) ExitBadFlag(flag, path, "no such file");
+  if (!std::filesystem::is_regular_file(path, ec)) ExitBadFlag(flag, path, "not a regular file");
+  if (!std::ifstream(path, std::ios::binary).is_open())
+    ExitBadFlag(flag, path, "cannot open for reading");
+  return true;
+}
+
+std::vector<std::string> SplitCommaList(const std::string& text) {
+  std::vector<std::string> items;
+  size_t begin = 0;
+  while (begin <= text.size()) {
+    size_t end = text.find(',', begin);
+    if (end == std::string::npos) end = text.size();
+    const std::string item = Trim(text.substr(begin, end - begin));
+    if (!item.empty()) items.push_back(item);
+    begin = end + 1;
   }
+  return items;
+}
+
+bool ParseSize3(const std::string& text, Eigen::Vector3i* size, int min_value, int max_value) {
+  const std::vector<std::string> items = SplitCommaList(text);
+  if (items.size() != 3) return false;
+  Eigen::Vector3i parsed;
+  for (int a = 0; a < 3; ++a) {
+    char* end = nullptr;
+    const long v = std::strtol(items[a].c_str(), &end, 10);
+    if (end == items[a].c_str() || *end != '\0' || v < min_value || v > max_value) return false;
+    parsed[a] = static_cast<int>(v);
+  }
+  *size = parsed;
+  return true;
+}
+
+bool ParseVector3(const std::string& text, Eigen::Vector3d* vector) {
+  const std::vector<std::string> items = SplitCommaList(text);
+  if (items.size() != 3) return false;
+  Eigen::Vector3d parsed;
+  for (int a = 0; a < 3; ++a) {
+    char* end = nullptr;
+    parsed[a] = std::strtod(items[a].c_str(), &end);
+    if (end == items[a].c_str() || *end != '\0' || !std::isfinite(parsed[a])) return false;
+  }
+  *vector = parsed;
   return true;
 }
 

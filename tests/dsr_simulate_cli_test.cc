@@ -1,0 +1,212 @@
+// dsr_simulate's command line (tools/dsr_simulate.cc): runs the built binary
+// (DSR_SIMULATE_BIN, set by CMake) and checks its files, exit codes and error lines.
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "core/io_image.h"
+#include "core/io_poses.h"
+
+namespace dsr {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ToolRun {
+  int exit_code = -1;
+  std::string out, err;
+  std::vector<std::string> err_lines;
+};
+
+std::string ReadText(const fs::path& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+class DsrSimulateCli : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    dir_ = fs::temp_directory_path() /
+           ("dsr_simulate_cli_test_" + std::to_string(getpid()) + "_" + info->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // Runs the binary with `args` (each a single shell word, no quoting needed here).
+  ToolRun Simulate(const std::string& args) {
+    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
+    const std::string command = std::string(DSR_SIMULATE_BIN) + " " + args + " > " + out.string() +
+                                " 2> " + err.string() + " < /dev/null";
+    const int status = std::system(command.c_str());
+    ToolRun run;
+    run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+    run.out = ReadText(out);
+    run.err = ReadText(err);
+    std::istringstream lines(run.err);
+    for (std::string line; std::getline(lines, line);) {
+      if (!line.empty()) run.err_lines.push_back(line);
+    }
+    return run;
+  }
+
+  // Lines of stderr that report an error (glog's INFO lines start with 'I').
+  static std::vector<std::string> ErrorLines(const ToolRun& run) {
+    std::vector<std::string> errors;
+    for (const std::string& line : run.err_lines) {
+      if (line.find("error") != std::string::npos || line.find("ERROR") != std::string::npos) {
+        errors.push_back(line);
+      }
+    }
+    return errors;
+  }
+
+  // A tiny, fast configuration that fits a 48^3 phantom.
+  static std::string Tiny() {
+    return "--phantom_size=48 --frame_size=20,20,16 --num_frames=3 --max_rotation_deg=5 "
+           "--max_translation_voxels=2 --min_depth_voxels=2";
+  }
+
+  fs::path dir_;
+};
+
+TEST_F(DsrSimulateCli, TinyRunWritesFramesMasksAndPoses) {
+  const fs::path out = dir_ / "new" / "run";  // created, two levels
+  const ToolRun run =
+      Simulate("--out_dir=" + out.string() + " " + Tiny() + " --write_source --seed=7 --v=1");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.out.find("wrote 3 frames of 20x20x16"), std::string::npos) << run.out;
+  EXPECT_NE(run.err.find("flags:"), std::string::npos) << "flags are logged at --v=1";
+  EXPECT_NE(run.err.find("--num_frames=3"), std::string::npos);
+
+  PosesFile poses;
+  std::string error;
+  ASSERT_TRUE(ReadPoses((out / "gt_poses.json").string(), 3, &poses, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    const std::string frame_name = "frame_0" + std::to_string(f) + ".nii.gz";
+    EXPECT_EQ(poses.images[f], frame_name);
+    Image frame;
+    ASSERT_TRUE(ReadImage((out / frame_name).string(), &frame, &error)) << error;
+    EXPECT_EQ(frame.geometry.size, Eigen::Vector3i(20, 20, 16));
+    EXPECT_TRUE(frame.geometry.spacing_mm.isApprox(Eigen::Vector3d::Ones()));
+    Mask mask;
+    ASSERT_TRUE(ReadMask(
+        (out / ("mask_0" + std::to_string(f) + ".nii.gz")).string(), frame.geometry, &mask, &error))
+        << error;
+    // Mask voxels lie in the field of view, where intensities are non-zero except where
+    // noise was clamped at 0 (dark blood pools).
+    int64_t inside = 0, zero_inside = 0;
+    for (size_t v = 0; v < mask.voxels.size(); ++v) {
+      if (!mask.voxels[v]) continue;
+      ++inside;
+      zero_inside += frame.voxels[v] == 0.0f;
+    }
+    EXPECT_GT(inside, 500);
+    EXPECT_LT(zero_inside, inside / 5);
+  }
+  Image source;
+  ASSERT_TRUE(ReadImage((out / "source.nii.gz").string(), &source, &error)) << error;
+  EXPECT_EQ(source.geometry.size, Eigen::Vector3i(48, 48, 48));
+
+  // Same flags, same sequence.
+  const fs::path again = dir_ / "again";
+  ASSERT_EQ(Simulate("--out_dir=" + again.string() + " " + Tiny() + " --seed=7").exit_code, 0);
+  EXPECT_EQ(ReadText(out / "gt_poses.json"), ReadText(again / "gt_poses.json"));
+  Image a, b;
+  ASSERT_TRUE(ReadImage((out / "frame_02.nii.gz").string(), &a, &error));
+  ASSERT_TRUE(ReadImage((again / "frame_02.nii.gz").string(), &b, &error));
+  EXPECT_EQ(a.voxels, b.voxels);
+}
+
+TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
+  const std::string out = " --out_dir=" + (dir_ / "bad").string();
+  struct Case {
+    std::string args, expected;
+  };
+  const Case cases[] = {
+      {"--num_frames=1" + out, "--num_frames=1: must be in [2, 1000]"},
+      {"--sigma=-1" + out, "--sigma=-1: must be finite and >= 0"},
+      {"--frame_size=96,96" + out, "--frame_size=96,96: must be three integers"},
+      {"--frame_size=96,x,80" + out, "--frame_size=96,x,80"},
+      {"--azimuth_deg=180" + out, "--azimuth_deg=180: must be in (0, 180)"},
+      {"--max_rotation_deg=200" + out, "--max_rotation_deg=200"},
+      {"--phantom_size=8" + out, "--phantom_size=8: must be in [16, 512]"},
+      {"--num_frames=abc" + out, "num_frames"},
+      {"--no_such_flag=1" + out, "no_such_flag"},
+      {"--source=" + (dir_ / "missing.nii.gz").string() + out, "missing.nii.gz: no such file"},
+      {"--source=" + dir_.string() + out, "not a regular file"},
+      {"", "--out_dir is required"},
+      {"extra_argument" + out, "unexpected argument 'extra_argument'"},
+  };
+  for (const Case& c : cases) {
+    const ToolRun run = Simulate(c.args);
+    EXPECT_EQ(run.exit_code, 2) << c.args << "\n" << run.err;
+    ASSERT_EQ(run.err_lines.size(), 1u) << c.args << "\n" << run.err;
+    EXPECT_NE(run.err_lines[0].find(c.expected), std::string::npos) << c.args << "\n" << run.err;
+  }
+  EXPECT_FALSE(fs::exists(dir_ / "bad")) << "nothing is written on bad input";
+}
+
+TEST_F(DsrSimulateCli, BadInputFoundAfterStartExitsWithOneErrorLine) {
+  // These are found after the flags are logged: one error line among glog's INFO lines.
+  std::ofstream(dir_ / "corrupt.nii.gz") << "not an image";
+  std::ofstream(dir_ / "file") << "a file where a folder is needed";
+  const std::string out = " --out_dir=" + (dir_ / "out").string();
+  struct Case {
+    std::string args, expected;
+  };
+  const Case cases[] = {
+      {"--source=" + (dir_ / "corrupt.nii.gz").string() + out, "corrupt.nii.gz"},
+      {"--min_depth_voxels=90" + out,
+       "--min_depth_voxels=90: must be in [0, frame depth - 3 = 77]"},
+      {"--phantom_size=40" + out, "outside the source grid"},
+      {"--out_dir=" + (dir_ / "file" / "sub").string() + " " + Tiny(), "cannot create the folder"},
+  };
+  for (const Case& c : cases) {
+    const ToolRun run = Simulate(c.args);
+    EXPECT_EQ(run.exit_code, 2) << c.args << "\n" << run.err;
+    const std::vector<std::string> errors = ErrorLines(run);
+    ASSERT_EQ(errors.size(), 1u) << c.args << "\n" << run.err;
+    EXPECT_NE(errors[0].find("dsr_simulate: error: "), std::string::npos) << errors[0];
+    EXPECT_NE(errors[0].find(c.expected), std::string::npos) << c.args << "\n" << run.err;
+  }
+}
+
+TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
+  for (const char* help : {"--helpshort", "--help"}) {
+    const ToolRun run = Simulate(help);
+    EXPECT_EQ(run.exit_code, 0) << help;
+    for (const char* flag : {"out_dir",
+                             "source",
+                             "seed",
+                             "num_frames",
+                             "sigma",
+                             "max_rotation_deg",
+                             "max_translation_voxels",
+                             "frame_size",
+                             "frame_spacing",
+                             "azimuth_deg",
+                             "elevation_deg",
+                             "min_depth_voxels",
+                             "phantom_size",
+                             "phantom_seed",
+                             "write_source"}) {
+      EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)
+          << help << " lacks --" << flag;
+    }
+  }
+}
+
+}  // namespace
+}  // namespace dsr
