@@ -37,6 +37,16 @@ bool SolveOptions::Validate(std::string* error) const {
       return false;
     }
   }
+  if (!std::isfinite(step_tolerance_voxels) || step_tolerance_voxels < 0.0) {
+    std::ostringstream s;
+    s << "--step_tolerance=" << step_tolerance_voxels << ": must be finite and >= 0";
+    *error = s.str();
+    return false;
+  }
+  if (max_rejected_steps < 0) {
+    *error = "--max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
+    return false;
+  }
   return true;
 }
 

@@ -23,10 +23,17 @@ struct SolveOptions {
   double parameter_tolerance = 1e-10;
   int num_threads = 0;  // <= 0: all hardware threads
   bool log_progress = true;  // one line per iteration on stderr
+  // Prepended to the mode's name on progress lines (e.g. "level 2 " -> "level 2 dsr iter").
+  std::string progress_prefix;
   // Ceres accepts a step only when the cost drops by at least this fraction of the model's
   // prediction. Tests that study Gauss-Newton fixed points lower it (see DESIGN.md
   // section 4); users keep Ceres's default.
   double min_relative_decrease = 1e-3;
+  // The pose stopping rule of core/convergence.h: stop when an accepted step moves no
+  // field of view by more than this many voxels (0 = off), or after this many rejected
+  // steps in a row (0 = off). Tests that converge to 1e-8 turn both off.
+  double step_tolerance_voxels = 1e-3;
+  int max_rejected_steps = 5;
 
   // Checks names and ranges; `error` names the option (as its command-line flag).
   bool Validate(std::string* error) const;

@@ -7,6 +7,8 @@
 
 #include <glog/logging.h>
 
+#include "core/convergence.h"
+
 #include "core/parallel.h"
 
 namespace dsr {
@@ -197,8 +199,16 @@ bool SolveDba(const std::vector<Frame>& frames,
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
     solver_options.linear_solver_ordering = dba.MakeOrdering();
   }
-  ProgressCallback progress("dba", options.solve.log_progress);
+  ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.log_progress);
   solver_options.callbacks.push_back(&progress);
+  std::vector<const double*> pose_blocks(frames.size(), nullptr);
+  for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dba.pose_parameters(i);
+  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance_voxels,
+                        options.solve.max_rejected_steps);
+  if (options.solve.step_tolerance_voxels > 0.0 || options.solve.max_rejected_steps > 0) {
+    solver_options.update_state_every_iteration = true;
+    solver_options.callbacks.push_back(&stop);
+  }
   std::string why;
   if (!solver_options.IsValid(&why)) {
     *error = "invalid solver options: " + why;
@@ -207,6 +217,7 @@ bool SolveDba(const std::vector<Frame>& frames,
   ceres::Solver::Summary summary;
   ceres::Solve(solver_options, &dba.problem(), &summary);
   FillReport(summary, progress, report);
+  if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dba.Poses();
   report->observations_per_iteration = dba.num_residual_blocks();
   if (intensities != nullptr) {

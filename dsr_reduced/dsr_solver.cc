@@ -3,6 +3,8 @@
 
 #include <glog/logging.h>
 
+#include "core/convergence.h"
+
 #include "dsr_reduced/reduced_cost.h"
 
 namespace dsr {
@@ -93,9 +95,17 @@ bool SolveDsr(const std::vector<Frame>& frames,
     // itself evaluates the few chunks one after another.
     solver_options.num_threads = 1;
   }
-  ProgressCallback progress(options.reference_cost ? "dsr-ref" : "dsr",
+  ProgressCallback progress(options.solve.progress_prefix + (options.reference_cost ? "dsr-ref" : "dsr"),
                             options.solve.log_progress);
   solver_options.callbacks.push_back(&progress);
+  std::vector<const double*> pose_blocks(frames.size(), nullptr);
+  for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);
+  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance_voxels,
+                        options.solve.max_rejected_steps);
+  if (options.solve.step_tolerance_voxels > 0.0 || options.solve.max_rejected_steps > 0) {
+    solver_options.update_state_every_iteration = true;
+    solver_options.callbacks.push_back(&stop);
+  }
   std::string why;
   if (!solver_options.IsValid(&why)) {
     *error = "invalid solver options: " + why;
@@ -104,6 +114,7 @@ bool SolveDsr(const std::vector<Frame>& frames,
   ceres::Solver::Summary summary;
   ceres::Solve(solver_options, &dsr.problem(), &summary);
   FillReport(summary, progress, report);
+  if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
   ReducedSystem counts;
   AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,

@@ -140,6 +140,8 @@ TEST(Dba, PanoramaAtConvergenceIsThePerVoxelMean) {
   options.solve.function_tolerance = 1e-14;
   options.solve.parameter_tolerance = 1e-14;
   options.solve.gradient_tolerance = 1e-16;
+  options.solve.step_tolerance_voxels = 0.0;  // converge fully (core/convergence.h off)
+  options.solve.max_rejected_steps = 0;
   SolveReport report;
   std::vector<float> intensities;
   std::string error;

@@ -1,0 +1,214 @@
+#include "pipeline/registration.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <sstream>
+
+#include <glog/logging.h>
+
+#include "core/convergence.h"
+#include "core/panorama.h"
+#include "core/parallel.h"
+#include "core/pyramid.h"
+#include "dba/dba_problem.h"
+#include "dsr_reduced/dsr_solver.h"
+
+namespace dsr {
+namespace {
+
+double Seconds(std::chrono::steady_clock::time_point since) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+// Runs the mode's solver once with the candidates fixed.
+bool SolveOnce(const RegistrationOptions& options,
+               const SolveOptions& solve,
+               const std::vector<Frame>& frames,
+               const CandidateSet& candidates,
+               const std::vector<Eigen::Isometry3d>& initial,
+               SolveReport* report,
+               std::vector<float>* dba_intensities,
+               std::string* error) {
+  if (options.mode == "dsr") {
+    DsrOptions dsr;
+    dsr.solve = solve;
+    dsr.num_chunks = options.dsr_num_chunks;
+    dsr.reference_cost = options.dsr_reference_cost;
+    return SolveDsr(frames, candidates, initial, dsr, report, error);
+  }
+  if (options.mode == "dba") {
+    DbaOptions dba;
+    dba.solve = solve;
+    dba.memory_budget_bytes = options.dba_memory_budget_bytes;
+    return SolveDba(frames, candidates, initial, dba, report, dba_intensities, error);
+  }
+  *error = "--mode=" + options.mode + ": unknown mode";
+  return false;
+}
+
+}  // namespace
+
+std::vector<std::string> ModeNames() { return {"dsr", "dba"}; }
+
+bool RegistrationOptions::Validate(std::string* error) const {
+  const std::vector<std::string> modes = ModeNames();
+  if (std::find(modes.begin(), modes.end(), mode) == modes.end()) {
+    std::string list;
+    for (const std::string& m : modes) list += (list.empty() ? "" : "|") + m;
+    *error = "--mode=" + mode + ": unknown mode (one of " + list + ")";
+    return false;
+  }
+  if (!solve.Validate(error)) return false;
+  auto bad = [&](const std::string& flag, const std::string& value, const std::string& rule) {
+    *error = "--" + flag + "=" + value + ": " + rule;
+    return false;
+  };
+  if (!(panorama_spacing > 0.0) || !std::isfinite(panorama_spacing)) {
+    return bad("panorama_spacing", std::to_string(panorama_spacing), "must be a positive number");
+  }
+  if (pyramid_levels < 1 || pyramid_levels > 8) {
+    return bad("pyramid_levels", std::to_string(pyramid_levels), "must be in 1..8");
+  }
+  if (!(pyramid_sigma_voxels >= 0.0) || !std::isfinite(pyramid_sigma_voxels)) {
+    return bad("pyramid_sigma", std::to_string(pyramid_sigma_voxels), "must be >= 0");
+  }
+  if (!(finest_sigma_voxels >= 0.0) || !std::isfinite(finest_sigma_voxels)) {
+    return bad("smoothing", std::to_string(finest_sigma_voxels), "must be >= 0");
+  }
+  if (pyramid_min_size < 4) {
+    return bad("pyramid_min_size", std::to_string(pyramid_min_size), "must be >= 4");
+  }
+  if (coarse_max_iterations < 1) {
+    return bad("coarse_max_iterations", std::to_string(coarse_max_iterations), "must be >= 1");
+  }
+  if (max_rebuilds < 0) return bad("max_rebuilds", std::to_string(max_rebuilds), "must be >= 0");
+  if (!(rebuild_tolerance_voxels > 0.0)) {
+    return bad("rebuild_tolerance", std::to_string(rebuild_tolerance_voxels), "must be > 0");
+  }
+  if (min_shared_voxels < 1) {
+    return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
+  }
+  if (mode == "dsr") {
+    DsrOptions dsr;
+    dsr.solve = solve;
+    dsr.num_chunks = dsr_num_chunks;
+    if (!dsr.Validate(error)) return false;
+  }
+  if (mode == "dba") {
+    DbaOptions dba;
+    dba.solve = solve;
+    if (!dba.Validate(error)) return false;
+  }
+  return true;
+}
+
+bool Register(const std::vector<Image>& images,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  const int m = static_cast<int>(images.size());
+  if (m < 2) {
+    *error = "need at least 2 frames, got " + std::to_string(m);
+    return false;
+  }
+  if (m > kMaxFrames) {
+    *error = "at most " + std::to_string(kMaxFrames) + " frames, got " + std::to_string(m);
+    return false;
+  }
+  CHECK_EQ(masks.size(), images.size());
+  CHECK_EQ(initial_frame_from_world.size(), images.size());
+  if (!options.Validate(error)) return false;
+  *result = RegistrationResult();
+
+  // Pyramids, coarsest level last.
+  std::vector<std::vector<ImageLevel>> pyramids(m);
+  int levels = options.pyramid_levels;
+  for (int i = 0; i < m; ++i) {
+    pyramids[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
+                               options.pyramid_sigma_voxels, options.finest_sigma_voxels,
+                               options.pyramid_min_size, options.solve.num_threads);
+    levels = std::min(levels, static_cast<int>(pyramids[i].size()));
+  }
+  result->pyramid_seconds = Seconds(start);
+
+  std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
+  result->usable = true;
+  for (int level = levels - 1; level >= 0; --level) {
+    std::vector<Frame> frames;
+    frames.reserve(m);
+    for (int i = 0; i < m; ++i) {
+      frames.emplace_back(pyramids[i][level].image, pyramids[i][level].mask);
+      if (frames.back().num_valid_cells() == 0) {
+        *error = "frame " + std::to_string(i) + " has no valid voxel at pyramid level " +
+                 std::to_string(level) + " (field-of-view mask too small; use fewer " +
+                 "--pyramid_levels or a larger mask)";
+        return false;
+      }
+    }
+    // Level-0 pyramids are no longer needed after this level's frames are built.
+    SolveOptions solve = options.solve;
+    if (level > 0) solve.max_iterations = std::min(solve.max_iterations, options.coarse_max_iterations);
+    for (int rebuild = 0; rebuild <= options.max_rebuilds; ++rebuild) {
+      LevelSolve record;
+      record.level = level;
+      record.rebuild = rebuild;
+      ImageGeometry grid;
+      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, error)) return false;
+      record.panorama_spacing_mm = grid.spacing_mm;
+      const CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
+      record.candidate_voxels = candidates.num_voxels();
+      record.candidate_observations = candidates.NumObservations();
+      std::string connect_error;
+      if (!CheckConnected(candidates, options.min_shared_voxels, &connect_error)) {
+        *error = connect_error + " at pyramid level " + std::to_string(level) +
+                 " (check --init, the masks, or use fewer --pyramid_levels)";
+        return false;
+      }
+      std::ostringstream prefix;
+      prefix << "level " << level << "." << rebuild << " ";
+      solve.progress_prefix = options.solve.progress_prefix + prefix.str();
+      std::vector<float> intensities;
+      if (!SolveOnce(options, solve, frames, candidates, poses, &record.report,
+                     options.mode == "dba" && level == 0 ? &intensities : nullptr, error)) {
+        return false;
+      }
+      const std::vector<Eigen::Isometry3d> next = RelativeToFrame0(record.report.frame_from_world);
+      for (int i = 1; i < m; ++i) {
+        record.max_motion_voxels =
+            std::max(record.max_motion_voxels, MaxCornerMotionVoxels(frames[i], poses[i], next[i]));
+      }
+      result->total_iterations += record.report.num_iterations;
+      const bool usable = record.report.usable;
+      if (usable) poses = next;
+      if (level == 0) {
+        result->grid = grid;
+        if (!intensities.empty()) {
+          result->dba_intensities = Image(grid, 0.0f);
+          for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+            result->dba_intensities.voxels[candidates.voxel[v]] = intensities[v];
+          }
+        }
+      }
+      const double motion = record.max_motion_voxels;
+      result->solves.push_back(std::move(record));
+      if (!usable) {
+        result->usable = false;
+        result->failure = "the solve at pyramid level " + std::to_string(level) +
+                          " is not usable: " + result->solves.back().report.termination;
+        result->frame_from_world = poses;
+        result->seconds = Seconds(start);
+        return true;
+      }
+      if (motion <= options.rebuild_tolerance_voxels) break;
+    }
+  }
+  result->frame_from_world = poses;
+  result->seconds = Seconds(start);
+  return true;
+}
+
+}  // namespace dsr

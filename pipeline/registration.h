@@ -1,0 +1,103 @@
+// The registration pipeline every mode runs (issues 3-6): load-independent, flag-free.
+//
+//   for each pyramid level, coarsest first (core/pyramid.h):
+//     frames <- the level's images and masks (core/frame.h)
+//     repeat (at most max_rebuilds + 1 times):
+//       grid       <- BuildPanoramaGrid at the current poses (spacing: frame 0's spacing at
+//                     this level times panorama_spacing)
+//       candidates <- BuildCandidates at the current poses (margin 0; the shared rule)
+//       check that the overlap graph connects every frame
+//       poses      <- the mode's solver from the current poses (candidates fixed)
+//       stop when that solve moved no field-of-view corner by more than
+//       rebuild_tolerance_voxels (in the level's voxels)
+//
+// The candidate set is fixed during one solve (so each solve minimises one function of
+// the poses, the same for every mode); rebuilding it between solves lets frames that
+// moved into or out of each other's field of view enter or leave.
+#ifndef DSR_PIPELINE_REGISTRATION_H_
+#define DSR_PIPELINE_REGISTRATION_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/solve_options.h"
+#include "core/volume.h"
+
+namespace dsr {
+
+struct RegistrationOptions {
+  // "dsr" (reduced problem, default) or "dba" (full bundle adjustment); the baselines
+  // register further names (see ModeNames()).
+  std::string mode = "dsr";
+  SolveOptions solve;             // per solve; max_iterations is the finest level's limit
+  double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
+
+  // Pyramid (core/pyramid.h). Level 0 is the input resolution.
+  int pyramid_levels = 3;
+  double pyramid_sigma_voxels = 1.0;   // smoothing before each halving
+  double finest_sigma_voxels = 0.0;    // smoothing of the finest level itself
+  int pyramid_min_size = 12;           // no level with an axis shorter than this
+  // Iteration limit of each solve on the coarser levels (the finest uses solve.max_iterations).
+  int coarse_max_iterations = 50;
+
+  // Candidate rebuilds per level (outer loop) and when to stop them.
+  int max_rebuilds = 4;
+  double rebuild_tolerance_voxels = 0.01;
+
+  // Frames must share at least this many candidate voxels along a spanning tree.
+  int64_t min_shared_voxels = 64;
+
+  // Mode-specific.
+  int dsr_num_chunks = 1;
+  bool dsr_reference_cost = false;
+  double dba_memory_budget_bytes = 0.0;  // <= 0: half the machine's RAM
+
+  bool Validate(std::string* error) const;
+};
+
+// One solve of the pipeline.
+struct LevelSolve {
+  int level = 0;    // 0 = finest
+  int rebuild = 0;  // 0 = first solve of the level
+  Eigen::Vector3d panorama_spacing_mm = Eigen::Vector3d::Ones();
+  int64_t candidate_voxels = 0;
+  int64_t candidate_observations = 0;
+  double max_motion_voxels = 0.0;  // largest field-of-view corner motion of this solve
+  SolveReport report;
+};
+
+struct RegistrationResult {
+  std::vector<Eigen::Isometry3d> frame_from_world;  // final poses, frame 0 = identity
+  std::vector<LevelSolve> solves;
+  bool usable = false;        // every solve usable and the final cost finite
+  std::string failure;        // why not usable
+  double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
+  double pyramid_seconds = 0.0;
+  int total_iterations = 0;
+  // The last solve's panorama grid and, for --mode=dba, its optimised intensities on that
+  // grid (0 at voxels that are not candidates); empty for other modes.
+  ImageGeometry grid;
+  Image dba_intensities;
+};
+
+// Names accepted by RegistrationOptions::mode.
+std::vector<std::string> ModeNames();
+
+// Registers. `initial_frame_from_world` is re-expressed relative to frame 0 first.
+// Returns false with `error` for bad input or set-up problems (e.g. frames that do not
+// overlap, a DBA problem over the memory budget); a solve that ran but is not usable
+// returns true with result->usable = false and result->failure.
+bool Register(const std::vector<Image>& images,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_PIPELINE_REGISTRATION_H_

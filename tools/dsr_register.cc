@@ -1,0 +1,229 @@
+// dsr_register: registers several 3D images simultaneously (pipeline/registration.h) and
+// writes the poses (DESIGN.md section 1), optionally the panorama, and, with
+// --gt_poses, prints per-frame errors against ground truth (core/eval.h).
+#include <chrono>
+#include <cinttypes>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <set>
+
+#include <gflags/gflags.h>
+#include <glog/logging.h>
+
+#include "core/eval.h"
+#include "core/io_image.h"
+#include "core/io_poses.h"
+#include "core/panorama.h"
+#include "core/solve_options.h"
+#include "pipeline/registration.h"
+#include "tools/tool_util.h"
+
+DEFINE_string(images, "", "Comma-separated frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, "
+              ".nhdr), frame 0 first (it fixes the world). Required, at least 2.");
+DEFINE_string(masks, "", "Comma-separated field-of-view masks, one per image, on the image's "
+              "grid (non-zero = inside). Empty: each image's non-zero voxels eroded by "
+              "--mask_erosion voxels.");
+DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no --masks are "
+             "given, in [0, 50].");
+DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated) or dba "
+              "(full direct bundle adjustment in Ceres; small problems only).");
+DEFINE_string(init, "identity", "Initial poses: 'identity' or a poses JSON file (DESIGN.md "
+              "section 1) with one entry per image.");
+DEFINE_double(panorama_spacing, 1.0, "Panorama voxel spacing as a multiple of frame 0's "
+              "spacing (at every pyramid level), > 0. Larger = fewer voxels, less memory.");
+DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
+              "frame 0 = identity). Required.");
+DEFINE_string(out_panorama, "", "Optional output image of the panorama on the final grid: "
+              "the per-voxel mean of the observations (paper eq. 10); with --mode=dba the "
+              "optimised intensities.");
+DEFINE_string(gt_poses, "", "Optional ground-truth poses JSON (e.g. dsr_simulate's "
+              "gt_poses.json): prints per-frame errors and the mean absolute errors.");
+DEFINE_string(linear_solver, "", "Ceres linear solver. dba: DENSE_SCHUR (default), "
+              "SPARSE_SCHUR, ITERATIVE_SCHUR, DENSE_QR, SPARSE_NORMAL_CHOLESKY. dsr: DENSE_QR "
+              "(default), DENSE_NORMAL_CHOLESKY.");
+DEFINE_string(trust_region, "LEVENBERG_MARQUARDT", "LEVENBERG_MARQUARDT or DOGLEG.");
+DEFINE_int32(max_iterations, 100, "Iteration limit of each solve on the finest level, >= 1.");
+DEFINE_int32(coarse_max_iterations, 50, "Iteration limit of each solve on coarser levels, >= 1.");
+DEFINE_double(function_tolerance, 1e-8, "Ceres function tolerance (relative cost change).");
+DEFINE_double(gradient_tolerance, 1e-12, "Ceres gradient tolerance.");
+DEFINE_double(parameter_tolerance, 1e-10, "Ceres parameter tolerance (relative step).");
+DEFINE_double(step_tolerance, 1e-3, "A solve stops when an accepted step moves no frame's field "
+              "of view by more than this many voxels (0 = off), >= 0.");
+DEFINE_int32(max_rejected_steps, 5, "A solve stops after this many rejected steps in a row "
+             "(0 = off), >= 0.");
+DEFINE_int32(num_threads, 0, "Threads, 0 = all hardware threads.");
+DEFINE_int32(pyramid_levels, 3, "Pyramid levels (1 = full resolution only), in 1..8.");
+DEFINE_double(pyramid_sigma, 1.0, "Gaussian sigma (voxels) before each halving, >= 0.");
+DEFINE_double(smoothing, 0.0, "Gaussian sigma (voxels) applied to the finest level, >= 0.");
+DEFINE_int32(max_rebuilds, 4, "Candidate-set rebuilds per level after the first solve, >= 0.");
+DEFINE_double(rebuild_tolerance, 0.01, "A level stops rebuilding when its last solve moved "
+              "no field-of-view corner by more than this many voxels, > 0.");
+DEFINE_int32(num_chunks, 1, "dsr: residual blocks the candidate voxels are split into, >= 1.");
+DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
+            "small problems only).");
+DEFINE_double(memory_budget_mb, 0.0, "dba: refuse problems estimated above this many MiB; "
+              "0 = half the machine's RAM.");
+DEFINE_bool(progress, true, "Print one line per iteration on stderr.");
+
+namespace {
+
+using dsr::Fail;
+
+double SecondsSince(std::chrono::steady_clock::time_point start) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+}
+
+std::string Canonical(const std::string& path) {
+  std::error_code ec;
+  const std::filesystem::path p = std::filesystem::weakly_canonical(path, ec);
+  return ec ? path : p.string();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  dsr::InitTool(
+      "registers several 3D images simultaneously (DSR: direct simultaneous registration).\n"
+      "  dsr_register --images=a.nii.gz,b.nii.gz,... --out_poses=poses.json [--masks=...]\n"
+      "      [--mode=dsr|dba] [--init=identity|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
+      "Exit status: 0 ok, 2 bad input, 1 the solve failed (no pose file written). "
+      "--helpshort lists this tool's flags only.",
+      {"images", "out_poses"}, &argc, &argv);
+  const auto start = std::chrono::steady_clock::now();
+  std::string error;
+
+  // Options first, so that flag errors come before any file is read.
+  dsr::RegistrationOptions options;
+  options.mode = FLAGS_mode;
+  options.solve.trust_region = FLAGS_trust_region;
+  options.solve.linear_solver = FLAGS_linear_solver;
+  options.solve.max_iterations = FLAGS_max_iterations;
+  options.solve.function_tolerance = FLAGS_function_tolerance;
+  options.solve.gradient_tolerance = FLAGS_gradient_tolerance;
+  options.solve.parameter_tolerance = FLAGS_parameter_tolerance;
+  options.solve.num_threads = FLAGS_num_threads;
+  options.solve.step_tolerance_voxels = FLAGS_step_tolerance;
+  options.solve.max_rejected_steps = FLAGS_max_rejected_steps;
+  options.solve.log_progress = FLAGS_progress;
+  options.panorama_spacing = FLAGS_panorama_spacing;
+  options.pyramid_levels = FLAGS_pyramid_levels;
+  options.pyramid_sigma_voxels = FLAGS_pyramid_sigma;
+  options.finest_sigma_voxels = FLAGS_smoothing;
+  options.coarse_max_iterations = FLAGS_coarse_max_iterations;
+  options.max_rebuilds = FLAGS_max_rebuilds;
+  options.rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
+  options.dsr_num_chunks = FLAGS_num_chunks;
+  options.dsr_reference_cost = FLAGS_reference_cost;
+  if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {
+    return Fail("--memory_budget_mb=" + std::to_string(FLAGS_memory_budget_mb) + ": must be >= 0");
+  }
+  options.dba_memory_budget_bytes = FLAGS_memory_budget_mb * 1048576.0;
+  if (FLAGS_num_threads < 0) {
+    return Fail("--num_threads=" + std::to_string(FLAGS_num_threads) + ": must be >= 0");
+  }
+  if (FLAGS_mask_erosion < 0 || FLAGS_mask_erosion > 50) {
+    return Fail("--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ": must be in [0, 50]");
+  }
+  if (!options.Validate(&error)) return Fail(error);
+
+  const std::vector<std::string> image_paths = dsr::SplitCommaList(FLAGS_images);
+  const std::vector<std::string> mask_paths = dsr::SplitCommaList(FLAGS_masks);
+  const int m = static_cast<int>(image_paths.size());
+  if (m < 2) return Fail("--images: need at least 2 images, got " + std::to_string(m));
+  if (!mask_paths.empty() && static_cast<int>(mask_paths.size()) != m) {
+    return Fail("--masks: " + std::to_string(mask_paths.size()) + " masks for " +
+                std::to_string(m) + " images");
+  }
+  std::set<std::string> inputs;
+  for (const std::string& p : image_paths) {
+    if (!inputs.insert(Canonical(p)).second) {
+      return Fail("--images: " + p + " is given twice");
+    }
+  }
+  for (const std::string& p : mask_paths) inputs.insert(Canonical(p));
+  for (const std::string& out : {FLAGS_out_poses, FLAGS_out_panorama}) {
+    if (!out.empty() && inputs.count(Canonical(out)) > 0) {
+      return Fail("output " + out + " is one of the inputs; inputs are never overwritten");
+    }
+  }
+  if (!FLAGS_out_panorama.empty() && !dsr::HasSupportedImageExtension(FLAGS_out_panorama)) {
+    return Fail("--out_panorama=" + FLAGS_out_panorama +
+                ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)");
+  }
+
+  std::vector<dsr::Image> images(m);
+  std::vector<dsr::Mask> masks(m);
+  for (int i = 0; i < m; ++i) {
+    if (!dsr::ReadImage(image_paths[i], &images[i], &error)) return Fail(error);
+    if (!mask_paths.empty()) {
+      if (!dsr::ReadMask(mask_paths[i], images[i].geometry, &masks[i], &error)) return Fail(error);
+    } else {
+      masks[i] = dsr::MaskFromNonZero(images[i], FLAGS_mask_erosion);
+      if (dsr::CountInside(masks[i]) == 0) {
+        return Fail(image_paths[i] + ": no voxel left in the field of view (non-zero voxels "
+                    "eroded by --mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ")");
+      }
+    }
+  }
+  std::vector<Eigen::Isometry3d> initial(m, Eigen::Isometry3d::Identity());
+  if (FLAGS_init != "identity") {
+    if (FLAGS_init == "pairwise") {
+      return Fail("--init=pairwise: the pairwise initialiser is not available yet; use "
+                  "identity or a poses file");
+    }
+    dsr::PosesFile init;
+    if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
+    initial = init.frame_from_world;
+  }
+  dsr::PosesFile gt;
+  if (!FLAGS_gt_poses.empty() && !dsr::ReadPoses(FLAGS_gt_poses, m, &gt, &error)) {
+    return Fail("--gt_poses: " + error);
+  }
+  const double load_seconds = SecondsSince(start);
+
+  dsr::RegistrationResult result;
+  if (!dsr::Register(images, masks, initial, options, &result, &error)) return Fail(error);
+  if (!result.usable) return Fail(result.failure, dsr::kExitFailed);
+
+  dsr::PosesFile out;
+  out.frame_from_world = result.frame_from_world;
+  for (const std::string& p : image_paths) {
+    out.images.push_back(std::filesystem::path(p).filename().string());
+  }
+  if (!dsr::WritePoses(out, FLAGS_out_poses, &error)) return Fail(error, dsr::kExitFailed);
+  if (!FLAGS_out_panorama.empty()) {
+    dsr::Image panorama;
+    if (options.mode == "dba") {
+      panorama = result.dba_intensities;
+    } else {
+      std::vector<dsr::Frame> frames;
+      for (int i = 0; i < m; ++i) frames.emplace_back(images[i], masks[i]);
+      panorama = dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
+                                       options.solve.num_threads).mean;
+    }
+    if (!dsr::WriteImage(panorama, FLAGS_out_panorama, &error)) {
+      return Fail(error, dsr::kExitFailed);
+    }
+  }
+
+  const dsr::LevelSolve& last = result.solves.back();
+  std::printf("dsr_register: %s, %d frames, %zu solves over %d pyramid levels, %d iterations, "
+              "final cost %.6e (%" PRId64 " voxels, %" PRId64 " observations), %s\n",
+              options.mode.c_str(), m, result.solves.size(), result.solves.front().level + 1,
+              result.total_iterations, last.report.final_cost, last.candidate_voxels,
+              last.candidate_observations, last.report.termination.c_str());
+  std::printf("dsr_register: time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s), peak "
+              "memory %.0f MiB; wrote %s\n",
+              SecondsSince(start), load_seconds, result.pyramid_seconds,
+              result.seconds - result.pyramid_seconds,
+              static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
+  if (!FLAGS_gt_poses.empty()) {
+    const dsr::PoseErrorSummary errors =
+        dsr::ComparePoses(result.frame_from_world, gt.frame_from_world, masks);
+    std::printf("errors against %s (frame-0-relative):\n%s", FLAGS_gt_poses.c_str(),
+                errors.Table().c_str());
+  }
+  return EXIT_SUCCESS;
+}
