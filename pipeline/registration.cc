@@ -152,6 +152,7 @@ bool Register(const std::vector<Image>& images,
     // Level-0 pyramids are no longer needed after this level's frames are built.
     SolveOptions solve = options.solve;
     if (level > 0) solve.max_iterations = std::min(solve.max_iterations, options.coarse_max_iterations);
+    const std::vector<Eigen::Isometry3d> level_start = poses;
     for (int rebuild = 0; rebuild <= options.max_rebuilds; ++rebuild) {
       LevelSolve record;
       record.level = level;
@@ -164,8 +165,15 @@ bool Register(const std::vector<Image>& images,
       record.candidate_observations = candidates.NumObservations();
       std::string connect_error;
       if (!CheckConnected(candidates, options.min_shared_voxels, &connect_error)) {
-        *error = connect_error + " at pyramid level " + std::to_string(level) +
-                 " (check --init, the masks, or use fewer --pyramid_levels)";
+        if (level > 0) {
+          // Coarse levels have few voxels: a small overlap may only be countable at finer
+          // levels, and a coarse solve on a thin overlap may have drifted. Skip the level
+          // and start the next one from the poses this level started from.
+          LOG(INFO) << "skipping pyramid level " << level << ": " << connect_error;
+          poses = level_start;
+          break;
+        }
+        *error = connect_error + " (pyramid level " + std::to_string(level) + ")";
         return false;
       }
       std::ostringstream prefix;

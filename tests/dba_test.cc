@@ -184,5 +184,41 @@ TEST(Dba, MemoryGuardRefusesProblemsOverTheBudget) {
   EXPECT_GT(EstimateDbaMemory(c, 3, "DENSE_QR").bytes, e.bytes);
 }
 
+// Every linear solver flag value runs and reaches the same poses. A lattice-aligned problem
+// (test_problems.h) has its exact minimum at the ground truth, so each solver can be run
+// to the end and compared to 1e-8 rad / 1e-7 mm rather than to a stopping tolerance.
+TEST(Dba, EveryLinearSolverReachesTheSamePoses) {
+  SequenceOptions so;
+  so.num_frames = 3;
+  so.size = 11;
+  so.frame_offset = 3.0;
+  so.noise_sigma = 2.0;
+  so.lattice = true;
+  so.seed = 7;
+  const auto s = MakeSequence(so);
+  const auto init = testing_problems::Perturbed(s.ground_truth, 0.01, 0.3, 8);
+  const CandidateSet c = testing_problems::InteriorCandidates(s, init, 1.0);
+  ASSERT_GT(c.num_voxels(), 50);
+  for (const char* solver : {"DENSE_SCHUR", "SPARSE_SCHUR", "ITERATIVE_SCHUR", "DENSE_QR",
+                             "SPARSE_NORMAL_CHOLESKY"}) {
+    DbaOptions options = QuietOptions();
+    options.solve.linear_solver = solver;
+    options.solve.max_iterations = 2000;
+    options.solve.function_tolerance = 1e-20;
+    options.solve.gradient_tolerance = 1e-20;
+    options.solve.parameter_tolerance = 1e-15;
+    options.solve.step_tolerance_voxels = 0.0;
+    options.solve.max_rejected_steps = 0;
+    SolveReport report;
+    std::string error;
+    ASSERT_TRUE(SolveDba(s.frames, c, init, options, &report, nullptr, &error)) << error;
+    ASSERT_TRUE(report.usable) << solver << ": " << report.termination;
+    const auto [rotation, translation] =
+        testing_problems::MaxPoseDifference(report.frame_from_world, s.ground_truth);
+    EXPECT_LT(rotation, 1e-8) << solver << ": " << report.termination;
+    EXPECT_LT(translation, 1e-7) << solver << ": " << report.termination;
+  }
+}
+
 }  // namespace
 }  // namespace dsr

@@ -40,7 +40,24 @@ struct SequenceOptions {
   double max_translation = 1.5;  // mm, per axis
   int erosion = 1;             // mask = box eroded by this many voxels
   uint64_t seed = 1;
+  // Lattice-aligned frames: no rotation, translations in whole voxels, noise attached to
+  // the world lattice point. All frames are then crops of one discrete volume, so at the
+  // ground truth every observer of a point interpolates the same data: every residual is 0
+  // and the ground truth is the exact minimum of the cost and a Gauss-Newton fixed point.
+  bool lattice = false;
 };
+
+// Unit-variance noise that depends only on the world lattice point near `x` (mm).
+inline double LatticeNoise(const Eigen::Vector3d& x, double spacing, uint64_t seed) {
+  uint64_t h = seed * 0x9E3779B97F4A7C15ull;
+  for (int a = 0; a < 3; ++a) {
+    h ^= static_cast<uint64_t>(std::llround(x[a] / spacing) + (1 << 20));
+    h *= 0xBF58476D1CE4E5B9ull;
+    h ^= h >> 31;
+  }
+  std::mt19937_64 rng(h);
+  return std::normal_distribution<double>(0.0, 1.0)(rng);
+}
 
 inline TestSequence MakeSequence(const SequenceOptions& o) {
   std::mt19937_64 rng(o.seed);
@@ -67,6 +84,10 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
     Vector6d d;
     d << o.max_translation * u(rng), o.max_translation * u(rng), o.max_translation * u(rng),
         o.max_rotation * u(rng), o.max_rotation * u(rng), o.max_rotation * u(rng);
+    if (o.lattice) {
+      for (int a = 0; a < 3; ++a) d[a] = o.spacing * std::round(d[a] / o.spacing);
+      d.tail<3>().setZero();
+    }
     Eigen::Isometry3d center_from_world = Eigen::Isometry3d::Identity();
     center_from_world.translation() =
         -Eigen::Vector3d((i - 0.5 * (o.num_frames - 1)) * o.frame_offset, 0.0, 0.0);
@@ -85,7 +106,10 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
         for (int a = 0; a < o.size; ++a)
           image.at(a, j, k) = static_cast<float>(
               world_intensity(world_from_frame * g.IndexToPhysical(Eigen::Vector3d(a, j, k))) +
-              o.noise_sigma * noise(rng));
+              o.noise_sigma * (o.lattice ? LatticeNoise(world_from_frame * g.IndexToPhysical(
+                                                            Eigen::Vector3d(a, j, k)) + frame_center,
+                                                        o.spacing, o.seed)
+                                         : noise(rng)));
     Mask mask(g, 0);
     for (int k = o.erosion; k < o.size - o.erosion; ++k)
       for (int j = o.erosion; j < o.size - o.erosion; ++j)
@@ -122,6 +146,39 @@ inline CandidateSet Candidates(const TestSequence& s,
   std::string error;
   if (!BuildPanoramaGrid(s.frames, poses, 1.0, &grid, &error)) return CandidateSet();
   return BuildCandidates(s.frames, poses, grid, margin);
+}
+
+// Candidates (shared rule) that keep only observers whose sample at `poses` lies at least
+// `inset` cells inside the valid region. Solves that must reach a fixed point exactly use
+// them: a sample that becomes valid or invalid makes the cost jump (sigma_ij switches), and
+// a trust-region method that meets such a jump stops there, in any mode; solves that move
+// no sample by `inset` cells never meet one.
+inline CandidateSet InteriorCandidates(const TestSequence& s,
+                                const std::vector<Eigen::Isometry3d>& poses,
+                                double inset) {
+  const CandidateSet all = Candidates(s, poses);
+  CandidateSet out = all;
+  out.voxel.clear();
+  out.observers.clear();
+  for (int64_t v = 0; v < all.num_voxels(); ++v) {
+    uint32_t kept = 0;
+    for (int i = 0; i < all.num_frames; ++i) {
+      if (!(all.observers[v] >> i & 1u)) continue;
+      const Eigen::Vector3d u = s.frames[i].ToIndex(poses[i] * all.VoxelCenter(v));
+      bool interior = true;
+      for (int corner = 0; corner < 8 && interior; ++corner) {
+        const Eigen::Vector3d d(corner & 1 ? inset : -inset, corner & 2 ? inset : -inset,
+                                corner & 4 ? inset : -inset);
+        interior = s.frames[i].IsValidIndex(u + d);
+      }
+      if (interior) kept |= 1u << i;
+    }
+    if (__builtin_popcount(kept) >= 2) {
+      out.voxel.push_back(all.voxel[v]);
+      out.observers.push_back(kept);
+    }
+  }
+  return out;
 }
 
 // Rotation angle (rad) and translation (mm) between two poses.

@@ -55,6 +55,8 @@ DEFINE_int32(max_rejected_steps, 5, "A solve stops after this many rejected step
              "(0 = off), >= 0.");
 DEFINE_int32(num_threads, 0, "Threads, 0 = all hardware threads.");
 DEFINE_int32(pyramid_levels, 3, "Pyramid levels (1 = full resolution only), in 1..8.");
+DEFINE_int32(pyramid_min_size, 12, "No pyramid level has an axis shorter than this many voxels "
+             "(levels are dropped instead), >= 4.");
 DEFINE_double(pyramid_sigma, 1.0, "Gaussian sigma (voxels) before each halving, >= 0.");
 DEFINE_double(smoothing, 0.0, "Gaussian sigma (voxels) applied to the finest level, >= 0.");
 DEFINE_int32(max_rebuilds, 4, "Candidate-set rebuilds per level after the first solve, >= 0.");
@@ -110,6 +112,7 @@ int main(int argc, char** argv) {
   options.panorama_spacing = FLAGS_panorama_spacing;
   options.pyramid_levels = FLAGS_pyramid_levels;
   options.pyramid_sigma_voxels = FLAGS_pyramid_sigma;
+  options.pyramid_min_size = FLAGS_pyramid_min_size;
   options.finest_sigma_voxels = FLAGS_smoothing;
   options.coarse_max_iterations = FLAGS_coarse_max_iterations;
   options.max_rebuilds = FLAGS_max_rebuilds;
