@@ -76,9 +76,9 @@ ceres::CallbackReturnType ProgressCallback::operator()(const ceres::IterationSum
   r.step_accepted = s.step_is_successful;
   records_.push_back(r);
   if (log_) {
-    std::fprintf(stderr, "%s iter %3d  cost % .9e  step %.3e  %s  %.3f s\n", label_.c_str(),
-                 s.iteration, s.cost, s.step_norm, s.step_is_successful ? "accepted" : "rejected",
-                 s.cumulative_time_in_seconds);
+    std::fprintf(stderr, "%s iter %3d  cost % .9e  step %.3e  radius %.1e  %s  %.3f s\n",
+                 label_.c_str(), s.iteration, s.cost, s.step_norm, s.trust_region_radius,
+                 s.step_is_successful ? "accepted" : "rejected", s.cumulative_time_in_seconds);
   }
   return ceres::SOLVER_CONTINUE;
 }

@@ -32,7 +32,7 @@ struct SolveOptions {
   // The pose stopping rule of core/convergence.h: stop when an accepted step moves no
   // field of view by more than this many voxels (0 = off), or after this many rejected
   // steps in a row (0 = off). Tests that converge to 1e-8 turn both off.
-  double step_tolerance_voxels = 1e-3;
+  double step_tolerance_voxels = 5e-3;
   int max_rejected_steps = 5;
 
   // Checks names and ranges; `error` names the option (as its command-line flag).

@@ -46,7 +46,7 @@ struct RegistrationOptions {
 
   // Candidate rebuilds per level (outer loop) and when to stop them.
   int max_rebuilds = 4;
-  double rebuild_tolerance_voxels = 0.01;
+  double rebuild_tolerance_voxels = 0.05;
 
   // Frames must share at least this many candidate voxels along a spanning tree.
   int64_t min_shared_voxels = 64;

@@ -49,7 +49,7 @@ DEFINE_int32(coarse_max_iterations, 50, "Iteration limit of each solve on coarse
 DEFINE_double(function_tolerance, 1e-8, "Ceres function tolerance (relative cost change).");
 DEFINE_double(gradient_tolerance, 1e-12, "Ceres gradient tolerance.");
 DEFINE_double(parameter_tolerance, 1e-10, "Ceres parameter tolerance (relative step).");
-DEFINE_double(step_tolerance, 1e-3, "A solve stops when an accepted step moves no frame's field "
+DEFINE_double(step_tolerance, 5e-3, "A solve stops when an accepted step moves no frame's field "
               "of view by more than this many voxels (0 = off), >= 0.");
 DEFINE_int32(max_rejected_steps, 5, "A solve stops after this many rejected steps in a row "
              "(0 = off), >= 0.");
@@ -60,7 +60,7 @@ DEFINE_int32(pyramid_min_size, 12, "No pyramid level has an axis shorter than th
 DEFINE_double(pyramid_sigma, 1.0, "Gaussian sigma (voxels) before each halving, >= 0.");
 DEFINE_double(smoothing, 0.0, "Gaussian sigma (voxels) applied to the finest level, >= 0.");
 DEFINE_int32(max_rebuilds, 4, "Candidate-set rebuilds per level after the first solve, >= 0.");
-DEFINE_double(rebuild_tolerance, 0.01, "A level stops rebuilding when its last solve moved "
+DEFINE_double(rebuild_tolerance, 0.05, "A level stops rebuilding when its last solve moved "
               "no field-of-view corner by more than this many voxels, > 0.");
 DEFINE_int32(num_chunks, 1, "dsr: residual blocks the candidate voxels are split into, >= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
