@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 #include <glog/logging.h>
@@ -13,6 +14,7 @@
 #include "core/pyramid.h"
 #include "dba/dba_problem.h"
 #include "dsr_reduced/dsr_solver.h"
+#include "dsr_reduced/reduced_cost.h"
 
 namespace dsr {
 namespace {
@@ -44,6 +46,72 @@ bool SolveOnce(const RegistrationOptions& options,
     return SolveDba(frames, candidates, initial, dba, report, dba_intensities, error);
   }
   *error = "--mode=" + options.mode + ": unknown mode";
+  return false;
+}
+
+// Index of a frame whose field of view holds a single value (no image information), or -1.
+int ConstantFrame(const std::vector<Image>& images, const std::vector<Mask>& masks) {
+  for (size_t i = 0; i < images.size(); ++i) {
+    float lo = std::numeric_limits<float>::max(), hi = std::numeric_limits<float>::lowest();
+    for (size_t l = 0; l < images[i].voxels.size(); ++l) {
+      if (masks[i].voxels[l] == 0) continue;
+      lo = std::min(lo, images[i].voxels[l]);
+      hi = std::max(hi, images[i].voxels[l]);
+    }
+    if (!(hi > lo)) return static_cast<int>(i);
+  }
+  return -1;
+}
+
+// Checks that the overlap determines every free pose: the Gauss-Newton matrix of the
+// shared cost at `poses`, Jacobi-scaled (so millimetres and radians compare), must not be
+// numerically singular. Otherwise `why` names the frame the weakest direction moves most.
+bool PosesDetermined(const std::vector<Frame>& frames,
+                     const CandidateSet& candidates,
+                     const std::vector<Eigen::Isometry3d>& poses,
+                     int num_threads,
+                     double* conditioning,
+                     std::string* why) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 6 * (m - 1);
+  ReducedSystem system;
+  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true,
+                          num_threads, &system);
+  const Eigen::MatrixXd h = system.hessian.bottomRightCorner(n, n);
+  Eigen::VectorXd scale(n);
+  for (int c = 0; c < n; ++c) {
+    if (!(h(c, c) > 0.0)) {
+      *why = "the overlap is too small or too featureless to determine all 6 degrees of "
+             "freedom of frame " + std::to_string(1 + c / 6) +
+             " (no image gradient along one of them)";
+      *conditioning = 0.0;
+      return false;
+    }
+    scale[c] = 1.0 / std::sqrt(h(c, c));
+  }
+  const Eigen::MatrixXd scaled = scale.asDiagonal() * h * scale.asDiagonal();
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
+  const double ratio = eig.eigenvalues()[0] / std::max(1e-300, eig.eigenvalues()[n - 1]);
+  *conditioning = ratio;
+  // Well-posed problems sit many orders of magnitude above this (see the log at --v=1).
+  constexpr double kMinRatio = 1e-10;
+  if (ratio >= kMinRatio) return true;
+  const Eigen::VectorXd weakest = eig.eigenvectors().col(0);
+  int frame = 1;
+  double largest = -1.0;
+  for (int i = 1; i < m; ++i) {
+    const double norm = weakest.segment<6>(6 * (i - 1)).norm();
+    if (norm > largest) {
+      largest = norm;
+      frame = i;
+    }
+  }
+  std::ostringstream s;
+  s << "the overlap is too small or too featureless to determine all 6 degrees of freedom "
+       "of frame "
+    << frame << " (scaled Gauss-Newton matrix conditioning " << ratio << " < " << kMinRatio
+    << ")";
+  *why = s.str();
   return false;
 }
 
@@ -135,19 +203,32 @@ bool Register(const std::vector<Image>& images,
   }
   result->pyramid_seconds = Seconds(start);
 
+  const int constant = ConstantFrame(images, masks);
+  if (constant >= 0) {
+    *error = "frame " + std::to_string(constant) +
+             " has the same value everywhere in its field of view: nothing to register";
+    return false;
+  }
   std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
   result->usable = true;
   for (int level = levels - 1; level >= 0; --level) {
     std::vector<Frame> frames;
     frames.reserve(m);
+    int empty_frame = -1;
     for (int i = 0; i < m; ++i) {
       frames.emplace_back(pyramids[i][level].image, pyramids[i][level].mask);
-      if (frames.back().num_valid_cells() == 0) {
-        *error = "frame " + std::to_string(i) + " has no valid voxel at pyramid level " +
-                 std::to_string(level) + " (field-of-view mask too small; use fewer " +
-                 "--pyramid_levels or a larger mask)";
-        return false;
+      if (frames.back().num_valid_cells() == 0 && empty_frame < 0) empty_frame = i;
+    }
+    if (empty_frame >= 0) {
+      if (level > 0) {
+        LOG(INFO) << "skipping pyramid level " << level << ": frame " << empty_frame
+                  << " has no valid cell at this resolution";
+        continue;
       }
+      *error = "frame " + std::to_string(empty_frame) +
+               " has no valid voxel (a cell whose 8 corners are inside the field-of-view "
+               "mask): the mask is too small";
+      return false;
     }
     // Level-0 pyramids are no longer needed after this level's frames are built.
     SolveOptions solve = options.solve;
@@ -175,6 +256,21 @@ bool Register(const std::vector<Image>& images,
         }
         *error = connect_error + " (pyramid level " + std::to_string(level) + ")";
         return false;
+      }
+      if (rebuild == 0) {
+        double conditioning = 0.0;
+        std::string why;
+        if (!PosesDetermined(frames, candidates, poses, options.solve.num_threads,
+                             &conditioning, &why)) {
+          if (level > 0) {
+            LOG(INFO) << "skipping pyramid level " << level << ": " << why;
+            poses = level_start;
+            break;
+          }
+          *error = why + " at the initial poses of the finest level";
+          return false;
+        }
+        VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
       }
       std::ostringstream prefix;
       prefix << "level " << level << "." << rebuild << " ";

@@ -164,6 +164,34 @@ TEST(Pipeline, DsrDenseSolversGiveTheSamePoses) {
   }
 }
 
+TEST(Pipeline, PosesAreReproducible) {
+  SequenceSetup setup;
+  setup.sigma = 25.0;
+  const SimulatedSequence sequence = Simulated(setup);
+  const std::vector<Eigen::Isometry3d> identity(sequence.frames.size(),
+                                                Eigen::Isometry3d::Identity());
+  std::vector<std::vector<Eigen::Isometry3d>> runs;
+  for (int threads : {2, 2, 1, 3}) {
+    RegistrationOptions o = Options("dsr");
+    o.solve.num_threads = threads;
+    RegistrationResult result;
+    std::string error;
+    ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, o, &result, &error)) << error;
+    runs.push_back(result.frame_from_world);
+  }
+  // Same inputs, same thread count: bit-identical.
+  for (size_t i = 0; i < runs[0].size(); ++i) {
+    EXPECT_TRUE(runs[0][i].matrix() == runs[1][i].matrix()) << "frame " << i;
+  }
+  // Any thread count: within 1e-9 (mm and rad).
+  for (size_t r = 2; r < runs.size(); ++r) {
+    for (size_t i = 0; i < runs[0].size(); ++i) {
+      EXPECT_LT((runs[r][i].matrix() - runs[0][i].matrix()).cwiseAbs().maxCoeff(), 1e-9)
+          << "run " << r << " frame " << i;
+    }
+  }
+}
+
 TEST(Pipeline, RefusesBadSetups) {
   SequenceSetup setup;
   setup.num_frames = 3;
@@ -186,6 +214,28 @@ TEST(Pipeline, RefusesBadSetups) {
   apart[2].translation() = Eigen::Vector3d(500.0, 0.0, 0.0);
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, apart, o, &result, &error));
   EXPECT_NE(error.find("2"), std::string::npos) << error;
+  // A frame with one value everywhere in its field of view.
+  std::vector<Image> frames = sequence.frames;
+  std::fill(frames[1].voxels.begin(), frames[1].voxels.end(), 7.0f);
+  EXPECT_FALSE(Register(frames, sequence.masks, identity, o, &result, &error));
+  EXPECT_NE(error.find("frame 1 has the same value"), std::string::npos) << error;
+  // A featureless overlap: a linear ramp along x + y cannot fix translations along x - y
+  // or z (the scaled Gauss-Newton matrix is singular).
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(20, 20, 20);
+  Image ramp(g);
+  Mask inside(g, 0);
+  for (int k = 0; k < 20; ++k)
+    for (int j = 0; j < 20; ++j)
+      for (int i = 0; i < 20; ++i) {
+        ramp.at(i, j, k) = static_cast<float>(5 * (i + j));
+        inside.at(i, j, k) = (i > 0 && j > 0 && k > 0 && i < 19 && j < 19 && k < 19) ? 1 : 0;
+      }
+  o.pyramid_levels = 1;
+  EXPECT_FALSE(Register({ramp, ramp}, {inside, inside},
+                        {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()}, o,
+                        &result, &error));
+  EXPECT_NE(error.find("6 degrees of freedom of frame 1"), std::string::npos) << "[" << error << "]";
   // DBA over a tiny memory budget.
   o = Options("dba");
   o.dba_memory_budget_bytes = 1024.0;
