@@ -116,8 +116,10 @@ bool CheckConnected(const CandidateSet& candidates,
   }
   if (num_missing == 0) return true;
   if (error) {
-    *error = "frames " + missing.str() +
-             " do not overlap the others at the initial poses (fewer than " +
+    *error = (num_missing == 1 ? "frame " + missing.str() + " does not"
+                               : "frames " + missing.str() + " do not") +
+             std::string(" overlap frame 0 or the frames connected to it at the initial poses "
+                         "(fewer than ") +
              std::to_string(min_shared_voxels) +
              " shared panorama voxels); give better initial poses with --init";
   }

@@ -81,7 +81,7 @@ TEST(CheckConnected, NamesFramesWithoutOverlap) {
   ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error));
   const CandidateSet c = BuildCandidates(t.frames, t.poses, grid, 0);
   EXPECT_FALSE(CheckConnected(c, 1, &error));
-  EXPECT_NE(error.find("frames 2 "), std::string::npos) << error;
+  EXPECT_NE(error.find("frame 2 does not overlap"), std::string::npos) << error;
   EXPECT_EQ(CandidateOverlap(c)(0, 1), 4 * 9 * 9);
   EXPECT_EQ(CandidateOverlap(c)(0, 2), 0);
   const CandidateSet c2 = BuildCandidates({t.frames[0], t.frames[1]},

@@ -77,12 +77,6 @@ double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-std::string Canonical(const std::string& path) {
-  std::error_code ec;
-  const std::filesystem::path p = std::filesystem::weakly_canonical(path, ec);
-  return ec ? path : p.string();
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -139,17 +133,22 @@ int main(int argc, char** argv) {
     return Fail("--masks: " + std::to_string(mask_paths.size()) + " masks for " +
                 std::to_string(m) + " images");
   }
-  std::set<std::string> inputs;
+  std::set<std::string> unique_images;
+  std::vector<std::string> inputs;
   for (const std::string& p : image_paths) {
-    if (!inputs.insert(Canonical(p)).second) {
+    if (!unique_images.insert(dsr::CanonicalPath(p)).second) {
       return Fail("--images: " + p + " is given twice");
     }
+    inputs.push_back(dsr::CanonicalPath(p));
   }
-  for (const std::string& p : mask_paths) inputs.insert(Canonical(p));
-  for (const std::string& out : {FLAGS_out_poses, FLAGS_out_panorama}) {
-    if (!out.empty() && inputs.count(Canonical(out)) > 0) {
-      return Fail("output " + out + " is one of the inputs; inputs are never overwritten");
-    }
+  for (const std::string& p : mask_paths) inputs.push_back(dsr::CanonicalPath(p));
+  for (const std::string& p : {FLAGS_init, FLAGS_gt_poses}) inputs.push_back(dsr::CanonicalPath(p));
+  for (const auto& [flag, path] : {std::pair<std::string, std::string>{"out_poses", FLAGS_out_poses},
+                                   {"out_panorama", FLAGS_out_panorama}}) {
+    if (!dsr::CheckOutputFile(flag, path, inputs, &error)) return Fail(error);
+  }
+  if (FLAGS_out_poses == FLAGS_out_panorama) {
+    return Fail("--out_panorama=" + FLAGS_out_panorama + ": same file as --out_poses");
   }
   if (!FLAGS_out_panorama.empty() && !dsr::HasSupportedImageExtension(FLAGS_out_panorama)) {
     return Fail("--out_panorama=" + FLAGS_out_panorama +

@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <fstream>
 
+#include <unistd.h>
+
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
@@ -83,6 +85,43 @@ bool CheckInputFileFlag(const char* flag, const std::string& path) {
   if (!std::filesystem::is_regular_file(path, ec)) ExitBadFlag(flag, path, "not a regular file");
   if (!std::ifstream(path, std::ios::binary).is_open())
     ExitBadFlag(flag, path, "cannot open for reading");
+  return true;
+}
+
+std::string CanonicalPath(const std::string& path) {
+  std::error_code ec;
+  const std::filesystem::path p = std::filesystem::weakly_canonical(path, ec);
+  return ec ? path : p.string();
+}
+
+bool CheckOutputFile(const std::string& flag,
+                     const std::string& path,
+                     const std::vector<std::string>& canonical_inputs,
+                     std::string* error) {
+  if (path.empty()) return true;
+  const std::string prefix = "--" + flag + "=" + path + ": ";
+  const std::string canonical = CanonicalPath(path);
+  for (const std::string& input : canonical_inputs) {
+    if (input == canonical) {
+      *error = prefix + "is one of the inputs; inputs are never overwritten";
+      return false;
+    }
+  }
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    *error = prefix + "is a folder, not a file name";
+    return false;
+  }
+  std::filesystem::path folder = std::filesystem::path(path).parent_path();
+  if (folder.empty()) folder = ".";
+  if (!std::filesystem::is_directory(folder, ec)) {
+    *error = prefix + "folder " + folder.string() + " does not exist";
+    return false;
+  }
+  if (access(folder.c_str(), W_OK) != 0) {
+    *error = prefix + "folder " + folder.string() + " is not writable";
+    return false;
+  }
   return true;
 }
 

@@ -57,6 +57,19 @@ bool CheckFlag(bool ok, const char* flag, const T& value, const std::string& rul
 // otherwise ExitBadFlag (missing, a folder, unreadable).
 bool CheckInputFileFlag(const char* flag, const std::string& path);
 
+// The absolute, normalised form of a path (symlinks resolved where they exist), so that two
+// spellings of one file compare equal.
+std::string CanonicalPath(const std::string& path);
+
+// Checks an output-file flag before any work is done: "" is accepted (no output); else the
+// file must not be one of `canonical_inputs` (CanonicalPath of every input), must not be a
+// folder, and its folder must exist and be writable. On failure `error` reads
+// "--<flag>=<path>: <rule>".
+bool CheckOutputFile(const std::string& flag,
+                     const std::string& path,
+                     const std::vector<std::string>& canonical_inputs,
+                     std::string* error);
+
 // "a,b,,c" -> {"a", "b", "c"}: items trimmed of spaces, empty items dropped.
 std::vector<std::string> SplitCommaList(const std::string& text);
 
