@@ -211,6 +211,7 @@ bool Register(const std::vector<Image>& images,
   }
   std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
   result->usable = true;
+  bool determined_checked = false;
   for (int level = levels - 1; level >= 0; --level) {
     std::vector<Frame> frames;
     frames.reserve(m);
@@ -257,7 +258,9 @@ bool Register(const std::vector<Image>& images,
         *error = connect_error + " (pyramid level " + std::to_string(level) + ")";
         return false;
       }
-      if (rebuild == 0) {
+      // Checked once, on the coarsest level that has a usable overlap (cheap there); finer
+      // levels see the same overlap with more detail.
+      if (rebuild == 0 && !determined_checked) {
         double conditioning = 0.0;
         std::string why;
         if (!PosesDetermined(frames, candidates, poses, options.solve.num_threads,
@@ -271,6 +274,7 @@ bool Register(const std::vector<Image>& images,
           return false;
         }
         VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
+        determined_checked = true;
       }
       std::ostringstream prefix;
       prefix << "level " << level << "." << rebuild << " ";

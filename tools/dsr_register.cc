@@ -16,6 +16,7 @@
 #include "core/io_image.h"
 #include "core/io_poses.h"
 #include "core/panorama.h"
+#include "core/parallel.h"
 #include "core/solve_options.h"
 #include "pipeline/registration.h"
 #include "tools/tool_util.h"
@@ -155,19 +156,26 @@ int main(int argc, char** argv) {
                 ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)");
   }
 
+  // Frames are read in parallel (decompression dominates); the first failing frame in
+  // input order is reported.
   std::vector<dsr::Image> images(m);
   std::vector<dsr::Mask> masks(m);
-  for (int i = 0; i < m; ++i) {
-    if (!dsr::ReadImage(image_paths[i], &images[i], &error)) return Fail(error);
+  std::vector<std::string> read_errors(m);
+  dsr::ParallelFor(0, m, FLAGS_num_threads, [&](int64_t i) {
+    std::string& e = read_errors[i];
+    if (!dsr::ReadImage(image_paths[i], &images[i], &e)) return;
     if (!mask_paths.empty()) {
-      if (!dsr::ReadMask(mask_paths[i], images[i].geometry, &masks[i], &error)) return Fail(error);
-    } else {
-      masks[i] = dsr::MaskFromNonZero(images[i], FLAGS_mask_erosion);
-      if (dsr::CountInside(masks[i]) == 0) {
-        return Fail(image_paths[i] + ": no voxel left in the field of view (non-zero voxels "
-                    "eroded by --mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ")");
-      }
+      dsr::ReadMask(mask_paths[i], images[i].geometry, &masks[i], &e);
+      return;
     }
+    masks[i] = dsr::MaskFromNonZero(images[i], FLAGS_mask_erosion);
+    if (dsr::CountInside(masks[i]) == 0) {
+      e = image_paths[i] + ": no voxel left in the field of view (non-zero voxels eroded by "
+          "--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ")";
+    }
+  });
+  for (const std::string& e : read_errors) {
+    if (!e.empty()) return Fail(e);
   }
   std::vector<Eigen::Isometry3d> initial(m, Eigen::Isometry3d::Identity());
   if (FLAGS_init != "identity") {
