@@ -1,6 +1,8 @@
 // Candidate observations and overlap connectivity (DESIGN.md section 2).
 #include "core/observation.h"
 
+#include "core/parallel.h"
+
 #include <algorithm>
 #include <cmath>
 #include <queue>
@@ -34,21 +36,33 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
   CandidateSet out;
   out.grid = grid;
   out.num_frames = m;
-  std::vector<std::vector<uint8_t>> near(m);
+  // Cells within the margin of each frame's valid region (margin 0: the valid map itself).
+  std::vector<std::vector<uint8_t>> dilated(m);
+  std::vector<const uint8_t*> near(m);
   std::vector<Eigen::Matrix3d> a(m);  // index_i = a p_j + b
   std::vector<Eigen::Vector3d> b(m);
   for (int i = 0; i < m; ++i) {
-    near[i] = frames[i].DilatedValidCells(margin_cells);
+    if (margin_cells > 0) {
+      dilated[i] = frames[i].DilatedValidCells(margin_cells);
+      near[i] = dilated[i].data();
+    } else {
+      near[i] = frames[i].valid_cells();
+    }
     const Eigen::Matrix3d index_from_physical = frames[i].index_from_physical();
     a[i] = index_from_physical * frame_from_world[i].linear();
     b[i] = index_from_physical *
            (frame_from_world[i].translation() - frames[i].geometry().origin_mm);
   }
   const Eigen::Vector3i n = grid.size;
-  for (int k = 0; k < n[2]; ++k) {
+  const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
+  // Slices in parallel, each into its own lists, concatenated in slice order (the result
+  // does not depend on the thread count).
+  std::vector<std::vector<int64_t>> slice_voxels(n[2]);
+  std::vector<std::vector<uint32_t>> slice_observers(n[2]);
+  ParallelFor(0, n[2], 0, [&](int64_t k) {
     for (int j = 0; j < n[1]; ++j) {
       for (int i = 0; i < n[0]; ++i) {
-        const Eigen::Vector3d p = grid.IndexToPhysical(Eigen::Vector3d(i, j, k));
+        const Eigen::Vector3d p = grid.origin_mm + to_world * Eigen::Vector3d(i, j, k);
         uint32_t bits = 0;
         for (int f = 0; f < m; ++f) {
           const Eigen::Vector3d u = a[f] * p + b[f];
@@ -66,11 +80,19 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
           }
         }
         if (__builtin_popcount(bits) >= 2) {
-          out.voxel.push_back(grid.LinearIndex(i, j, k));
-          out.observers.push_back(bits);
+          slice_voxels[k].push_back(grid.LinearIndex(i, j, static_cast<int>(k)));
+          slice_observers[k].push_back(bits);
         }
       }
     }
+  });
+  size_t total = 0;
+  for (const auto& v : slice_voxels) total += v.size();
+  out.voxel.reserve(total);
+  out.observers.reserve(total);
+  for (int k = 0; k < n[2]; ++k) {
+    out.voxel.insert(out.voxel.end(), slice_voxels[k].begin(), slice_voxels[k].end());
+    out.observers.insert(out.observers.end(), slice_observers[k].begin(), slice_observers[k].end());
   }
   return out;
 }

@@ -18,73 +18,191 @@ constexpr int64_t kMaxBlocks = 64;
 // Eigenvalues of H_c below this fraction of the largest are treated as zero.
 constexpr double kRelativeEigenvalueFloor = 1e-14;
 
-// A frame's pose folded into its index map: u = a p + b, p_ij = rotation p + translation.
+// A frame's pose folded into its index map (u = a p + b), with the raw sampler data, so
+// that the hot loop samples without calls: one validity byte and one gather of 8 float4
+// [I, gu, gv, gw] per observation. Same arithmetic as Frame::SampleAtIndex (the slow twin
+// the reference cost uses) up to the order of additions.
 struct PosedFrame {
-  const Frame* frame;
-  Eigen::Matrix3d a;
-  Eigen::Vector3d b;
-  Eigen::Matrix3d rotation;
-  Eigen::Vector3d translation;
+  const float* data;       // interleaved float4 per voxel
+  const uint8_t* valid;    // valid-cell map
+  double max_cell[3];      // n - 2 per axis (last valid cell index)
+  int64_t stride_y, stride_z;  // in voxels
+  double a[9], b[3];       // u = a p + b (row-major a)
+  double r[9], t[3];       // p_ij = r p + t
+  double g[9];             // gradient_to_physical, row-major
 };
 
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world) {
   std::vector<PosedFrame> out(frames.size());
   for (size_t i = 0; i < frames.size(); ++i) {
-    const Eigen::Matrix3d& to_index = frames[i].index_from_physical();
-    out[i].frame = &frames[i];
-    out[i].rotation = frame_from_world[i].linear();
-    out[i].translation = frame_from_world[i].translation();
-    out[i].a = to_index * out[i].rotation;
-    out[i].b = to_index * (out[i].translation - frames[i].geometry().origin_mm);
+    const Frame& f = frames[i];
+    PosedFrame& pf = out[i];
+    const Eigen::Vector3i& n = f.geometry().size;
+    pf.data = f.interleaved();
+    pf.valid = f.valid_cells();
+    for (int d = 0; d < 3; ++d) pf.max_cell[d] = n[d] - 2.0;
+    pf.stride_y = n[0];
+    pf.stride_z = int64_t{n[0]} * n[1];
+    const Eigen::Matrix3d rotation = frame_from_world[i].linear();
+    const Eigen::Vector3d translation = frame_from_world[i].translation();
+    const Eigen::Matrix3d a = f.index_from_physical() * rotation;
+    const Eigen::Vector3d b = f.index_from_physical() * (translation - f.geometry().origin_mm);
+    for (int row = 0; row < 3; ++row) {
+      for (int col = 0; col < 3; ++col) {
+        pf.a[3 * row + col] = a(row, col);
+        pf.r[3 * row + col] = rotation(row, col);
+        pf.g[3 * row + col] = f.gradient_to_physical()(row, col);
+      }
+      pf.b[row] = b[row];
+      pf.t[row] = translation[row];
+    }
   }
   return out;
 }
 
-// Accumulates one voxel into (H upper triangle, g, f). Returns the number of observations.
-int AccumulateVoxel(const std::vector<PosedFrame>& posed,
-                    const Eigen::Vector3d& p,
-                    uint32_t candidates,
-                    bool with_jacobian,
-                    Eigen::MatrixXd* hessian,
-                    Eigen::VectorXd* gradient,
-                    double* cost) {
+// Samples frame `f` at world point p: false when sigma = 0. kChannels is 1 (value) or 4
+// (value and index-space gradient); out[0..kChannels) receives them.
+template <int kChannels>
+inline bool SampleAt(const PosedFrame& f, const double p[3], double* out) {
+  double u[3];
+  for (int d = 0; d < 3; ++d) {
+    u[d] = f.a[3 * d] * p[0] + f.a[3 * d + 1] * p[1] + f.a[3 * d + 2] * p[2] + f.b[d];
+  }
+  const double fx = std::floor(u[0]), fy = std::floor(u[1]), fz = std::floor(u[2]);
+  // As doubles first, so that huge or NaN coordinates never overflow an int.
+  if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0 && fx <= f.max_cell[0] && fy <= f.max_cell[1] &&
+        fz <= f.max_cell[2])) {
+    return false;
+  }
+  const int64_t cell = static_cast<int64_t>(fx) + f.stride_y * static_cast<int64_t>(fy) +
+                       f.stride_z * static_cast<int64_t>(fz);
+  if (f.valid[cell] == 0) return false;
+  const double wx = u[0] - fx, wy = u[1] - fy, wz = u[2] - fz;
+  const double w[8] = {(1 - wx) * (1 - wy) * (1 - wz), wx * (1 - wy) * (1 - wz),
+                       (1 - wx) * wy * (1 - wz),       wx * wy * (1 - wz),
+                       (1 - wx) * (1 - wy) * wz,       wx * (1 - wy) * wz,
+                       (1 - wx) * wy * wz,             wx * wy * wz};
+  const float* c = f.data + 4 * cell;
+  const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;
+  const float* corner[8] = {c, c + 4, c + sy, c + sy + 4, c + sz, c + sz + 4, c + sz + sy,
+                            c + sz + sy + 4};
+  double acc[kChannels] = {};
+  for (int k = 0; k < 8; ++k) {
+    for (int q = 0; q < kChannels; ++q) acc[q] += w[k] * corner[k][q];
+  }
+  for (int q = 0; q < kChannels; ++q) out[q] = acc[q];
+  return true;
+}
+
+// Per-block accumulator: H (row-major, n x n, upper block triangle), g, f.
+struct Accumulator {
+  int n = 0;
+  std::vector<double> hessian, gradient;
+  double cost = 0.0;
+  int64_t observations = 0;
+};
+
+// Accumulates one voxel. Samples every candidate (value and gradient in one gather), and
+// builds Jacobians and normal-equation terms only when at least two observe it.
+inline void AccumulateVoxel(const std::vector<PosedFrame>& posed,
+                            const double p[3],
+                            uint32_t candidates,
+                            bool with_jacobian,
+                            Accumulator* acc) {
   int frame_of[kMaxFrames];
-  double value[kMaxFrames];
-  Eigen::Matrix<double, 6, 1> jac[kMaxFrames];
+  double sample[kMaxFrames][4];
   int k = 0;
   for (uint32_t bits = candidates; bits != 0; bits &= bits - 1) {
     const int f = __builtin_ctz(bits);
-    const PosedFrame& pf = posed[f];
-    const Eigen::Vector3d u = pf.a * p + pf.b;
-    Eigen::Vector3d grad_u;
-    if (!pf.frame->SampleAtIndex(u, &value[k], with_jacobian ? &grad_u : nullptr)) continue;
-    if (with_jacobian) {
-      const Eigen::Vector3d grad_mm = pf.frame->gradient_to_physical() * grad_u;
-      const Eigen::Vector3d sample_in_frame = pf.rotation * p + pf.translation;
-      jac[k].head<3>() = grad_mm;
-      jac[k].tail<3>() = sample_in_frame.cross(grad_mm);  // grad^T (-[p]x)
-    }
-    frame_of[k++] = f;
+    const bool observed = with_jacobian ? SampleAt<4>(posed[f], p, sample[k])
+                                        : SampleAt<1>(posed[f], p, sample[k]);
+    if (observed) frame_of[k++] = f;
   }
-  if (k < 2) return 0;
+  if (k < 2) return;
+  acc->observations += k;
   double mean = 0.0;
-  for (int a = 0; a < k; ++a) mean += value[a];
+  for (int a = 0; a < k; ++a) mean += sample[a][0];
   mean /= k;
-  const double inv_k = 1.0 / k;
+  if (!with_jacobian) {
+    for (int a = 0; a < k; ++a) {
+      const double r = sample[a][0] - mean;
+      acc->cost += r * r;
+    }
+    return;
+  }
+  double jac[kMaxFrames][6];
   for (int a = 0; a < k; ++a) {
-    const double r = value[a] - mean;
-    *cost += r * r;
-    if (!with_jacobian) continue;
+    const PosedFrame& pf = posed[frame_of[a]];
+    const double* gu = &sample[a][1];
+    double gm[3], q[3];
+    for (int d = 0; d < 3; ++d) {
+      gm[d] = pf.g[3 * d] * gu[0] + pf.g[3 * d + 1] * gu[1] + pf.g[3 * d + 2] * gu[2];
+      q[d] = pf.r[3 * d] * p[0] + pf.r[3 * d + 1] * p[1] + pf.r[3 * d + 2] * p[2] + pf.t[d];
+    }
+    // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T)
+    jac[a][0] = gm[0];
+    jac[a][1] = gm[1];
+    jac[a][2] = gm[2];
+    jac[a][3] = q[1] * gm[2] - q[2] * gm[1];
+    jac[a][4] = q[2] * gm[0] - q[0] * gm[2];
+    jac[a][5] = q[0] * gm[1] - q[1] * gm[0];
+  }
+  const double inv_k = 1.0 / k;
+  const int n = acc->n;
+  double* h = acc->hessian.data();
+  double* g = acc->gradient.data();
+  for (int a = 0; a < k; ++a) {
+    const double r = sample[a][0] - mean;
+    acc->cost += r * r;
     const int fa = 6 * frame_of[a];
-    gradient->segment<6>(fa) += jac[a] * r;
-    // H_ab += (delta_ab - 1/k) J_a^T J_b for b >= a (upper block triangle).
-    hessian->block<6, 6>(fa, fa).noalias() += (1.0 - inv_k) * jac[a] * jac[a].transpose();
+    const double* ja = jac[a];
+    for (int i = 0; i < 6; ++i) g[fa + i] += ja[i] * r;
+    // H_ab += (delta_ab - 1/k) J_a^T J_b for b >= a (upper block triangle); the diagonal
+    // blocks only on and above their diagonal.
+    const double diag = 1.0 - inv_k;
+    for (int i = 0; i < 6; ++i) {
+      const double s = diag * ja[i];
+      double* row = h + (fa + i) * n + fa;
+      for (int j = i; j < 6; ++j) row[j] += s * ja[j];
+    }
     for (int b = a + 1; b < k; ++b) {
-      hessian->block<6, 6>(fa, 6 * frame_of[b]).noalias() -= inv_k * jac[a] * jac[b].transpose();
+      const double* jb = jac[b];
+      const int fb = 6 * frame_of[b];
+      for (int i = 0; i < 6; ++i) {
+        const double s = -inv_k * ja[i];
+        double* row = h + (fa + i) * n + fb;
+        for (int j = 0; j < 6; ++j) row[j] += s * jb[j];
+      }
     }
   }
-  return k;
+}
+
+// Accumulates candidate voxels [b0, b1) into `acc`.
+void AccumulateBlock(
+    const std::vector<PosedFrame>& posed,
+    const CandidateSet& candidates,
+    int64_t b0,
+    int64_t b1,
+    bool with_jacobian,
+    Accumulator* acc) {
+  const ImageGeometry& grid = candidates.grid;
+  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
+  double m[9];
+  const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 3; ++c) m[3 * r + c] = to_world(r, c);
+  const double o[3] = {grid.origin_mm[0], grid.origin_mm[1], grid.origin_mm[2]};
+  for (int64_t v = b0; v < b1; ++v) {
+    const int64_t l = candidates.voxel[v];
+    const double ijk[3] = {static_cast<double>(l % nx), static_cast<double>((l % nxy) / nx),
+                           static_cast<double>(l / nxy)};
+    double p[3];
+    for (int r = 0; r < 3; ++r) {
+      p[r] = o[r] + m[3 * r] * ijk[0] + m[3 * r + 1] * ijk[1] + m[3 * r + 2] * ijk[2];
+    }
+    AccumulateVoxel(posed, p, candidates.observers[v], with_jacobian, acc);
+  }
 }
 
 }  // namespace
@@ -157,30 +275,31 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
   const int64_t count = std::max<int64_t>(0, end - begin);
   const int64_t num_blocks = std::max<int64_t>(1, std::min(kMaxBlocks, count));
   const int64_t block_size = (count + num_blocks - 1) / num_blocks;
-  std::vector<ReducedSystem> partial(num_blocks);
+  const int n = 6 * m;
+  std::vector<Accumulator> partial(num_blocks);
   ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
-    ReducedSystem& s = partial[block];
+    Accumulator& acc = partial[block];
+    acc.n = n;
     if (with_jacobian) {
-      s.hessian.setZero(6 * m, 6 * m);
-      s.gradient.setZero(6 * m);
+      acc.hessian.assign(static_cast<size_t>(n) * n, 0.0);
+      acc.gradient.assign(n, 0.0);
     }
     const int64_t b0 = begin + block * block_size, b1 = std::min(end, b0 + block_size);
-    for (int64_t v = b0; v < b1; ++v) {
-      s.observations += AccumulateVoxel(posed, candidates.VoxelCenter(v), candidates.observers[v],
-                                        with_jacobian, &s.hessian, &s.gradient, &s.cost);
-    }
+    AccumulateBlock(posed, candidates, b0, b1, with_jacobian, &acc);
   });
   *out = ReducedSystem();
   if (with_jacobian) {
-    out->hessian.setZero(6 * m, 6 * m);
-    out->gradient.setZero(6 * m);
+    out->hessian.setZero(n, n);
+    out->gradient.setZero(n);
   }
-  for (const ReducedSystem& s : partial) {  // fixed order: deterministic
-    out->cost += s.cost;
-    out->observations += s.observations;
+  for (const Accumulator& acc : partial) {  // fixed order: deterministic
+    out->cost += acc.cost;
+    out->observations += acc.observations;
     if (with_jacobian) {
-      out->hessian += s.hessian;
-      out->gradient += s.gradient;
+      // Row-major accumulator into the column-major matrix: transpose while adding.
+      out->hessian += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic,
+                                                     Eigen::RowMajor>>(acc.hessian.data(), n, n);
+      out->gradient += Eigen::Map<const Eigen::VectorXd>(acc.gradient.data(), n);
     }
   }
   if (with_jacobian) {

@@ -213,12 +213,13 @@ bool Register(const std::vector<Image>& images,
   result->usable = true;
   bool determined_checked = false;
   for (int level = levels - 1; level >= 0; --level) {
-    std::vector<Frame> frames;
-    frames.reserve(m);
+    std::vector<Frame> frames(m);
+    ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
+      frames[i] = Frame(pyramids[i][level].image, pyramids[i][level].mask);
+    });
     int empty_frame = -1;
-    for (int i = 0; i < m; ++i) {
-      frames.emplace_back(pyramids[i][level].image, pyramids[i][level].mask);
-      if (frames.back().num_valid_cells() == 0 && empty_frame < 0) empty_frame = i;
+    for (int i = m - 1; i >= 0; --i) {
+      if (frames[i].num_valid_cells() == 0) empty_frame = i;
     }
     if (empty_frame >= 0) {
       if (level > 0) {
