@@ -68,10 +68,18 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(options.num_chunks, n));
   for (int64_t c = 0; c < chunks; ++c) {
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
-    problem_->AddResidualBlock(new ReducedChunkCost(&frames, &candidates, frame_from_world[0],
-                                                    begin, end, options.solve.num_threads),
-                               nullptr, free_blocks);
+    auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
+                                       options.solve.num_threads);
+    chunks_.push_back(chunk);
+    problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
+}
+
+int64_t DsrProblem::LastObservations() const {
+  if (chunks_.empty()) return -1;
+  int64_t total = 0;
+  for (const ReducedChunkCost* chunk : chunks_) total += chunk->last_observations();
+  return total;
 }
 
 std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
@@ -116,10 +124,13 @@ bool SolveDsr(const std::vector<Frame>& frames,
   FillReport(summary, progress, report);
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
-  ReducedSystem counts;
-  AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,
-                          candidates.num_voxels(), false, options.solve.num_threads, &counts);
-  report->observations_per_iteration = counts.observations;
+  report->observations_per_iteration = dsr.LastObservations();
+  if (report->observations_per_iteration < 0) {  // reference cost: count once (small problems)
+    ReducedSystem counts;
+    AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,
+                            candidates.num_voxels(), false, options.solve.num_threads, &counts);
+    report->observations_per_iteration = counts.observations;
+  }
   return true;
 }
 

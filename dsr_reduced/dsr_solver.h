@@ -12,6 +12,7 @@
 #include "core/frame.h"
 #include "core/observation.h"
 #include "core/solve_options.h"
+#include "dsr_reduced/reduced_cost.h"
 
 namespace dsr {
 
@@ -36,10 +37,14 @@ class DsrProblem {
   ceres::Problem& problem() { return *problem_; }
   std::vector<Eigen::Isometry3d> Poses() const;
   double* pose_parameters(int frame) { return poses_[frame].data(); }
+  // Observations counted by the fast path's latest evaluation (sum over chunks); -1 for
+  // the reference cost, which does not count them.
+  int64_t LastObservations() const;
 
  private:
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
+  std::vector<const ReducedChunkCost*> chunks_;  // owned by problem_
 };
 
 // Solves. A solve that runs but is not usable returns true with report->usable = false.

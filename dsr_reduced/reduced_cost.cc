@@ -361,6 +361,7 @@ bool ReducedChunkCost::Evaluate(double const* const* parameters,
   ReducedSystem system;
   AccumulateReducedSystem(*frames_, *candidates_, poses, begin_, end_, with_jacobian,
                           num_threads_, &system);
+  last_observations_ = system.observations;
   if (!std::isfinite(system.cost)) return false;
   const int n = 6 * free;
   if (!with_jacobian) {

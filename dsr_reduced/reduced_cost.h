@@ -91,6 +91,12 @@ class ReducedChunkCost final : public ceres::CostFunction {
   Eigen::Isometry3d frame0_from_world_;
   int64_t begin_, end_;
   int num_threads_;
+  // Observations (sum of k_j over k_j >= 2) of the latest evaluation, for reports. Ceres
+  // evaluates the fast path's few chunks from one thread (SolveDsr sets num_threads = 1).
+  mutable int64_t last_observations_ = 0;
+
+ public:
+  int64_t last_observations() const { return last_observations_; }
 };
 
 }  // namespace dsr
