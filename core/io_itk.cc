@@ -15,6 +15,7 @@
 #include "core/io_itk.h"
 
 #include <algorithm>
+#include <cmath>
 #include <cctype>
 #include <cerrno>
 #include <climits>
@@ -368,6 +369,58 @@ bool CheckNiftiData(const std::string& path, std::string* reason) {
   return true;
 }
 
+// ITK's NIfTI reader turns the header's orientation into a matrix and runs an SVD that
+// aborts the process (vnl assert_finite) when a used field is NaN, infinite or so large
+// that the product overflows. Checks those fields first: pixdim always, the quaternion
+// fields when qform_code > 0, the srow rows when sform_code > 0 (found by fuzzing).
+bool CheckNiftiOrientation(const std::string& path, std::string* reason) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (file == nullptr) return true;  // the data check reports unreadable files
+  std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
+  unsigned char header[540];
+  if (gzread(file, header, 348) != 348) return true;
+  const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
+  const bool swap = sizeof_hdr != 348 && sizeof_hdr != 540;
+  const int32_t header_size = swap ? LoadAt<int32_t>(header, 0, true) : sizeof_hdr;
+  constexpr double kLimit = 1e12;  // mm; far beyond any scanner, far below overflow
+  auto bad = [](double v) { return !std::isfinite(v) || std::abs(v) > kLimit; };
+  auto fail = [&](const char* field) {
+    *reason = std::string("NIfTI header field ") + field + " is not a finite number of sane size";
+    return false;
+  };
+  if (header_size == 348) {
+    for (int d = 0; d < 8; ++d) {
+      if (bad(LoadAt<float>(header, 76 + 4 * d, swap))) return fail("pixdim");
+    }
+    if (LoadAt<int16_t>(header, 252, swap) > 0) {
+      for (int q = 0; q < 6; ++q) {
+        if (bad(LoadAt<float>(header, 256 + 4 * q, swap))) return fail("quatern/qoffset");
+      }
+    }
+    if (LoadAt<int16_t>(header, 254, swap) > 0) {
+      for (int q = 0; q < 12; ++q) {
+        if (bad(LoadAt<float>(header, 280 + 4 * q, swap))) return fail("srow");
+      }
+    }
+  } else if (header_size == 540) {
+    if (gzread(file, header + 348, 540 - 348) != 540 - 348) return true;
+    for (int d = 0; d < 8; ++d) {
+      if (bad(LoadAt<double>(header, 104 + 8 * d, swap))) return fail("pixdim");
+    }
+    if (LoadAt<int32_t>(header, 344, swap) > 0) {
+      for (int q = 0; q < 6; ++q) {
+        if (bad(LoadAt<double>(header, 352 + 8 * q, swap))) return fail("quatern/qoffset");
+      }
+    }
+    if (LoadAt<int32_t>(header, 348, swap) > 0) {
+      for (int q = 0; q < 12; ++q) {
+        if (bad(LoadAt<double>(header, 400 + 8 * q, swap))) return fail("srow");
+      }
+    }
+  }
+  return true;
+}
+
 // Inflates the zlib (or gzip) stream that starts at `offset` of `path`; it must end
 // cleanly and produce at least `expected` bytes.
 bool CheckCompressedStream(const std::string& path,
@@ -520,6 +573,13 @@ bool Read(const std::string& path,
       return false;
     }
     io->SetFileName(path);
+    if (std::string(io->GetNameOfClass()) == "NiftiImageIO") {
+      std::string reason;
+      if (!CheckNiftiOrientation(path, &reason)) {
+        *error = path + ": " + reason;
+        return false;
+      }
+    }
     io->ReadImageInformation();
     RawVolume out;
     if (!InspectHeader(path, *io, &out, error)) return false;

@@ -8,6 +8,8 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
+#include <cstring>
 #include <limits>
 #include <random>
 #include <string>
@@ -224,6 +226,41 @@ TEST(ImageIo, CorruptHeaderIsRejected) {
   const std::string text = dir.File("text.mha");
   std::ofstream(text) << "this is not a MetaImage header\n";
   EXPECT_THAT(ReadError(text), HasSubstr("cannot read the header"));
+}
+
+// Found by tests/fuzz/fuzz_image: a NIfTI header whose orientation fields are NaN, infinite
+// or huge made ITK's reader abort the process (vnl_svd's assert_finite); now it is a
+// one-line error naming the field.
+TEST(ImageIo, NonFiniteNiftiOrientationIsAnErrorNotAnAbort) {
+  ScopedTempDir dir;
+  const std::string good = dir.File("good.nii");
+  std::string error;
+  ASSERT_TRUE(WriteImage(ObliqueImage(), good, &error)) << error;
+  std::ifstream in(good, std::ios::binary);
+  const std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  ASSERT_GT(bytes.size(), 348u);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const float huge = 3e38f;
+  const int16_t one = 1;
+  struct Patch {
+    const char* name;
+    int offset;
+    float value;
+    int code_offset;  // qform_code (252) or sform_code (254) set to 1; -1 for pixdim
+    const char* field;
+  };
+  for (const Patch& patch : {Patch{"srow_nan.nii", 280, nan, 254, "srow"},
+                             Patch{"srow_huge.nii", 300, huge, 254, "srow"},
+                             Patch{"quatern_nan.nii", 256, nan, 252, "quatern"},
+                             Patch{"pixdim_inf.nii", 80, std::numeric_limits<float>::infinity(),
+                                   -1, "pixdim"}}) {
+    std::string damaged = bytes;
+    std::memcpy(&damaged[patch.offset], &patch.value, sizeof(float));
+    if (patch.code_offset > 0) std::memcpy(&damaged[patch.code_offset], &one, sizeof(one));
+    const std::string path = dir.File(patch.name);
+    std::ofstream(path, std::ios::binary).write(damaged.data(), damaged.size());
+    EXPECT_THAT(ReadError(path), HasSubstr(patch.field)) << patch.name;
+  }
 }
 
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
