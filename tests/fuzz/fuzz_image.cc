@@ -1,0 +1,41 @@
+// libFuzzer target: the image-loading wrapper (core/io_image.h ReadImage and ReadMask,
+// ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
+// .mha, .nrrd); the rest is the file. Any outcome but a crash, a sanitizer report or a leak
+// is fine; an accepted image must have a valid grid and finite voxels.
+#include <unistd.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+
+#include "core/io_image.h"
+
+extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
+  if (size < 1) return 0;
+  static const char* const kExtensions[] = {".nii", ".nii.gz", ".mha", ".nrrd"};
+  const char* dir = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp";
+  const std::string path = std::string(dir) + "/dsr_fuzz_image_" + std::to_string(getpid()) +
+                           kExtensions[data[0] % 4];
+  FILE* f = std::fopen(path.c_str(), "wb");
+  if (f == nullptr) return 0;
+  std::fwrite(data + 1, 1, size - 1, f);
+  std::fclose(f);
+  dsr::Image image;
+  std::string error;
+  const bool ok = dsr::ReadImage(path, &image, &error);
+  if (ok) {
+    if (!image.geometry.Validate(path, &error)) std::abort();
+    if (static_cast<int64_t>(image.voxels.size()) != image.geometry.NumVoxels()) std::abort();
+    for (float v : image.voxels) {
+      if (!std::isfinite(v)) std::abort();
+    }
+    dsr::Mask mask;
+    if (!dsr::ReadMask(path, image.geometry, &mask, &error) && error.empty()) std::abort();
+  } else if (error.empty()) {
+    std::abort();
+  }
+  std::remove(path.c_str());
+  return 0;
+}
