@@ -379,9 +379,18 @@ bool CheckNiftiOrientation(const std::string& path, std::string* reason) {
   std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
   unsigned char header[540];
   if (gzread(file, header, 348) != 348) return true;
-  const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
-  const bool swap = sizeof_hdr != 348 && sizeof_hdr != 540;
-  const int32_t header_size = swap ? LoadAt<int32_t>(header, 0, true) : sizeof_hdr;
+  // Like niftilib (which does not insist on sizeof_hdr): NIfTI-2 by its magic, else
+  // NIfTI-1; the byte order from dim[0], which must be 1..7.
+  const bool nifti2 = std::memcmp(header + 4, "n+2", 4) == 0 || std::memcmp(header + 4, "ni2", 4) == 0;
+  bool swap = false;
+  if (nifti2) {
+    const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
+    swap = sizeof_hdr != 540;
+  } else {
+    const int16_t dim0 = LoadAt<int16_t>(header, 40, false);
+    swap = dim0 < 1 || dim0 > 7;
+  }
+  const int32_t header_size = nifti2 ? 540 : 348;
   constexpr double kLimit = 1e12;  // mm; far beyond any scanner, far below overflow
   auto bad = [](double v) { return !std::isfinite(v) || std::abs(v) > kLimit; };
   auto fail = [&](const char* field) {

@@ -253,9 +253,15 @@ TEST(ImageIo, NonFiniteNiftiOrientationIsAnErrorNotAnAbort) {
                              Patch{"srow_huge.nii", 300, huge, 254, "srow"},
                              Patch{"quatern_nan.nii", 256, nan, 252, "quatern"},
                              Patch{"pixdim_inf.nii", 80, std::numeric_limits<float>::infinity(),
-                                   -1, "pixdim"}}) {
+                                   -1, "pixdim"},
+                             Patch{"bad_sizeof_hdr.nii", 104, nan, -1, "pixdim"}}) {
     std::string damaged = bytes;
     std::memcpy(&damaged[patch.offset], &patch.value, sizeof(float));
+    if (std::string(patch.name) == "bad_sizeof_hdr.nii") {
+      // niftilib reads a header whose sizeof_hdr is garbage (it trusts dim[0])
+      const int32_t garbage = -553647780;
+      std::memcpy(&damaged[0], &garbage, sizeof(garbage));
+    }
     if (patch.code_offset > 0) std::memcpy(&damaged[patch.code_offset], &one, sizeof(one));
     const std::string path = dir.File(patch.name);
     std::ofstream(path, std::ios::binary).write(damaged.data(), damaged.size());
