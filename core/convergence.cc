@@ -37,6 +37,12 @@ PoseStepCallback::PoseStepCallback(const std::vector<Frame>* frames,
   previous_ = Current();
 }
 
+void PoseStepCallback::AddTo(ceres::Solver::Options* options) {
+  if (tolerance_voxels_ <= 0.0 && max_rejected_steps_ <= 0) return;
+  options->update_state_every_iteration = true;
+  options->callbacks.push_back(this);
+}
+
 std::vector<Eigen::Isometry3d> PoseStepCallback::Current() const {
   std::vector<Eigen::Isometry3d> poses;
   for (const double* block : pose_blocks_) {

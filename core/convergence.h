@@ -15,6 +15,7 @@
 
 #include <Eigen/Geometry>
 #include <ceres/iteration_callback.h>
+#include <ceres/solver.h>
 
 #include "core/frame.h"
 
@@ -37,6 +38,9 @@ class PoseStepCallback final : public ceres::IterationCallback {
                    double tolerance_voxels,
                    int max_rejected_steps);
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override;
+  // Adds this callback to `options` when the rule is on (a tolerance > 0 or a rejection
+  // limit > 0), with update_state_every_iteration, which the rule needs.
+  void AddTo(ceres::Solver::Options* options);
   // Why it stopped the solve; empty when it did not.
   const std::string& reason() const { return reason_; }
 

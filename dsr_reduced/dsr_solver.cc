@@ -110,10 +110,7 @@ bool SolveDsr(const std::vector<Frame>& frames,
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance_voxels,
                         options.solve.max_rejected_steps);
-  if (options.solve.step_tolerance_voxels > 0.0 || options.solve.max_rejected_steps > 0) {
-    solver_options.update_state_every_iteration = true;
-    solver_options.callbacks.push_back(&stop);
-  }
+  stop.AddTo(&solver_options);
   std::string why;
   if (!solver_options.IsValid(&why)) {
     *error = "invalid solver options: " + why;

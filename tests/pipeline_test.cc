@@ -23,10 +23,12 @@ struct SequenceSetup {
   uint64_t seed = 3;
 };
 
-SimulatedSequence Simulated(const SequenceSetup& setup) {
+// Simulated from the built-in phantom (96^3 unless a larger one is asked for).
+SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
   PhantomOptions phantom;
-  phantom.size = 96;
-  static const Image source = MakePhantom(phantom);  // one phantom for every test
+  phantom.size = phantom_size;
+  static const Image small_source = MakePhantom(phantom);  // shared by most tests
+  const Image source = phantom_size == 96 ? small_source : MakePhantom(phantom);
   SimulationOptions options;
   options.num_frames = setup.num_frames;
   options.frame_size = setup.frame_size;
@@ -99,18 +101,7 @@ TEST(Pipeline, DsrCapturesThePaperMotionRangeFromIdentity) {
   setup.max_translation_voxels = 15.0;
   setup.sigma = 25.0;
   setup.seed = 5;
-  PhantomOptions phantom;
-  phantom.size = 160;
-  const Image source = MakePhantom(phantom);
-  SimulationOptions options;
-  options.num_frames = setup.num_frames;
-  options.frame_size = setup.frame_size;
-  options.noise_sigma = setup.sigma;
-  options.max_translation_voxels = setup.max_translation_voxels;
-  options.seed = setup.seed;
-  SimulatedSequence sequence;
-  std::string error;
-  ASSERT_TRUE(Simulate(source, options, &sequence, &error)) << error;
+  const SimulatedSequence sequence = Simulated(setup, 160);
   RegistrationOptions o = Options("dsr");
   o.pyramid_levels = 3;
   RegistrationResult result;
