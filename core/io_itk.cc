@@ -488,6 +488,31 @@ std::string Trim(const std::string& text) {
   return text.substr(begin, text.find_last_not_of(" \t\r") - begin + 1);
 }
 
+// ITK's MetaIO copies each header key into a fixed 255-byte buffer with strcpy: a longer
+// key (a line without "=" counts whole) overflows it and the process aborts (found by
+// fuzzing). Checks the keys of the header lines, up to ElementDataFile, first.
+bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return true;  // later stages report unreadable files
+  constexpr size_t kMaxKey = 250;
+  constexpr size_t kMaxHeaderBytes = 1 << 20;
+  std::string line;
+  size_t read = 0;
+  for (int number = 1; std::getline(in, line) && read < kMaxHeaderBytes; ++number) {
+    read += line.size() + 1;
+    const size_t equals = line.find('=');
+    const std::string key = Trim(equals == std::string::npos ? line : line.substr(0, equals));
+    if (key.size() > kMaxKey) {
+      *reason = "MetaImage header line " + std::to_string(number) + " has a key of " +
+                std::to_string(key.size()) + " characters (at most " + std::to_string(kMaxKey) +
+                ")";
+      return false;
+    }
+    if (key == "ElementDataFile") break;
+  }
+  return true;
+}
+
 // MetaImage (.mha with LOCAL data, .mhd with a data file): `bytes` of voxel data must
 // follow the header (LOCAL) or be in the data file, compressed or not. Multi-file data
 // (LIST, file patterns) is left to ITK.
@@ -582,9 +607,11 @@ bool Read(const std::string& path,
       return false;
     }
     io->SetFileName(path);
-    if (std::string(io->GetNameOfClass()) == "NiftiImageIO") {
+    {
+      const std::string io_name = io->GetNameOfClass();
       std::string reason;
-      if (!CheckNiftiOrientation(path, &reason)) {
+      if ((io_name == "NiftiImageIO" && !CheckNiftiOrientation(path, &reason)) ||
+          (io_name == "MetaImageIO" && !CheckMetaImageKeys(path, &reason))) {
         *error = path + ": " + reason;
         return false;
       }

@@ -269,6 +269,19 @@ TEST(ImageIo, NonFiniteNiftiOrientationIsAnErrorNotAnAbort) {
   }
 }
 
+// Found by tests/fuzz/fuzz_image: a MetaImage header key longer than 255 characters
+// overflowed a strcpy buffer inside ITK's MetaIO (the process aborted); now an error.
+TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
+  ScopedTempDir dir;
+  for (const std::string& line : {std::string(300, 'K'), std::string(300, 'K') + " = 1"}) {
+    const std::string path = dir.File("long_key.mha");
+    std::ofstream(path, std::ios::binary)
+        << line << "\nObjectType = Image\nNDims = 3\nDimSize = 2 2 2\n"
+        << "ElementType = MET_FLOAT\nElementDataFile = LOCAL\n" << std::string(32, '\0');
+    EXPECT_THAT(ReadError(path), HasSubstr("key of 300 characters"));
+  }
+}
+
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
 TEST(ImageIo, TruncatedOrCorruptDataIsRejected) {
   ImageGeometry g;
