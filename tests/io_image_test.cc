@@ -269,6 +269,25 @@ TEST(ImageIo, NonFiniteNiftiOrientationIsAnErrorNotAnAbort) {
   }
 }
 
+// Found by tests/fuzz/fuzz_image: a tiny file whose header promises gigabytes of voxels
+// (here a NIfTI header with a garbage sizeof_hdr, which niftilib accepts) made the reader
+// allocate them before looking at the data; now refused up front.
+TEST(ImageIo, HeaderPromisingMoreThanTheFileHoldsIsRefusedBeforeAllocating) {
+  ScopedTempDir dir;
+  const std::string good = dir.File("small.nii");
+  std::string error;
+  ASSERT_TRUE(WriteImage(ObliqueImage(), good, &error)) << error;
+  std::ifstream in(good, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const int32_t garbage = -553647780;
+  const int16_t dims[4] = {3, 2000, 2000, 2000};  // 32 GB of float voxels
+  std::memcpy(&bytes[0], &garbage, sizeof(garbage));
+  std::memcpy(&bytes[40], dims, sizeof(dims));
+  const std::string path = dir.File("promises_too_much.nii");
+  std::ofstream(path, std::ios::binary).write(bytes.data(), bytes.size());
+  EXPECT_THAT(ReadError(path), HasSubstr("more than a"));
+}
+
 // Found by tests/fuzz/fuzz_image: a MetaImage header key longer than 255 characters
 // overflowed a strcpy buffer inside ITK's MetaIO (the process aborted); now an error.
 TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
