@@ -216,6 +216,7 @@ bool Register(const std::vector<Image>& images,
     std::vector<Frame> frames(m);
     ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
       frames[i] = Frame(pyramids[i][level].image, pyramids[i][level].mask);
+      pyramids[i][level] = ImageLevel();  // the frame holds its own copy from here on
     });
     int empty_frame = -1;
     for (int i = m - 1; i >= 0; --i) {
@@ -232,7 +233,6 @@ bool Register(const std::vector<Image>& images,
                "mask): the mask is too small";
       return false;
     }
-    // Level-0 pyramids are no longer needed after this level's frames are built.
     SolveOptions solve = options.solve;
     if (level > 0) solve.max_iterations = std::min(solve.max_iterations, options.coarse_max_iterations);
     const std::vector<Eigen::Isometry3d> level_start = poses;
