@@ -494,8 +494,9 @@ std::string Trim(const std::string& text) {
 }
 
 // ITK's MetaIO copies each header key into a fixed 255-byte buffer with strcpy: a longer
-// key (a line without "=" counts whole) overflows it and the process aborts (found by
-// fuzzing). Checks the keys of the header lines, up to ElementDataFile, first.
+// key (a line without "=" counts whole) overflows it and the process aborts; control
+// characters in a value make it read past a buffer (both found by fuzzing). Checks the
+// header lines, up to ElementDataFile, first.
 bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return true;  // later stages report unreadable files
@@ -507,6 +508,16 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
     read += line.size() + 1;
     const size_t equals = line.find('=');
     const std::string key = Trim(equals == std::string::npos ? line : line.substr(0, equals));
+    // MetaIO splits some values into words without bounds checks; control characters in a
+    // header line (found by fuzzing in ElementDataFile) make it read past its buffer.
+    for (const char c : line) {
+      const unsigned char u = static_cast<unsigned char>(c);
+      if (u < 0x20 && c != '\t' && c != '\r') {
+        *reason = "MetaImage header line " + std::to_string(number) +
+                  " contains control characters (not a text header)";
+        return false;
+      }
+    }
     if (key.size() > kMaxKey) {
       *reason = "MetaImage header line " + std::to_string(number) + " has a key of " +
                 std::to_string(key.size()) + " characters (at most " + std::to_string(kMaxKey) +

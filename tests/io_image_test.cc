@@ -299,6 +299,13 @@ TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
         << "ElementType = MET_FLOAT\nElementDataFile = LOCAL\n" << std::string(32, '\0');
     EXPECT_THAT(ReadError(path), HasSubstr("key of 300 characters"));
   }
+  // Also found by fuzzing: control characters in ElementDataFile made MetaIO read past a
+  // buffer (AddressSanitizer, heap-buffer-overflow in MetaImage::ReadStream).
+  const std::string path = dir.File("control.mha");
+  std::ofstream(path, std::ios::binary)
+      << "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n"
+      << "ElementDataFile =gggg\x12\x12\x12gggg\n" << std::string(32, '\0');
+  EXPECT_THAT(ReadError(path), HasSubstr("line 5 contains control characters"));
 }
 
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
