@@ -524,7 +524,16 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
                 ")";
       return false;
     }
-    if (key == "ElementDataFile") break;
+    if (key == "ElementDataFile") {
+      // A "%" makes MetaIO treat the value as a printf pattern for a file series and pass
+      // it to snprintf as the format (found by fuzzing: "%s" crashes). Frames are single
+      // volumes: LOCAL, one data file, or LIST.
+      if (equals != std::string::npos && line.find('%', equals) != std::string::npos) {
+        *reason = "MetaImage ElementDataFile patterns (with %) are not supported";
+        return false;
+      }
+      break;
+    }
   }
   return true;
 }

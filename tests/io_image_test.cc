@@ -306,6 +306,12 @@ TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
       << "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n"
       << "ElementDataFile =gggg\x12\x12\x12gggg\n" << std::string(32, '\0');
   EXPECT_THAT(ReadError(path), HasSubstr("line 5 contains control characters"));
+  // And a printf pattern in ElementDataFile, which MetaIO hands to snprintf as the format.
+  const std::string pattern = dir.File("pattern.mha");
+  std::ofstream(pattern, std::ios::binary)
+      << "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n"
+      << "ElementDataFile = %space: left-posage\n" << std::string(32, '\0');
+  EXPECT_THAT(ReadError(pattern), HasSubstr("patterns"));
 }
 
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
