@@ -17,7 +17,8 @@ namespace testing_cli {
 struct ToolRun {
   int exit_code = -1;
   std::string out, err;
-  std::vector<std::string> error_lines;  // stderr lines that contain "error"/"ERROR"
+  std::vector<std::string> err_lines;    // non-empty stderr lines
+  std::vector<std::string> error_lines;  // those that contain "error"/"ERROR"
 };
 
 inline std::string ReadText(const std::filesystem::path& path) {
@@ -40,6 +41,8 @@ inline ToolRun RunTool(const std::string& binary, const std::string& args,
   run.err = ReadText(err);
   std::istringstream lines(run.err);
   for (std::string line; std::getline(lines, line);) {
+    if (line.empty()) continue;
+    run.err_lines.push_back(line);
     if (line.find("error") != std::string::npos || line.find("ERROR") != std::string::npos) {
       run.error_lines.push_back(line);
     }

@@ -12,6 +12,7 @@
 
 #include <gtest/gtest.h>
 
+#include "cli_run.h"
 #include "core/io_image.h"
 #include "core/io_poses.h"
 
@@ -20,18 +21,9 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct ToolRun {
-  int exit_code = -1;
-  std::string out, err;
-  std::vector<std::string> err_lines;
-};
-
-std::string ReadText(const fs::path& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using testing_cli::ReadText;
+using testing_cli::RunTool;
+using testing_cli::ToolRun;
 
 class DsrSimulateCli : public ::testing::Test {
  protected:
@@ -45,32 +37,7 @@ class DsrSimulateCli : public ::testing::Test {
   void TearDown() override { fs::remove_all(dir_); }
 
   // Runs the binary with `args` (each a single shell word, no quoting needed here).
-  ToolRun Simulate(const std::string& args) {
-    const fs::path out = dir_ / "stdout.txt", err = dir_ / "stderr.txt";
-    const std::string command = std::string(DSR_SIMULATE_BIN) + " " + args + " > " + out.string() +
-                                " 2> " + err.string() + " < /dev/null";
-    const int status = std::system(command.c_str());
-    ToolRun run;
-    run.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-    run.out = ReadText(out);
-    run.err = ReadText(err);
-    std::istringstream lines(run.err);
-    for (std::string line; std::getline(lines, line);) {
-      if (!line.empty()) run.err_lines.push_back(line);
-    }
-    return run;
-  }
-
-  // Lines of stderr that report an error (glog's INFO lines start with 'I').
-  static std::vector<std::string> ErrorLines(const ToolRun& run) {
-    std::vector<std::string> errors;
-    for (const std::string& line : run.err_lines) {
-      if (line.find("error") != std::string::npos || line.find("ERROR") != std::string::npos) {
-        errors.push_back(line);
-      }
-    }
-    return errors;
-  }
+  ToolRun Simulate(const std::string& args) { return RunTool(DSR_SIMULATE_BIN, args, dir_); }
 
   // A tiny, fast configuration that fits a 48^3 phantom.
   static std::string Tiny() {
@@ -176,7 +143,7 @@ TEST_F(DsrSimulateCli, BadInputFoundAfterStartExitsWithOneErrorLine) {
   for (const Case& c : cases) {
     const ToolRun run = Simulate(c.args);
     EXPECT_EQ(run.exit_code, 2) << c.args << "\n" << run.err;
-    const std::vector<std::string> errors = ErrorLines(run);
+    const std::vector<std::string>& errors = run.error_lines;
     ASSERT_EQ(errors.size(), 1u) << c.args << "\n" << run.err;
     EXPECT_NE(errors[0].find("dsr_simulate: error: "), std::string::npos) << errors[0];
     EXPECT_NE(errors[0].find(c.expected), std::string::npos) << c.args << "\n" << run.err;
