@@ -26,6 +26,8 @@
 #include "core/frame.h"
 #include "core/observation.h"
 #include "core/se3.h"
+#include "core/streamed_cost.h"
+#include "core/voxel_stream.h"
 
 namespace dsr {
 
@@ -43,17 +45,13 @@ class VoxelReducedCost final : public ceres::CostFunction {
   Eigen::Vector3d voxel_center_in_world_;
 };
 
-// The reduced normal equations over all m frames (6m x 6m; frame 0's rows included).
-struct ReducedSystem {
-  Eigen::MatrixXd hessian;   // H = sum over voxels (Gauss-Newton matrix of f), full square
-  Eigen::VectorXd gradient;  // g = J^T r
-  double cost = 0.0;         // f = sum r^2
-  int64_t observations = 0;  // intensity differences counted (sum of k_j over k_j >= 2)
-};
+// The reduced normal equations over all m frames (6m x 6m; frame 0's rows included);
+// `observations` counts sum of k_j over voxels with k_j >= 2.
+using ReducedSystem = NormalEquations;
 
-// Streams voxels [begin, end) of `candidates` at the given poses, in fixed blocks reduced
-// in block order: bit-identical for any `num_threads`. With `with_jacobian` false only the
-// cost (and observation count) is computed; hessian/gradient are left empty.
+// Streams voxels [begin, end) of `candidates` at the given poses (core/voxel_stream.h):
+// bit-identical for any `num_threads`. With `with_jacobian` false only the cost (and
+// observation count) is computed; hessian/gradient are left empty.
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -63,10 +61,10 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              int num_threads,
                              ReducedSystem* out);
 
-// Fast path: a chunk of voxels [begin, end) as one residual block over the free poses
-// (frames 1..m-1, in order). Frame 0's pose is the constant `frame0_from_world`.
-// num_residuals = 6 (m - 1) + 1.
-class ReducedChunkCost final : public ceres::CostFunction {
+// Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
+// poses (frames 1..m-1, in order; core/streamed_cost.h). Frame 0's pose is the constant
+// `frame0_from_world`. num_residuals = 6 (m - 1) + 1.
+class ReducedChunkCost final : public StreamedPoseCost {
  public:
   ReducedChunkCost(const std::vector<Frame>* frames,
                    const CandidateSet* candidates,
@@ -74,29 +72,25 @@ class ReducedChunkCost final : public ceres::CostFunction {
                    int64_t begin,
                    int64_t end,
                    int num_threads);
-  bool Evaluate(double const* const* parameters,
-                double* residuals,
-                double** jacobians) const override;
 
   // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
   static void Compress(const Eigen::MatrixXd& hessian_free,
                        const Eigen::VectorXd& gradient_free,
                        double cost,
                        Eigen::VectorXd* residual,
-                       Eigen::MatrixXd* jacobian);
+                       Eigen::MatrixXd* jacobian) {
+    CompressNormalEquations(hessian_free, gradient_free, cost, residual, jacobian);
+  }
 
  private:
-  const std::vector<Frame>* frames_;    // not owned
-  const CandidateSet* candidates_;      // not owned
-  Eigen::Isometry3d frame0_from_world_;
+  void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                  bool with_jacobian,
+                  NormalEquations* out) const override;
+
+  const std::vector<Frame>* frames_;  // not owned
+  const CandidateSet* candidates_;    // not owned
   int64_t begin_, end_;
   int num_threads_;
-  // Observations (sum of k_j over k_j >= 2) of the latest evaluation, for reports. Ceres
-  // evaluates the fast path's few chunks from one thread (SolveDsr sets num_threads = 1).
-  mutable int64_t last_observations_ = 0;
-
- public:
-  int64_t last_observations() const { return last_observations_; }
 };
 
 }  // namespace dsr
