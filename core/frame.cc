@@ -45,7 +45,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
 
   const Eigen::Vector3i n = geometry_.size;
   const int64_t num = geometry_.NumVoxels();
-  interleaved_.assign(4 * num, 0.0f);
+  std::vector<float> interleaved(4 * num, 0.0f);
   const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
   const float* v = image.voxels.data();
   for (int k = 0; k < n[2]; ++k) {
@@ -53,7 +53,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
       for (int i = 0; i < n[0]; ++i) {
         const int64_t l = geometry_.LinearIndex(i, j, k);
         const int ijk[3] = {i, j, k};
-        float* out = &interleaved_[4 * l];
+        float* out = &interleaved[4 * l];
         out[0] = v[l];
         for (int a = 0; a < 3; ++a) {
           // Central difference inside, one-sided on the border, 0 for a single slice.
@@ -68,7 +68,9 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
     }
   }
 
-  valid_cells_.assign(num, 0);
+  interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
+
+  std::vector<uint8_t> valid(num, 0);
   for (int k = 0; k + 1 < n[2]; ++k) {
     for (int j = 0; j + 1 < n[1]; ++j) {
       for (int i = 0; i + 1 < n[0]; ++i) {
@@ -77,7 +79,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
           all = mask.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) != 0;
         }
         if (all) {
-          valid_cells_[geometry_.LinearIndex(i, j, k)] = 1;
+          valid[geometry_.LinearIndex(i, j, k)] = 1;
           ++num_valid_cells_;
           valid_index_box_.extend(Eigen::Vector3d(i, j, k));
           valid_index_box_.extend(Eigen::Vector3d(i + 1, j + 1, k + 1));
@@ -85,6 +87,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
       }
     }
   }
+  valid_cells_ = std::make_shared<const std::vector<uint8_t>>(std::move(valid));
 }
 
 bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {
@@ -95,7 +98,7 @@ bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {
         fk <= n[2] - 2)) {
     return false;
   }
-  return valid_cells_[geometry_.LinearIndex(static_cast<int>(fi), static_cast<int>(fj),
+  return (*valid_cells_)[geometry_.LinearIndex(static_cast<int>(fi), static_cast<int>(fj),
                                             static_cast<int>(fk))] != 0;
 }
 
@@ -109,7 +112,7 @@ bool Frame::SampleAtIndex(const Eigen::Vector3d& ijk,
   const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
   const int64_t sx = 4, sy = 4 * int64_t{geometry_.size[0]},
                 sz = sy * int64_t{geometry_.size[1]};
-  const float* base = &interleaved_[4 * geometry_.LinearIndex(i, j, k)];
+  const float* base = &(*interleaved_)[4 * geometry_.LinearIndex(i, j, k)];
   double acc[4] = {0.0, 0.0, 0.0, 0.0};
   for (int c = 0; c < 8; ++c) {
     const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
@@ -151,13 +154,13 @@ double Frame::InterpolateValue(const Eigen::Vector3d& ijk) const {
       inside = inside && corner >= 0.0 && corner <= n[a] - 1;
       idx[a] = inside ? static_cast<int>(corner) : 0;
     }
-    if (inside && w != 0.0) acc += w * interleaved_[4 * geometry_.LinearIndex(idx[0], idx[1], idx[2])];
+    if (inside && w != 0.0) acc += w * (*interleaved_)[4 * geometry_.LinearIndex(idx[0], idx[1], idx[2])];
   }
   return acc;
 }
 
 std::vector<uint8_t> Frame::DilatedValidCells(int margin) const {
-  std::vector<uint8_t> map = valid_cells_;
+  std::vector<uint8_t> map = *valid_cells_;
   if (margin > 0) {
     for (int axis = 0; axis < 3; ++axis) DilateAlongAxis(geometry_.size, axis, margin, &map);
   }

@@ -14,6 +14,7 @@
 #ifndef DSR_CORE_FRAME_H_
 #define DSR_CORE_FRAME_H_
 
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -67,15 +68,16 @@ class Frame {
   const Eigen::AlignedBox3d& ValidIndexBox() const { return valid_index_box_; }
 
   // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell map (for fast paths).
-  const float* interleaved() const { return interleaved_.data(); }
-  const uint8_t* valid_cells() const { return valid_cells_.data(); }
+  const float* interleaved() const { return interleaved_ ? interleaved_->data() : nullptr; }
+  const uint8_t* valid_cells() const { return valid_cells_ ? valid_cells_->data() : nullptr; }
 
  private:
   ImageGeometry geometry_;
   Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
-  std::vector<float> interleaved_;
-  std::vector<uint8_t> valid_cells_;
+  // Shared and immutable: copying a Frame (e.g. into a two-frame sub-problem) is cheap.
+  std::shared_ptr<const std::vector<float>> interleaved_;
+  std::shared_ptr<const std::vector<uint8_t>> valid_cells_;
   int64_t num_valid_cells_ = 0;
   Eigen::AlignedBox3d valid_index_box_;
 };
