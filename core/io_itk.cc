@@ -524,6 +524,14 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
                 ")";
       return false;
     }
+    if (equals == std::string::npos && !key.empty()) {
+      // MetaIO reads a key up to the next '=', across line ends: "ElementDataFile" alone on
+      // a line took the next lines as its value, and a "%" there as a file pattern whose
+      // step parsed as 0 (found by fuzzing: integer division by zero in ReadStream).
+      *reason = "MetaImage header line " + std::to_string(number) +
+                " is not a 'key = value' line";
+      return false;
+    }
     if (key == "ElementDataFile") {
       // A "%" makes MetaIO treat the value as a printf pattern for a file series and pass
       // it to snprintf as the format (found by fuzzing: "%s" crashes). Frames are single

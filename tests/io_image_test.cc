@@ -312,6 +312,13 @@ TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
       << "ObjectType = Image\nNDims = 3\nDimSize = 2 2 2\nElementType = MET_FLOAT\n"
       << "ElementDataFile = %space: left-posage\n" << std::string(32, '\0');
   EXPECT_THAT(ReadError(pattern), HasSubstr("patterns"));
+  // And a key without '=': MetaIO took the following lines as its value, then a "%" in
+  // them as a file pattern with step 0 (SIGFPE, integer division by zero).
+  const std::string no_equals = dir.File("no_equals.mha");
+  std::ofstream(no_equals, std::ios::binary)
+      << "ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_FLOAT\n"
+      << "ElementDataFile \nLB 4 =inaryD.ta 6%-pe = MET_FLOAT\n" << std::string(96, '\0');
+  EXPECT_THAT(ReadError(no_equals), HasSubstr("line 5 is not a 'key = value' line"));
 }
 
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
