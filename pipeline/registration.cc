@@ -8,6 +8,7 @@
 
 #include <glog/logging.h>
 
+#include "baselines/baselines.h"
 #include "core/convergence.h"
 #include "core/panorama.h"
 #include "core/parallel.h"
@@ -21,6 +22,15 @@ namespace {
 
 double Seconds(std::chrono::steady_clock::time_point since) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+BaselineOptions ToBaselineOptions(const RegistrationOptions& options, const SolveOptions& solve) {
+  BaselineOptions baseline;
+  baseline.solve = solve;
+  baseline.panorama_spacing = options.panorama_spacing;
+  baseline.min_shared_voxels = options.min_shared_voxels;
+  baseline.num_chunks = options.dsr_num_chunks;
+  return baseline;
 }
 
 // Runs the mode's solver once with the candidates fixed.
@@ -45,6 +55,13 @@ bool SolveOnce(const RegistrationOptions& options,
     dba.memory_budget_bytes = options.dba_memory_budget_bytes;
     return SolveDba(frames, candidates, initial, dba, report, dba_intensities, error);
   }
+  BaselineOptions baseline = ToBaselineOptions(options, solve);
+  if (options.mode == "ape") return SolveApe(frames, candidates, initial, baseline, report, error);
+  if (options.mode == "pairwise") return SolvePairwise(frames, initial, baseline, report, error);
+  if (options.mode == "lie_normalization") {
+    return SolveLieNormalization(frames, candidates, initial, baseline, report, error);
+  }
+  if (options.mode == "sequential") return SolveSequential(frames, initial, baseline, report, error);
   *error = "--mode=" + options.mode + ": unknown mode";
   return false;
 }
@@ -117,7 +134,9 @@ bool PosesDetermined(const std::vector<Frame>& frames,
 
 }  // namespace
 
-std::vector<std::string> ModeNames() { return {"dsr", "dba"}; }
+std::vector<std::string> ModeNames() {
+  return {"dsr", "dba", "pairwise", "lie_normalization", "sequential", "ape"};
+}
 
 bool RegistrationOptions::Validate(std::string* error) const {
   const std::vector<std::string> modes = ModeNames();
@@ -168,6 +187,9 @@ bool RegistrationOptions::Validate(std::string* error) const {
     dba.solve = solve;
     if (!dba.Validate(error)) return false;
   }
+  if (mode != "dsr" && mode != "dba" && !ToBaselineOptions(*this, solve).Validate(error)) {
+    return false;
+  }
   return true;
 }
 
@@ -191,6 +213,30 @@ bool Register(const std::vector<Image>& images,
   CHECK_EQ(initial_frame_from_world.size(), images.size());
   if (!options.Validate(error)) return false;
   *result = RegistrationResult();
+  // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
+  std::vector<Eigen::Isometry3d> start_poses = RelativeToFrame0(initial_frame_from_world);
+  if (options.pairwise_init && options.mode != "pairwise") {
+    RegistrationOptions init_options = options;
+    init_options.mode = "pairwise";
+    init_options.pairwise_init = false;
+    init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
+    init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
+    RegistrationResult init;
+    if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {
+      *error = "--init=pairwise: " + *error;
+      return false;
+    }
+    if (!init.usable) {
+      result->failure = "--init=pairwise: " + init.failure;
+      result->frame_from_world = start_poses;
+      result->seconds = Seconds(start);
+      return true;
+    }
+    start_poses = init.frame_from_world;
+    result->init_seconds = init.seconds;
+    result->init_iterations = init.total_iterations;
+    result->init_frame_from_world = start_poses;
+  }
 
   // Pyramids, coarsest level last.
   std::vector<std::vector<ImageLevel>> pyramids(m);
@@ -201,7 +247,7 @@ bool Register(const std::vector<Image>& images,
                                options.pyramid_min_size, options.solve.num_threads);
     levels = std::min(levels, static_cast<int>(pyramids[i].size()));
   }
-  result->pyramid_seconds = Seconds(start);
+  result->pyramid_seconds = Seconds(start) - result->init_seconds;
 
   const int constant = ConstantFrame(images, masks);
   if (constant >= 0) {
@@ -209,7 +255,7 @@ bool Register(const std::vector<Image>& images,
              " has the same value everywhere in its field of view: nothing to register";
     return false;
   }
-  std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
+  std::vector<Eigen::Isometry3d> poses = start_poses;
   result->usable = true;
   bool determined_checked = false;
   for (int level = levels - 1; level >= 0; --level) {
@@ -236,7 +282,12 @@ bool Register(const std::vector<Image>& images,
     SolveOptions solve = options.solve;
     if (level > 0) solve.max_iterations = std::min(solve.max_iterations, options.coarse_max_iterations);
     const std::vector<Eigen::Isometry3d> level_start = poses;
-    for (int rebuild = 0; rebuild <= options.max_rebuilds; ++rebuild) {
+    // The pair-based baselines build their own pair grids and candidates in every solve:
+    // rebuilding the shared candidates between their solves would only repeat them.
+    const bool pair_based = options.mode == "pairwise" || options.mode == "lie_normalization" ||
+                            options.mode == "sequential";
+    const int max_rebuilds = pair_based ? 0 : options.max_rebuilds;
+    for (int rebuild = 0; rebuild <= max_rebuilds; ++rebuild) {
       LevelSolve record;
       record.level = level;
       record.rebuild = rebuild;

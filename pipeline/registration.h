@@ -30,9 +30,13 @@
 namespace dsr {
 
 struct RegistrationOptions {
-  // "dsr" (reduced problem, default) or "dba" (full bundle adjustment); the baselines
-  // register further names (see ModeNames()).
+  // "dsr" (reduced problem, default), "dba" (full bundle adjustment) or a baseline of
+  // baselines/baselines.h: "pairwise", "lie_normalization", "sequential", "ape".
   std::string mode = "dsr";
+  // Start from the poses of the pairwise baseline (the whole pipeline run once with
+  // mode "pairwise" from the given initial poses) instead of the given poses: the paper's
+  // initialisation.
+  bool pairwise_init = false;
   SolveOptions solve;             // per solve; max_iterations is the finest level's limit
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
 
@@ -78,6 +82,10 @@ struct RegistrationResult {
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
   int total_iterations = 0;
+  // The pairwise initialiser's run (pairwise_init), not counted above.
+  double init_seconds = 0.0;
+  int init_iterations = 0;
+  std::vector<Eigen::Isometry3d> init_frame_from_world;
   // The last solve's panorama grid and, for --mode=dba, its optimised intensities on that
   // grid (0 at voxels that are not candidates); empty for other modes.
   ImageGeometry grid;

@@ -21,6 +21,7 @@ namespace dsr {
 namespace {
 
 using testing_problems::Candidates;
+using testing_problems::DenseJacobian;
 using testing_problems::InteriorCandidates;
 using testing_problems::MakeSequence;
 using testing_problems::MaxPoseDifference;
@@ -50,24 +51,6 @@ SequenceOptions OptionsFor(const Case& c, uint64_t seed) {
   o.erosion = c.erosion;
   o.seed = seed;
   return o;
-}
-
-// Dense Jacobian (tangent columns) of a Ceres problem at its current state.
-Eigen::MatrixXd DenseJacobian(ceres::Problem* problem,
-                              const std::vector<double*>& blocks,
-                              Eigen::VectorXd* residuals,
-                              double* cost) {
-  ceres::Problem::EvaluateOptions options;
-  options.parameter_blocks = blocks;
-  std::vector<double> r;
-  ceres::CRSMatrix crs;
-  problem->Evaluate(options, cost, &r, nullptr, &crs);
-  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
-  for (int row = 0; row < crs.num_rows; ++row) {
-    for (int k = crs.rows[row]; k < crs.rows[row + 1]; ++k) j(row, crs.cols[k]) = crs.values[k];
-  }
-  *residuals = Eigen::Map<Eigen::VectorXd>(r.data(), r.size());
-  return j;
 }
 
 // DBA's Gauss-Newton pose step with the intensities eliminated (Schur complement), solved

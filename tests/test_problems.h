@@ -9,6 +9,7 @@
 #include <random>
 #include <vector>
 
+#include <ceres/ceres.h>
 #include <Eigen/Geometry>
 
 #include "core/frame.h"
@@ -198,6 +199,24 @@ inline std::pair<double, double> MaxPoseDifference(const std::vector<Eigen::Isom
     t = std::max(t, dt);
   }
   return {r, t};
+}
+
+// Dense Jacobian (tangent columns) of a Ceres problem at its current state.
+inline Eigen::MatrixXd DenseJacobian(ceres::Problem* problem,
+                              const std::vector<double*>& blocks,
+                              Eigen::VectorXd* residuals,
+                              double* cost) {
+  ceres::Problem::EvaluateOptions options;
+  options.parameter_blocks = blocks;
+  std::vector<double> r;
+  ceres::CRSMatrix crs;
+  problem->Evaluate(options, cost, &r, nullptr, &crs);
+  Eigen::MatrixXd j = Eigen::MatrixXd::Zero(crs.num_rows, crs.num_cols);
+  for (int row = 0; row < crs.num_rows; ++row) {
+    for (int k = crs.rows[row]; k < crs.rows[row + 1]; ++k) j(row, crs.cols[k]) = crs.values[k];
+  }
+  *residuals = Eigen::Map<Eigen::VectorXd>(r.data(), r.size());
+  return j;
 }
 
 }  // namespace testing_problems

@@ -28,10 +28,12 @@ DEFINE_string(masks, "", "Comma-separated field-of-view masks, one per image, on
               "--mask_erosion voxels.");
 DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no --masks are "
              "given, in [0, 50].");
-DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated) or dba "
-              "(full direct bundle adjustment in Ceres; small problems only).");
-DEFINE_string(init, "identity", "Initial poses: 'identity' or a poses JSON file (DESIGN.md "
-              "section 1) with one entry per image.");
+DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
+              "(full direct bundle adjustment in Ceres; small problems only), or one of the "
+              "paper's baselines: pairwise, lie_normalization, sequential, ape.");
+DEFINE_string(init, "identity", "Initial poses: 'identity', 'pairwise' (the pairwise "
+              "baseline's poses, itself started from identity: the paper's initialisation) "
+              "or a poses JSON file (DESIGN.md section 1) with one entry per image.");
 DEFINE_double(panorama_spacing, 1.0, "Panorama voxel spacing as a multiple of frame 0's "
               "spacing (at every pyramid level), > 0. Larger = fewer voxels, less memory.");
 DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
@@ -84,7 +86,8 @@ int main(int argc, char** argv) {
   dsr::InitTool(
       "registers several 3D images simultaneously (DSR: direct simultaneous registration).\n"
       "  dsr_register --images=a.nii.gz,b.nii.gz,... --out_poses=poses.json [--masks=...]\n"
-      "      [--mode=dsr|dba] [--init=identity|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
+      "      [--mode=dsr|dba|pairwise|lie_normalization|sequential|ape]\n"
+      "      [--init=identity|pairwise|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
       "Exit status: 0 ok, 2 bad input, 1 the solve failed (no pose file written). "
       "--helpshort lists this tool's flags only.",
       {"images", "out_poses"}, &argc, &argv);
@@ -180,12 +183,12 @@ int main(int argc, char** argv) {
   std::vector<Eigen::Isometry3d> initial(m, Eigen::Isometry3d::Identity());
   if (FLAGS_init != "identity") {
     if (FLAGS_init == "pairwise") {
-      return Fail("--init=pairwise: the pairwise initialiser is not available yet; use "
-                  "identity or a poses file");
+      options.pairwise_init = true;
+    } else {
+      dsr::PosesFile init;
+      if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
+      initial = init.frame_from_world;
     }
-    dsr::PosesFile init;
-    if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
-    initial = init.frame_from_world;
   }
   dsr::PosesFile gt;
   if (!FLAGS_gt_poses.empty() && !dsr::ReadPoses(FLAGS_gt_poses, m, &gt, &error)) {

@@ -1,0 +1,218 @@
+#include "pipeline/experiment.h"
+
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+#include <map>
+#include <sstream>
+
+#include "core/eval.h"
+
+namespace dsr {
+namespace {
+
+// The child's answer on the pipe: the row's numbers and poses, whitespace-separated.
+std::string Serialize(const ComparisonRow& row) {
+  std::ostringstream s;
+  s.precision(17);
+  s << row.ok << ' ' << row.mae_translation_voxels << ' ' << row.mae_translation_mm << ' '
+    << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
+    << row.iterations << ' ' << row.seconds_per_iteration << ' '
+    << row.differences_per_iteration << ' ' << row.seconds << ' '
+    << row.frame_from_world.size();
+  for (const Eigen::Isometry3d& t : row.frame_from_world) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) s << ' ' << t(r, c);
+  }
+  s << '\n' << row.failure;
+  return s.str();
+}
+
+bool Deserialize(const std::string& text, ComparisonRow* row) {
+  std::istringstream s(text);
+  size_t poses = 0;
+  s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
+      row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
+      row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >> poses;
+  if (!s || poses > 1000) return false;
+  row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
+  for (Eigen::Isometry3d& t : row->frame_from_world) {
+    for (int r = 0; r < 3; ++r)
+      for (int c = 0; c < 4; ++c) s >> t(r, c);
+  }
+  if (!s) return false;
+  std::string rest;
+  std::getline(s, rest);  // end of the numbers line
+  std::getline(s, row->failure, '\0');
+  return true;
+}
+
+ComparisonRow RunInProcess(const ExperimentSequence& sequence, const RegistrationOptions& options) {
+  ComparisonRow row;
+  const auto start = std::chrono::steady_clock::now();
+  const std::vector<Eigen::Isometry3d> identity(sequence.frames.size(),
+                                                Eigen::Isometry3d::Identity());
+  RegistrationResult result;
+  std::string error;
+  if (!Register(sequence.frames, sequence.masks, identity, options, &result, &error)) {
+    row.failure = error;
+    return row;
+  }
+  row.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!result.usable) {
+    row.failure = result.failure;
+    return row;
+  }
+  const PoseErrorSummary errors =
+      ComparePoses(result.frame_from_world, sequence.ground_truth, sequence.masks);
+  row.ok = true;
+  row.mae_translation_voxels = errors.mae_translation_voxels;
+  row.mae_translation_mm = errors.mae_translation_mm;
+  row.mae_rotation_rad = errors.mae_rotation_rad;
+  row.tre_mean_mm = errors.tre_mean_mm;
+  row.tre_max_mm = errors.tre_max_mm;
+  row.iterations = result.total_iterations;
+  double finest_seconds = 0.0, finest_differences = 0.0;
+  int finest_iterations = 0, finest_solves = 0;
+  for (const LevelSolve& solve : result.solves) {
+    if (solve.level != 0) continue;
+    finest_seconds += solve.report.seconds;
+    finest_iterations += solve.report.num_iterations;
+    finest_differences += static_cast<double>(solve.report.observations_per_iteration);
+    ++finest_solves;
+  }
+  row.seconds_per_iteration = finest_seconds / std::max(1, finest_iterations);
+  row.differences_per_iteration = finest_differences / std::max(1, finest_solves);
+  row.frame_from_world = result.frame_from_world;
+  return row;
+}
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 == 1 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+std::string CsvField(const std::string& text) {
+  if (text.find_first_of(",\"\n") == std::string::npos) return text;
+  std::string out = "\"";
+  for (char c : text) out += c == '"' ? std::string("\"\"") : std::string(1, c == '\n' ? ' ' : c);
+  return out + "\"";
+}
+
+}  // namespace
+
+ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOptions& options) {
+  ComparisonRow row;
+  int fds[2];
+  if (pipe(fds) != 0) {
+    row = RunInProcess(sequence, options);  // no isolation available: run here
+  } else {
+    std::fflush(nullptr);
+    const pid_t pid = fork();
+    if (pid == 0) {
+      close(fds[0]);
+      const std::string text = Serialize(RunInProcess(sequence, options));
+      size_t written = 0;
+      while (written < text.size()) {
+        const ssize_t n = write(fds[1], text.data() + written, text.size() - written);
+        if (n <= 0) break;
+        written += static_cast<size_t>(n);
+      }
+      close(fds[1]);
+      _exit(written == text.size() ? 0 : 3);
+    }
+    close(fds[1]);
+    std::string text;
+    char buffer[65536];
+    for (;;) {
+      const ssize_t n = read(fds[0], buffer, sizeof(buffer));
+      if (n > 0) {
+        text.append(buffer, static_cast<size_t>(n));
+      } else if (n == 0 || errno != EINTR) {
+        break;
+      }
+    }
+    close(fds[0]);
+    int status = 0;
+    struct rusage usage {};
+    const pid_t waited = pid > 0 ? wait4(pid, &status, 0, &usage) : -1;
+    if (pid < 0 || waited != pid) {
+      row.failure = "could not run the method in a child process";
+    } else if (WIFSIGNALED(status)) {
+      row.failure = std::string("the run was killed by signal ") + strsignal(WTERMSIG(status));
+    } else if (!Deserialize(text, &row)) {
+      row.failure = "the run ended without a result (exit status " +
+                    std::to_string(WEXITSTATUS(status)) + ")";
+    }
+    if (waited == pid) row.peak_memory_mb = usage.ru_maxrss / 1024.0;  // kB on Linux
+  }
+  row.method = options.mode + (options.pairwise_init ? "+pairwise_init" : "");
+  row.sequence = sequence.name;
+  return row;
+}
+
+std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
+  std::ostringstream s;
+  s.precision(9);
+  s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
+       "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
+       "intensity_differences_per_iteration,seconds,peak_memory_mb,failure\n";
+  for (const ComparisonRow& r : rows) {
+    s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
+      << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
+      << ',' << r.tre_mean_mm << ',' << r.tre_max_mm << ',' << r.iterations << ','
+      << r.seconds_per_iteration << ',' << r.differences_per_iteration << ',' << r.seconds
+      << ',' << r.peak_memory_mb << ',' << CsvField(r.failure) << '\n';
+  }
+  return s.str();
+}
+
+std::string ComparisonMarkdown(const std::vector<ComparisonRow>& rows) {
+  std::vector<std::string> methods;
+  std::map<std::string, std::vector<const ComparisonRow*>> by_method;
+  for (const ComparisonRow& r : rows) {
+    if (by_method.find(r.method) == by_method.end()) methods.push_back(r.method);
+    by_method[r.method].push_back(&r);
+  }
+  std::ostringstream s;
+  s << "| method | runs ok | MAE translation (voxels) | MAE rotation (rad) | TRE mean (mm) | "
+       "iterations | time / iteration (s) | intensity differences / iteration | total (s) | "
+       "peak memory (MB) |\n";
+  s << "|---|---|---|---|---|---|---|---|---|---|\n";
+  char line[512];
+  for (const std::string& m : methods) {
+    std::vector<double> t, r, tre, it, spi, dpi, sec, mem;
+    int ok = 0;
+    for (const ComparisonRow* row : by_method[m]) {
+      if (!row->ok) continue;
+      ++ok;
+      t.push_back(row->mae_translation_voxels);
+      r.push_back(row->mae_rotation_rad);
+      tre.push_back(row->tre_mean_mm);
+      it.push_back(row->iterations);
+      spi.push_back(row->seconds_per_iteration);
+      dpi.push_back(row->differences_per_iteration);
+      sec.push_back(row->seconds);
+      mem.push_back(row->peak_memory_mb);
+    }
+    std::snprintf(line, sizeof(line),
+                  "| %s | %d/%zu | %.4g | %.3g | %.4g | %.0f | %.4g | %.4g | %.3g | %.0f |\n",
+                  m.c_str(), ok, by_method[m].size(), Median(t), Median(r), Median(tre),
+                  Median(it), Median(spi), Median(dpi), Median(sec), Median(mem));
+    s << line;
+  }
+  s << "\nMedians over sequences; time and intensity differences per iteration at the finest "
+       "pyramid level.\n";
+  return s.str();
+}
+
+}  // namespace dsr

@@ -1,0 +1,52 @@
+// Method comparisons (issue 5, the paper's Fig. 1): run registration methods on sequences
+// with ground truth and tabulate accuracy and cost. Each run happens in a child process
+// (fork), so that its peak memory is its own (wait4's ru_maxrss) and a crash in one run
+// cannot take the others down.
+#ifndef DSR_PIPELINE_EXPERIMENT_H_
+#define DSR_PIPELINE_EXPERIMENT_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/volume.h"
+#include "pipeline/registration.h"
+
+namespace dsr {
+
+struct ExperimentSequence {
+  std::string name;
+  std::vector<Image> frames;
+  std::vector<Mask> masks;
+  std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world (any world)
+};
+
+// One row of the comparison.
+struct ComparisonRow {
+  std::string method, sequence;
+  bool ok = false;
+  std::string failure;          // why not ok
+  double mae_translation_voxels = 0.0, mae_translation_mm = 0.0, mae_rotation_rad = 0.0;
+  double tre_mean_mm = 0.0, tre_max_mm = 0.0;
+  int iterations = 0;               // every solve of every level (initialiser excluded)
+  double seconds_per_iteration = 0.0;   // finest level: solve time / iterations
+  double differences_per_iteration = 0.0;  // finest level: intensity differences per evaluation
+  double seconds = 0.0;             // the whole run (pyramid, initialiser, solves)
+  double peak_memory_mb = 0.0;      // the run's process
+  std::vector<Eigen::Isometry3d> frame_from_world;
+};
+
+// Runs `options` (its mode is the method) on the sequence from identity initial poses in
+// a child process and fills a row.
+ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOptions& options);
+
+// CSV with a header line; one line per row.
+std::string ComparisonCsv(const std::vector<ComparisonRow>& rows);
+// Markdown table of medians per method over the sequences (failed runs counted apart),
+// methods in the order first seen.
+std::string ComparisonMarkdown(const std::vector<ComparisonRow>& rows);
+
+}  // namespace dsr
+
+#endif  // DSR_PIPELINE_EXPERIMENT_H_
