@@ -45,6 +45,14 @@ bool Write(const RawVolume& volume,
            bool compress,
            std::string* error);
 
+// ITK transform files (.tfm, .txt; .h5 where ITK has HDF5): a 3D affine transform
+// x_moving = A x_fixed + b, `matrix` = row-major [A | b] (12 numbers), written as ITK's
+// AffineTransform_double_3_3 with centre 0. Not atomic by itself. Errors name `path`.
+bool WriteAffineTransform(const std::string& path, const double matrix[12], std::string* error);
+// Reads the first transform of a file: an AffineTransform, Euler3DTransform,
+// VersorRigid3DTransform or any other matrix-offset transform of dimension 3.
+bool ReadAffineTransform(const std::string& path, double matrix[12], std::string* error);
+
 }  // namespace itk_io
 }  // namespace dsr
 

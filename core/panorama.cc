@@ -54,34 +54,108 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
   return true;
 }
 
-PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
-                                const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                const ImageGeometry& grid,
-                                int num_threads) {
+Volume<float> ValidCellDistance(const Frame& frame) {
+  const ImageGeometry& g = frame.geometry();
+  Volume<float> d(g, 0.0f);
+  const uint8_t* valid = frame.valid_cells();
+  const int nx = g.size[0], ny = g.size[1], nz = g.size[2];
+  constexpr float kFar = 1e9f;
+  for (int64_t l = 0; l < g.NumVoxels(); ++l) d.voxels[l] = valid[l] ? kFar : 0.0f;
+  // Two chamfer passes with unit 6-neighbour steps give the exact city-block distance;
+  // voxels on the grid border have an outside neighbour (distance 1 at most).
+  auto at = [&](int i, int j, int k) -> float {
+    if (i < 0 || j < 0 || k < 0 || i >= nx || j >= ny || k >= nz) return 0.0f;
+    return d.voxels[g.LinearIndex(i, j, k)];
+  };
+  for (int k = 0; k < nz; ++k)
+    for (int j = 0; j < ny; ++j)
+      for (int i = 0; i < nx; ++i) {
+        float& v = d.voxels[g.LinearIndex(i, j, k)];
+        if (v == 0.0f) continue;
+        v = std::min({v, at(i - 1, j, k) + 1, at(i, j - 1, k) + 1, at(i, j, k - 1) + 1});
+      }
+  for (int k = nz - 1; k >= 0; --k)
+    for (int j = ny - 1; j >= 0; --j)
+      for (int i = nx - 1; i >= 0; --i) {
+        float& v = d.voxels[g.LinearIndex(i, j, k)];
+        if (v == 0.0f) continue;
+        v = std::min({v, at(i + 1, j, k) + 1, at(i, j + 1, k) + 1, at(i, j, k + 1) + 1});
+      }
+  return d;
+}
+
+namespace {
+
+// Shared by both fusions: per voxel, each valid observation with weight `weight(f, p_ij)`.
+template <class Weight>
+PanoramaImages Fuse(const std::vector<Frame>& frames,
+                    const std::vector<Eigen::Isometry3d>& frame_from_world,
+                    const ImageGeometry& grid,
+                    int num_threads,
+                    const Weight& weight) {
   PanoramaImages out;
   out.mean = Image(grid, 0.0f);
   out.count = Volume<uint8_t>(grid, 0);
   const int64_t slice = int64_t{grid.size[0]} * grid.size[1];
+  std::vector<int64_t> seen(grid.size[2], 0), seen0(grid.size[2], 0);
   ParallelFor(0, grid.size[2], num_threads, [&](int64_t k) {
     for (int j = 0; j < grid.size[1]; ++j) {
       for (int i = 0; i < grid.size[0]; ++i) {
         const Eigen::Vector3d p = grid.IndexToPhysical(Eigen::Vector3d(i, j, k));
-        double sum = 0.0;
+        double sum = 0.0, weights = 0.0;
         int count = 0;
         for (size_t f = 0; f < frames.size(); ++f) {
           double value;
-          if (frames[f].Sample(frame_from_world[f] * p, &value, nullptr)) {
-            sum += value;
+          const Eigen::Vector3d x = frame_from_world[f] * p;
+          if (frames[f].Sample(x, &value, nullptr)) {
+            const double w = weight(f, x);
+            sum += w * value;
+            weights += w;
             ++count;
+            if (f == 0) ++seen0[k];
           }
         }
         const int64_t l = k * slice + grid.LinearIndex(i, j, 0);
         out.count.voxels[l] = static_cast<uint8_t>(count);
-        out.mean.voxels[l] = count > 0 ? static_cast<float>(sum / count) : 0.0f;
+        out.mean.voxels[l] = weights > 0.0 ? static_cast<float>(sum / weights) : 0.0f;
+        if (count > 0) ++seen[k];
       }
     }
   });
+  for (int k = 0; k < grid.size[2]; ++k) {
+    out.seen_voxels += seen[k];
+    out.frame0_voxels += seen0[k];
+  }
   return out;
+}
+
+}  // namespace
+
+PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
+                                const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                const ImageGeometry& grid,
+                                int num_threads) {
+  return Fuse(frames, frame_from_world, grid, num_threads,
+              [](size_t, const Eigen::Vector3d&) { return 1.0; });
+}
+
+PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
+                                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                   const ImageGeometry& grid,
+                                   double feather_voxels,
+                                   int num_threads) {
+  if (!(feather_voxels > 0.0)) return FusePanoramaMean(frames, frame_from_world, grid, num_threads);
+  std::vector<Frame> distance(frames.size());
+  ParallelFor(0, static_cast<int64_t>(frames.size()), num_threads, [&](int64_t f) {
+    const Volume<float> d = ValidCellDistance(frames[f]);
+    // A Frame over the distance volume gives its trilinear interpolation.
+    distance[f] = Frame(d, Mask(d.geometry, 1));
+  });
+  return Fuse(frames, frame_from_world, grid, num_threads,
+              [&](size_t f, const Eigen::Vector3d& x) {
+                const double d = distance[f].InterpolateValue(distance[f].ToIndex(x));
+                return std::clamp(d / feather_voxels, 1e-6, 1.0);
+              });
 }
 
 }  // namespace dsr

@@ -31,6 +31,13 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
 struct PanoramaImages {
   Image mean;        // mu_j = (1/k_j) sum_i sigma_ij I_i(p_ij); 0 where k_j = 0
   Volume<uint8_t> count;  // k_j, number of frames observing each voxel
+  int64_t seen_voxels = 0;    // voxels with k_j >= 1
+  int64_t frame0_voxels = 0;  // voxels frame 0 observes
+  // Field-of-view enlargement as the paper reports it: voxels seen by any frame / voxels
+  // in frame 0's field of view (0 when frame 0 sees none).
+  double EnlargementRatio() const {
+    return frame0_voxels > 0 ? static_cast<double>(seen_voxels) / frame0_voxels : 0.0;
+  }
 };
 
 // Closed-form panorama over every voxel of `grid` (not only candidates): each frame's
@@ -39,6 +46,22 @@ PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const ImageGeometry& grid,
                                 int num_threads);
+
+// Feathered panorama: the observations weighted by how deep they lie inside their frame's
+// field of view, w_ij = min(1, d_i(p_ij) / feather_voxels), with d_i the city-block
+// distance (frame voxels, trilinearly interpolated) from a valid cell to the nearest
+// invalid one. Weights fall to zero towards each field-of-view edge, so the seams of the
+// mean panorama vanish; with feather_voxels <= 0 every weight is 1 and this is the mean.
+// `mean` holds sum w I / sum w; `count` and the voxel counts are as for the mean.
+PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
+                                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                   const ImageGeometry& grid,
+                                   double feather_voxels,
+                                   int num_threads);
+
+// City-block distance of each valid cell of `frame` to the nearest invalid cell (or the
+// grid border), in cells; 0 on invalid cells. On the frame's grid.
+Volume<float> ValidCellDistance(const Frame& frame);
 
 }  // namespace dsr
 

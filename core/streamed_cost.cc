@@ -1,11 +1,13 @@
 #include "core/streamed_cost.h"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 
 #include <Eigen/Eigenvalues>
 #include <glog/logging.h>
 
+#include "core/convergence.h"
 #include "core/se3.h"
 
 namespace dsr {
@@ -78,6 +80,66 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
     Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
         jacobians[i - 1], n + 1, kPoseAmbientSize);
     out.noalias() = jac.middleCols<6>(6 * (i - 1)) * TangentToAmbientJacobian(parameters[i - 1]);
+  }
+  return true;
+}
+
+bool SolveStreamedPoses(const std::vector<Frame>& frames,
+                        const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                        int64_t num_voxels,
+                        int num_blocks,
+                        const StreamedBlockFactory& make_block,
+                        const SolveOptions& solve,
+                        const std::string& label,
+                        SolveReport* report,
+                        std::string* error) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_GE(m, 2);
+  CHECK_EQ(static_cast<int>(initial_frame_from_world.size()), m);
+  static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
+  ceres::Problem::Options problem_options;
+  problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
+  ceres::Problem problem(problem_options);
+  std::vector<std::array<double, kPoseAmbientSize>> poses(m);
+  std::vector<double*> free_blocks;
+  std::vector<const double*> pose_blocks(m, nullptr);
+  for (int i = 0; i < m; ++i) PoseToParameters(initial_frame_from_world[i], poses[i].data());
+  for (int i = 1; i < m; ++i) {
+    problem.AddParameterBlock(poses[i].data(), kPoseAmbientSize, kManifold);
+    free_blocks.push_back(poses[i].data());
+    pose_blocks[i] = poses[i].data();
+  }
+  const int64_t blocks = std::max<int64_t>(1, std::min<int64_t>(num_blocks, num_voxels));
+  std::vector<const StreamedPoseCost*> costs;
+  for (int64_t c = 0; c < blocks; ++c) {
+    StreamedPoseCost* cost = make_block(num_voxels * c / blocks, num_voxels * (c + 1) / blocks);
+    costs.push_back(cost);
+    problem.AddResidualBlock(cost, nullptr, free_blocks);
+  }
+  ceres::Solver::Options options;
+  solve.ToCeres("DENSE_QR", &options);
+  // The streamed blocks thread internally over fixed voxel blocks (deterministic); Ceres
+  // evaluates the few blocks one after another.
+  options.num_threads = 1;
+  ProgressCallback progress(solve.progress_prefix + label, solve.log_progress);
+  options.callbacks.push_back(&progress);
+  PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance_voxels,
+                        solve.max_rejected_steps);
+  stop.AddTo(&options);
+  std::string why;
+  if (!options.IsValid(&why)) {
+    *error = "invalid solver options: " + why;
+    return false;
+  }
+  ceres::Solver::Summary summary;
+  ceres::Solve(options, &problem, &summary);
+  FillReport(summary, progress, report);
+  if (!stop.reason().empty()) report->termination = stop.reason();
+  report->frame_from_world.clear();
+  for (const auto& x : poses) report->frame_from_world.push_back(ParametersToPose(x.data()));
+  report->observations_per_iteration = 0;
+  for (const StreamedPoseCost* cost : costs) {
+    report->observations_per_iteration += cost->last_observations();
   }
   return true;
 }

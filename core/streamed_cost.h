@@ -16,12 +16,16 @@
 #define DSR_CORE_STREAMED_COST_H_
 
 #include <cstdint>
+#include <functional>
+#include <string>
 #include <vector>
 
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 #include <ceres/ceres.h>
 
+#include "core/frame.h"
+#include "core/solve_options.h"
 #include "core/voxel_stream.h"
 
 namespace dsr {
@@ -55,6 +59,22 @@ class StreamedPoseCost : public ceres::CostFunction {
   Eigen::Isometry3d frame0_from_world_;
   mutable int64_t last_observations_ = 0;
 };
+
+// Solves min over the poses of frames 1..m-1 (frame 0 constant) of the sum of the
+// streamed blocks `make_block(begin, end)` returns for `num_blocks` equal ranges of
+// [0, num_voxels): Ceres with a dense linear solver (or solve.linear_solver), the progress
+// line labelled `label`, and the shared pose stopping rule (core/convergence.h). A solve
+// that runs but is not usable returns true with report->usable = false.
+using StreamedBlockFactory = std::function<StreamedPoseCost*(int64_t begin, int64_t end)>;
+bool SolveStreamedPoses(const std::vector<Frame>& frames,
+                        const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                        int64_t num_voxels,
+                        int num_blocks,
+                        const StreamedBlockFactory& make_block,
+                        const SolveOptions& solve,
+                        const std::string& label,
+                        SolveReport* report,
+                        std::string* error);
 
 }  // namespace dsr
 

@@ -6,7 +6,14 @@
 #include <type_traits>
 
 #include <itkImage.h>
+#include <itkImageFileReader.h>
 #include <itkImageFileWriter.h>
+#include <itkLinearInterpolateImageFunction.h>
+#include <itkResampleImageFilter.h>
+#include <itkTransform.h>
+#include <itkTransformFactoryBase.h>
+#include <itkTransformFileReader.h>
+#include <itkTxtTransformIOFactory.h>
 #include <itkMetaImageIO.h>
 #include <itkNiftiImageIO.h>
 #include <itkNrrdImageIO.h>
@@ -119,6 +126,58 @@ std::string WriteVectorImage(const std::string& path, const Grid& grid) {
   fill[1] = 2.0f;
   fill[2] = 3.0f;
   return WriteImage<itk::Vector<float, 3>, 3>(path, grid, nullptr, fill);
+}
+
+std::string ResampleWithTransformFile(const std::string& image_path,
+                                      const std::string& transform_path,
+                                      const Grid& grid,
+                                      std::vector<float>* voxels) {
+  try {
+    using ImageType = itk::Image<float, 3>;
+    auto reader = itk::ImageFileReader<ImageType>::New();
+    reader->SetImageIO(IoFor(image_path));
+    reader->SetFileName(image_path);
+    reader->Update();
+    static const bool registered = [] {
+      itk::TxtTransformIOFactory::RegisterOneFactory();
+      return true;
+    }();
+    (void)registered;
+    itk::TransformFactoryBase::RegisterDefaultTransforms();
+    auto transform_reader = itk::TransformFileReaderTemplate<double>::New();
+    transform_reader->SetFileName(transform_path);
+    transform_reader->Update();
+    using TransformType = itk::Transform<double, 3, 3>;
+    auto* transform =
+        dynamic_cast<TransformType*>(transform_reader->GetTransformList()->front().GetPointer());
+    if (transform == nullptr) return "not a 3D transform";
+    auto resample = itk::ResampleImageFilter<ImageType, ImageType>::New();
+    resample->SetInput(reader->GetOutput());
+    resample->SetTransform(transform);
+    resample->SetInterpolator(itk::LinearInterpolateImageFunction<ImageType, double>::New());
+    resample->SetDefaultPixelValue(0.0f);
+    ImageType::SizeType size;
+    ImageType::PointType origin;
+    ImageType::SpacingType spacing;
+    ImageType::DirectionType direction;
+    for (int a = 0; a < 3; ++a) {
+      size[a] = grid.size[a];
+      origin[a] = grid.origin[a];
+      spacing[a] = grid.spacing[a];
+      for (int b = 0; b < 3; ++b) direction(a, b) = grid.direction[3 * a + b];
+    }
+    resample->SetSize(size);
+    resample->SetOutputOrigin(origin);
+    resample->SetOutputSpacing(spacing);
+    resample->SetOutputDirection(direction);
+    resample->Update();
+    const ImageType* out = resample->GetOutput();
+    const size_t n = static_cast<size_t>(size[0]) * size[1] * size[2];
+    voxels->assign(out->GetBufferPointer(), out->GetBufferPointer() + n);
+    return "";
+  } catch (const std::exception& e) {
+    return e.what();
+  }
 }
 
 }  // namespace test_itk

@@ -30,6 +30,15 @@ std::string WriteScalarImage(const std::string& path,
 // Writes a 3D image of itk::Vector<float, 3> pixels (all equal to (1, 2, 3)).
 std::string WriteVectorImage(const std::string& path, const Grid& grid);
 
+// Resamples the 3D image in `image_path` onto `grid` (3 sizes) with the transform in
+// `transform_path` (read by itk::TransformFileReader, fixed -> moving), linear
+// interpolation, 0 outside: what Slicer/ANTs/SimpleITK do with that pair. Voxels x fastest.
+// Returns "" on success, else ITK's message.
+std::string ResampleWithTransformFile(const std::string& image_path,
+                                      const std::string& transform_path,
+                                      const Grid& grid,
+                                      std::vector<float>* voxels);
+
 }  // namespace test_itk
 }  // namespace dsr
 
