@@ -54,6 +54,25 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
   return true;
 }
 
+Image ResampleOntoGrid(const Frame& frame,
+                       const Eigen::Isometry3d& frame_from_world,
+                       const ImageGeometry& grid,
+                       int num_threads) {
+  Image out(grid, 0.0f);
+  ParallelFor(0, grid.size[2], num_threads, [&](int64_t k) {
+    for (int j = 0; j < grid.size[1]; ++j) {
+      for (int i = 0; i < grid.size[0]; ++i) {
+        double value;
+        if (frame.Sample(frame_from_world * grid.IndexToPhysical(Eigen::Vector3d(i, j, k)), &value,
+                         nullptr)) {
+          out.voxels[grid.LinearIndex(i, j, static_cast<int>(k))] = static_cast<float>(value);
+        }
+      }
+    }
+  });
+  return out;
+}
+
 Volume<float> ValidCellDistance(const Frame& frame) {
   const ImageGeometry& g = frame.geometry();
   Volume<float> d(g, 0.0f);

@@ -59,6 +59,12 @@ PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    double feather_voxels,
                                    int num_threads);
 
+// Frame resampled onto `grid` under its pose: its trilinear value where sigma = 1, else 0.
+Image ResampleOntoGrid(const Frame& frame,
+                       const Eigen::Isometry3d& frame_from_world,
+                       const ImageGeometry& grid,
+                       int num_threads);
+
 // City-block distance of each valid cell of `frame` to the nearest invalid cell (or the
 // grid border), in cells; 0 on invalid cells. On the frame's grid.
 Volume<float> ValidCellDistance(const Frame& frame);

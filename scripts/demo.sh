@@ -2,7 +2,8 @@
 # The main job on the built-in default, no files needed: installs what is missing, builds,
 # simulates an 11-frame TEE-like sequence from the built-in phantom with the paper's
 # protocol (+/-12 degrees, +/-15 voxels, noise sigma 25) into out/demo, registers it with
-# DSR from identity initial poses, and prints the per-frame errors against ground truth.
+# DSR from identity initial poses, prints the per-frame errors against ground truth, and
+# writes a report (pictures, poses, ITK transforms, index.md) to out/demo/report.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/build.sh
@@ -13,5 +14,7 @@ images=$(ls "$out"/sequence/frame_*.nii.gz | paste -sd, -)
 masks=$(ls "$out"/sequence/mask_*.nii.gz | paste -sd, -)
 "$build_dir/tools/dsr_register" --images="$images" --masks="$masks" --mode=dsr \
   --out_poses="$out/poses.json" --out_panorama="$out/panorama.nii.gz" \
-  --gt_poses="$out/sequence/gt_poses.json" --progress=false
+  --gt_poses="$out/sequence/gt_poses.json" --progress=false --blend=feather \
+  --report_dir="$out/report" --out_tfm_dir="$out/transforms"
 echo "demo: sequence in $out/sequence, poses in $out/poses.json, panorama in $out/panorama.nii.gz"
+echo "demo: report (pictures, poses, transforms) in $out/report/index.md"

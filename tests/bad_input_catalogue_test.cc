@@ -268,5 +268,26 @@ TEST_F(BadInputCatalogue, Simulator) {
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("missing.nii.gz"), "missing.nii.gz");
 }
 
+TEST_F(BadInputCatalogue, Fuse) {
+  const std::string base = "--images=" + Frames() + " --masks=" + Masks();
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("two_frames.json") + " --out=@OUT/p.nii.gz", "--poses");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("non_rigid.json") + " --out=@OUT/p.nii.gz", "non_rigid.json");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("missing.json") + " --out=@OUT/p.nii.gz", "missing.json");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=@OUT/p.nii.gz --blend=max", "--blend");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=" + In("frame_01.nii.gz"), "--out");
+  Expect(DSR_FUSE_BIN, "--images=" + In("frame_00.nii.gz") + "," + In("nan.mha") + " --poses=" +
+                           In("two_frames.json") + " --out=@OUT/p.nii.gz",
+         "nan.mha");
+}
+
+TEST_F(BadInputCatalogue, Compare) {
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr,magic", "--methods");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=random", "--init");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --num_sequences=0", "--num_sequences");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --frame_size=8,8", "--frame_size");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr --sequences=" + In("no_such_folder"),
+         "no_such_folder");
+}
+
 }  // namespace
 }  // namespace dsr

@@ -137,6 +137,11 @@ int main(int argc, char** argv) {
     if (!o.Validate(&error)) return Fail(error);
   }
   namespace fs = std::filesystem;
+  const std::vector<std::string> folders = dsr::SplitCommaList(FLAGS_sequences);
+  for (const std::string& folder : folders) {
+    std::error_code dir_ec;
+    if (!fs::is_directory(folder, dir_ec)) return Fail("--sequences: " + folder + ": not a folder");
+  }
   std::error_code ec;
   fs::create_directories(fs::path(FLAGS_out_dir) / "poses", ec);
   if (ec) return Fail("--out_dir=" + FLAGS_out_dir + ": cannot create (" + ec.message() + ")");
@@ -147,7 +152,6 @@ int main(int argc, char** argv) {
   }
 
   // Sequences: loaded (checked up front) or simulated one at a time below.
-  const std::vector<std::string> folders = dsr::SplitCommaList(FLAGS_sequences);
   const int num_sequences = folders.empty() ? FLAGS_num_sequences : static_cast<int>(folders.size());
   dsr::Image phantom;
   if (folders.empty()) {

@@ -8,6 +8,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <set>
+#include <tuple>
 
 #include <gflags/gflags.h>
 #include <glog/logging.h>
@@ -15,10 +16,12 @@
 #include "core/eval.h"
 #include "core/io_image.h"
 #include "core/io_poses.h"
+#include "core/io_transform.h"
 #include "core/panorama.h"
 #include "core/parallel.h"
 #include "core/solve_options.h"
 #include "pipeline/registration.h"
+#include "pipeline/report.h"
 #include "tools/tool_util.h"
 
 DEFINE_string(images, "", "Comma-separated frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, "
@@ -71,6 +74,22 @@ DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (store
 DEFINE_double(memory_budget_mb, 0.0, "dba: refuse problems estimated above this many MiB; "
               "0 = half the machine's RAM.");
 DEFINE_bool(progress, true, "Print one line per iteration on stderr.");
+DEFINE_string(blend, "mean", "Panorama blending for --out_panorama and the report: mean (paper "
+              "eq. 10) or feather (weights fall off towards each field-of-view edge).");
+DEFINE_double(feather_voxels, 8.0, "--blend=feather: depth (frame voxels) over which a frame's "
+              "weight rises from 0 at its field-of-view edge to 1, > 0.");
+DEFINE_string(out_tfm_dir, "", "Optional folder (created if missing) for one ITK transform per "
+              "frame, frame_XX.tfm (world -> frame, LPS): resampling frame XX with it in 3D "
+              "Slicer, ITK/SimpleITK, ANTs or elastix lands it on the panorama.");
+DEFINE_string(out_resampled_dir, "", "Optional folder (created if missing) for each frame "
+              "resampled onto the panorama grid, frame_XX_in_panorama.nii.gz (0 outside its "
+              "field of view).");
+DEFINE_string(report_dir, "", "Optional folder (created if missing) for a report: pictures "
+              "(panorama slices with field-of-view outlines, a frame pair before/after, "
+              "convergence), poses, transforms and index.md.");
+DEFINE_string(report_frames, "", "Frames outlined on the report's panorama slices, "
+              "comma-separated indices; empty = 0, the middle and the last frame.");
+DEFINE_string(report_pair, "0,1", "The two frames the report compares before/after, 'a,b'.");
 
 namespace {
 
@@ -128,11 +147,36 @@ int main(int argc, char** argv) {
     return Fail("--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ": must be in [0, 50]");
   }
   if (!options.Validate(&error)) return Fail(error);
+  if (FLAGS_blend != "mean" && FLAGS_blend != "feather") {
+    return Fail("--blend=" + FLAGS_blend + ": must be mean or feather");
+  }
+  if (!(FLAGS_feather_voxels > 0.0) || !std::isfinite(FLAGS_feather_voxels)) {
+    return Fail("--feather_voxels=" + std::to_string(FLAGS_feather_voxels) + ": must be > 0");
+  }
 
   const std::vector<std::string> image_paths = dsr::SplitCommaList(FLAGS_images);
   const std::vector<std::string> mask_paths = dsr::SplitCommaList(FLAGS_masks);
   const int m = static_cast<int>(image_paths.size());
   if (m < 2) return Fail("--images: need at least 2 images, got " + std::to_string(m));
+  // Report frames and pair: indices into --images.
+  std::vector<int> outlined, pair;
+  for (const auto& [flag, text, list] :
+       {std::tuple<const char*, std::string, std::vector<int>*>{"report_frames", FLAGS_report_frames, &outlined},
+        {"report_pair", FLAGS_report_pair, &pair}}) {
+    for (const std::string& item : dsr::SplitCommaList(text)) {
+      char* end = nullptr;
+      const long v = std::strtol(item.c_str(), &end, 10);
+      if (end == item.c_str() || *end != '\0' || v < 0 || v >= m) {
+        return Fail(std::string("--") + flag + "=" + text + ": '" + item +
+                    "' is not a frame index in [0, " + std::to_string(m - 1) + "]");
+      }
+      list->push_back(static_cast<int>(v));
+    }
+  }
+  if (outlined.empty()) outlined = m > 2 ? std::vector<int>{0, m / 2, m - 1} : std::vector<int>{0, 1};
+  if (pair.size() != 2 || pair[0] == pair[1]) {
+    return Fail("--report_pair=" + FLAGS_report_pair + ": must be two different frame indices 'a,b'");
+  }
   if (!mask_paths.empty() && static_cast<int>(mask_paths.size()) != m) {
     return Fail("--masks: " + std::to_string(mask_paths.size()) + " masks for " +
                 std::to_string(m) + " images");
@@ -151,6 +195,20 @@ int main(int argc, char** argv) {
                                    {"out_panorama", FLAGS_out_panorama}}) {
     if (!dsr::CheckOutputFile(flag, path, inputs, &error)) return Fail(error);
   }
+  for (const auto& [flag, folder] : {std::pair<std::string, std::string>{"out_tfm_dir", FLAGS_out_tfm_dir},
+                                     {"out_resampled_dir", FLAGS_out_resampled_dir},
+                                     {"report_dir", FLAGS_report_dir}}) {
+    if (folder.empty()) continue;
+    std::error_code ec;
+    std::filesystem::create_directories(folder, ec);
+    if (ec || !std::filesystem::is_directory(folder)) {
+      return Fail("--" + flag + "=" + folder + ": cannot create the folder" +
+                  (ec ? " (" + ec.message() + ")" : ""));
+    }
+    if (!dsr::CheckOutputFile(flag, (std::filesystem::path(folder) / "probe").string(), inputs, &error)) {
+      return Fail(error);
+    }
+  }
   if (FLAGS_out_poses == FLAGS_out_panorama) {
     return Fail("--out_panorama=" + FLAGS_out_panorama + ": same file as --out_poses");
   }
@@ -159,26 +217,11 @@ int main(int argc, char** argv) {
                 ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)");
   }
 
-  // Frames are read in parallel (decompression dominates); the first failing frame in
-  // input order is reported.
-  std::vector<dsr::Image> images(m);
-  std::vector<dsr::Mask> masks(m);
-  std::vector<std::string> read_errors(m);
-  dsr::ParallelFor(0, m, FLAGS_num_threads, [&](int64_t i) {
-    std::string& e = read_errors[i];
-    if (!dsr::ReadImage(image_paths[i], &images[i], &e)) return;
-    if (!mask_paths.empty()) {
-      dsr::ReadMask(mask_paths[i], images[i].geometry, &masks[i], &e);
-      return;
-    }
-    masks[i] = dsr::MaskFromNonZero(images[i], FLAGS_mask_erosion);
-    if (dsr::CountInside(masks[i]) == 0) {
-      e = image_paths[i] + ": no voxel left in the field of view (non-zero voxels eroded by "
-          "--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ")";
-    }
-  });
-  for (const std::string& e : read_errors) {
-    if (!e.empty()) return Fail(e);
+  std::vector<dsr::Image> images;
+  std::vector<dsr::Mask> masks;
+  if (!dsr::ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &images,
+                       &masks, &error)) {
+    return Fail(error);
   }
   std::vector<Eigen::Isometry3d> initial(m, Eigen::Isometry3d::Identity());
   if (FLAGS_init != "identity") {
@@ -206,17 +249,66 @@ int main(int argc, char** argv) {
     out.images.push_back(std::filesystem::path(p).filename().string());
   }
   if (!dsr::WritePoses(out, FLAGS_out_poses, &error)) return Fail(error, dsr::kExitFailed);
-  if (!FLAGS_out_panorama.empty()) {
-    dsr::Image panorama;
-    if (options.mode == "dba") {
-      panorama = result.dba_intensities;
-    } else {
-      std::vector<dsr::Frame> frames;
-      for (int i = 0; i < m; ++i) frames.emplace_back(images[i], masks[i]);
-      panorama = dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
-                                       options.solve.num_threads).mean;
+  const bool need_frames = !FLAGS_out_panorama.empty() || !FLAGS_out_resampled_dir.empty() ||
+                          !FLAGS_report_dir.empty();
+  std::vector<dsr::Frame> frames;
+  dsr::Image panorama;
+  double enlargement = 0.0;
+  if (need_frames) {
+    frames.resize(m);
+    dsr::ParallelFor(0, m, options.solve.num_threads,
+                     [&](int64_t i) { frames[i] = dsr::Frame(images[i], masks[i]); });
+    const dsr::PanoramaImages fused =
+        FLAGS_blend == "feather"
+            ? dsr::FusePanoramaFeather(frames, result.frame_from_world, result.grid,
+                                       FLAGS_feather_voxels, options.solve.num_threads)
+            : dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
+                                    options.solve.num_threads);
+    enlargement = fused.EnlargementRatio();
+    panorama = options.mode == "dba" && FLAGS_blend == "mean" ? result.dba_intensities : fused.mean;
+  }
+  if (!FLAGS_out_panorama.empty() && !dsr::WriteImage(panorama, FLAGS_out_panorama, &error)) {
+    return Fail(error, dsr::kExitFailed);
+  }
+  const std::filesystem::path tfm_dir(FLAGS_out_tfm_dir), resampled_dir(FLAGS_out_resampled_dir);
+  for (int i = 0; i < m; ++i) {
+    char name[64];
+    if (!FLAGS_out_tfm_dir.empty()) {
+      std::snprintf(name, sizeof(name), "frame_%02d.tfm", i);
+      if (!dsr::WriteItkTransform(result.frame_from_world[i], (tfm_dir / name).string(), &error)) {
+        return Fail(error, dsr::kExitFailed);
+      }
     }
-    if (!dsr::WriteImage(panorama, FLAGS_out_panorama, &error)) {
+    if (!FLAGS_out_resampled_dir.empty()) {
+      std::snprintf(name, sizeof(name), "frame_%02d_in_panorama.nii.gz", i);
+      const dsr::Image resampled = dsr::ResampleOntoGrid(frames[i], result.frame_from_world[i],
+                                                         result.grid, options.solve.num_threads);
+      if (!dsr::WriteImage(resampled, (resampled_dir / name).string(), &error)) {
+        return Fail(error, dsr::kExitFailed);
+      }
+    }
+  }
+  dsr::PoseErrorSummary gt_errors;
+  if (!FLAGS_gt_poses.empty()) {
+    gt_errors = dsr::ComparePoses(result.frame_from_world, gt.frame_from_world, masks);
+  }
+  std::string report_index;
+  if (!FLAGS_report_dir.empty()) {
+    dsr::ReportInputs report;
+    for (const std::string& p : image_paths) {
+      report.image_names.push_back(std::filesystem::path(p).filename().string());
+    }
+    report.frames = frames;
+    report.initial = result.init_frame_from_world.empty() ? dsr::RelativeToFrame0(initial)
+                                                          : result.init_frame_from_world;
+    report.result = &result;
+    report.panorama = panorama;
+    report.outlined = outlined;
+    report.pair_a = pair[0];
+    report.pair_b = pair[1];
+    report.errors = FLAGS_gt_poses.empty() ? nullptr : &gt_errors;
+    report.mode = options.mode;
+    if (!dsr::WriteReport(FLAGS_report_dir, report, &report_index, &error)) {
       return Fail(error, dsr::kExitFailed);
     }
   }
@@ -232,11 +324,14 @@ int main(int argc, char** argv) {
               SecondsSince(start), load_seconds, result.pyramid_seconds,
               result.seconds - result.pyramid_seconds,
               static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
-  if (!FLAGS_gt_poses.empty()) {
-    const dsr::PoseErrorSummary errors =
-        dsr::ComparePoses(result.frame_from_world, gt.frame_from_world, masks);
-    std::printf("errors against %s (frame-0-relative):\n%s", FLAGS_gt_poses.c_str(),
-                errors.Table().c_str());
+  if (need_frames) {
+    std::printf("dsr_register: field-of-view enlargement %.2f (voxels seen by any frame / "
+                "voxels in frame 0's field of view)\n", enlargement);
   }
+  if (!FLAGS_gt_poses.empty()) {
+    std::printf("errors against %s (frame-0-relative):\n%s", FLAGS_gt_poses.c_str(),
+                gt_errors.Table().c_str());
+  }
+  if (!report_index.empty()) std::printf("dsr_register: report in %s\n", report_index.c_str());
   return EXIT_SUCCESS;
 }

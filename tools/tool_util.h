@@ -12,6 +12,8 @@
 
 #include <Eigen/Core>
 
+#include "core/volume.h"
+
 namespace dsr {
 
 constexpr int kExitBadInput = 2;
@@ -82,6 +84,17 @@ bool ParseSize3(const std::string& text,
 
 // "1,1.5,2" -> (1, 1.5, 2). False unless exactly three finite numbers.
 bool ParseVector3(const std::string& text, Eigen::Vector3d* vector);
+
+// Reads frames in parallel (decompression dominates) with their masks: `mask_paths` one per
+// image, or empty for each image's non-zero voxels eroded by `mask_erosion` voxels. The
+// first failing frame in input order is reported (one line naming the file).
+bool ReadFrames(const std::vector<std::string>& image_paths,
+                const std::vector<std::string>& mask_paths,
+                int mask_erosion,
+                int num_threads,
+                std::vector<Image>* images,
+                std::vector<Mask>* masks,
+                std::string* error);
 
 }  // namespace dsr
 
