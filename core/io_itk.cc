@@ -532,6 +532,18 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
                 " is not a 'key = value' line";
       return false;
     }
+    if (key == "NDims") {
+      // MetaIO reads NDims numbers for every array field; a huge NDims (found by fuzzing:
+      // 1111...113) made it loop for hours over an exhausted stream.
+      const std::string value = Trim(line.substr(equals + 1));
+      if (value.empty() || value.size() > 2 ||
+          value.find_first_not_of("0123456789") != std::string::npos || std::stoi(value) < 1 ||
+          std::stoi(value) > 16) {
+        *reason = "MetaImage header line " + std::to_string(number) + ": NDims = '" +
+                  value.substr(0, 20) + "' is not a dimension in [1, 16]";
+        return false;
+      }
+    }
     if (key == "ElementDataFile") {
       // A "%" makes MetaIO treat the value as a printf pattern for a file series and pass
       // it to snprintf as the format (found by fuzzing: "%s" crashes). Frames are single

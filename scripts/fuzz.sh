@@ -3,7 +3,8 @@
 # clang + ASan + UBSan in build-fuzz/ and runs each for a bounded time, both at once (one
 # core each). Usage: bash scripts/fuzz.sh [seconds per target, default 600]
 # The committed seeds (tests/fuzz/corpus) are copied to build-fuzz/corpus first, so runs
-# grow their own corpus; crashes land in build-fuzz/artifacts/ and fail the script.
+# grow their own corpus; crashes and hangs (an input over 10 s) land in build-fuzz/artifacts/
+# and fail the script.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seconds="${1:-600}"
@@ -23,7 +24,7 @@ for target in poses image; do
   mkdir -p "$build/corpus/$target"
   cp -n tests/fuzz/corpus/"$target"/* "$build/corpus/$target/"
   "$build/tests/fuzz/fuzz_$target" "$build/corpus/$target" -max_total_time="$seconds" \
-    -artifact_prefix="$build/artifacts/${target}_" -print_final_stats=1 \
+    -artifact_prefix="$build/artifacts/${target}_" -print_final_stats=1 -timeout=10 \
     > "$build/fuzz_$target.log" 2>&1 &
   pids+=($!)
 done

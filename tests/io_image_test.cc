@@ -319,6 +319,12 @@ TEST(ImageIo, OverlongMetaImageHeaderKeyIsAnErrorNotAnAbort) {
       << "ObjectType = Image\nNDims = 3\nDimSize = 4 3 2\nElementType = MET_FLOAT\n"
       << "ElementDataFile \nLB 4 =inaryD.ta 6%-pe = MET_FLOAT\n" << std::string(96, '\0');
   EXPECT_THAT(ReadError(no_equals), HasSubstr("line 5 is not a 'key = value' line"));
+  // And a huge NDims: MetaIO read that many numbers per array field, for hours.
+  const std::string huge = dir.File("huge_ndims.mha");
+  std::ofstream(huge, std::ios::binary)
+      << "ObjectType = Image\nNDims = 1111111111111111111111113\nDimSize = 3 3 2\n"
+      << "ElementType = MET_FLOAT\nElementDataFile = LOCAL\n" << std::string(72, '\0');
+  EXPECT_THAT(ReadError(huge), HasSubstr("NDims = '1111111111111111111"));
 }
 
 // ITK 5.2 itself returns zeros or garbage for a truncated NIfTI or MetaImage data block.
