@@ -4,6 +4,7 @@
 // OUT_DIR/results.md (medians per method) and OUT_DIR/poses/<sequence>_<method>.json.
 // scripts/plot_compare.py turns the CSV into the paper's box plots.
 #include <filesystem>
+#include <cmath>
 #include <cstdio>
 #include <set>
 
@@ -29,6 +30,8 @@ DEFINE_int32(num_sequences, 5, "Sequences to simulate when --sequences is empty,
 DEFINE_uint64(seed, 1, "Seed of the first simulated sequence.");
 DEFINE_int32(num_frames, 11, "Frames per simulated sequence, in [2, 32].");
 DEFINE_string(frame_size, "96,96,80", "Simulated frame size 'nx,ny,nz', each in [8, 512].");
+DEFINE_double(frame_spacing, 0.0, "Simulated isotropic frame spacing in mm, >= 0 (0 = the "
+              "phantom's 1 mm).");
 DEFINE_double(sigma, 25.0, "Simulated noise standard deviation, >= 0.");
 DEFINE_double(max_rotation_deg, 12.0, "Simulated rotations: each Euler angle within +/- this.");
 DEFINE_double(max_translation_voxels, 15.0, "Simulated translations: each world-axis "
@@ -124,6 +127,9 @@ int main(int argc, char** argv) {
     return Fail("--frame_size=" + FLAGS_frame_size + ": must be three integers in [8, 512]");
   }
   if (FLAGS_num_threads < 0) return Fail("--num_threads: must be >= 0");
+  if (!(FLAGS_frame_spacing >= 0.0) || !std::isfinite(FLAGS_frame_spacing)) {
+    return Fail("--frame_spacing: must be >= 0");
+  }
 
   dsr::RegistrationOptions base;
   base.solve.num_threads = FLAGS_num_threads;
@@ -172,6 +178,7 @@ int main(int argc, char** argv) {
       sim.max_rotation_deg = FLAGS_max_rotation_deg;
       sim.max_translation_voxels = FLAGS_max_translation_voxels;
       sim.seed = FLAGS_seed + s;
+      sim.frame_spacing_mm = FLAGS_frame_spacing;
       std::string why;
       if (!sim.Validate(&why)) return Fail(why);
       dsr::SimulatedSequence simulated;

@@ -1,0 +1,53 @@
+#!/usr/bin/env bash
+# End-to-end performance comparisons in one run, on the same simulated data (issue 6):
+#   (a) DSR vs DBA (Ceres DENSE_SCHUR) on a problem small enough for DBA
+#   (b) DSR vs APE at 11 frames of 96x96x80: intensity differences and time per iteration
+#   (c) DSR time per iteration and peak memory versus frames (3..11) and frame size
+#       (48^3 .. 176x176x200 at 0.6 mm), with a log-log plot
+#   (d) DSR with 1 vs 2 threads
+# plus the Google Benchmark kernels (bench/kernels_bench.cc). Every registration runs in its
+# own process (dsr_compare), so peak memory is per run. Writes bench/results/: kernels.json,
+# one CSV per part, summary.md (markdown tables) and scaling.png.
+# Usage: bash bench/compare.sh [--quick]   (--quick: smaller sizes, for a smoke test)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+quick="${1:-}"
+DSR_BUILD_DIR="${DSR_BUILD_DIR:-build}" bash scripts/build.sh -DDSR_BUILD_BENCHMARKS=ON
+bin="${DSR_BUILD_DIR:-build}/tools"
+out=bench/results
+mkdir -p "$out"
+compare() {  # name, then dsr_compare flags
+  local name="$1"; shift
+  "$bin/dsr_compare" --out_dir="$out/$name" --num_sequences=1 --seed=1 --sigma=25 "$@" \
+    2> "$out/$name.log" > /dev/null
+}
+echo "compare: kernels (Google Benchmark)" >&2
+"${DSR_BUILD_DIR:-build}/bench/kernels_bench" --benchmark_repetitions=3 \
+  --benchmark_report_aggregates_only=true --benchmark_out="$out/kernels.json" \
+  --benchmark_out_format=json > "$out/kernels.txt"
+echo "compare: (a) DSR vs DBA" >&2
+compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64 --pyramid_levels=1 \
+  --max_iterations=8
+echo "compare: (b) DSR vs APE" >&2
+compare dsr_vs_ape --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
+echo "compare: (c) frames" >&2
+frames_list="3 5 7 9 11"
+sizes="48,48,48 64,64,64 96,96,80 128,128,128 176,176,200"
+[ "$quick" = "--quick" ] && frames_list="3 5" && sizes="48,48,48 64,64,64"
+for f in $frames_list; do
+  compare "frames_$f" --methods=dsr --num_frames="$f" --frame_size=96,96,80
+done
+echo "compare: (c) sizes" >&2
+for s in $sizes; do
+  spacing=0; phantom=192
+  [ "$s" = "176,176,200" ] && spacing=0.6
+  compare "size_${s//,/x}" --methods=dsr --num_frames=11 --frame_size="$s" --frame_spacing=$spacing \
+    --phantom_size=$phantom
+done
+echo "compare: (d) threads" >&2
+for t in 1 2; do
+  compare "threads_$t" --methods=dsr --num_frames=11 --frame_size=96,96,80 --num_threads=$t
+done
+python="$(bash scripts/python_env.sh)"
+"$python" bench/summarize.py "$out" "$(nproc)"
+echo "compare: wrote $out/summary.md and $out/scaling.png" >&2

@@ -1,0 +1,162 @@
+#!/usr/bin/env python3
+"""Summarises bench/compare.sh's results folder: summary.md (markdown tables with the
+ratios issue 6 asks for) and scaling.png (log-log time per iteration and peak memory versus
+frames and versus voxels, with fitted slopes).
+
+Usage: python3 bench/summarize.py RESULTS_DIR CORES"""
+import csv
+import json
+import math
+import os
+import sys
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+
+def rows(folder):
+    path = os.path.join(folder, "results.csv")
+    if not os.path.exists(path):
+        return []
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def poses(path):
+    with open(path) as f:
+        return [fr["T"] for fr in json.load(f)["frames"]]
+
+
+def pose_difference(a, b):
+    """Largest rotation angle (rad) and translation difference (mm) over frames."""
+    worst_r = worst_t = 0.0
+    for ta, tb in zip(a, b):
+        # R = Ra Rb^T
+        tr = sum(ta[i][k] * tb[i][k] for i in range(3) for k in range(3))
+        worst_r = max(worst_r, math.acos(max(-1.0, min(1.0, (tr - 1.0) / 2.0))))
+        worst_t = max(worst_t, math.sqrt(sum((ta[i][3] - tb[i][3]) ** 2 for i in range(3))))
+    return worst_r, worst_t
+
+
+def slope(xs, ys):
+    lx = [math.log(x) for x in xs]
+    ly = [math.log(y) for y in ys]
+    n = len(lx)
+    mx, my = sum(lx) / n, sum(ly) / n
+    sxx = sum((x - mx) ** 2 for x in lx)
+    return sum((x - mx) * (y - my) for x, y in zip(lx, ly)) / sxx if sxx > 0 else float("nan")
+
+
+def main():
+    if len(sys.argv) != 3:
+        sys.exit(__doc__)
+    out, cores = sys.argv[1], sys.argv[2]
+    md = [f"# bench/compare.sh results\n\nMachine: {cores} cores. One run; compare ratios.\n"]
+
+    # Kernels.
+    kernels = os.path.join(out, "kernels.json")
+    if os.path.exists(kernels):
+        with open(kernels) as f:
+            bench = json.load(f)["benchmarks"]
+        md.append("## Kernels (Google Benchmark, medians of 3)\n\n| benchmark | time (ms) | ns per observation / sample |\n|---|---|---|")
+        for b in bench:
+            if b.get("aggregate_name") != "median":
+                continue
+            per = b.get("ns_per_observation", b.get("ns_per_sample", float("nan")))
+            if "ns_per_sample" in b:
+                per = b["ns_per_sample"] * 1e9 if b["ns_per_sample"] < 1e-3 else b["ns_per_sample"]
+            t = b["real_time"] * {"ns": 1e-6, "us": 1e-3, "ms": 1.0, "s": 1e3}[b["time_unit"]]
+            md.append(f"| {b['run_name']} | {t:.3f} | {per:.3g} |")
+        md.append("")
+
+    # (a) DSR vs DBA.
+    r = {x["method"]: x for x in rows(os.path.join(out, "dsr_vs_dba"))}
+    if "dsr" in r and "dba" in r and r["dsr"]["ok"] == "1" and r["dba"]["ok"] == "1":
+        d, b = r["dsr"], r["dba"]
+        tr = float(b["seconds_per_iteration"]) / float(d["seconds_per_iteration"])
+        mr = float(b["peak_memory_mb"]) / float(d["peak_memory_mb"])
+        pr, pt = pose_difference(poses(os.path.join(out, "dsr_vs_dba", "poses", "seed1_dsr.json")),
+                                 poses(os.path.join(out, "dsr_vs_dba", "poses", "seed1_dba.json")))
+        md.append("## (a) DSR vs DBA (6 frames of 80x80x64, one level, 8 iterations)\n")
+        md.append("| method | time / iteration (s) | total (s) | peak memory (MB) | MAE translation (voxels) |\n|---|---|---|---|---|")
+        for m in (d, b):
+            md.append(f"| {m['method']} | {float(m['seconds_per_iteration']):.3f} | {float(m['seconds']):.2f} | {float(m['peak_memory_mb']):.0f} | {float(m['mae_translation_voxels']):.4f} |")
+        md.append(f"\nDBA / DSR: {tr:.1f}x time per iteration, {mr:.1f}x peak memory; poses differ by at most {pr:.2e} rad and {pt:.2e} mm.\n")
+
+    # (b) DSR vs APE.
+    r = {x["method"]: x for x in rows(os.path.join(out, "dsr_vs_ape"))}
+    if "dsr" in r and "ape" in r:
+        d, a = r["dsr"], r["ape"]
+        md.append("## (b) DSR vs APE (11 frames of 96x96x80)\n")
+        md.append("| method | intensity differences / iteration | time / iteration (s) | MAE translation (voxels) |\n|---|---|---|---|")
+        for m in (d, a):
+            md.append(f"| {m['method']} | {float(m['intensity_differences_per_iteration']):.3g} | {float(m['seconds_per_iteration']):.3f} | {float(m['mae_translation_voxels']):.4f} |")
+        md.append(f"\nAPE / DSR: {float(a['intensity_differences_per_iteration']) / float(d['intensity_differences_per_iteration']):.2f}x intensity differences, {float(a['seconds_per_iteration']) / float(d['seconds_per_iteration']):.2f}x time per iteration.\n")
+
+    # (c) scaling.
+    def series(prefix, key):
+        pts = []
+        for name in sorted(os.listdir(out)):
+            if not name.startswith(prefix) or not os.path.isdir(os.path.join(out, name)):
+                continue
+            for x in rows(os.path.join(out, name)):
+                if x["ok"] == "1":
+                    pts.append((key(name, x), float(x["seconds_per_iteration"]), float(x["peak_memory_mb"]),
+                                float(x["intensity_differences_per_iteration"]), float(x["seconds"]),
+                                float(x["tre_mean_mm"]), name))
+        return sorted(pts)
+
+    frames = series("frames_", lambda n, x: int(n.split("_")[1]))
+    sizes = series("size_", lambda n, x: math.prod(int(v) for v in n.split("_")[1].split("x")))
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for ax, pts, label in ((axes[0], frames, "frames (96x96x80 each)"), (axes[1], sizes, "voxels per frame (11 frames)")):
+        if len(pts) < 2:
+            continue
+        xs = [p[0] for p in pts]
+        s_t = slope(xs, [p[1] for p in pts])
+        s_m = slope(xs, [p[2] for p in pts])
+        ax.loglog(xs, [p[1] for p in pts], "o-", label=f"time / iteration (slope {s_t:.2f})")
+        ax2 = ax.twinx()
+        ax2.loglog(xs, [p[2] for p in pts], "s--", color="tab:orange", label=f"peak memory (slope {s_m:.2f})")
+        ax.set_xlabel(label)
+        ax.set_ylabel("seconds per iteration")
+        ax2.set_ylabel("peak memory (MB)")
+        h1, l1 = ax.get_legend_handles_labels()
+        h2, l2 = ax2.get_legend_handles_labels()
+        ax.legend(h1 + h2, l1 + l2, loc="upper left", fontsize=8)
+        ax.grid(True, which="both", alpha=0.3)
+        md.append(f"## (c) DSR versus {label}\n\nlog-log slopes: time per iteration {s_t:.2f}, peak memory {s_m:.2f}\n")
+        md.append("| run | x | intensity differences / iteration | time / iteration (s) | total (s) | peak memory (MB) | TRE mean (mm) |\n|---|---|---|---|---|---|---|")
+        for p in pts:
+            md.append(f"| {p[6]} | {p[0]} | {p[3]:.3g} | {p[1]:.3f} | {p[4]:.2f} | {p[2]:.0f} | {p[5]:.4f} |")
+        md.append("")
+    fig.suptitle("DSR cost growth (bench/compare.sh)")
+    fig.tight_layout()
+    tmp = os.path.join(out, "scaling.tmp.png")
+    fig.savefig(tmp, dpi=110)
+    os.replace(tmp, os.path.join(out, "scaling.png"))
+
+    # (d) threads.
+    t = {}
+    for n in (1, 2):
+        r = rows(os.path.join(out, f"threads_{n}"))
+        if r and r[0]["ok"] == "1":
+            t[n] = r[0]
+    if 1 in t and 2 in t:
+        md.append("## (d) threads (11 frames of 96x96x80)\n")
+        md.append("| threads | time / iteration (s) | total (s) |\n|---|---|---|")
+        for n in (1, 2):
+            md.append(f"| {n} | {float(t[n]['seconds_per_iteration']):.3f} | {float(t[n]['seconds']):.2f} |")
+        md.append(f"\n2 threads: {float(t[1]['seconds_per_iteration']) / float(t[2]['seconds_per_iteration']):.2f}x faster per iteration, {float(t[1]['seconds']) / float(t[2]['seconds']):.2f}x in total.\n")
+
+    tmp = os.path.join(out, "summary.md.tmp")
+    with open(tmp, "w") as f:
+        f.write("\n".join(md) + "\n")
+    os.replace(tmp, os.path.join(out, "summary.md"))
+    print(open(os.path.join(out, "summary.md")).read())
+
+
+if __name__ == "__main__":
+    main()
