@@ -19,7 +19,7 @@ mkdir -p "$out"
 compare() {  # name, then dsr_compare flags
   local name="$1"; shift
   "$bin/dsr_compare" --out_dir="$out/$name" --num_sequences=1 --seed=1 --sigma=25 "$@" \
-    2> "$out/$name.log" > /dev/null
+    2> "$out/$name.log" > /dev/null || echo "compare: $name failed: $(tail -1 "$out/$name.log")" >&2
 }
 echo "compare: kernels (Google Benchmark)" >&2
 "${DSR_BUILD_DIR:-build}/bench/kernels_bench" --benchmark_repetitions=3 \
@@ -40,7 +40,8 @@ done
 echo "compare: (c) sizes" >&2
 for s in $sizes; do
   spacing=0; phantom=192
-  [ "$s" = "176,176,200" ] && spacing=0.6
+  if [ "$s" = "128,128,128" ]; then phantom=256; fi   # 128 mm frames need a larger source
+  if [ "$s" = "176,176,200" ]; then spacing=0.6; fi   # clinical: 106x106x120 mm
   compare "size_${s//,/x}" --methods=dsr --num_frames=11 --frame_size="$s" --frame_spacing=$spacing \
     --phantom_size=$phantom
 done
