@@ -16,6 +16,7 @@
 #include "dba/dba_problem.h"
 #include "dsr_reduced/dsr_solver.h"
 #include "dsr_reduced/reduced_cost.h"
+#include "pipeline/divergence_guard.h"
 
 namespace dsr {
 namespace {
@@ -173,6 +174,9 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if (!(rebuild_tolerance_voxels > 0.0)) {
     return bad("rebuild_tolerance", std::to_string(rebuild_tolerance_voxels), "must be > 0");
   }
+  if (!(min_kept_overlap >= 0.0 && min_kept_overlap < 1.0)) {
+    return bad("min_kept_overlap", std::to_string(min_kept_overlap), "must be in [0, 1)");
+  }
   if (min_shared_voxels < 1) {
     return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
   }
@@ -258,6 +262,16 @@ bool Register(const std::vector<Image>& images,
   std::vector<Eigen::Isometry3d> poses = start_poses;
   result->usable = true;
   bool determined_checked = false;
+  DivergenceGuard guard(options.min_kept_overlap);
+  // Ends the registration as not usable: the poses reached do not register the frames.
+  const auto diverged = [&](const std::string& why) {
+    result->usable = false;
+    result->failure = "the solve at pyramid level " + std::to_string(result->solves.back().level) +
+                      " is not usable: " + why;
+    result->frame_from_world = poses;
+    result->seconds = Seconds(start);
+    return true;
+  };
   for (int level = levels - 1; level >= 0; --level) {
     std::vector<Frame> frames(m);
     ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
@@ -297,6 +311,10 @@ bool Register(const std::vector<Image>& images,
       const CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
       record.candidate_voxels = candidates.num_voxels();
       record.candidate_observations = candidates.NumObservations();
+      std::string why;
+      if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, candidates, &why)) {
+        return diverged(why);
+      }
       std::string connect_error;
       if (!CheckConnected(candidates, options.min_shared_voxels, &connect_error)) {
         if (level > 0) {
@@ -364,6 +382,17 @@ bool Register(const std::vector<Image>& images,
         return true;
       }
       if (motion <= options.rebuild_tolerance_voxels) break;
+      if (level == 0 && rebuild == max_rebuilds && options.min_kept_overlap > 0.0) {
+        // The last solve moved a frame and no rebuild follows: check the final poses.
+        ImageGeometry final_grid;
+        if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
+          return false;
+        }
+        std::string why;
+        if (guard.Diverged(frames, BuildCandidates(frames, poses, final_grid, 0), &why)) {
+          return diverged(why);
+        }
+      }
     }
   }
   result->frame_from_world = poses;

@@ -54,6 +54,11 @@ struct RegistrationOptions {
 
   // Frames must share at least this many candidate voxels along a spanning tree.
   int64_t min_shared_voxels = 64;
+  // Divergence guard (pipeline/divergence_guard.h): the registration is not usable when a
+  // frame's overlap chain to frame 0 thins below this fraction of its value at the initial
+  // poses (the frame slid out of the overlap). Checked at every candidate rebuild and at
+  // the final poses. 0 turns the guard off.
+  double min_kept_overlap = 0.25;
 
   // Mode-specific.
   int dsr_num_chunks = 1;

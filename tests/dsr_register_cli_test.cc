@@ -92,6 +92,27 @@ TEST_F(DsrRegisterCli, DbaModeAndMasksFromImages) {
   EXPECT_TRUE(fs::exists(Out("dba.json")));
 }
 
+TEST_F(DsrRegisterCli, AFailedRegistrationExitsOneAndLeavesThePosesFileAlone) {
+  // A guard so strict that the frames' ordinary motion from identity counts as sliding out
+  // of the overlap: the run solves, then fails with the reason, and the poses file a
+  // previous run wrote stays as it was.
+  const std::string poses_path = Out("previous_poses.json");
+  PosesFile previous;
+  previous.images = {"a", "b", "c"};
+  previous.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
+  std::string error;
+  ASSERT_TRUE(WritePoses(previous, poses_path, &error)) << error;
+  const std::string before = testing_cli::ReadText(poses_path);
+  const ToolRun run = Register("--images=" + Images() + " --masks=" + Masks() +
+                               " --min_kept_overlap=0.99 --progress=false --out_poses=" +
+                               poses_path);
+  EXPECT_EQ(run.exit_code, 1) << run.err;
+  ASSERT_EQ(run.error_lines.size(), 1u) << run.err;
+  EXPECT_NE(run.error_lines[0].find("diverged: frame"), std::string::npos) << run.error_lines[0];
+  EXPECT_NE(run.error_lines[0].find("--min_kept_overlap=0.99"), std::string::npos);
+  EXPECT_EQ(testing_cli::ReadText(poses_path), before);
+}
+
 TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   const std::string images = " --images=" + Images();
   ExpectBadInput("--images=" + Seq("frame_00.nii.gz") + "," + Seq("missing.nii.gz"),
@@ -112,6 +133,7 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   ExpectBadInput(images + " --out_panorama=" + Seq("frame_01.nii.gz"), "inputs");
   ExpectBadInput(images + " --out_panorama=" + Out("panorama.png"), "--out_panorama");
   ExpectBadInput(images + " --pyramid_levels=0", "--pyramid_levels");
+  ExpectBadInput(images + " --min_kept_overlap=1.5", "--min_kept_overlap");
   ExpectBadInput(images + " --unknown_flag=3", "unknown_flag");
   // Output equal to an input.
   const ToolRun same = Register(images + " --out_poses=" + Seq("frame_02.nii.gz"));

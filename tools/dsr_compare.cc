@@ -44,6 +44,9 @@ DEFINE_int32(num_threads, 0, "Threads per run (0 = all cores).");
 DEFINE_int32(max_iterations, 100, "Iteration limit of each finest-level solve, >= 1.");
 DEFINE_int32(pyramid_levels, 3, "Pyramid levels, in [1, 8].");
 DEFINE_double(panorama_spacing, 1.0, "Panorama spacing as a multiple of frame 0's, > 0.");
+DEFINE_double(min_kept_overlap, 0.0, "Divergence guard of dsr_register (a frame that slid out "
+              "of the overlap fails the run); off by default here, so that every method's "
+              "poses are measured, diverged or not. In [0, 1).");
 DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
 
 namespace {
@@ -137,6 +140,7 @@ int main(int argc, char** argv) {
   base.solve.log_progress = FLAGS_progress;
   base.pyramid_levels = FLAGS_pyramid_levels;
   base.panorama_spacing = FLAGS_panorama_spacing;
+  base.min_kept_overlap = FLAGS_min_kept_overlap;
   for (const std::string& m : methods) {
     dsr::RegistrationOptions o = base;
     o.mode = m;

@@ -68,6 +68,10 @@ DEFINE_double(smoothing, 0.0, "Gaussian sigma (voxels) applied to the finest lev
 DEFINE_int32(max_rebuilds, 4, "Candidate-set rebuilds per level after the first solve, >= 0.");
 DEFINE_double(rebuild_tolerance, 0.05, "A level stops rebuilding when its last solve moved "
               "no field-of-view corner by more than this many voxels, > 0.");
+DEFINE_double(min_kept_overlap, 0.25, "Divergence guard: poses at which a frame's best chain "
+              "of overlapping frames to frame 0 covers less than this fraction of what it "
+              "covered at the initial poses (the frame slid out of the overlap) are a failure "
+              "(exit 1), not a result; in [0, 1), 0 = off.");
 DEFINE_int32(num_chunks, 1, "dsr: residual blocks the candidate voxels are split into, >= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
             "small problems only).");
@@ -134,6 +138,7 @@ int main(int argc, char** argv) {
   options.coarse_max_iterations = FLAGS_coarse_max_iterations;
   options.max_rebuilds = FLAGS_max_rebuilds;
   options.rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
+  options.min_kept_overlap = FLAGS_min_kept_overlap;
   options.dsr_num_chunks = FLAGS_num_chunks;
   options.dsr_reference_cost = FLAGS_reference_cost;
   if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {

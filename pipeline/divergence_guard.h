@@ -1,0 +1,51 @@
+// The divergence guard of the registration pipeline (issue 8).
+//
+// A direct method minimises a sum of squared intensity differences over the overlap. A
+// frame (or a group of frames) that slides out of the overlap takes its differences along,
+// so the cost can fall while the registration fails: the solve ends "converged" with
+// frames far off. The guard measures, for every frame, how well it stays tied to frame 0:
+// the widest path to frame 0 in the overlap graph (the path whose thinnest pairwise
+// overlap is largest), as a fraction of the frame's field of view. A registration whose
+// poses bring this fraction below min_kept times its value at the initial poses has
+// diverged. A group of frames that drifts off together (each still overlapping the
+// others of the group) is caught too, since its path to frame 0 thins out.
+//
+// Not caught: a frame stuck in a wrong local minimum that still overlaps the others
+// (e.g. rotated by a large angle inside the same field of view).
+#ifndef DSR_PIPELINE_DIVERGENCE_GUARD_H_
+#define DSR_PIPELINE_DIVERGENCE_GUARD_H_
+
+#include <string>
+#include <vector>
+
+#include "core/frame.h"
+#include "core/observation.h"
+
+namespace dsr {
+
+// For each frame i, the widest-path overlap between frame 0 and frame i in the overlap
+// graph of `candidates` (CandidateOverlap), divided by frame i's field of view counted in
+// panorama voxels (its valid cells times its cell volume over the panorama voxel volume),
+// capped at 1. Frame 0 gets 1. A frame not connected to frame 0 gets 0.
+std::vector<double> TiedFractions(const std::vector<Frame>& frames,
+                                  const CandidateSet& candidates);
+
+class DivergenceGuard {
+ public:
+  // min_kept in [0, 1); 0 never reports a divergence.
+  explicit DivergenceGuard(double min_kept) : min_kept_(min_kept) {}
+
+  // The first call records the fractions at the initial poses and returns false. Later
+  // calls return true, with `why` naming the frame, when some frame's fraction (at the
+  // poses `candidates` was built at) fell below min_kept times its initial value.
+  bool Diverged(const std::vector<Frame>& frames, const CandidateSet& candidates,
+                std::string* why);
+
+ private:
+  double min_kept_;
+  std::vector<double> initial_;
+};
+
+}  // namespace dsr
+
+#endif  // DSR_PIPELINE_DIVERGENCE_GUARD_H_
