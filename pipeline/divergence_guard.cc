@@ -1,10 +1,14 @@
 #include "pipeline/divergence_guard.h"
 
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <sstream>
 
 #include <Eigen/Core>
+
+#include "core/parallel.h"
+#include "core/voxel_stream.h"
 
 namespace dsr {
 
@@ -36,6 +40,67 @@ std::vector<double> TiedFractions(const std::vector<Frame>& frames,
     if (fov_voxels > 0.0) fraction[i] = std::min(1.0, width[i] / fov_voxels);
   }
   return fraction;
+}
+
+std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 int num_threads) {
+  const int m = static_cast<int>(frames.size());
+  const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
+  constexpr int64_t kBlocks = 64;  // fixed: the sums do not depend on the thread count
+  const int64_t n = candidates.num_voxels();
+  std::vector<std::vector<double>> squares(kBlocks, std::vector<double>(m, 0.0));
+  std::vector<std::vector<int64_t>> counts(kBlocks, std::vector<int64_t>(m, 0));
+  ParallelFor(0, kBlocks, num_threads, [&](int64_t b) {
+    int frame[kMaxFrames];
+    double value[kMaxFrames];
+    for (int64_t v = n * b / kBlocks; v < n * (b + 1) / kBlocks; ++v) {
+      const Eigen::Vector3d p = candidates.VoxelCenter(v);
+      int k = 0;
+      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
+        const int f = __builtin_ctz(bits);
+        if (SampleAt<1>(posed[f], p.data(), &value[k])) frame[k++] = f;
+      }
+      if (k < 2) continue;
+      double mean = 0.0;
+      for (int a = 0; a < k; ++a) mean += value[a];
+      mean /= k;
+      for (int a = 0; a < k; ++a) {
+        squares[b][frame[a]] += (value[a] - mean) * (value[a] - mean);
+        ++counts[b][frame[a]];
+      }
+    }
+  });
+  std::vector<double> misfit(m, 0.0);
+  for (int i = 0; i < m; ++i) {
+    double sum = 0.0;
+    int64_t count = 0;
+    for (int64_t b = 0; b < kBlocks; ++b) {
+      sum += squares[b][i];
+      count += counts[b][i];
+    }
+    if (count > 0) misfit[i] = std::sqrt(sum / count);
+  }
+  return misfit;
+}
+
+bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why) {
+  if (!(max_ratio > 0.0) || misfits.empty()) return false;
+  // Reference: the lower quartile, so that up to three quarters of the frames may be off.
+  std::vector<double> sorted = misfits;
+  std::sort(sorted.begin(), sorted.end());
+  const double reference = sorted[(sorted.size() - 1) / 4];
+  const size_t worst = std::max_element(misfits.begin(), misfits.end()) - misfits.begin();
+  if (!(misfits[worst] > max_ratio * reference)) return false;
+  std::ostringstream s;
+  s.precision(3);
+  s << "frame " << worst << " does not match the others at the final poses: its RMS "
+    << "difference to the panorama is " << misfits[worst] << ", " << misfits[worst] / reference
+    << " times the frames' lower quartile (" << reference << "; --max_misfit_ratio="
+    << max_ratio << "), a wrong local minimum; give better initial poses with --init";
+  *why = s.str();
+  return true;
 }
 
 bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,

@@ -10,13 +10,16 @@
 // diverged. A group of frames that drifts off together (each still overlapping the
 // others of the group) is caught too, since its path to frame 0 thins out.
 //
-// Not caught: a frame stuck in a wrong local minimum that still overlaps the others
-// (e.g. rotated by a large angle inside the same field of view).
+// Not caught by the overlap: a frame stuck in a wrong local minimum that still overlaps the
+// others (e.g. rotated by a large angle inside the same field of view). For that, the final
+// poses are also checked by each frame's misfit against the others (MisfitOutlier).
 #ifndef DSR_PIPELINE_DIVERGENCE_GUARD_H_
 #define DSR_PIPELINE_DIVERGENCE_GUARD_H_
 
 #include <string>
 #include <vector>
+
+#include <Eigen/Geometry>
 
 #include "core/frame.h"
 #include "core/observation.h"
@@ -29,6 +32,21 @@ namespace dsr {
 // capped at 1. Frame 0 gets 1. A frame not connected to frame 0 gets 0.
 std::vector<double> TiedFractions(const std::vector<Frame>& frames,
                                   const CandidateSet& candidates);
+
+// For each frame, the root mean square of its differences to the per-voxel mean of the
+// observations (the DSR residuals), over the candidate voxels that at least two frames
+// observe at `frame_from_world`. 0 for a frame with no such voxel. Deterministic.
+std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 int num_threads);
+
+// True (and `why` naming the worst frame) when some frame's misfit exceeds max_ratio times
+// the lower quartile of the frames' misfits (robust to up to three quarters of the frames
+// being off): that frame does not agree with the others, typically
+// a wrong local minimum that still overlaps them (which the overlap guard below cannot
+// see). max_ratio 0 never reports.
+bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why);
 
 class DivergenceGuard {
  public:

@@ -177,6 +177,9 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if (!(min_kept_overlap >= 0.0 && min_kept_overlap < 1.0)) {
     return bad("min_kept_overlap", std::to_string(min_kept_overlap), "must be in [0, 1)");
   }
+  if (!(max_misfit_ratio == 0.0 || (max_misfit_ratio > 1.0 && std::isfinite(max_misfit_ratio)))) {
+    return bad("max_misfit_ratio", std::to_string(max_misfit_ratio), "must be 0 (off) or > 1");
+  }
   if (min_shared_voxels < 1) {
     return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
   }
@@ -223,6 +226,9 @@ bool Register(const std::vector<Image>& images,
     RegistrationOptions init_options = options;
     init_options.mode = "pairwise";
     init_options.pairwise_init = false;
+    // The initial poses are judged by this run's own checks of its final poses.
+    init_options.min_kept_overlap = 0.0;
+    init_options.max_misfit_ratio = 0.0;
     init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
     init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
     RegistrationResult init;
@@ -266,8 +272,8 @@ bool Register(const std::vector<Image>& images,
   // Ends the registration as not usable: the poses reached do not register the frames.
   const auto diverged = [&](const std::string& why) {
     result->usable = false;
-    result->failure = "the solve at pyramid level " + std::to_string(result->solves.back().level) +
-                      " is not usable: " + why;
+    result->failure = "not usable after the solve at pyramid level " +
+                      std::to_string(result->solves.back().level) + ": " + why;
     result->frame_from_world = poses;
     result->seconds = Seconds(start);
     return true;
@@ -382,16 +388,22 @@ bool Register(const std::vector<Image>& images,
         return true;
       }
       if (motion <= options.rebuild_tolerance_voxels) break;
-      if (level == 0 && rebuild == max_rebuilds && options.min_kept_overlap > 0.0) {
-        // The last solve moved a frame and no rebuild follows: check the final poses.
-        ImageGeometry final_grid;
-        if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
-          return false;
-        }
-        std::string why;
-        if (guard.Diverged(frames, BuildCandidates(frames, poses, final_grid, 0), &why)) {
-          return diverged(why);
-        }
+    }
+    if (level == 0) {
+      // Checks of the final poses, on candidates built at them.
+      ImageGeometry final_grid;
+      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
+        return false;
+      }
+      const CandidateSet final_candidates = BuildCandidates(frames, poses, final_grid, 0);
+      std::string why;
+      if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, final_candidates, &why)) {
+        return diverged(why);
+      }
+      result->frame_misfits =
+          FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
+      if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
+        return diverged(why);
       }
     }
   }

@@ -59,6 +59,11 @@ struct RegistrationOptions {
   // poses (the frame slid out of the overlap). Checked at every candidate rebuild and at
   // the final poses. 0 turns the guard off.
   double min_kept_overlap = 0.25;
+  // Misfit check of the final poses (pipeline/divergence_guard.h, MisfitOutlier): the
+  // registration is not usable when a frame's RMS difference to the per-voxel mean exceeds
+  // this multiple of the frames' lower quartile (a frame stuck in a wrong minimum). 0 or > 1;
+  // 0 turns it off.
+  double max_misfit_ratio = 2.0;
 
   // Mode-specific.
   int dsr_num_chunks = 1;
@@ -83,6 +88,8 @@ struct RegistrationResult {
   std::vector<Eigen::Isometry3d> frame_from_world;  // final poses, frame 0 = identity
   std::vector<LevelSolve> solves;
   bool usable = false;        // every solve usable and the final cost finite
+  // Per frame, RMS difference to the per-voxel mean at the final poses (FrameMisfits).
+  std::vector<double> frame_misfits;
   std::string failure;        // why not usable
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;

@@ -94,5 +94,46 @@ TEST_F(DivergenceGuardTest, ZeroTurnsItOff) {
                               &why));
 }
 
+TEST_F(DivergenceGuardTest, MisfitsAreZeroAtAConsistentTruthAndPointAtAMisplacedFrame) {
+  // Lattice-aligned frames are crops of one discrete volume: at the ground truth every
+  // observer of a voxel samples the same value.
+  SequenceOptions o;
+  o.num_frames = 4;
+  o.size = 16;
+  o.frame_offset = 3.0;
+  o.lattice = true;
+  o.noise_sigma = 5.0;
+  const TestSequence lattice = MakeSequence(o);
+  const std::vector<Frame>& frames = lattice.frames;
+  const CandidateSet at_truth = CandidatesAt(frames, lattice.ground_truth);
+  for (double misfit : FrameMisfits(frames, at_truth, lattice.ground_truth, 2)) {
+    EXPECT_LT(misfit, 1e-3);
+  }
+  const std::vector<Eigen::Isometry3d> moved = Shifted(lattice.ground_truth, 2, 1.5);
+  const CandidateSet candidates = CandidatesAt(frames, moved);
+  const std::vector<double> misfits = FrameMisfits(frames, candidates, moved, 2);
+  for (int i : {0, 1, 3}) EXPECT_GT(misfits[2], misfits[i]) << i;
+  EXPECT_GT(misfits[2], 1.0);
+  // Fixed accumulation blocks: any thread count gives the same sums.
+  EXPECT_EQ(FrameMisfits(frames, candidates, moved, 1), misfits);
+  EXPECT_EQ(FrameMisfits(frames, candidates, moved, 3), misfits);
+  std::string why;
+  EXPECT_TRUE(MisfitOutlier(misfits, 1.2, &why));
+  EXPECT_NE(why.find("frame 2 does not match the others"), std::string::npos) << why;
+}
+
+TEST(MisfitOutlier, ComparesTheWorstFrameWithTheMedian) {
+  std::string why;
+  EXPECT_TRUE(MisfitOutlier({10.0, 11.0, 40.0, 12.0}, 2.0, &why));  // lower quartile 10
+  EXPECT_NE(why.find("frame 2 does not match"), std::string::npos) << why;
+  EXPECT_NE(why.find("--max_misfit_ratio=2"), std::string::npos) << why;
+  EXPECT_FALSE(MisfitOutlier({10.0, 11.0, 20.0, 12.0}, 2.0, &why));  // 20 = 2 x 10
+  // Three of five frames off: the reference stays with the good ones.
+  EXPECT_TRUE(MisfitOutlier({10.0, 30.0, 31.0, 11.0, 32.0}, 2.0, &why));
+  EXPECT_NE(why.find("frame 4 does not match"), std::string::npos) << why;
+  EXPECT_FALSE(MisfitOutlier({10.0, 11.0, 400.0, 12.0}, 0.0, &why));  // off
+  EXPECT_FALSE(MisfitOutlier({5.0, 5.0}, 2.0, &why));
+}
+
 }  // namespace
 }  // namespace dsr

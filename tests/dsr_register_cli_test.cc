@@ -111,6 +111,16 @@ TEST_F(DsrRegisterCli, AFailedRegistrationExitsOneAndLeavesThePosesFileAlone) {
   EXPECT_NE(run.error_lines[0].find("diverged: frame"), std::string::npos) << run.error_lines[0];
   EXPECT_NE(run.error_lines[0].find("--min_kept_overlap=0.99"), std::string::npos);
   EXPECT_EQ(testing_cli::ReadText(poses_path), before);
+  // The same through the misfit check: a ratio just above 1 singles out the frame that
+  // matches the others least.
+  const ToolRun misfit = Register("--images=" + Images() + " --masks=" + Masks() +
+                                  " --max_misfit_ratio=1.0001 --progress=false --out_poses=" +
+                                  poses_path);
+  EXPECT_EQ(misfit.exit_code, 1) << misfit.err;
+  ASSERT_EQ(misfit.error_lines.size(), 1u) << misfit.err;
+  EXPECT_NE(misfit.error_lines[0].find("does not match the others"), std::string::npos)
+      << misfit.error_lines[0];
+  EXPECT_EQ(testing_cli::ReadText(poses_path), before);
 }
 
 TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
@@ -134,6 +144,7 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   ExpectBadInput(images + " --out_panorama=" + Out("panorama.png"), "--out_panorama");
   ExpectBadInput(images + " --pyramid_levels=0", "--pyramid_levels");
   ExpectBadInput(images + " --min_kept_overlap=1.5", "--min_kept_overlap");
+  ExpectBadInput(images + " --max_misfit_ratio=0.5", "--max_misfit_ratio");
   ExpectBadInput(images + " --unknown_flag=3", "unknown_flag");
   // Output equal to an input.
   const ToolRun same = Register(images + " --out_poses=" + Seq("frame_02.nii.gz"));

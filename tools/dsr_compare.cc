@@ -47,6 +47,8 @@ DEFINE_double(panorama_spacing, 1.0, "Panorama spacing as a multiple of frame 0'
 DEFINE_double(min_kept_overlap, 0.0, "Divergence guard of dsr_register (a frame that slid out "
               "of the overlap fails the run); off by default here, so that every method's "
               "poses are measured, diverged or not. In [0, 1).");
+DEFINE_double(max_misfit_ratio, 0.0, "Misfit check of dsr_register (a frame that does not "
+              "match the others at the final poses fails the run); off by default here. 0 or > 1.");
 DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
 
 namespace {
@@ -141,6 +143,7 @@ int main(int argc, char** argv) {
   base.pyramid_levels = FLAGS_pyramid_levels;
   base.panorama_spacing = FLAGS_panorama_spacing;
   base.min_kept_overlap = FLAGS_min_kept_overlap;
+  base.max_misfit_ratio = FLAGS_max_misfit_ratio;
   for (const std::string& m : methods) {
     dsr::RegistrationOptions o = base;
     o.mode = m;

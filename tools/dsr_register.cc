@@ -72,6 +72,10 @@ DEFINE_double(min_kept_overlap, 0.25, "Divergence guard: poses at which a frame'
               "of overlapping frames to frame 0 covers less than this fraction of what it "
               "covered at the initial poses (the frame slid out of the overlap) are a failure "
               "(exit 1), not a result; in [0, 1), 0 = off.");
+DEFINE_double(max_misfit_ratio, 2.0, "Misfit check: final poses at which a frame's RMS "
+              "difference to the panorama exceeds this multiple of the frames' lower quartile "
+              "(a frame stuck in a wrong minimum) are a failure (exit 1), not a result; 0 = off "
+              "or > 1.");
 DEFINE_int32(num_chunks, 1, "dsr: residual blocks the candidate voxels are split into, >= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
             "small problems only).");
@@ -139,6 +143,7 @@ int main(int argc, char** argv) {
   options.max_rebuilds = FLAGS_max_rebuilds;
   options.rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
   options.min_kept_overlap = FLAGS_min_kept_overlap;
+  options.max_misfit_ratio = FLAGS_max_misfit_ratio;
   options.dsr_num_chunks = FLAGS_num_chunks;
   options.dsr_reference_cost = FLAGS_reference_cost;
   if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {
