@@ -245,6 +245,8 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --num_frames_typo=3", "num_frames_typo");
   Register(base + " --max_iterations=many", "max_iterations");
   Register(base + " --mode=dba --memory_budget_mb=0.01", "--mode=dsr");
+  Register(base + " --min_kept_overlap=-0.1", "--min_kept_overlap");
+  Register(base + " --max_misfit_ratio=nan", "--max_misfit_ratio");
 }
 
 TEST_F(BadInputCatalogue, OutputPaths) {
@@ -284,6 +286,7 @@ TEST_F(BadInputCatalogue, Compare) {
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr,magic", "--methods");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=random", "--init");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --num_sequences=0", "--num_sequences");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --max_misfit_ratio=1", "--max_misfit_ratio");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --frame_size=8,8", "--frame_size");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr --sequences=" + In("no_such_folder"),
          "no_such_folder");
