@@ -102,7 +102,7 @@ int main(int argc, char** argv) {
       "compares registration methods on sequences with ground truth (the paper's Fig. 1).\n"
       "  dsr_compare --out_dir=DIR [--methods=dsr,ape,...] [--sequences=DIR1,DIR2 | "
       "--num_sequences=5 ...]\n"
-      "  dsr_compare --flagfile=configs/dsr_compare_paper_simulated.flags\n"
+      "  dsr_compare --flagfile=configs/paper_simulated.flags\n"
       "Exit status: 0 ok (a method that fails on a sequence is a row, not an error), 2 bad "
       "input.",
       {"out_dir"}, &argc, &argv);
