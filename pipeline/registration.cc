@@ -307,6 +307,9 @@ bool Register(const std::vector<Image>& images,
     const bool pair_based = options.mode == "pairwise" || options.mode == "lie_normalization" ||
                             options.mode == "sequential";
     const int max_rebuilds = pair_based ? 0 : options.max_rebuilds;
+    // The last solve's candidates and how far it moved the frames (for the final checks).
+    CandidateSet last_candidates;
+    double last_motion = std::numeric_limits<double>::infinity();
     for (int rebuild = 0; rebuild <= max_rebuilds; ++rebuild) {
       LevelSolve record;
       record.level = level;
@@ -314,7 +317,7 @@ bool Register(const std::vector<Image>& images,
       ImageGeometry grid;
       if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, error)) return false;
       record.panorama_spacing_mm = grid.spacing_mm;
-      const CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
+      CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
       record.candidate_voxels = candidates.num_voxels();
       record.candidate_observations = candidates.NumObservations();
       std::string why;
@@ -387,15 +390,26 @@ bool Register(const std::vector<Image>& images,
         result->seconds = Seconds(start);
         return true;
       }
+      if (level == 0) {
+        last_candidates = std::move(candidates);
+        last_motion = motion;
+      }
       if (motion <= options.rebuild_tolerance_voxels) break;
     }
     if (level == 0) {
-      // Checks of the final poses, on candidates built at them.
-      ImageGeometry final_grid;
-      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
-        return false;
+      // Checks of the final poses. When the last solve moved no field-of-view corner by
+      // more than the rebuild tolerance, its candidates stand for the final poses' (as
+      // the rebuild rule has it); otherwise candidates are built at the final poses.
+      CandidateSet final_candidates;
+      if (last_motion <= options.rebuild_tolerance_voxels) {
+        final_candidates = std::move(last_candidates);
+      } else {
+        ImageGeometry final_grid;
+        if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
+          return false;
+        }
+        final_candidates = BuildCandidates(frames, poses, final_grid, 0);
       }
-      const CandidateSet final_candidates = BuildCandidates(frames, poses, final_grid, 0);
       std::string why;
       if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, final_candidates, &why)) {
         return diverged(why);
