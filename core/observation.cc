@@ -101,11 +101,9 @@ Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
   const int m = candidates.num_frames;
   Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);
   for (uint32_t bits : candidates.observers) {
-    for (int a = 0; a < m; ++a) {
-      if (!(bits >> a & 1u)) continue;
-      for (int b = a; b < m; ++b) {
-        if (bits >> b & 1u) ++overlap(a, b);
-      }
+    for (uint32_t as = bits; as != 0; as &= as - 1) {  // set bits only
+      const int a = __builtin_ctz(as);
+      for (uint32_t bs = as; bs != 0; bs &= bs - 1) ++overlap(a, __builtin_ctz(bs));
     }
   }
   overlap.triangularView<Eigen::StrictlyLower>() = overlap.transpose();
@@ -115,8 +113,13 @@ Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
 bool CheckConnected(const CandidateSet& candidates,
                     int64_t min_shared_voxels,
                     std::string* error) {
-  const int m = candidates.num_frames;
-  const Eigen::MatrixXi overlap = CandidateOverlap(candidates);
+  return CheckConnected(CandidateOverlap(candidates), min_shared_voxels, error);
+}
+
+bool CheckConnected(const Eigen::MatrixXi& overlap,
+                    int64_t min_shared_voxels,
+                    std::string* error) {
+  const int m = static_cast<int>(overlap.rows());
   std::vector<bool> reached(m, false);
   std::queue<int> todo;
   reached[0] = true;

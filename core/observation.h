@@ -80,6 +80,10 @@ Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates);
 bool CheckConnected(const CandidateSet& candidates,
                     int64_t min_shared_voxels,
                     std::string* error);
+// The same on an overlap matrix already computed by CandidateOverlap.
+bool CheckConnected(const Eigen::MatrixXi& overlap,
+                    int64_t min_shared_voxels,
+                    std::string* error);
 
 // Re-expresses poses so that world = frame 0's physical space: T_i <- T_i T_0^-1.
 std::vector<Eigen::Isometry3d> RelativeToFrame0(

@@ -14,8 +14,13 @@ namespace dsr {
 
 std::vector<double> TiedFractions(const std::vector<Frame>& frames,
                                   const CandidateSet& candidates) {
+  return TiedFractions(frames, CandidateOverlap(candidates), candidates.grid.spacing_mm);
+}
+
+std::vector<double> TiedFractions(const std::vector<Frame>& frames,
+                                  const Eigen::MatrixXi& overlap,
+                                  const Eigen::Vector3d& panorama_spacing_mm) {
   const int m = static_cast<int>(frames.size());
-  const Eigen::MatrixXi overlap = CandidateOverlap(candidates);
   // Widest paths from frame 0 (Prim on the maximum spanning tree; m <= 32).
   std::vector<double> width(m, 0.0);
   std::vector<bool> done(m, false);
@@ -31,7 +36,7 @@ std::vector<double> TiedFractions(const std::vector<Frame>& frames,
       if (!done[i]) width[i] = std::max(width[i], std::min<double>(width[best], overlap(best, i)));
     }
   }
-  const double voxel_volume = candidates.grid.spacing_mm.prod();
+  const double voxel_volume = panorama_spacing_mm.prod();
   std::vector<double> fraction(m, 0.0);
   fraction[0] = 1.0;
   for (int i = 1; i < m; ++i) {
@@ -106,7 +111,14 @@ bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::st
 bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,
                                const CandidateSet& candidates,
                                std::string* why) {
-  const std::vector<double> tied = TiedFractions(frames, candidates);
+  return Diverged(frames, CandidateOverlap(candidates), candidates.grid.spacing_mm, why);
+}
+
+bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,
+                               const Eigen::MatrixXi& overlap,
+                               const Eigen::Vector3d& panorama_spacing_mm,
+                               std::string* why) {
+  const std::vector<double> tied = TiedFractions(frames, overlap, panorama_spacing_mm);
   if (initial_.empty()) {
     initial_ = tied;
     return false;

@@ -32,6 +32,10 @@ namespace dsr {
 // capped at 1. Frame 0 gets 1. A frame not connected to frame 0 gets 0.
 std::vector<double> TiedFractions(const std::vector<Frame>& frames,
                                   const CandidateSet& candidates);
+// The same on CandidateOverlap(candidates), given the panorama spacing.
+std::vector<double> TiedFractions(const std::vector<Frame>& frames,
+                                  const Eigen::MatrixXi& overlap,
+                                  const Eigen::Vector3d& panorama_spacing_mm);
 
 // For each frame, the root mean square of its differences to the per-voxel mean of the
 // observations (the DSR residuals), over the candidate voxels that at least two frames
@@ -58,6 +62,9 @@ class DivergenceGuard {
   // poses `candidates` was built at) fell below min_kept times its initial value.
   bool Diverged(const std::vector<Frame>& frames, const CandidateSet& candidates,
                 std::string* why);
+  // The same on CandidateOverlap(candidates), given the panorama spacing.
+  bool Diverged(const std::vector<Frame>& frames, const Eigen::MatrixXi& overlap,
+                const Eigen::Vector3d& panorama_spacing_mm, std::string* why);
 
  private:
   double min_kept_;

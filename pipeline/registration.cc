@@ -320,12 +320,14 @@ bool Register(const std::vector<Image>& images,
       CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
       record.candidate_voxels = candidates.num_voxels();
       record.candidate_observations = candidates.NumObservations();
+      const Eigen::MatrixXi overlap = CandidateOverlap(candidates);
       std::string why;
-      if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, candidates, &why)) {
+      if (options.min_kept_overlap > 0.0 &&
+          guard.Diverged(frames, overlap, grid.spacing_mm, &why)) {
         return diverged(why);
       }
       std::string connect_error;
-      if (!CheckConnected(candidates, options.min_shared_voxels, &connect_error)) {
+      if (!CheckConnected(overlap, options.min_shared_voxels, &connect_error)) {
         if (level > 0) {
           // Coarse levels have few voxels: a small overlap may only be countable at finer
           // levels, and a coarse solve on a thin overlap may have drifted. Skip the level
