@@ -14,6 +14,11 @@ namespace {
 // H_aa += J_a^T J_a, H_bb += J_b^T J_b, H_ab -= J_a^T J_b. O(k^2) per voxel, as APE
 // evaluates it (no use of the per-voxel identity with DSR).
 struct ApeVoxelTerm {
+  // Pair by pair, as APE evaluates it; in the batched form its H would be
+  // H_ab = (k delta_ab - 1) J_a^T J_b.
+  static constexpr bool batched_hessian = false;
+  HessianWeights Weights(int k) const { return {static_cast<double>(k), -1.0}; }
+
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
     const int k = obs.k;
     acc->observations += int64_t{k} * (k - 1) / 2;

@@ -4,6 +4,8 @@
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
+//   BM_DsrEvaluationClinical/{jacobian}          DSR, 11 frames of 176x176x200 at 0.6 mm
+//   BM_BuildCandidatesClinical                   the candidate set at that size
 //   BM_DbaEvaluation                             Ceres Problem::Evaluate of DBA with
 //                                                Jacobians, 6 frames of 48x48x40
 // Counters: ns per observation (an intensity difference the objective evaluates).
@@ -29,7 +31,8 @@ struct Problem {
   CandidateSet candidates;
 };
 
-std::unique_ptr<Problem> MakeProblem(int num_frames, Eigen::Vector3i frame_size) {
+std::unique_ptr<Problem> MakeProblem(int num_frames, Eigen::Vector3i frame_size,
+                                     double frame_spacing_mm = 0.0) {
   static const Image phantom = [] {
     PhantomOptions p;
     return MakePhantom(p);
@@ -37,6 +40,7 @@ std::unique_ptr<Problem> MakeProblem(int num_frames, Eigen::Vector3i frame_size)
   SimulationOptions o;
   o.num_frames = num_frames;
   o.frame_size = frame_size;
+  o.frame_spacing_mm = frame_spacing_mm;
   SimulatedSequence s;
   std::string error;
   if (!Simulate(phantom, o, &s, &error)) {
@@ -124,6 +128,36 @@ void BM_DsrEvaluationFrames(benchmark::State& state) {
   SetObservationCounter(state, system.observations);
 }
 BENCHMARK(BM_DsrEvaluationFrames)->DenseRange(3, 11, 2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Issue 6's clinical size: 11 frames of 176x176x200 at 0.6 mm (target: one evaluation with
+// Jacobians under 1.5 s on 2 cores).
+const Problem& Clinical() {
+  static const std::unique_ptr<Problem> p =
+      MakeProblem(11, Eigen::Vector3i(176, 176, 200), 0.6);
+  return *p;
+}
+
+void BM_DsrEvaluationClinical(benchmark::State& state) {
+  const Problem& p = Clinical();
+  NormalEquations system;
+  for (auto _ : state) {
+    AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
+                            state.range(0) != 0, 2, &system);
+    benchmark::DoNotOptimize(system.cost);
+  }
+  SetObservationCounter(state, system.observations);
+}
+BENCHMARK(BM_DsrEvaluationClinical)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// Building the candidate set (observers of every panorama voxel) at clinical size.
+void BM_BuildCandidatesClinical(benchmark::State& state) {
+  const Problem& p = Clinical();
+  for (auto _ : state) {
+    CandidateSet c = BuildCandidates(p.frames, p.poses, p.candidates.grid, 0);
+    benchmark::DoNotOptimize(c.voxel.data());
+  }
+}
+BENCHMARK(BM_BuildCandidatesClinical)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // DSR and DBA evaluations with Jacobians of the same small problem.
 const Problem& Small() {

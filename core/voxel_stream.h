@@ -27,6 +27,7 @@
 #include <glog/logging.h>
 
 #include "core/frame.h"
+#include "core/hessian_batch.h"
 #include "core/observation.h"
 #include "core/parallel.h"
 
@@ -41,6 +42,10 @@ struct NormalEquations {
   // Intensity differences the objective evaluated (e.g. sum of k_j for DSR, sum of
   // k_j (k_j - 1) / 2 for APE), over voxels with k_j >= 2.
   int64_t observations = 0;
+  // Per frame (m entries), for terms that split their cost by frame (DSR: frame i's sum
+  // of squared residuals and its number of residuals); zero otherwise.
+  std::vector<double> frame_cost;
+  std::vector<int64_t> frame_observations;
 };
 
 // A frame's pose folded into its index map (u = a p + b), with the raw sampler data, so
@@ -117,6 +122,8 @@ struct VoxelAccumulator {
   std::vector<double> hessian, gradient;
   double cost = 0.0;
   int64_t observations = 0;
+  double frame_cost[kMaxFrames] = {};
+  int64_t frame_observations[kMaxFrames] = {};
 };
 
 // The observers of one voxel, as the stream hands them to a term: k >= 2 frames
@@ -168,6 +175,8 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
   const double o[3] = {grid.origin_mm[0], grid.origin_mm[1], grid.origin_mm[2]};
   VoxelObservations obs;
   double sample[kMaxFrames][4];
+  const bool batched = with_jacobian && term.batched_hessian;
+  HessianBatcher batcher(batched ? acc->hessian.data() : nullptr, acc->n);
   for (int64_t v = b0; v < b1; ++v) {
     const int64_t l = candidates.voxel[v];
     const double ijk[3] = {static_cast<double>(l % nx), static_cast<double>((l % nxy) / nx),
@@ -194,7 +203,9 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
       }
     }
     term(obs, with_jacobian, acc);
+    if (batched) batcher.Add(k, obs.frame, obs.jac, term.Weights(k));
   }
+  if (batched) batcher.Flush();
 }
 
 }  // namespace internal
@@ -206,6 +217,9 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
 // row-major H, the diagonal blocks at least on and above their diagonal (AddOuter does
 // this). The result's H is made symmetric from that upper triangle. Without Jacobians
 // only cost and observations are filled.
+// The term also has `bool batched_hessian` and `HessianWeights Weights(int k)`: when
+// batched_hessian is true, the term adds no Gauss-Newton terms itself and the stream adds
+// H_ab += (delta_ab * diagonal + shared) J_a^T J_b for it in batches (core/hessian_batch.h).
 template <class Term>
 void StreamNormalEquations(const std::vector<Frame>& frames,
                            const CandidateSet& candidates,
@@ -241,9 +255,15 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
     out->hessian.setZero(n, n);
     out->gradient.setZero(n);
   }
+  out->frame_cost.assign(m, 0.0);
+  out->frame_observations.assign(m, 0);
   for (const VoxelAccumulator& acc : partial) {  // fixed order: deterministic
     out->cost += acc.cost;
     out->observations += acc.observations;
+    for (int i = 0; i < m; ++i) {
+      out->frame_cost[i] += acc.frame_cost[i];
+      out->frame_observations[i] += acc.frame_observations[i];
+    }
     if (with_jacobian) {
       // Row-major accumulator into the column-major matrix: transpose while adding.
       out->hessian += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic,

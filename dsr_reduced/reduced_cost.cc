@@ -11,8 +11,13 @@ namespace dsr {
 namespace {
 
 // The DSR term of one voxel observed by k >= 2 frames: r_a = I_a - mu,
-//   cost += sum_a r_a^2,  g_a += J_a^T r_a,  H_ab += (delta_ab - 1/k) J_a^T J_b.
+//   cost += sum_a r_a^2,  g_a += J_a^T r_a,  H_ab += (delta_ab - 1/k) J_a^T J_b,
+// and frame a's share r_a^2 of the cost (for the per-frame misfits). H is added in
+// batches by the stream (fast path) or here voxel by voxel (the twin tests compare with).
 struct DsrVoxelTerm {
+  bool batched_hessian = true;
+  HessianWeights Weights(int k) const { return {1.0, -1.0 / k}; }
+
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
     const int k = obs.k;
     acc->observations += k;
@@ -23,6 +28,8 @@ struct DsrVoxelTerm {
       for (int a = 0; a < k; ++a) {
         const double r = obs.value[a] - mean;
         acc->cost += r * r;
+        acc->frame_cost[obs.frame[a]] += r * r;
+        ++acc->frame_observations[obs.frame[a]];
       }
       return;
     }
@@ -34,8 +41,11 @@ struct DsrVoxelTerm {
       const double r = obs.value[a] - mean;
       acc->cost += r * r;
       const int fa = obs.frame[a];
+      acc->frame_cost[fa] += r * r;
+      ++acc->frame_observations[fa];
       const double* ja = obs.jac[a];
       for (int i = 0; i < 6; ++i) g[6 * fa + i] += ja[i] * r;
+      if (batched_hessian) continue;
       AddOuter(h, n, fa, fa, ja, ja, 1.0 - inv_k);
       for (int b = a + 1; b < k; ++b) AddOuter(h, n, fa, obs.frame[b], ja, obs.jac[b], -inv_k);
     }
@@ -103,9 +113,12 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              int64_t end,
                              bool with_jacobian,
                              int num_threads,
-                             ReducedSystem* out) {
+                             ReducedSystem* out,
+                             bool batched_hessian) {
+  DsrVoxelTerm term;
+  term.batched_hessian = batched_hessian;
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, DsrVoxelTerm(), out);
+                        num_threads, term, out);
 }
 
 ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,

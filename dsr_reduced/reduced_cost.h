@@ -51,7 +51,9 @@ using ReducedSystem = NormalEquations;
 
 // Streams voxels [begin, end) of `candidates` at the given poses (core/voxel_stream.h):
 // bit-identical for any `num_threads`. With `with_jacobian` false only the cost (and
-// observation count) is computed; hessian/gradient are left empty.
+// observation count) is computed; hessian/gradient are left empty. `batched_hessian`
+// false adds H voxel by voxel instead of in batches (core/hessian_batch.h): the slow twin
+// tests compare the fast path with.
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -59,7 +61,8 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              int64_t end,
                              bool with_jacobian,
                              int num_threads,
-                             ReducedSystem* out);
+                             ReducedSystem* out,
+                             bool batched_hessian = true);
 
 // Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
 // poses (frames 1..m-1, in order; core/streamed_cost.h). Frame 0's pose is the constant

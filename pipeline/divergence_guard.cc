@@ -9,6 +9,7 @@
 
 #include "core/parallel.h"
 #include "core/voxel_stream.h"
+#include "dsr_reduced/reduced_cost.h"
 
 namespace dsr {
 
@@ -51,41 +52,15 @@ std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
                                  const CandidateSet& candidates,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
                                  int num_threads) {
-  const int m = static_cast<int>(frames.size());
-  const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
-  constexpr int64_t kBlocks = 64;  // fixed: the sums do not depend on the thread count
-  const int64_t n = candidates.num_voxels();
-  std::vector<std::vector<double>> squares(kBlocks, std::vector<double>(m, 0.0));
-  std::vector<std::vector<int64_t>> counts(kBlocks, std::vector<int64_t>(m, 0));
-  ParallelFor(0, kBlocks, num_threads, [&](int64_t b) {
-    int frame[kMaxFrames];
-    double value[kMaxFrames];
-    for (int64_t v = n * b / kBlocks; v < n * (b + 1) / kBlocks; ++v) {
-      const Eigen::Vector3d p = candidates.VoxelCenter(v);
-      int k = 0;
-      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
-        const int f = __builtin_ctz(bits);
-        if (SampleAt<1>(posed[f], p.data(), &value[k])) frame[k++] = f;
-      }
-      if (k < 2) continue;
-      double mean = 0.0;
-      for (int a = 0; a < k; ++a) mean += value[a];
-      mean /= k;
-      for (int a = 0; a < k; ++a) {
-        squares[b][frame[a]] += (value[a] - mean) * (value[a] - mean);
-        ++counts[b][frame[a]];
-      }
+  // One cost-only pass of the DSR stream, which splits the cost by frame.
+  NormalEquations system;
+  AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
+                          /*with_jacobian=*/false, num_threads, &system);
+  std::vector<double> misfit(frames.size(), 0.0);
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (system.frame_observations[i] > 0) {
+      misfit[i] = std::sqrt(system.frame_cost[i] / system.frame_observations[i]);
     }
-  });
-  std::vector<double> misfit(m, 0.0);
-  for (int i = 0; i < m; ++i) {
-    double sum = 0.0;
-    int64_t count = 0;
-    for (int64_t b = 0; b < kBlocks; ++b) {
-      sum += squares[b][i];
-      count += counts[b][i];
-    }
-    if (count > 0) misfit[i] = std::sqrt(sum / count);
   }
   return misfit;
 }

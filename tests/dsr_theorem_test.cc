@@ -10,7 +10,9 @@
 #include <ceres/ceres.h>
 #include <gtest/gtest.h>
 
+#include <array>
 #include <random>
+#include <utility>
 
 #include "dba/dba_problem.h"
 #include "dsr_reduced/dsr_solver.h"
@@ -293,6 +295,76 @@ TEST(ReducedCost, AccumulationIsIdenticalForAnyThreadCount) {
   EXPECT_EQ(one.cost, four.cost);
   EXPECT_TRUE(one.hessian == two.hessian && one.hessian == four.hessian);
   EXPECT_TRUE(one.gradient == two.gradient && one.gradient == four.gradient);
+}
+
+TEST(ReducedCost, BatchedHessianMatchesTheVoxelByVoxelTwin) {
+  uint64_t seed = 71;
+  for (const Case& c : Cases()) {
+    const auto s = MakeSequence(OptionsFor(c, seed++));
+    const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, seed++);
+    const CandidateSet cand = Candidates(s, poses);
+    // The whole set, and an odd sub-range (partial batches flushed at its end).
+    for (const auto& [begin, end] : {std::pair<int64_t, int64_t>{0, cand.num_voxels()},
+                                     std::pair<int64_t, int64_t>{3, cand.num_voxels() / 2 + 1}}) {
+      ReducedSystem batched, twin;
+      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, 2, &batched, true);
+      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, 2, &twin, false);
+      ASSERT_GT(twin.hessian.norm(), 0.0);
+      EXPECT_LT((batched.hessian - twin.hessian).norm() / twin.hessian.norm(),
+                kSystemRelativeTolerance)
+          << "m=" << c.num_frames << " voxels [" << begin << ", " << end << ")";
+      // Cost and gradient do not go through the batches: identical.
+      EXPECT_EQ(batched.cost, twin.cost);
+      EXPECT_TRUE(batched.gradient == twin.gradient);
+      EXPECT_TRUE(batched.hessian.isApprox(batched.hessian.transpose(), 0.0));
+    }
+  }
+}
+
+TEST(ReducedCost, FrameCostsSplitTheCostByFrame) {
+  const auto s = MakeSequence(OptionsFor({4, 16, 25.0, 3}, 81));
+  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 82);
+  const CandidateSet cand = Candidates(s, poses);
+  ReducedSystem system;
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, 2, &system);
+  // Reference: each voxel's residuals from the per-voxel cost, added to their frames.
+  std::vector<double> frame_cost(4, 0.0);
+  std::vector<int64_t> frame_count(4, 0);
+  for (int64_t v = 0; v < cand.num_voxels(); ++v) {
+    std::vector<const Frame*> observers;
+    std::vector<int> index;
+    std::vector<std::array<double, kPoseAmbientSize>> parameters;
+    for (int i = 0; i < 4; ++i) {
+      if (!(cand.observers[v] >> i & 1u)) continue;
+      observers.push_back(&s.frames[i]);
+      index.push_back(i);
+      parameters.emplace_back();
+      PoseToParameters(poses[i], parameters.back().data());
+    }
+    VoxelReducedCost cost(observers, cand.VoxelCenter(v));
+    std::vector<const double*> blocks;
+    for (const auto& x : parameters) blocks.push_back(x.data());
+    std::vector<double> r(observers.size());
+    ASSERT_TRUE(cost.Evaluate(blocks.data(), r.data(), nullptr));
+    for (size_t a = 0; a < r.size(); ++a) {
+      frame_cost[index[a]] += r[a] * r[a];
+      // A residual of exactly 0 may be an observation or no observation; count those seen.
+      if (r[a] != 0.0) ++frame_count[index[a]];
+    }
+  }
+  double sum = 0.0;
+  int64_t count = 0;
+  for (int i = 0; i < 4; ++i) {
+    sum += system.frame_cost[i];
+    count += system.frame_observations[i];
+    EXPECT_NEAR(system.frame_cost[i], frame_cost[i], 1e-9 * frame_cost[i]) << "frame " << i;
+    // Residuals of exactly 0 are counted by the stream only: at most a handful.
+    EXPECT_GE(system.frame_observations[i], frame_count[i]);
+    EXPECT_LE(system.frame_observations[i], frame_count[i] + frame_count[i] / 100 + 1);
+    EXPECT_GT(system.frame_observations[i], 0);
+  }
+  EXPECT_NEAR(sum, system.cost, 1e-12 * system.cost);
+  EXPECT_EQ(count, system.observations);
 }
 
 TEST(ReducedCost, CompressionReproducesTheNormalEquations) {
