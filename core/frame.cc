@@ -7,6 +7,8 @@
 
 #include <glog/logging.h>
 
+#include "core/huge_pages.h"
+
 namespace dsr {
 namespace {
 
@@ -45,7 +47,8 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
 
   const Eigen::Vector3i n = geometry_.size;
   const int64_t num = geometry_.NumVoxels();
-  std::vector<float> interleaved(4 * num, 0.0f);
+  std::vector<float> interleaved;
+  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
   const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
   const float* v = image.voxels.data();
   for (int k = 0; k < n[2]; ++k) {
@@ -70,7 +73,8 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
 
   interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
 
-  std::vector<uint8_t> valid(num, 0);
+  std::vector<uint8_t> valid;
+  AssignWithHugePages(&valid, static_cast<size_t>(num), uint8_t{0});
   for (int k = 0; k + 1 < n[2]; ++k) {
     for (int j = 0; j + 1 < n[1]; ++j) {
       for (int i = 0; i + 1 < n[0]; ++i) {

@@ -5,6 +5,7 @@
 
 #include <glog/logging.h>
 
+#include "core/huge_pages.h"
 #include "core/parallel.h"
 
 namespace dsr {
@@ -42,7 +43,7 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
   Grid3 out;
   out.size = in.size;
   out.size[axis] = OutputSize(in.size[axis], stride);
-  out.v.assign(static_cast<size_t>(out.size.cast<int64_t>().prod()), 0.0f);
+  AssignWithHugePages(&out.v, static_cast<size_t>(out.size.cast<int64_t>().prod()), 0.0f);
   const int radius = static_cast<int>(kernel.size()) / 2;
   const int n = in.size[axis];
   const int64_t in_stride = axis == 0 ? 1 : axis == 1 ? in.size[0] : int64_t{in.size[0]} * in.size[1];
@@ -92,8 +93,8 @@ void NormalisedSmooth(const Image& image, const Mask& mask, double sigma, int st
   Grid3 im, w;
   im.size = w.size = image.geometry.size;
   const size_t n = image.voxels.size();
-  im.v.resize(n);
-  w.v.resize(n);
+  AssignWithHugePages(&im.v, n, 0.0f);
+  AssignWithHugePages(&w.v, n, 0.0f);
   for (size_t l = 0; l < n; ++l) {
     const float inside = mask.voxels[l] != 0 ? 1.0f : 0.0f;
     im.v[l] = inside * image.voxels[l];

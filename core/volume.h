@@ -14,6 +14,8 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
+#include "core/huge_pages.h"
+
 namespace dsr {
 
 struct ImageGeometry {
@@ -63,8 +65,9 @@ struct Volume {
   std::vector<T> voxels;
 
   Volume() = default;
-  explicit Volume(const ImageGeometry& g, T fill = T{})
-      : geometry(g), voxels(static_cast<size_t>(g.NumVoxels()), fill) {}
+  explicit Volume(const ImageGeometry& g, T fill = T{}) : geometry(g) {
+    AssignWithHugePages(&voxels, static_cast<size_t>(g.NumVoxels()), fill);
+  }
 
   T& at(int i, int j, int k) { return voxels[geometry.LinearIndex(i, j, k)]; }
   const T& at(int i, int j, int k) const {
