@@ -7,7 +7,6 @@
 
 #include <Eigen/Core>
 
-#include "core/parallel.h"
 #include "core/voxel_stream.h"
 #include "dsr_reduced/reduced_cost.h"
 
