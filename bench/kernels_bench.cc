@@ -1,6 +1,6 @@
 // Google Benchmark of the hot kernels on the paper-sized sequence (11 frames of 96x96x80,
 // sigma 25, ground-truth poses, full resolution):
-//   BM_SampleValue / BM_SampleValueAndGradient   one trilinear gather (core/voxel_stream.h)
+//   BM_SampleValueAndGradient                    one trilinear gather (core/voxel_stream.h)
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
@@ -61,8 +61,8 @@ const Problem& Paper() {
   return *p;
 }
 
-template <int kChannels>
-void SampleBench(benchmark::State& state) {
+// One trilinear gather of value and gradient (the portable sampler, as in the stream).
+void BM_SampleValueAndGradient(benchmark::State& state) {
   const Problem& p = Paper();
   const std::vector<PosedFrame> posed = PoseFrames(p.frames, p.poses);
   std::mt19937 rng(1);
@@ -74,15 +74,12 @@ void SampleBench(benchmark::State& state) {
   size_t n = 0;
   for (auto _ : state) {
     const Eigen::Vector3d& x = points[n++ & 4095];
-    if (SampleAt<kChannels>(posed[1], x.data(), out)) sum += out[0];
+    if (SampleAt(posed[1], x.data(), out)) sum += out[0];
     benchmark::DoNotOptimize(sum);
   }
   state.counters["ns_per_sample"] = benchmark::Counter(
       static_cast<double>(state.iterations()), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
-void BM_SampleValue(benchmark::State& state) { SampleBench<1>(state); }
-void BM_SampleValueAndGradient(benchmark::State& state) { SampleBench<4>(state); }
-BENCHMARK(BM_SampleValue);
 BENCHMARK(BM_SampleValueAndGradient);
 
 void SetObservationCounter(benchmark::State& state, int64_t observations) {

@@ -73,8 +73,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
 
   interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
 
-  std::vector<uint8_t> valid;
-  AssignWithHugePages(&valid, static_cast<size_t>(num), uint8_t{0});
+  std::vector<uint8_t> valid(static_cast<size_t>(num / 8 + 2), uint8_t{0});
   for (int k = 0; k + 1 < n[2]; ++k) {
     for (int j = 0; j + 1 < n[1]; ++j) {
       for (int i = 0; i + 1 < n[0]; ++i) {
@@ -83,7 +82,8 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
           all = mask.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) != 0;
         }
         if (all) {
-          valid[geometry_.LinearIndex(i, j, k)] = 1;
+          const int64_t l = geometry_.LinearIndex(i, j, k);
+          valid[l >> 3] |= static_cast<uint8_t>(1u << (l & 7));
           ++num_valid_cells_;
           valid_index_box_.extend(Eigen::Vector3d(i, j, k));
           valid_index_box_.extend(Eigen::Vector3d(i + 1, j + 1, k + 1));
@@ -91,7 +91,7 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
       }
     }
   }
-  valid_cells_ = std::make_shared<const std::vector<uint8_t>>(std::move(valid));
+  valid_bits_ = std::make_shared<const std::vector<uint8_t>>(std::move(valid));
 }
 
 bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {
@@ -102,8 +102,8 @@ bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {
         fk <= n[2] - 2)) {
     return false;
   }
-  return (*valid_cells_)[geometry_.LinearIndex(static_cast<int>(fi), static_cast<int>(fj),
-                                            static_cast<int>(fk))] != 0;
+  return IsValidCell(geometry_.LinearIndex(static_cast<int>(fi), static_cast<int>(fj),
+                                           static_cast<int>(fk)));
 }
 
 bool Frame::SampleAtIndex(const Eigen::Vector3d& ijk,
@@ -164,7 +164,9 @@ double Frame::InterpolateValue(const Eigen::Vector3d& ijk) const {
 }
 
 std::vector<uint8_t> Frame::DilatedValidCells(int margin) const {
-  std::vector<uint8_t> map = *valid_cells_;
+  const int64_t num = geometry_.NumVoxels();
+  std::vector<uint8_t> map(static_cast<size_t>(num));
+  for (int64_t l = 0; l < num; ++l) map[l] = IsValidCell(l) ? 1 : 0;
   if (margin > 0) {
     for (int axis = 0; axis < 3; ++axis) DilateAlongAxis(geometry_.size, axis, margin, &map);
   }

@@ -8,9 +8,10 @@
 // neighbours of u lie inside the frame and inside its field-of-view mask.
 //
 // Memory layout: one interleaved float4 [I, dI/du, dI/dv, dI/dw] per voxel, x-fastest, so
-// one trilinear gather reads value and gradient together; plus one byte per voxel for the
+// one trilinear gather reads value and gradient together; plus one bit per voxel for the
 // valid-cell map (cell (i,j,k) is valid when its 8 corners (i..i+1, j..j+1, k..k+1) are
-// inside the mask). 17 bytes per voxel in all.
+// inside the mask; bit l % 8 of byte l / 8 for linear index l). 16.125 bytes per voxel in
+// all; the bit map (0.8 MB for 6M voxels) stays in cache where a byte map would not.
 #ifndef DSR_CORE_FRAME_H_
 #define DSR_CORE_FRAME_H_
 
@@ -59,17 +60,21 @@ class Frame {
   // Trilinear value without the mask rule, 0 outside the grid: for resampling and display.
   double InterpolateValue(const Eigen::Vector3d& ijk) const;
 
+  // True when the cell at linear index `l` (its lowest corner) is valid.
+  bool IsValidCell(int64_t l) const { return (valid_bits()[l >> 3] >> (l & 7)) & 1; }
+
   // Valid-cell map dilated by `margin` cells (box of half-width `margin`), one byte per
-  // voxel: used to build candidate observations with a margin (core/panorama.h).
+  // voxel: used to build candidate observations with a margin (core/observation.h).
   std::vector<uint8_t> DilatedValidCells(int margin) const;
 
   // Bounding box (continuous index) of the valid cells: [min cell, max cell + 1]; empty
   // when no cell is valid.
   const Eigen::AlignedBox3d& ValidIndexBox() const { return valid_index_box_; }
 
-  // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell map (for fast paths).
+  // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell bit map (see above;
+  // one spare zero byte at the end), for fast paths.
   const float* interleaved() const { return interleaved_ ? interleaved_->data() : nullptr; }
-  const uint8_t* valid_cells() const { return valid_cells_ ? valid_cells_->data() : nullptr; }
+  const uint8_t* valid_bits() const { return valid_bits_ ? valid_bits_->data() : nullptr; }
 
  private:
   ImageGeometry geometry_;
@@ -77,7 +82,7 @@ class Frame {
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
   // Shared and immutable: copying a Frame (e.g. into a two-frame sub-problem) is cheap.
   std::shared_ptr<const std::vector<float>> interleaved_;
-  std::shared_ptr<const std::vector<uint8_t>> valid_cells_;
+  std::shared_ptr<const std::vector<uint8_t>> valid_bits_;
   int64_t num_valid_cells_ = 0;
   Eigen::AlignedBox3d valid_index_box_;
 };

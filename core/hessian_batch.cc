@@ -1,75 +1,96 @@
 #include "core/hessian_batch.h"
 
+#include <cstring>
+
 #include <glog/logging.h>
 
+#include "core/kernels_avx2.h"
+#include "core/voxel_stream.h"
+
 namespace dsr {
+namespace internal {
 
-HessianBatcher::HessianBatcher(double* h, int n) : h_(h), n_(n) {}
-
-void HessianBatcher::Add(int k,
-                         const int* frame,
-                         const double (*jac)[6],
-                         const HessianWeights& weights) {
-  DCHECK_GE(k, 1);
-  uint32_t observers = 0;
-  for (int a = 0; a < k; ++a) observers |= 1u << frame[a];
-  ++clock_;
-  Slot* slot = nullptr;
-  for (Slot& s : slots_) {
-    if (s.observers == observers) {
-      slot = &s;
-      break;
-    }
-  }
-  if (slot == nullptr) {  // open a batch for this observer set: a free slot, else the LRU
-    slot = &slots_[0];
-    for (Slot& s : slots_) {
-      if (s.observers == 0) {
-        slot = &s;
-        break;
-      }
-      if (s.last_use < slot->last_use) slot = &s;
-    }
-    if (slot->observers != 0) FlushSlot(slot);
-    slot->observers = observers;
-    slot->k = k;
-    slot->weights = weights;
-    for (int a = 0; a < k; ++a) slot->frame[a] = frame[a];
-    if (slot->stacked.cols() != 6 * k) slot->stacked.resize(kRows, 6 * k);
-  }
-  slot->last_use = clock_;
-  double* column = slot->stacked.data() + slot->rows;  // column-major: stride kRows
+void AddGroupHessianPortable(const double (*jac)[8],
+                             const int* first,
+                             int num_rows,
+                             int k,
+                             const int* frame,
+                             const HessianWeights& weights,
+                             double* h,
+                             int n) {
   for (int a = 0; a < k; ++a) {
-    for (int i = 0; i < 6; ++i) column[(6 * a + i) * kRows] = jac[a][i];
-  }
-  if (++slot->rows == kRows) FlushSlot(slot);
-}
-
-void HessianBatcher::FlushSlot(Slot* slot) {
-  if (slot->rows > 0) {
-    const int k = slot->k, size = 6 * k;
-    product_.setZero(size, size);
-    product_.selfadjointView<Eigen::Upper>().rankUpdate(
-        slot->stacked.topRows(slot->rows).transpose());
-    for (int a = 0; a < k; ++a) {
-      const int fa = slot->frame[a];
-      for (int b = a; b < k; ++b) {
-        const int fb = slot->frame[b];
-        const double scale = slot->weights.shared + (a == b ? slot->weights.diagonal : 0.0);
+    for (int b = a; b < k; ++b) {
+      double sum[6][6] = {};
+      for (int r = 0; r < num_rows; ++r) {
+        const double* ja = jac[first[r] + a];
+        const double* jb = jac[first[r] + b];
         for (int i = 0; i < 6; ++i) {
-          double* row = h_ + static_cast<int64_t>(6 * fa + i) * n_ + 6 * fb;
-          // Diagonal blocks: on and above their diagonal only (P's lower part is unset).
-          for (int j = a == b ? i : 0; j < 6; ++j) row[j] += scale * product_(6 * a + i, 6 * b + j);
+          const double x = ja[JacobianLane(i)];
+          for (int j = 0; j < 6; ++j) sum[i][j] += x * jb[JacobianLane(j)];
         }
       }
+      const double scale = weights.shared + (a == b ? weights.diagonal : 0.0);
+      for (int i = 0; i < 6; ++i) {
+        double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
+        for (int j = 0; j < 6; ++j) row[j] += scale * sum[i][j];
+      }
     }
   }
-  slot->rows = 0;
-  slot->observers = 0;
 }
 
-void HessianBatcher::Flush() {
-  for (Slot& s : slots_) FlushSlot(&s);
+}  // namespace internal
+
+void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, double* h, int n) {
+  // Group the voxels by observer set: an open-addressing table (more slots than voxels),
+  // groups numbered in order of first appearance, then a counting sort of the voxels.
+  constexpr int kTableSize = 2 * VoxelBatch::kMaxVoxels;
+  static_assert((kTableSize & (kTableSize - 1)) == 0, "power of two");
+  int16_t slot_group[kTableSize];
+  uint32_t slot_key[kTableSize];
+  std::memset(slot_group, 0xff, sizeof(slot_group));  // -1: empty
+  uint32_t group_key[VoxelBatch::kMaxVoxels];
+  int group_size[VoxelBatch::kMaxVoxels];
+  int16_t voxel_group[VoxelBatch::kMaxVoxels];
+  int num_groups = 0;
+  for (int t = 0; t < batch.num_voxels; ++t) {
+    const uint32_t key = batch.observers[t];
+    uint32_t s = (key * 2654435761u) >> 22;  // top 10 bits: kTableSize = 1024
+    while (slot_group[s] >= 0 && slot_key[s] != key) s = (s + 1) & (kTableSize - 1);
+    if (slot_group[s] < 0) {
+      slot_group[s] = static_cast<int16_t>(num_groups);
+      slot_key[s] = key;
+      group_key[num_groups] = key;
+      group_size[num_groups] = 0;
+      ++num_groups;
+    }
+    voxel_group[t] = slot_group[s];
+    ++group_size[slot_group[s]];
+  }
+  static_assert(kTableSize == 1 << 10, "hash uses the top 10 bits");
+  int group_start[VoxelBatch::kMaxVoxels + 1];
+  group_start[0] = 0;
+  for (int g = 0; g < num_groups; ++g) group_start[g + 1] = group_start[g] + group_size[g];
+  int fill[VoxelBatch::kMaxVoxels];
+  for (int g = 0; g < num_groups; ++g) fill[g] = group_start[g];
+  int rows[VoxelBatch::kMaxVoxels];  // first observation of each voxel, grouped
+  for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.begin[t];
+
+  const bool avx2 = ActiveKernelPath() == KernelPath::kAvx2;
+  for (int g = 0; g < num_groups; ++g) {
+    int frame[kMaxFrames];
+    int k = 0;
+    for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
+    DCHECK_GE(k, 2);
+    const int* first = rows + group_start[g];
+    const int num_rows = group_size[g];
+#ifdef DSR_HAVE_AVX2_KERNELS
+    if (avx2) {
+      internal::AddGroupHessianAvx2(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+      continue;
+    }
+#endif
+    internal::AddGroupHessianPortable(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+  }
 }
 
 }  // namespace dsr

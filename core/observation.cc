@@ -36,18 +36,13 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
   CandidateSet out;
   out.grid = grid;
   out.num_frames = m;
-  // Cells within the margin of each frame's valid region (margin 0: the valid map itself).
+  // Cells within the margin of each frame's valid region: the valid-cell bits themselves
+  // (margin 0), else a dilated byte map.
   std::vector<std::vector<uint8_t>> dilated(m);
-  std::vector<const uint8_t*> near(m);
   std::vector<Eigen::Matrix3d> a(m);  // index_i = a p_j + b
   std::vector<Eigen::Vector3d> b(m);
   for (int i = 0; i < m; ++i) {
-    if (margin_cells > 0) {
-      dilated[i] = frames[i].DilatedValidCells(margin_cells);
-      near[i] = dilated[i].data();
-    } else {
-      near[i] = frames[i].valid_cells();
-    }
+    if (margin_cells > 0) dilated[i] = frames[i].DilatedValidCells(margin_cells);
     const Eigen::Matrix3d index_from_physical = frames[i].index_from_physical();
     a[i] = index_from_physical * frame_from_world[i].linear();
     b[i] = index_from_physical *
@@ -56,32 +51,59 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
   const Eigen::Vector3i n = grid.size;
   const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
   // Slices in parallel, each into its own lists, concatenated in slice order (the result
-  // does not depend on the thread count).
+  // does not depend on the thread count). Along a panorama row the continuous index in
+  // frame f is u(i) = u(0) + i * step_f; each frame only visits the i whose cell can lie
+  // within the margin of its grid (a conservative clip of that line), then tests its map.
   std::vector<std::vector<int64_t>> slice_voxels(n[2]);
   std::vector<std::vector<uint32_t>> slice_observers(n[2]);
   ParallelFor(0, n[2], 0, [&](int64_t k) {
+    std::vector<uint32_t> row(n[0]);
     for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        const Eigen::Vector3d p = grid.origin_mm + to_world * Eigen::Vector3d(i, j, k);
-        uint32_t bits = 0;
-        for (int f = 0; f < m; ++f) {
-          const Eigen::Vector3d u = a[f] * p + b[f];
-          const Eigen::Vector3i& fs = frames[f].geometry().size;
-          // Cell containing u, clamped into the grid when within the margin outside it.
-          int c[3];
-          bool inside = true;
-          for (int ax = 0; ax < 3 && inside; ++ax) {
-            const double fl = std::floor(u[ax]);
-            if (!(fl >= -margin_cells && fl <= fs[ax] - 2 + margin_cells)) inside = false;
-            c[ax] = static_cast<int>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
+      std::fill(row.begin(), row.end(), 0u);
+      const Eigen::Vector3d p0 = grid.origin_mm + to_world * Eigen::Vector3d(0, j, k);
+      for (int f = 0; f < m; ++f) {
+        const Eigen::Vector3i& fs = frames[f].geometry().size;
+        const Eigen::Vector3d u0 = a[f] * p0 + b[f];
+        const Eigen::Vector3d step = a[f] * to_world.col(0);
+        // i range where every axis stays within [-margin - 1, n - 1 + margin] (one cell
+        // of slack on each side; the exact test follows).
+        double lo = 0.0, hi = n[0] - 1.0;
+        for (int ax = 0; ax < 3 && lo <= hi; ++ax) {
+          const double low = -margin_cells - 1.0, high = fs[ax] - 1.0 + margin_cells;
+          if (step[ax] == 0.0) {
+            if (!(u0[ax] >= low && u0[ax] <= high)) lo = hi + 1.0;
+            continue;
           }
-          if (inside && near[f][frames[f].geometry().LinearIndex(c[0], c[1], c[2])]) {
-            bits |= 1u << f;
-          }
+          double t0 = (low - u0[ax]) / step[ax], t1 = (high - u0[ax]) / step[ax];
+          if (t0 > t1) std::swap(t0, t1);
+          lo = std::max(lo, std::floor(t0));
+          hi = std::min(hi, std::ceil(t1));
         }
-        if (__builtin_popcount(bits) >= 2) {
+        if (!(lo <= hi)) continue;  // also false for NaN
+        const uint32_t bit = 1u << f;
+        const Frame& frame = frames[f];
+        const uint8_t* near = margin_cells > 0 ? dilated[f].data() : nullptr;
+        const int64_t sy = fs[0], sz = int64_t{fs[0]} * fs[1];
+        for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
+          // Cell containing u, clamped into the grid when within the margin outside it.
+          int64_t cell = 0;
+          bool inside = true;
+          for (int ax = 0; ax < 3; ++ax) {
+            const double fl = std::floor(u0[ax] + i * step[ax]);
+            if (!(fl >= -margin_cells && fl <= fs[ax] - 2 + margin_cells)) {
+              inside = false;
+              break;
+            }
+            const int64_t c = static_cast<int64_t>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
+            cell += c * (ax == 0 ? 1 : (ax == 1 ? sy : sz));
+          }
+          if (inside && (near != nullptr ? near[cell] != 0 : frame.IsValidCell(cell))) row[i] |= bit;
+        }
+      }
+      for (int i = 0; i < n[0]; ++i) {
+        if (__builtin_popcount(row[i]) >= 2) {
           slice_voxels[k].push_back(grid.LinearIndex(i, j, static_cast<int>(k)));
-          slice_observers[k].push_back(bits);
+          slice_observers[k].push_back(row[i]);
         }
       }
     }

@@ -76,10 +76,9 @@ Image ResampleOntoGrid(const Frame& frame,
 Volume<float> ValidCellDistance(const Frame& frame) {
   const ImageGeometry& g = frame.geometry();
   Volume<float> d(g, 0.0f);
-  const uint8_t* valid = frame.valid_cells();
   const int nx = g.size[0], ny = g.size[1], nz = g.size[2];
   constexpr float kFar = 1e9f;
-  for (int64_t l = 0; l < g.NumVoxels(); ++l) d.voxels[l] = valid[l] ? kFar : 0.0f;
+  for (int64_t l = 0; l < g.NumVoxels(); ++l) d.voxels[l] = frame.IsValidCell(l) ? kFar : 0.0f;
   // Two chamfer passes with unit 6-neighbour steps give the exact city-block distance;
   // voxels on the grid border have an outside neighbour (distance 1 at most).
   auto at = [&](int i, int j, int k) -> float {

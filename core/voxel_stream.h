@@ -6,11 +6,19 @@
 // and gradient in one trilinear gather of the interleaved frame data), keeps those with
 // sigma_ij = 1, and, when at least two frames observe the voxel, builds their Jacobians
 // J_ij and hands them to a per-voxel term that adds its cost, gradient and Gauss-Newton
-// matrix to an accumulator. Nothing per observation is stored.
+// matrix to an accumulator. Nothing per observation is kept beyond a batch of a few
+// hundred voxels.
+//
+// Work is done in batches (VoxelBatch): the sampler fills one with the observations of
+// consecutive candidate voxels, the term consumes them voxel by voxel, and for terms whose
+// Gauss-Newton matrix has the per-voxel form (delta_ab d + s) J_a^T J_b the stream adds it
+// for the whole batch at once, voxels with the same observers together
+// (core/hessian_batch.h). The sampler and that kernel have two implementations: AVX2+FMA
+// where the CPU has both, and a portable one (the twin tests compare with; KernelPath).
 //
 // Determinism: a voxel range is split into a fixed number of blocks (independent of the
 // thread count), each block accumulated on its own and the blocks summed in order, so the
-// result is bit-identical for any number of threads.
+// result is bit-identical for any number of threads (for a given kernel path).
 //
 // The slow, obviously-correct twin of the sampling is ObserveSample (core/observation.h);
 // tests compare the two through the per-voxel reference costs.
@@ -18,8 +26,8 @@
 #define DSR_CORE_VOXEL_STREAM_H_
 
 #include <algorithm>
-#include <cmath>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include <Eigen/Core>
@@ -48,75 +56,82 @@ struct NormalEquations {
   std::vector<int64_t> frame_observations;
 };
 
-// A frame's pose folded into its index map (u = a p + b), with the raw sampler data, so
-// that the hot loop samples without calls: one validity byte and one gather of 8 float4
-// [I, gu, gv, gw] per observation. Same arithmetic as Frame::SampleAtIndex up to the
-// order of additions.
+// A frame's pose folded into its index map (u = A p + b), with the raw sampler data, so
+// that the hot loop samples without calls: one validity bit and one gather of 8 float4
+// [I, gu, gv, gw] per observation. Vectors are stored as 4 lanes (x, y, z, 0) so that the
+// AVX2 path loads them whole.
 struct PosedFrame {
-  const float* data;           // interleaved float4 per voxel
-  const uint8_t* valid;        // valid-cell map
-  double max_cell[3];          // n - 2 per axis (last valid cell index)
+  const float* data;           // interleaved float4 per voxel (core/frame.h)
+  const uint8_t* valid_bits;   // valid-cell bit map (core/frame.h)
   int64_t stride_y, stride_z;  // in voxels
-  double a[9], b[3];           // u = a p + b (row-major a)
-  double r[9], t[3];           // p_ij = r p + t
-  double g[9];                 // gradient_to_physical, row-major
+  double a[4][4];              // columns of A, then b: u = A p + b (index units)
+  double max_cell[4];          // n - 2 per axis (last valid cell index), 0 in lane 3
+  double r[4][4];              // columns of R, then t: p_ij = R p + t (frame mm)
+  double g[3][4];              // columns of (D S)^-T: index gradient -> physical gradient
 };
 
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world);
 
-// Samples frame `f` at world point p: false when sigma = 0. kChannels is 1 (value) or 4
-// (value and index-space gradient); out[0..kChannels) receives them.
-template <int kChannels>
-inline bool SampleAt(const PosedFrame& f, const double p[3], double* out) {
-  double u[3];
-  for (int d = 0; d < 3; ++d) {
-    u[d] = f.a[3 * d] * p[0] + f.a[3 * d + 1] * p[1] + f.a[3 * d + 2] * p[2] + f.b[d];
-  }
-  const double fx = std::floor(u[0]), fy = std::floor(u[1]), fz = std::floor(u[2]);
-  // As doubles first, so that huge or NaN coordinates never overflow an int.
-  if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0 && fx <= f.max_cell[0] && fy <= f.max_cell[1] &&
-        fz <= f.max_cell[2])) {
-    return false;
-  }
-  const int64_t cell = static_cast<int64_t>(fx) + f.stride_y * static_cast<int64_t>(fy) +
-                       f.stride_z * static_cast<int64_t>(fz);
-  if (f.valid[cell] == 0) return false;
-  const double wx = u[0] - fx, wy = u[1] - fy, wz = u[2] - fz;
-  const double w[8] = {(1 - wx) * (1 - wy) * (1 - wz), wx * (1 - wy) * (1 - wz),
-                       (1 - wx) * wy * (1 - wz),       wx * wy * (1 - wz),
-                       (1 - wx) * (1 - wy) * wz,       wx * (1 - wy) * wz,
-                       (1 - wx) * wy * wz,             wx * wy * wz};
-  const float* c = f.data + 4 * cell;
-  const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;
-  const float* corner[8] = {c, c + 4, c + sy, c + sy + 4, c + sz, c + sz + 4, c + sz + sy,
-                            c + sz + sy + 4};
-  double acc[kChannels] = {};
-  for (int k = 0; k < 8; ++k) {
-    for (int q = 0; q < kChannels; ++q) acc[q] += w[k] * corner[k][q];
-  }
-  for (int q = 0; q < kChannels; ++q) out[q] = acc[q];
-  return true;
-}
+// Which implementation of the sampler and of the batched Gauss-Newton kernel runs.
+// kAvx2 is the default where the CPU has AVX2 and FMA (checked at run time; the rest of
+// the build stays baseline x86-64); kPortable is plain C++, the twin tests compare with.
+// Both evaluate the same formulas; results agree to rounding (about 1e-15 relative).
+enum class KernelPath { kPortable, kAvx2 };
+bool KernelPathAvailable(KernelPath path);
+KernelPath ActiveKernelPath();
+// For tests and benchmarks; CHECKs that `path` is available. Not thread-safe: call it
+// while no stream runs.
+void SetKernelPath(KernelPath path);
+const char* KernelPathName(KernelPath path);
 
-// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p.
-inline void ObservationJacobian(const PosedFrame& pf, const double p[3], const double gu[3], double jac[6]) {
-  double gm[3], q[3];
-  for (int d = 0; d < 3; ++d) {
-    gm[d] = pf.g[3 * d] * gu[0] + pf.g[3 * d + 1] * gu[1] + pf.g[3 * d + 2] * gu[2];
-    q[d] = pf.r[3 * d] * p[0] + pf.r[3 * d + 1] * p[1] + pf.r[3 * d + 2] * p[2] + pf.t[d];
-  }
-  // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T)
-  jac[0] = gm[0];
-  jac[1] = gm[1];
-  jac[2] = gm[2];
-  jac[3] = q[1] * gm[2] - q[2] * gm[1];
-  jac[4] = q[2] * gm[0] - q[0] * gm[2];
-  jac[5] = q[0] * gm[1] - q[1] * gm[0];
-}
+// Padded Jacobian layout: J_ij = [d/d rho (3), 0, d/d phi (3), 0] (two 4-lane vectors).
+constexpr int kJacobianLanes = 8;
+// Lane of tangent coordinate t (0..5, [rho; phi]) in a padded Jacobian.
+constexpr int JacobianLane(int t) { return t < 3 ? t : t + 1; }
 
-// Per-block accumulator: H (row-major, n x n; terms fill at least the upper block
-// triangle, see StreamNormalEquations), g, cost.
+// Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
+// else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
+bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
+// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] (padded) from an index-space gradient `gu` at
+// world p, portable.
+void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[8]);
+
+// The observations of consecutive candidate voxels with at least two observers. Voxel t
+// has k_t = begin[t + 1] - begin[t] observations, in increasing frame order.
+struct VoxelBatch {
+  static constexpr int kMaxObservations = 2048;
+  static constexpr int kMaxVoxels = 512;
+  int num_voxels = 0;
+  int num_observations = 0;
+  int begin[kMaxVoxels + 1];
+  uint32_t observers[kMaxVoxels];  // bit f: frame f observes voxel t (sigma = 1)
+  int frame[kMaxObservations];
+  double value[kMaxObservations];
+  alignas(64) double jac[kMaxObservations][kJacobianLanes];  // only with Jacobians
+};
+
+// Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
+// or when the batch is full) that at least two frames observe at `posed`; Jacobians only
+// when `with_jacobian`. Returns the first voxel not consumed. Uses ActiveKernelPath().
+int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
+                         const CandidateSet& candidates,
+                         int64_t v,
+                         int64_t end,
+                         bool with_jacobian,
+                         VoxelBatch* batch);
+
+// The observers of one voxel, as the stream hands them to a term: k >= 2 frames
+// `frame[a]` with value `value[a]` and, when Jacobians are wanted, padded J in `jac[a]`.
+struct VoxelObservations {
+  int k = 0;
+  const int* frame = nullptr;
+  const double* value = nullptr;
+  const double (*jac)[kJacobianLanes] = nullptr;
+};
+
+// Per-block accumulator: H (row-major, n x n with n = 6m; terms fill at least the upper
+// block triangle, see StreamNormalEquations), g (n), cost.
 struct VoxelAccumulator {
   int n = 0;
   std::vector<double> hessian, gradient;
@@ -126,17 +141,18 @@ struct VoxelAccumulator {
   int64_t frame_observations[kMaxFrames] = {};
 };
 
-// The observers of one voxel, as the stream hands them to a term: k >= 2 frames
-// `frame[a]` with value `value[a]` and, when Jacobians are wanted, J in `jac[a]`.
-struct VoxelObservations {
-  int k = 0;
-  int frame[kMaxFrames];
-  double value[kMaxFrames];
-  double jac[kMaxFrames][6];
-};
+// g_a += s J_a (padded J, 6 tangent entries of frame fa).
+inline void AddGradient(double* g, int fa, const double* ja, double s) {
+  for (int t = 0; t < 6; ++t) g[6 * fa + t] += s * ja[JacobianLane(t)];
+}
 
-// Adds J_a^T s J_b to the (frame fa, frame fb) block of a row-major n x n matrix; only the
-// upper triangle of the block when fa == fb.
+// The 6 tangent entries of a padded Jacobian.
+inline void CompactJacobian(const double* j8, double* j6) {
+  for (int t = 0; t < 6; ++t) j6[t] = j8[JacobianLane(t)];
+}
+
+// Adds J_a^T s J_b (6 entries each) to the (frame fa, frame fb) block of a row-major
+// n x n matrix; only the upper triangle of the block when fa == fb.
 inline void AddOuter(double* h, int n, int fa, int fb, const double* ja, const double* jb, double s) {
   if (fa == fb) {
     for (int i = 0; i < 6; ++i) {
@@ -165,47 +181,26 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
                  int64_t b1,
                  bool with_jacobian,
                  const Term& term,
+                 VoxelBatch* batch,
                  VoxelAccumulator* acc) {
-  const ImageGeometry& grid = candidates.grid;
-  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
-  double m[9];
-  const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 3; ++c) m[3 * r + c] = to_world(r, c);
-  const double o[3] = {grid.origin_mm[0], grid.origin_mm[1], grid.origin_mm[2]};
-  VoxelObservations obs;
-  double sample[kMaxFrames][4];
   const bool batched = with_jacobian && term.batched_hessian;
-  HessianBatcher batcher(batched ? acc->hessian.data() : nullptr, acc->n);
-  for (int64_t v = b0; v < b1; ++v) {
-    const int64_t l = candidates.voxel[v];
-    const double ijk[3] = {static_cast<double>(l % nx), static_cast<double>((l % nxy) / nx),
-                           static_cast<double>(l / nxy)};
-    double p[3];
-    for (int r = 0; r < 3; ++r) {
-      p[r] = o[r] + m[3 * r] * ijk[0] + m[3 * r + 1] * ijk[1] + m[3 * r + 2] * ijk[2];
-    }
-    // Sample every candidate (value and gradient in one gather); Jacobians only when at
-    // least two observe the voxel.
-    int k = 0;
-    for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
-      const int f = __builtin_ctz(bits);
-      const bool observed = with_jacobian ? SampleAt<4>(posed[f], p, sample[k])
-                                          : SampleAt<1>(posed[f], p, sample[k]);
-      if (observed) obs.frame[k++] = f;
-    }
-    if (k < 2) continue;
-    obs.k = k;
-    for (int a = 0; a < k; ++a) obs.value[a] = sample[a][0];
-    if (with_jacobian) {
-      for (int a = 0; a < k; ++a) {
-        ObservationJacobian(posed[obs.frame[a]], p, &sample[a][1], obs.jac[a]);
-      }
-    }
-    term(obs, with_jacobian, acc);
-    if (batched) batcher.Add(k, obs.frame, obs.jac, term.Weights(k));
+  HessianWeights weights[kMaxFrames + 1];
+  if (batched) {
+    for (int k = 2; k <= kMaxFrames; ++k) weights[k] = term.Weights(k);
   }
-  if (batched) batcher.Flush();
+  for (int64_t v = b0; v < b1;) {
+    v = SampleVoxelBatch(posed, candidates, v, b1, with_jacobian, batch);
+    for (int t = 0; t < batch->num_voxels; ++t) {
+      VoxelObservations obs;
+      const int first = batch->begin[t];
+      obs.k = batch->begin[t + 1] - first;
+      obs.frame = batch->frame + first;
+      obs.value = batch->value + first;
+      obs.jac = batch->jac + first;
+      term(obs, with_jacobian, acc);
+    }
+    if (batched) AddBatchHessian(*batch, weights, acc->hessian.data(), acc->n);
+  }
 }
 
 }  // namespace internal
@@ -219,7 +214,8 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
 // only cost and observations are filled.
 // The term also has `bool batched_hessian` and `HessianWeights Weights(int k)`: when
 // batched_hessian is true, the term adds no Gauss-Newton terms itself and the stream adds
-// H_ab += (delta_ab * diagonal + shared) J_a^T J_b for it in batches (core/hessian_batch.h).
+// H_ab += (delta_ab * diagonal + shared) J_a^T J_b for it, a batch at a time
+// (core/hessian_batch.h).
 template <class Term>
 void StreamNormalEquations(const std::vector<Frame>& frames,
                            const CandidateSet& candidates,
@@ -248,7 +244,8 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
       acc.gradient.assign(n, 0.0);
     }
     const int64_t b0 = begin + block * block_size, b1 = std::min(end, b0 + block_size);
-    internal::StreamBlock(posed, candidates, b0, b1, with_jacobian, term, &acc);
+    const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
+    internal::StreamBlock(posed, candidates, b0, b1, with_jacobian, term, batch.get(), &acc);
   });
   *out = NormalEquations();
   if (with_jacobian) {

@@ -43,11 +43,16 @@ struct DsrVoxelTerm {
       const int fa = obs.frame[a];
       acc->frame_cost[fa] += r * r;
       ++acc->frame_observations[fa];
-      const double* ja = obs.jac[a];
-      for (int i = 0; i < 6; ++i) g[6 * fa + i] += ja[i] * r;
+      AddGradient(g, fa, obs.jac[a], r);
       if (batched_hessian) continue;
+      double ja[6];
+      CompactJacobian(obs.jac[a], ja);
       AddOuter(h, n, fa, fa, ja, ja, 1.0 - inv_k);
-      for (int b = a + 1; b < k; ++b) AddOuter(h, n, fa, obs.frame[b], ja, obs.jac[b], -inv_k);
+      for (int b = a + 1; b < k; ++b) {
+        double jb[6];
+        CompactJacobian(obs.jac[b], jb);
+        AddOuter(h, n, fa, obs.frame[b], ja, jb, -inv_k);
+      }
     }
   }
 };

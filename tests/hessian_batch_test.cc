@@ -1,8 +1,11 @@
-// HessianBatcher (core/hessian_batch.h) against the voxel-by-voxel AddOuter twin, on random
-// Jacobians and observer sets: more distinct sets than open batches (evictions), batches
-// that fill up, and partial batches at the final flush.
+// AddBatchHessian (core/hessian_batch.h) against the voxel-by-voxel AddOuter twin, on
+// random Jacobians and observer sets, for every kernel path this CPU has: a batch with
+// one voxel, batches with one observer set, with many interleaved sets, and with the
+// largest frame count.
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <memory>
 #include <random>
 #include <vector>
 
@@ -15,9 +18,26 @@ namespace {
 // Same products summed in another order: agreement to rounding.
 constexpr double kRelativeTolerance = 1e-12;
 
-// Runs `num_voxels` random voxels through both paths; observer sets are drawn from
-// `num_sets` random sets of at least two of `m` frames, in runs of random length.
-void CompareOnRandomVoxels(int m, int num_sets, int num_voxels, uint64_t seed) {
+// Restores the kernel path a test changed.
+class KernelPathScope {
+ public:
+  explicit KernelPathScope(KernelPath path) : saved_(ActiveKernelPath()) { SetKernelPath(path); }
+  ~KernelPathScope() { SetKernelPath(saved_); }
+
+ private:
+  KernelPath saved_;
+};
+
+std::vector<KernelPath> AvailablePaths() {
+  std::vector<KernelPath> paths = {KernelPath::kPortable};
+  if (KernelPathAvailable(KernelPath::kAvx2)) paths.push_back(KernelPath::kAvx2);
+  return paths;
+}
+
+// Fills a batch with `num_voxels` random voxels whose observer sets are drawn from
+// `num_sets` random sets of at least two of `m` frames, in runs of random length; DSR's
+// weights.
+void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBatch* batch) {
   std::mt19937_64 rng(seed);
   std::normal_distribution<double> n01;
   std::vector<uint32_t> sets;
@@ -25,52 +45,73 @@ void CompareOnRandomVoxels(int m, int num_sets, int num_voxels, uint64_t seed) {
     const uint32_t bits = static_cast<uint32_t>(rng()) & ((m == 32 ? 0u : 1u << m) - 1u);
     if (__builtin_popcount(bits) >= 2) sets.push_back(bits);
   }
-  const int n = 6 * m;
-  std::vector<double> batched_h(n * n, 0.0), twin_h(n * n, 0.0);
-  HessianBatcher batcher(batched_h.data(), n);
+  batch->num_voxels = 0;
+  batch->num_observations = 0;
+  batch->begin[0] = 0;
   uint32_t bits = sets[0];
   for (int v = 0; v < num_voxels; ++v) {
     if (rng() % 7 == 0) bits = sets[rng() % sets.size()];  // runs of voxels share a set
-    int frame[kMaxFrames];
-    double jac[kMaxFrames][6];
-    int k = 0;
-    for (uint32_t b = bits; b != 0; b &= b - 1) frame[k++] = __builtin_ctz(b);
-    for (int a = 0; a < k; ++a) {
-      for (int i = 0; i < 6; ++i) jac[a][i] = n01(rng);
+    ASSERT_LE(batch->num_observations + __builtin_popcount(bits), VoxelBatch::kMaxObservations);
+    for (uint32_t b = bits; b != 0; b &= b - 1) {
+      const int o = batch->num_observations++;
+      batch->frame[o] = __builtin_ctz(b);
+      for (int lane = 0; lane < kJacobianLanes; ++lane) {
+        batch->jac[o][lane] = lane == 3 || lane == 7 ? 0.0 : n01(rng);
+      }
     }
-    const HessianWeights w{1.0, -1.0 / k};  // DSR's form
-    batcher.Add(k, frame, jac, w);
+    batch->observers[batch->num_voxels] = bits;
+    batch->begin[++batch->num_voxels] = batch->num_observations;
+  }
+}
+
+void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
+  const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
+  FillRandomBatch(m, num_sets, num_voxels, seed, batch.get());
+  HessianWeights weights[kMaxFrames + 1];
+  for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};  // DSR's form
+  const int n = 6 * m;
+  std::vector<double> twin(n * n, 0.0);
+  for (int t = 0; t < batch->num_voxels; ++t) {
+    const int first = batch->begin[t], k = batch->begin[t + 1] - first;
+    const HessianWeights& w = weights[k];
+    double jac[kMaxFrames][6];
+    for (int a = 0; a < k; ++a) CompactJacobian(batch->jac[first + a], jac[a]);
     for (int a = 0; a < k; ++a) {
-      AddOuter(twin_h.data(), n, frame[a], frame[a], jac[a], jac[a], w.diagonal + w.shared);
+      AddOuter(twin.data(), n, batch->frame[first + a], batch->frame[first + a], jac[a], jac[a],
+               w.diagonal + w.shared);
       for (int b = a + 1; b < k; ++b) {
-        AddOuter(twin_h.data(), n, frame[a], frame[b], jac[a], jac[b], w.shared);
+        AddOuter(twin.data(), n, batch->frame[first + a], batch->frame[first + b], jac[a], jac[b],
+                 w.shared);
       }
     }
   }
-  batcher.Flush();
-  // Compare the upper triangle (what the stream reads).
-  double diff = 0.0, norm = 0.0;
-  for (int r = 0; r < n; ++r) {
-    for (int c = r; c < n; ++c) {
-      diff += (batched_h[r * n + c] - twin_h[r * n + c]) * (batched_h[r * n + c] - twin_h[r * n + c]);
-      norm += twin_h[r * n + c] * twin_h[r * n + c];
+  for (KernelPath path : AvailablePaths()) {
+    KernelPathScope scope(path);
+    std::vector<double> batched(n * n, 0.0);
+    AddBatchHessian(*batch, weights, batched.data(), n);
+    // Compare the upper triangle (what the stream reads).
+    double diff = 0.0, norm = 0.0;
+    for (int r = 0; r < n; ++r) {
+      for (int c = r; c < n; ++c) {
+        diff += (batched[r * n + c] - twin[r * n + c]) * (batched[r * n + c] - twin[r * n + c]);
+        norm += twin[r * n + c] * twin[r * n + c];
+      }
     }
+    ASSERT_GT(norm, 0.0);
+    EXPECT_LT(std::sqrt(diff / norm), kRelativeTolerance)
+        << KernelPathName(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
   }
-  ASSERT_GT(norm, 0.0);
-  EXPECT_LT(std::sqrt(diff / norm), kRelativeTolerance)
-      << "m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
 }
 
-TEST(HessianBatcher, MatchesVoxelByVoxelAccumulation) {
-  CompareOnRandomVoxels(3, 2, 5, 1);  // fewer voxels than a batch: only the final flush
-  CompareOnRandomVoxels(4, 3, 1000, 2);
-  CompareOnRandomVoxels(11, 40, 20000, 3);  // far more sets than open batches
-  CompareOnRandomVoxels(32, 12, 3000, 4);   // the largest frame count
+TEST(AddBatchHessian, MatchesVoxelByVoxelAccumulation) {
+  CompareWithTwin(3, 2, 1, 1);     // one voxel
+  CompareWithTwin(4, 3, 200, 2);
+  CompareWithTwin(11, 40, 250, 3);  // many interleaved sets
+  CompareWithTwin(32, 12, 60, 4);   // the largest frame count
 }
 
-TEST(HessianBatcher, OneObserverSetFillsWholeBatches) {
-  // Exactly 3 full batches of one set: every flush is a full one.
-  CompareOnRandomVoxels(5, 1, 3 * HessianBatcher::kRows, 5);
+TEST(AddBatchHessian, OneObserverSetIsOneGroup) {
+  CompareWithTwin(5, 1, VoxelBatch::kMaxVoxels, 5);  // a full batch of one set
 }
 
 }  // namespace

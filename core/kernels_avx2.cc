@@ -1,0 +1,180 @@
+// AVX2 + FMA kernels (see core/kernels_avx2.h): the same formulas as the portable sampler
+// (core/voxel_stream.cc) and group kernel (core/hessian_batch.cc), four lanes at a time.
+//
+// Sampling one observation: u = A p + b as one 4-lane vector (x, y, z, 0); the 8 corners
+// of the trilinear cell are 4 rows of two neighbouring float4 [I, gu, gv, gw] (32 bytes
+// each), converted to double and blended with the x weights, then the rows with the y and
+// z weights: the value and the index-space gradient come out together in one register.
+// The Jacobian: grad = G gu and p_ij = R p + t as 4-lane vectors, p_ij x grad by lane
+// permutes.
+#include "core/kernels_avx2.h"
+
+#include "core/voxel_stream.h"
+
+#ifdef DSR_HAVE_AVX2_KERNELS
+#include <immintrin.h>
+
+#define DSR_TARGET_AVX2 __attribute__((target("avx2,fma")))
+
+namespace dsr {
+namespace internal {
+
+bool CpuHasAvx2Fma() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+}
+
+namespace {
+
+struct Point {
+  __m256d x, y, z;  // p_j, each coordinate broadcast
+};
+
+DSR_TARGET_AVX2 inline Point MakePoint(const double p[3]) {
+  return {_mm256_set1_pd(p[0]), _mm256_set1_pd(p[1]), _mm256_set1_pd(p[2])};
+}
+
+// cols[0] p.x + cols[1] p.y + cols[2] p.z + cols[3] (lane 3 stays 0).
+DSR_TARGET_AVX2 inline __m256d Affine(const double (*cols)[4], const Point& p) {
+  return _mm256_fmadd_pd(
+      _mm256_loadu_pd(cols[0]), p.x,
+      _mm256_fmadd_pd(_mm256_loadu_pd(cols[1]), p.y,
+                      _mm256_fmadd_pd(_mm256_loadu_pd(cols[2]), p.z, _mm256_loadu_pd(cols[3]))));
+}
+
+// Lowest corner of the cell of u and its linear index; false when the cell is outside
+// the grid (or u is not finite: the comparisons are ordered).
+DSR_TARGET_AVX2 inline bool CellOf(const PosedFrame& f, __m256d u, __m256d* fl, int64_t* cell) {
+  *fl = _mm256_floor_pd(u);
+  const __m256d inside = _mm256_and_pd(_mm256_cmp_pd(*fl, _mm256_setzero_pd(), _CMP_GE_OQ),
+                                       _mm256_cmp_pd(*fl, _mm256_loadu_pd(f.max_cell), _CMP_LE_OQ));
+  if (_mm256_movemask_pd(inside) != 0xF) return false;
+  const __m128i index = _mm256_cvttpd_epi32(*fl);
+  *cell = _mm_cvtsi128_si32(index) + f.stride_y * _mm_extract_epi32(index, 1) +
+          f.stride_z * _mm_extract_epi32(index, 2);
+  return true;
+}
+
+// One row of the cell: x weights applied to the float4 at r and at r + 4.
+DSR_TARGET_AVX2 inline __m256d CellRow(const float* r, __m256d wx0, __m256d wx1) {
+  return _mm256_fmadd_pd(_mm256_cvtps_pd(_mm_loadu_ps(r + 4)), wx1,
+                         _mm256_mul_pd(_mm256_cvtps_pd(_mm_loadu_ps(r)), wx0));
+}
+
+DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f, const Point& p, double sample[4]) {
+  const __m256d u = Affine(f.a, p);
+  __m256d fl;
+  int64_t cell;
+  if (!CellOf(f, u, &fl, &cell)) return false;
+  if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
+  const __m256d w1 = _mm256_sub_pd(u, fl);
+  const __m256d w0 = _mm256_sub_pd(_mm256_set1_pd(1.0), w1);
+  const __m256d wx0 = _mm256_permute4x64_pd(w0, 0x00), wx1 = _mm256_permute4x64_pd(w1, 0x00);
+  const float* c = f.data + 4 * cell;
+  const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;
+  const __m256d t00 = CellRow(c, wx0, wx1), t10 = CellRow(c + sy, wx0, wx1);
+  const __m256d t01 = CellRow(c + sz, wx0, wx1), t11 = CellRow(c + sy + sz, wx0, wx1);
+  const __m256d wy0 = _mm256_permute4x64_pd(w0, 0x55), wy1 = _mm256_permute4x64_pd(w1, 0x55);
+  const __m256d wz0 = _mm256_permute4x64_pd(w0, 0xAA), wz1 = _mm256_permute4x64_pd(w1, 0xAA);
+  const __m256d ty0 = _mm256_fmadd_pd(t10, wy1, _mm256_mul_pd(t00, wy0));
+  const __m256d ty1 = _mm256_fmadd_pd(t11, wy1, _mm256_mul_pd(t01, wy0));
+  _mm256_storeu_pd(sample, _mm256_fmadd_pd(ty1, wz1, _mm256_mul_pd(ty0, wz0)));
+  return true;
+}
+
+DSR_TARGET_AVX2 inline void JacobianOne(const PosedFrame& f,
+                                        const Point& p,
+                                        const double sample[4],
+                                        double jac[8]) {
+  const __m256d s = _mm256_loadu_pd(sample);
+  const __m256d gu = _mm256_permute4x64_pd(s, 0x55), gv = _mm256_permute4x64_pd(s, 0xAA),
+                gw = _mm256_permute4x64_pd(s, 0xFF);
+  const __m256d grad = _mm256_fmadd_pd(
+      _mm256_loadu_pd(f.g[0]), gu,
+      _mm256_fmadd_pd(_mm256_loadu_pd(f.g[1]), gv, _mm256_mul_pd(_mm256_loadu_pd(f.g[2]), gw)));
+  const __m256d q = Affine(f.r, p);  // p_ij
+  // p_ij x grad = q.yzx * grad.zxy - q.zxy * grad.yzx (lane 3: 0 - 0).
+  const __m256d cross = _mm256_fmsub_pd(
+      _mm256_permute4x64_pd(q, 0xC9), _mm256_permute4x64_pd(grad, 0xD2),
+      _mm256_mul_pd(_mm256_permute4x64_pd(q, 0xD2), _mm256_permute4x64_pd(grad, 0xC9)));
+  _mm256_storeu_pd(jac, grad);
+  _mm256_storeu_pd(jac + 4, cross);
+}
+
+DSR_TARGET_AVX2 inline void PrefetchOne(const PosedFrame& f, const Point& p) {
+  __m256d fl;
+  int64_t cell;
+  if (!CellOf(f, Affine(f.a, p), &fl, &cell)) return;
+  const char* c = reinterpret_cast<const char*>(f.data + 4 * cell);
+  const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
+  _mm_prefetch(c, _MM_HINT_T0);
+  _mm_prefetch(c + sy, _MM_HINT_T0);
+  _mm_prefetch(c + sz, _MM_HINT_T0);
+  _mm_prefetch(c + sy + sz, _MM_HINT_T0);
+  _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (cell >> 3)), _MM_HINT_T0);
+}
+
+#define DSR_KERNEL_ATTR DSR_TARGET_AVX2
+#include "core/voxel_sampler_loop.inc"
+#undef DSR_KERNEL_ATTR
+
+}  // namespace
+
+int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
+                             const CandidateSet& candidates,
+                             int64_t v,
+                             int64_t end,
+                             bool with_jacobian,
+                             VoxelBatch* batch) {
+  return SampleVoxelBatchLoop(posed, candidates, v, end, with_jacobian, batch);
+}
+
+// sum_r J_a^T J_b for one pair (a, b) of a group, as 6 rows x 8 lanes in 12 registers.
+DSR_TARGET_AVX2 void AddGroupHessianAvx2(const double (*jac)[8],
+                                         const int* first,
+                                         int num_rows,
+                                         int k,
+                                         const int* frame,
+                                         const HessianWeights& weights,
+                                         double* h,
+                                         int n) {
+  constexpr int kRowLane[6] = {0, 1, 2, 4, 5, 6};
+  for (int a = 0; a < k; ++a) {
+    for (int b = a; b < k; ++b) {
+      __m256d acc[6][2];
+      for (int i = 0; i < 6; ++i) acc[i][0] = acc[i][1] = _mm256_setzero_pd();
+      for (int r = 0; r < num_rows; ++r) {
+        const double* ja = jac[first[r] + a];
+        const double* jb = jac[first[r] + b];
+        const __m256d b0 = _mm256_loadu_pd(jb), b1 = _mm256_loadu_pd(jb + 4);
+        for (int i = 0; i < 6; ++i) {
+          const __m256d x = _mm256_broadcast_sd(ja + kRowLane[i]);
+          acc[i][0] = _mm256_fmadd_pd(x, b0, acc[i][0]);
+          acc[i][1] = _mm256_fmadd_pd(x, b1, acc[i][1]);
+        }
+      }
+      const __m256d scale = _mm256_set1_pd(weights.shared + (a == b ? weights.diagonal : 0.0));
+      for (int i = 0; i < 6; ++i) {
+        double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
+        // Columns 0..2 from lanes 0..2 of acc[i][0], columns 3..5 from lanes 0..2 of acc[i][1].
+        const __m256d head = _mm256_blend_pd(acc[i][0], _mm256_permute4x64_pd(acc[i][1], 0x00), 0x8);
+        _mm256_storeu_pd(row, _mm256_fmadd_pd(scale, head, _mm256_loadu_pd(row)));
+        const __m128d tail = _mm256_castpd256_pd128(_mm256_permute4x64_pd(acc[i][1], 0x09));
+        _mm_storeu_pd(row + 4, _mm_fmadd_pd(_mm256_castpd256_pd128(scale), tail, _mm_loadu_pd(row + 4)));
+      }
+    }
+  }
+}
+
+}  // namespace internal
+}  // namespace dsr
+
+#else  // !DSR_HAVE_AVX2_KERNELS
+
+namespace dsr {
+namespace internal {
+bool CpuHasAvx2Fma() { return false; }
+}  // namespace internal
+}  // namespace dsr
+
+#endif

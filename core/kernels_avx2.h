@@ -1,0 +1,51 @@
+// The AVX2 + FMA implementations of the hot kernels (core/kernels_avx2.cc): the batch
+// sampler of core/voxel_stream.h and the group kernel of core/hessian_batch.h. Internal:
+// callers go through SampleVoxelBatch and AddBatchHessian, which pick the kernel path.
+//
+// Only these functions are compiled for AVX2 (a function attribute), so the library
+// still runs on any x86-64 CPU: the path is chosen at run time (CpuHasAvx2Fma). Eigen is
+// not compiled for AVX anywhere, so its alignment matches Debian's Ceres.
+#ifndef DSR_CORE_KERNELS_AVX2_H_
+#define DSR_CORE_KERNELS_AVX2_H_
+
+#include <cstdint>
+#include <vector>
+
+#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#define DSR_HAVE_AVX2_KERNELS 1
+#endif
+
+namespace dsr {
+
+struct CandidateSet;
+struct HessianWeights;
+struct PosedFrame;
+struct VoxelBatch;
+
+namespace internal {
+
+// True when this build has the AVX2 kernels and the CPU runs AVX2 and FMA.
+bool CpuHasAvx2Fma();
+
+#ifdef DSR_HAVE_AVX2_KERNELS
+int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
+                             const CandidateSet& candidates,
+                             int64_t v,
+                             int64_t end,
+                             bool with_jacobian,
+                             VoxelBatch* batch);
+
+void AddGroupHessianAvx2(const double (*jac)[8],
+                         const int* first,
+                         int num_rows,
+                         int k,
+                         const int* frame,
+                         const HessianWeights& weights,
+                         double* h,
+                         int n);
+#endif
+
+}  // namespace internal
+}  // namespace dsr
+
+#endif  // DSR_CORE_KERNELS_AVX2_H_
