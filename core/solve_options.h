@@ -34,6 +34,10 @@ struct SolveOptions {
   // steps in a row (0 = off). Tests that converge to 1e-8 turn both off.
   double step_tolerance_voxels = 5e-3;
   int max_rejected_steps = 5;
+  // Streamed costs (DSR, APE, pair registrations): compute Jacobians along with a trial
+  // point's cost and skip the Jacobians of the point that ends the solve
+  // (core/streamed_cost.h). Same poses and costs either way; fewer passes over the voxels.
+  bool reuse_evaluations = true;
 
   // Checks names and ranges; `error` names the option (as its command-line flag).
   bool Validate(std::string* error) const;
@@ -75,6 +79,10 @@ struct SolveReport {
   double seconds = 0.0;
   double seconds_per_iteration = 0.0;
   int64_t observations_per_iteration = 0;  // intensity differences per evaluation
+  // Streamed costs: passes over the voxels with Jacobians and cost-only, summed over the
+  // solve's blocks (0 for other costs).
+  int jacobian_passes = 0;
+  int cost_passes = 0;
 };
 
 // Fills the common fields of a report from a Ceres summary.

@@ -50,29 +50,114 @@ StreamedPoseCost::StreamedPoseCost(int num_frames, const Eigen::Isometry3d& fram
   for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
 }
 
+StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
+                                             const SolveOptions& solve) {
+  StreamedEvaluationPolicy policy;
+  if (!solve.reuse_evaluations) return policy;
+  policy.speculate = true;
+  policy.frames = &frames;
+  policy.step_tolerance_voxels = solve.step_tolerance_voxels;
+  return policy;
+}
+
 bool StreamedPoseCost::Evaluate(double const* const* parameters,
                                 double* residuals,
                                 double** jacobians) const {
   const int m = num_frames_;
   const int free = m - 1;
+  const int n = 6 * free;
+  std::vector<double> flat(static_cast<size_t>(free) * kPoseAmbientSize);
+  for (int i = 0; i < free; ++i) {
+    std::copy(parameters[i], parameters[i] + kPoseAmbientSize, flat.begin() + i * kPoseAmbientSize);
+  }
   std::vector<Eigen::Isometry3d> poses(m);
   poses[0] = frame0_from_world_;
   for (int i = 1; i < m; ++i) poses[i] = ParametersToPose(parameters[i - 1]);
   const bool with_jacobian = jacobians != nullptr;
-  NormalEquations system;
-  Accumulate(poses, with_jacobian, &system);
-  last_observations_ = system.observations;
-  if (!std::isfinite(system.cost)) return false;
-  const int n = 6 * free;
-  if (!with_jacobian) {
+  const bool same_point = !pass_parameters_.empty() && flat == pass_parameters_;
+
+  if (!with_jacobian) {  // a trial point
+    if (last_was_cost_only_) speculate_next_ = false;  // the previous trial was rejected
+    last_was_cost_only_ = true;
+    if (!same_point) {
+      // Would this step end the solve if accepted (core/convergence.h's rule)?
+      bool final_step = false;
+      if (policy_.frames != nullptr && policy_.step_tolerance_voxels > 0.0 &&
+          static_cast<int>(accepted_poses_.size()) == m) {
+        double motion = 0.0;
+        for (int i = 1; i < m; ++i) {
+          motion = std::max(motion,
+                            MaxCornerMotionVoxels((*policy_.frames)[i], accepted_poses_[i], poses[i]));
+        }
+        final_step = motion < policy_.step_tolerance_voxels;
+      }
+      const bool speculate = policy_.speculate && speculate_next_ && !final_step;
+      Accumulate(poses, speculate, &pass_);
+      ++(speculate ? counts_.jacobian_passes : counts_.cost_passes);
+      pass_parameters_ = flat;
+      pass_has_jacobian_ = speculate;
+      pass_is_final_ = final_step;
+    } else {
+      ++counts_.reused;
+    }
+    last_observations_ = pass_.observations;
+    if (!std::isfinite(pass_.cost)) return false;
     std::fill(residuals, residuals + n, 0.0);
-    residuals[n] = std::sqrt(system.cost);
+    residuals[n] = std::sqrt(pass_.cost);
     return true;
   }
+
+  // The current point (iteration 0, or a step Ceres accepted).
+  const bool accepted_trial = last_was_cost_only_ && same_point;
+  last_was_cost_only_ = false;
+  if (accepted_trial) speculate_next_ = true;
+  if (same_point && pass_has_jacobian_) {
+    ++counts_.reused;
+    accepted_ = pass_;
+  } else if (same_point && pass_is_final_ && static_cast<int>(accepted_poses_.size()) == m) {
+    // The solve ends here: the previous point's Gauss-Newton model, this point's cost.
+    ++counts_.reused;
+    accepted_.cost = pass_.cost;
+    accepted_.observations = pass_.observations;
+    accepted_poses_ = poses;
+    last_observations_ = accepted_.observations;
+    if (!std::isfinite(accepted_.cost)) return false;
+    return WriteJacobianEvaluation(accepted_, /*exact_cost=*/true, parameters, residuals,
+                                   jacobians);
+  } else {
+    Accumulate(poses, true, &accepted_);
+    ++counts_.jacobian_passes;
+    pass_ = accepted_;
+    pass_parameters_ = flat;
+    pass_has_jacobian_ = true;
+    pass_is_final_ = false;
+  }
+  accepted_poses_ = poses;
+  last_observations_ = accepted_.observations;
+  if (!std::isfinite(accepted_.cost)) return false;
+  return WriteJacobianEvaluation(accepted_, /*exact_cost=*/false, parameters, residuals, jacobians);
+}
+
+bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
+                                               bool exact_cost,
+                                               double const* const* parameters,
+                                               double* residuals,
+                                               double** jacobians) const {
+  const int m = num_frames_;
+  const int n = 6 * (m - 1);
   Eigen::VectorXd r;
   Eigen::MatrixXd jac;
   CompressNormalEquations(system.hessian.bottomRightCorner(n, n), system.gradient.tail(n),
                           system.cost, &r, &jac);
+  if (exact_cost) {
+    // A model taken from another point may explain more than this point's cost: shrink
+    // it so that |r'|^2 is the cost (the step it implies is never taken).
+    const double explained = r.head(n).squaredNorm();
+    if (explained > system.cost) {
+      r.head(n) *= std::sqrt(system.cost / explained);
+      r[n] = 0.0;
+    }
+  }
   if (!r.allFinite() || !jac.allFinite()) return false;
   Eigen::Map<Eigen::VectorXd>(residuals, n + 1) = r;
   for (int i = 1; i < m; ++i) {
@@ -113,6 +198,7 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   std::vector<const StreamedPoseCost*> costs;
   for (int64_t c = 0; c < blocks; ++c) {
     StreamedPoseCost* cost = make_block(num_voxels * c / blocks, num_voxels * (c + 1) / blocks);
+    cost->set_policy(EvaluationPolicyFor(frames, solve));
     costs.push_back(cost);
     problem.AddResidualBlock(cost, nullptr, free_blocks);
   }
@@ -140,6 +226,8 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   report->observations_per_iteration = 0;
   for (const StreamedPoseCost* cost : costs) {
     report->observations_per_iteration += cost->last_observations();
+    report->jacobian_passes += cost->pass_counts().jacobian_passes;
+    report->cost_passes += cost->pass_counts().cost_passes;
   }
   return true;
 }

@@ -37,6 +37,38 @@ void CompressNormalEquations(const Eigen::MatrixXd& hessian,
                              Eigen::VectorXd* residual,
                              Eigen::MatrixXd* jacobian);
 
+// How a streamed block reuses its passes over the voxels (each pass is the expensive part
+// of an iteration). Ceres's trust-region loop evaluates the cost alone at a trial point
+// and, when the step is accepted, the cost with Jacobians at the same point. So:
+//  * speculate: a trial point's pass also computes the Jacobians (it reads the same data;
+//    about 2x a cost-only pass) and keeps them; an accepted step then costs one pass, not
+//    two. After a rejected step the next trial is evaluated cost-only, and speculation
+//    resumes after the next accepted step.
+//  * lazy final Jacobian (when `frames` is set and step_tolerance_voxels > 0): a trial
+//    point whose step moves no field of view by `step_tolerance_voxels` or more ends the
+//    solve if it is accepted (the rule of core/convergence.h, which then stops Ceres before
+//    it uses the Jacobians again). Its pass is cost-only, and the Jacobians Ceres asks for
+//    there are those of the previous point with the new point's exact cost.
+// Neither changes any cost Ceres sees or any pose it reaches (the cost-only and the
+// Jacobian passes give bit-identical costs); tests compare solves with and without.
+struct StreamedEvaluationPolicy {
+  bool speculate = false;
+  const std::vector<Frame>* frames = nullptr;  // frame 0 first; not owned
+  double step_tolerance_voxels = 0.0;
+};
+
+// Passes over the voxels a block made, and evaluations it answered without one.
+struct StreamedPassCounts {
+  int jacobian_passes = 0;
+  int cost_passes = 0;
+  int reused = 0;
+};
+
+// The policy the solvers give their blocks: speculate and lazy final Jacobians when
+// solve.reuse_evaluations, with the solve's pose step tolerance.
+StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
+                                             const SolveOptions& solve);
+
 class StreamedPoseCost : public ceres::CostFunction {
  public:
   StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world);
@@ -45,8 +77,10 @@ class StreamedPoseCost : public ceres::CostFunction {
                 double** jacobians) const final;
   // Intensity differences of the latest evaluation (NormalEquations::observations). Ceres
   // evaluates the few streamed blocks from one thread (the solvers set num_threads = 1 and
-  // thread inside the stream), so a plain member is safe.
+  // thread inside the stream), so plain members are safe.
   int64_t last_observations() const { return last_observations_; }
+  void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
+  const StreamedPassCounts& pass_counts() const { return counts_; }
 
  protected:
   // Normal equations over all m frames (6m x 6m) at `frame_from_world` (frame 0 first).
@@ -55,16 +89,38 @@ class StreamedPoseCost : public ceres::CostFunction {
                           NormalEquations* out) const = 0;
 
  private:
+  // Writes the compressed residual and Jacobians of `system`; with `exact_cost`, |r'|^2
+  // is its cost even when its model comes from another point.
+  bool WriteJacobianEvaluation(const NormalEquations& system,
+                               bool exact_cost,
+                               double const* const* parameters,
+                               double* residuals,
+                               double** jacobians) const;
+
   int num_frames_;
   Eigen::Isometry3d frame0_from_world_;
+  StreamedEvaluationPolicy policy_;
   mutable int64_t last_observations_ = 0;
+  mutable StreamedPassCounts counts_;
+  // The latest pass: its parameters, its system, whether it holds Jacobians, and whether
+  // it was a lazy final trial point.
+  mutable std::vector<double> pass_parameters_;
+  mutable NormalEquations pass_;
+  mutable bool pass_has_jacobian_ = false;
+  mutable bool pass_is_final_ = false;
+  // The latest evaluation with Jacobians (the current accepted point) and its poses.
+  mutable NormalEquations accepted_;
+  mutable std::vector<Eigen::Isometry3d> accepted_poses_;
+  mutable bool last_was_cost_only_ = false;
+  mutable bool speculate_next_ = true;
 };
 
 // Solves min over the poses of frames 1..m-1 (frame 0 constant) of the sum of the
 // streamed blocks `make_block(begin, end)` returns for `num_blocks` equal ranges of
 // [0, num_voxels): Ceres with a dense linear solver (or solve.linear_solver), the progress
 // line labelled `label`, and the shared pose stopping rule (core/convergence.h). A solve
-// that runs but is not usable returns true with report->usable = false.
+// that runs but is not usable returns true with report->usable = false. The blocks get the
+// evaluation policy above when solve.reuse_evaluations.
 using StreamedBlockFactory = std::function<StreamedPoseCost*(int64_t begin, int64_t end)>;
 bool SolveStreamedPoses(const std::vector<Frame>& frames,
                         const std::vector<Eigen::Isometry3d>& initial_frame_from_world,

@@ -70,6 +70,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
                                        options.solve.num_threads);
+    chunk->set_policy(EvaluationPolicyFor(frames, options.solve));
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -122,6 +123,10 @@ bool SolveDsr(const std::vector<Frame>& frames,
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
   report->observations_per_iteration = dsr.LastObservations();
+  for (const ReducedChunkCost* chunk : dsr.chunks()) {
+    report->jacobian_passes += chunk->pass_counts().jacobian_passes;
+    report->cost_passes += chunk->pass_counts().cost_passes;
+  }
   if (report->observations_per_iteration < 0) {  // reference cost: count once (small problems)
     ReducedSystem counts;
     AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,

@@ -40,6 +40,8 @@ class DsrProblem {
   // Observations counted by the fast path's latest evaluation (sum over chunks); -1 for
   // the reference cost, which does not count them.
   int64_t LastObservations() const;
+  // The fast path's blocks (empty for the reference cost).
+  const std::vector<const ReducedChunkCost*>& chunks() const { return chunks_; }
 
  private:
   std::unique_ptr<ceres::Problem> problem_;

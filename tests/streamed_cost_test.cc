@@ -1,0 +1,108 @@
+// Reuse of streamed passes (core/streamed_cost.h: speculative Jacobians at trial points,
+// no Jacobians at the point that ends the solve) changes how often the voxels are
+// streamed, never what Ceres sees: DSR (several chunks) and APE solves with and without
+// it take the same steps, reach bit-identical poses and costs, and stop for the same
+// reason, with fewer passes.
+#include <gtest/gtest.h>
+
+#include "baselines/baselines.h"
+#include "dsr_reduced/dsr_solver.h"
+#include "test_problems.h"
+
+namespace dsr {
+namespace {
+
+using testing_problems::Candidates;
+using testing_problems::MakeSequence;
+using testing_problems::Perturbed;
+using testing_problems::SequenceOptions;
+
+testing_problems::TestSequence Sequence(uint64_t seed) {
+  SequenceOptions o;
+  o.num_frames = 4;
+  o.size = 18;
+  o.noise_sigma = 8.0;
+  o.seed = seed;
+  return MakeSequence(o);
+}
+
+void ExpectSameSolve(const SolveReport& with, const SolveReport& without, bool fewer_passes) {
+  ASSERT_EQ(with.iterations.size(), without.iterations.size());
+  for (size_t i = 0; i < with.iterations.size(); ++i) {
+    EXPECT_EQ(with.iterations[i].step_accepted, without.iterations[i].step_accepted) << i;
+    EXPECT_EQ(with.iterations[i].step_norm, without.iterations[i].step_norm) << i;
+    // The cost Ceres reads back from the compressed residual: the lazy final point's
+    // residual is built from another point's model, so its square may round differently.
+    EXPECT_NEAR(with.iterations[i].cost, without.iterations[i].cost,
+                1e-14 * without.iterations[i].cost)
+        << i;
+  }
+  ASSERT_EQ(with.frame_from_world.size(), without.frame_from_world.size());
+  for (size_t i = 0; i < with.frame_from_world.size(); ++i) {
+    EXPECT_TRUE(with.frame_from_world[i].matrix() == without.frame_from_world[i].matrix())
+        << "frame " << i;
+  }
+  EXPECT_EQ(with.termination, without.termination);
+  EXPECT_EQ(with.usable, without.usable);
+  // Fewer passes over the voxels with reuse (a pass with Jacobians counted as two). Not
+  // guaranteed for every solve: a speculated trial that is rejected costs an extra half.
+  if (!fewer_passes) return;
+  EXPECT_LT(2 * with.jacobian_passes + with.cost_passes,
+            2 * without.jacobian_passes + without.cost_passes);
+}
+
+TEST(StreamedCost, ReusingPassesDoesNotChangeDsrSolves) {
+  for (uint64_t seed : {3, 4}) {
+    const auto s = Sequence(seed);
+    const auto init = Perturbed(s.ground_truth, 0.04, 1.5, seed + 10);
+    const CandidateSet cand = Candidates(s, init);
+    DsrOptions options;
+    options.num_chunks = 3;
+    options.solve.log_progress = false;
+    options.solve.max_iterations = 30;
+    SolveReport with, without;
+    std::string error;
+    ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &with, &error)) << error;
+    options.solve.reuse_evaluations = false;
+    ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &without, &error)) << error;
+    ASSERT_GT(without.num_iterations, 2);
+    EXPECT_EQ(without.cost_passes, without.num_iterations * 3);  // one per trial, per chunk
+    ExpectSameSolve(with, without, /*fewer_passes=*/true);
+  }
+}
+
+TEST(StreamedCost, ReusingPassesDoesNotChangeApeSolves) {
+  const auto s = Sequence(5);
+  const auto init = Perturbed(s.ground_truth, 0.04, 1.5, 15);
+  const CandidateSet cand = Candidates(s, init);
+  BaselineOptions options;
+  options.solve.log_progress = false;
+  options.solve.max_iterations = 30;
+  SolveReport with, without;
+  std::string error;
+  ASSERT_TRUE(SolveApe(s.frames, cand, init, options, &with, &error)) << error;
+  options.solve.reuse_evaluations = false;
+  ASSERT_TRUE(SolveApe(s.frames, cand, init, options, &without, &error)) << error;
+  ExpectSameSolve(with, without, /*fewer_passes=*/false);
+}
+
+TEST(StreamedCost, StepRuleOffMeansNoLazyFinalPoint) {
+  // Without the pose step rule nothing stops Ceres at a small step, so every accepted
+  // point must get its own Jacobians: the solve still matches the one without reuse.
+  const auto s = Sequence(6);
+  const auto init = Perturbed(s.ground_truth, 0.04, 1.5, 16);
+  const CandidateSet cand = Candidates(s, init);
+  DsrOptions options;
+  options.solve.log_progress = false;
+  options.solve.max_iterations = 12;
+  options.solve.step_tolerance_voxels = 0.0;
+  SolveReport with, without;
+  std::string error;
+  ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &with, &error)) << error;
+  options.solve.reuse_evaluations = false;
+  ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &without, &error)) << error;
+  ExpectSameSolve(with, without, /*fewer_passes=*/false);
+}
+
+}  // namespace
+}  // namespace dsr
