@@ -74,11 +74,11 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
   return out;
 }
 
-// Separable smoothing of `g` with stride `stride` on every axis that has more than one
-// voxel (stride 1 on single-voxel axes).
-Grid3 SmoothAndStride(Grid3 g, double sigma, int stride, int num_threads) {
+// Separable smoothing of `g` with stride `stride` on every axis from `first_axis` on that
+// has more than one voxel (stride 1 on single-voxel axes).
+Grid3 SmoothAndStride(Grid3 g, double sigma, int stride, int first_axis, int num_threads) {
   const std::vector<float> kernel = sigma > 0.0 ? GaussianKernel(sigma) : std::vector<float>();
-  for (int axis = 0; axis < 3; ++axis) {
+  for (int axis = first_axis; axis < 3; ++axis) {
     const bool flat = g.size[axis] == 1;
     g = ConvolveAxis(g, axis, flat ? std::vector<float>() : kernel, flat ? 1 : stride,
                      num_threads);
@@ -86,22 +86,53 @@ Grid3 SmoothAndStride(Grid3 g, double sigma, int stride, int num_threads) {
   return g;
 }
 
+// The first (x) pass of the normalised convolution, straight from the image and its mask:
+// value = G_x * (I M), weight = G_x * M, every `stride`-th output along x (stride 1 and
+// no smoothing on a single-voxel x axis). Saves the full-resolution masked copies.
+void MaskedPassX(const Image& image, const Mask& mask, double sigma, int stride,
+                 int num_threads, Grid3* value, Grid3* weight) {
+  const Eigen::Vector3i n = image.geometry.size;
+  const bool flat = n[0] == 1;
+  const std::vector<float> kernel =
+      sigma > 0.0 && !flat ? GaussianKernel(sigma) : std::vector<float>{1.0f};
+  const int radius = static_cast<int>(kernel.size()) / 2;
+  const int step = flat ? 1 : stride;
+  value->size = weight->size = n;
+  value->size[0] = weight->size[0] = OutputSize(n[0], step);
+  const int64_t out_count = value->size.cast<int64_t>().prod();
+  AssignWithHugePages(&value->v, static_cast<size_t>(out_count), 0.0f);
+  AssignWithHugePages(&weight->v, static_cast<size_t>(out_count), 0.0f);
+  const int nx = n[0], ox = value->size[0];
+  ParallelFor(0, n[2], num_threads, [&](int64_t k) {
+    for (int j = 0; j < n[1]; ++j) {
+      const int64_t in_base = image.geometry.LinearIndex(0, j, static_cast<int>(k));
+      const int64_t out_base = value->Index(0, j, static_cast<int>(k));
+      const float* im = image.voxels.data() + in_base;
+      const uint8_t* ma = mask.voxels.data() + in_base;
+      for (int o = 0; o < ox; ++o) {
+        const int center = step * o;
+        const int lo = std::max(0, center - radius), hi = std::min(nx - 1, center + radius);
+        float v = 0.0f, w = 0.0f;
+        for (int x = lo; x <= hi; ++x) {
+          if (ma[x] == 0) continue;
+          const float c = kernel[x - center + radius];
+          v += c * im[x];
+          w += c;
+        }
+        value->v[out_base + o] = v;
+        weight->v[out_base + o] = w;
+      }
+    }
+  });
+}
+
 // Normalised convolution: returns the smoothed image and the smoothed mask weight.
 void NormalisedSmooth(const Image& image, const Mask& mask, double sigma, int stride,
                       int num_threads, Grid3* value, Grid3* weight) {
   CHECK(image.geometry.SameGrid(mask.geometry));
-  Grid3 im, w;
-  im.size = w.size = image.geometry.size;
-  const size_t n = image.voxels.size();
-  AssignWithHugePages(&im.v, n, 0.0f);
-  AssignWithHugePages(&w.v, n, 0.0f);
-  for (size_t l = 0; l < n; ++l) {
-    const float inside = mask.voxels[l] != 0 ? 1.0f : 0.0f;
-    im.v[l] = inside * image.voxels[l];
-    w.v[l] = inside;
-  }
-  *value = SmoothAndStride(std::move(im), sigma, stride, num_threads);
-  *weight = SmoothAndStride(std::move(w), sigma, stride, num_threads);
+  MaskedPassX(image, mask, sigma, stride, num_threads, value, weight);
+  *value = SmoothAndStride(std::move(*value), sigma, stride, 1, num_threads);
+  *weight = SmoothAndStride(std::move(*weight), sigma, stride, 1, num_threads);
   // Weights below this carry too little data to be trusted (far outside the mask).
   constexpr float kMinWeight = 1e-3f;
   for (size_t l = 0; l < value->v.size(); ++l) {
@@ -172,16 +203,23 @@ std::vector<ImageLevel> BuildPyramid(const Image& image,
                                      int min_size,
                                      int num_threads) {
   std::vector<ImageLevel> levels(1);
-  levels[0].image = SmoothInsideMask(image, mask, finest_sigma_voxels, num_threads);
-  levels[0].mask = mask;
+  if (finest_sigma_voxels > 0.0) {
+    levels[0].image = SmoothInsideMask(image, mask, finest_sigma_voxels, num_threads);
+    levels[0].mask = mask;
+  }
+  // The finest level as it is, whether kept in levels[0] or the input itself.
+  const Image* finer_image = finest_sigma_voxels > 0.0 ? &levels[0].image : &image;
+  const Mask* finer_mask = finest_sigma_voxels > 0.0 ? &levels[0].mask : &mask;
   for (int l = 1; l < num_levels; ++l) {
-    const Eigen::Vector3i& n = levels.back().image.geometry.size;
+    const Eigen::Vector3i& n = finer_image->geometry.size;
     bool too_small = false;
     for (int a = 0; a < 3; ++a) {
       if (n[a] > 1 && OutputSize(n[a], 2) < min_size) too_small = true;
     }
     if (too_small) break;
-    levels.push_back(Downsample(levels.back().image, levels.back().mask, sigma_voxels, num_threads));
+    levels.push_back(Downsample(*finer_image, *finer_mask, sigma_voxels, num_threads));
+    finer_image = &levels.back().image;
+    finer_mask = &levels.back().mask;
   }
   return levels;
 }

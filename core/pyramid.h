@@ -31,8 +31,9 @@ Image SmoothInsideMask(const Image& image, const Mask& mask, double sigma_voxels
 // One level down (see above).
 ImageLevel Downsample(const Image& image, const Mask& mask, double sigma_voxels, int num_threads);
 
-// Levels finest first: levels[0] = the input (smoothed by `finest_sigma_voxels` when > 0),
-// levels[l] = Downsample(levels[l-1]). Stops early when an axis would drop below
+// Levels finest first: levels[0] = the input smoothed by `finest_sigma_voxels` when > 0,
+// else empty (the input itself is the finest level: no copy of it is made);
+// levels[l] = Downsample(level l-1). Stops early when an axis would drop below
 // `min_size` voxels; returns at least one level.
 std::vector<ImageLevel> BuildPyramid(const Image& image,
                                      const Mask& mask,

@@ -281,7 +281,9 @@ bool Register(const std::vector<Image>& images,
   for (int level = levels - 1; level >= 0; --level) {
     std::vector<Frame> frames(m);
     ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
-      frames[i] = Frame(pyramids[i][level].image, pyramids[i][level].mask);
+      const bool input_is_level = level == 0 && pyramids[i][0].image.empty();
+      frames[i] = input_is_level ? Frame(images[i], masks[i])
+                                 : Frame(pyramids[i][level].image, pyramids[i][level].mask);
       pyramids[i][level] = ImageLevel();  // the frame holds its own copy from here on
     });
     int empty_frame = -1;
