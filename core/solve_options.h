@@ -83,6 +83,10 @@ struct SolveReport {
   // solve's blocks (0 for other costs).
   int jacobian_passes = 0;
   int cost_passes = 0;
+  // DSR's fast path: per frame, the sum of squared residuals and their number at the final
+  // poses, from the solve's last pass when it was made there (else empty).
+  std::vector<double> final_frame_cost;
+  std::vector<int64_t> final_frame_observations;
 };
 
 // Fills the common fields of a report from a Ceres summary.

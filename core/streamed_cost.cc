@@ -138,6 +138,19 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
   return WriteJacobianEvaluation(accepted_, /*exact_cost=*/false, parameters, residuals, jacobians);
 }
 
+const NormalEquations* StreamedPoseCost::PassAt(const std::vector<const double*>& free_blocks) const {
+  if (pass_parameters_.empty() || static_cast<int>(free_blocks.size()) != num_frames_ - 1) {
+    return nullptr;
+  }
+  for (size_t i = 0; i < free_blocks.size(); ++i) {
+    if (!std::equal(free_blocks[i], free_blocks[i] + kPoseAmbientSize,
+                    pass_parameters_.begin() + i * kPoseAmbientSize)) {
+      return nullptr;
+    }
+  }
+  return &pass_;
+}
+
 bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
                                                bool exact_cost,
                                                double const* const* parameters,

@@ -81,6 +81,10 @@ class StreamedPoseCost : public ceres::CostFunction {
   int64_t last_observations() const { return last_observations_; }
   void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
   const StreamedPassCounts& pass_counts() const { return counts_; }
+  // The latest pass when it was made at exactly these free-pose parameters (frames 1..m-1,
+  // 7 each), else null: e.g. the pass at the final poses of a solve, whose per-frame costs
+  // the caller may reuse.
+  const NormalEquations* PassAt(const std::vector<const double*>& free_blocks) const;
 
  protected:
   // Normal equations over all m frames (6m x 6m) at `frame_from_world` (frame 0 first).

@@ -123,9 +123,24 @@ bool SolveDsr(const std::vector<Frame>& frames,
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
   report->observations_per_iteration = dsr.LastObservations();
+  std::vector<const double*> free_blocks;
+  for (size_t i = 1; i < frames.size(); ++i) free_blocks.push_back(dsr.pose_parameters(i));
+  bool final_pass = !dsr.chunks().empty();
   for (const ReducedChunkCost* chunk : dsr.chunks()) {
     report->jacobian_passes += chunk->pass_counts().jacobian_passes;
     report->cost_passes += chunk->pass_counts().cost_passes;
+    final_pass = final_pass && chunk->PassAt(free_blocks) != nullptr;
+  }
+  if (final_pass) {
+    report->final_frame_cost.assign(frames.size(), 0.0);
+    report->final_frame_observations.assign(frames.size(), 0);
+    for (const ReducedChunkCost* chunk : dsr.chunks()) {
+      const NormalEquations* pass = chunk->PassAt(free_blocks);
+      for (size_t i = 0; i < frames.size(); ++i) {
+        report->final_frame_cost[i] += pass->frame_cost[i];
+        report->final_frame_observations[i] += pass->frame_observations[i];
+      }
+    }
   }
   if (report->observations_per_iteration < 0) {  // reference cost: count once (small problems)
     ReducedSystem counts;

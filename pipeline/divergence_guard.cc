@@ -55,11 +55,15 @@ std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
   NormalEquations system;
   AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
                           /*with_jacobian=*/false, num_threads, &system);
-  std::vector<double> misfit(frames.size(), 0.0);
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (system.frame_observations[i] > 0) {
-      misfit[i] = std::sqrt(system.frame_cost[i] / system.frame_observations[i]);
-    }
+  return MisfitsFromFrameCosts(system.frame_cost, system.frame_observations);
+}
+
+std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
+                                          const std::vector<int64_t>& frame_observations) {
+  CHECK_EQ(frame_cost.size(), frame_observations.size());
+  std::vector<double> misfit(frame_cost.size(), 0.0);
+  for (size_t i = 0; i < frame_cost.size(); ++i) {
+    if (frame_observations[i] > 0) misfit[i] = std::sqrt(frame_cost[i] / frame_observations[i]);
   }
   return misfit;
 }

@@ -44,6 +44,10 @@ std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
                                  const CandidateSet& candidates,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
                                  int num_threads);
+// The same from per-frame sums of squared residuals and their counts (a DSR pass's
+// NormalEquations::frame_cost and frame_observations).
+std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
+                                          const std::vector<int64_t>& frame_observations);
 
 // True (and `why` naming the worst frame) when some frame's misfit exceeds max_ratio times
 // the lower quartile of the frames' misfits (robust to up to three quarters of the frames

@@ -418,8 +418,19 @@ bool Register(const std::vector<Image>& images,
       if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, final_candidates, &why)) {
         return diverged(why);
       }
-      result->frame_misfits =
-          FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
+      // DSR's last pass was at the final poses over these candidates when the solve kept
+      // it (core/streamed_cost.h): its per-frame costs are the misfits' sums.
+      const SolveReport& last = result->solves.back().report;
+      const bool reuse_last_pass = options.mode == "dsr" &&
+                                   last_motion <= options.rebuild_tolerance_voxels &&
+                                   static_cast<int>(last.final_frame_cost.size()) == m;
+      if (reuse_last_pass) {
+        result->frame_misfits =
+            MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
+      } else {
+        result->frame_misfits =
+            FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
+      }
       if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
         return diverged(why);
       }

@@ -104,5 +104,35 @@ TEST(StreamedCost, StepRuleOffMeansNoLazyFinalPoint) {
   ExpectSameSolve(with, without, /*fewer_passes=*/false);
 }
 
+TEST(StreamedCost, DsrReportsTheFrameCostsOfItsFinalPoses) {
+  // The pipeline's misfit check reuses them instead of streaming once more.
+  SequenceOptions o;
+  o.num_frames = 4;
+  o.size = 18;
+  o.seed = 7;
+  o.lattice = true;  // an exact minimum away from field-of-view edges: the solve ends by
+                     // the pose step rule (see dsr_theorem_test)
+  const auto s = MakeSequence(o);
+  const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 17);
+  const CandidateSet cand = testing_problems::InteriorCandidates(s, init, 1.5);
+  DsrOptions options;
+  options.num_chunks = 2;
+  options.solve.log_progress = false;
+  SolveReport report;
+  std::string error;
+  ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &report, &error)) << error;
+  ASSERT_NE(report.termination.find("pose step tolerance"), std::string::npos)
+      << report.termination;
+  ASSERT_EQ(report.final_frame_cost.size(), s.frames.size());
+  ReducedSystem at_final;
+  AccumulateReducedSystem(s.frames, cand, report.frame_from_world, 0, cand.num_voxels(), false,
+                          2, &at_final);
+  EXPECT_EQ(report.final_frame_observations, at_final.frame_observations);
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    // Two chunks summed vs one pass: the same terms, added in another order.
+    EXPECT_NEAR(report.final_frame_cost[i], at_final.frame_cost[i], 1e-12 * at_final.cost) << i;
+  }
+}
+
 }  // namespace
 }  // namespace dsr
