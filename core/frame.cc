@@ -74,22 +74,34 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
   interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
 
   std::vector<uint8_t> valid(static_cast<size_t>(num / 8 + 2), uint8_t{0});
+  int lo[3] = {n[0], n[1], n[2]}, hi[3] = {-1, -1, -1};  // valid cells' index range
+  const uint8_t* m = mask.voxels.data();
   for (int k = 0; k + 1 < n[2]; ++k) {
     for (int j = 0; j + 1 < n[1]; ++j) {
+      // The 4 mask rows holding the corners of the cells (i, j, k), i = 0..n[0]-2.
+      const uint8_t* r00 = m + geometry_.LinearIndex(0, j, k);
+      const uint8_t* r10 = m + geometry_.LinearIndex(0, j + 1, k);
+      const uint8_t* r01 = m + geometry_.LinearIndex(0, j, k + 1);
+      const uint8_t* r11 = m + geometry_.LinearIndex(0, j + 1, k + 1);
+      const int64_t row = geometry_.LinearIndex(0, j, k);
       for (int i = 0; i + 1 < n[0]; ++i) {
-        bool all = true;
-        for (int c = 0; c < 8 && all; ++c) {
-          all = mask.at(i + (c & 1), j + ((c >> 1) & 1), k + ((c >> 2) & 1)) != 0;
-        }
-        if (all) {
-          const int64_t l = geometry_.LinearIndex(i, j, k);
-          valid[l >> 3] |= static_cast<uint8_t>(1u << (l & 7));
-          ++num_valid_cells_;
-          valid_index_box_.extend(Eigen::Vector3d(i, j, k));
-          valid_index_box_.extend(Eigen::Vector3d(i + 1, j + 1, k + 1));
+        const bool all = r00[i] && r00[i + 1] && r10[i] && r10[i + 1] && r01[i] && r01[i + 1] &&
+                         r11[i] && r11[i + 1];
+        if (!all) continue;
+        const int64_t l = row + i;
+        valid[l >> 3] |= static_cast<uint8_t>(1u << (l & 7));
+        ++num_valid_cells_;
+        const int ijk[3] = {i, j, k};
+        for (int a = 0; a < 3; ++a) {
+          lo[a] = std::min(lo[a], ijk[a]);
+          hi[a] = std::max(hi[a], ijk[a]);
         }
       }
     }
+  }
+  if (num_valid_cells_ > 0) {
+    valid_index_box_.extend(Eigen::Vector3d(lo[0], lo[1], lo[2]));
+    valid_index_box_.extend(Eigen::Vector3d(hi[0] + 1, hi[1] + 1, hi[2] + 1));
   }
   valid_bits_ = std::make_shared<const std::vector<uint8_t>>(std::move(valid));
 }

@@ -695,11 +695,17 @@ bool Read(const std::string& path,
                "-byte file can hold)";
       return false;
     }
-    // 8-byte aligned storage for any component type.
-    std::unique_ptr<uint64_t[]> buffer(new uint64_t[bytes / sizeof(uint64_t) + 1]);
-    io->Read(buffer.get());
-    out.voxels.resize(count);
-    ConvertBuffer(io->GetComponentType(), buffer.get(), count, out.voxels.data());
+    if (io->GetComponentType() == itk::IOComponentEnum::FLOAT && bytes == count * sizeof(float)) {
+      // Already the voxels' type: read in place (no second copy of a large volume).
+      out.voxels.resize(count);
+      io->Read(out.voxels.data());
+    } else {
+      // 8-byte aligned storage for any component type.
+      std::unique_ptr<uint64_t[]> buffer(new uint64_t[bytes / sizeof(uint64_t) + 1]);
+      io->Read(buffer.get());
+      out.voxels.resize(count);
+      ConvertBuffer(io->GetComponentType(), buffer.get(), count, out.voxels.data());
+    }
     *volume = std::move(out);
     return true;
   } catch (const itk::ExceptionObject& e) {

@@ -84,6 +84,22 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
         const Frame& frame = frames[f];
         const uint8_t* near = margin_cells > 0 ? dilated[f].data() : nullptr;
         const int64_t sy = fs[0], sz = int64_t{fs[0]} * fs[1];
+        if (near == nullptr) {  // margin 0: the cell itself must be a valid one
+          const double max_cell[3] = {fs[0] - 2.0, fs[1] - 2.0, fs[2] - 2.0};
+          for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
+            const double fx = std::floor(u0[0] + i * step[0]);
+            const double fy = std::floor(u0[1] + i * step[1]);
+            const double fz = std::floor(u0[2] + i * step[2]);
+            if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0 && fx <= max_cell[0] && fy <= max_cell[1] &&
+                  fz <= max_cell[2])) {
+              continue;
+            }
+            const int64_t cell = static_cast<int64_t>(fx) + sy * static_cast<int64_t>(fy) +
+                                 sz * static_cast<int64_t>(fz);
+            if (frame.IsValidCell(cell)) row[i] |= bit;
+          }
+          continue;
+        }
         for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
           // Cell containing u, clamped into the grid when within the margin outside it.
           int64_t cell = 0;
@@ -97,11 +113,11 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
             const int64_t c = static_cast<int64_t>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
             cell += c * (ax == 0 ? 1 : (ax == 1 ? sy : sz));
           }
-          if (inside && (near != nullptr ? near[cell] != 0 : frame.IsValidCell(cell))) row[i] |= bit;
+          if (inside && near[cell] != 0) row[i] |= bit;
         }
       }
       for (int i = 0; i < n[0]; ++i) {
-        if (__builtin_popcount(row[i]) >= 2) {
+        if ((row[i] & (row[i] - 1)) != 0) {  // at least two candidate observers
           slice_voxels[k].push_back(grid.LinearIndex(i, j, static_cast<int>(k)));
           slice_observers[k].push_back(row[i]);
         }
