@@ -16,7 +16,7 @@ namespace {
 struct ApeVoxelTerm {
   // Pair by pair, as APE evaluates it; in the batched form its H would be
   // H_ab = (k delta_ab - 1) J_a^T J_b.
-  static constexpr bool batched_hessian = false;
+  bool batched_hessian = false;
   HessianWeights Weights(int k) const { return {static_cast<double>(k), -1.0}; }
 
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
@@ -41,6 +41,7 @@ struct ApeVoxelTerm {
           g[6 * fa + i] += ja[i] * e;
           g[6 * fb + i] -= jb[i] * e;
         }
+        if (batched_hessian) continue;
         AddOuter(h, n, fa, fa, ja, ja, 1.0);
         AddOuter(h, n, fb, fb, jb, jb, 1.0);
         AddOuter(h, n, fa, fb, ja, jb, -1.0);
@@ -58,9 +59,12 @@ void AccumulateApeSystem(const std::vector<Frame>& frames,
                          int64_t end,
                          bool with_jacobian,
                          int num_threads,
-                         NormalEquations* out) {
+                         NormalEquations* out,
+                         bool batched_hessian) {
+  ApeVoxelTerm term;
+  term.batched_hessian = batched_hessian;
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, ApeVoxelTerm(), out);
+                        num_threads, term, out);
 }
 
 ApeChunkCost::ApeChunkCost(const std::vector<Frame>* frames,

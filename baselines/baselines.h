@@ -51,6 +51,10 @@ struct BaselineOptions {
 // APE normal equations of candidate voxels [begin, end) over all m frames (6m x 6m):
 // cost = sum_j sum_{i<k} sigma_ij sigma_kj (I_i(p_ij) - I_k(p_kj))^2; `observations`
 // counts the pair differences, k_j (k_j - 1) / 2 per voxel. Deterministic for any threads.
+// The Gauss-Newton matrix is summed pair by pair, as APE evaluates its objective;
+// `batched_hessian` instead adds it in DSR's batched form, H_ab = (k delta_ab - 1) J_a^T J_b
+// per voxel (the same matrix: DESIGN.md section 5), for measurements only (bench/): it
+// shows how much of APE's cost is its pair-by-pair Gauss-Newton matrix.
 void AccumulateApeSystem(const std::vector<Frame>& frames,
                          const CandidateSet& candidates,
                          const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -58,7 +62,8 @@ void AccumulateApeSystem(const std::vector<Frame>& frames,
                          int64_t end,
                          bool with_jacobian,
                          int num_threads,
-                         NormalEquations* out);
+                         NormalEquations* out,
+                         bool batched_hessian = false);
 
 // Streamed APE block (core/streamed_cost.h) over voxels [begin, end).
 class ApeChunkCost final : public StreamedPoseCost {

@@ -3,12 +3,15 @@
 //   BM_SampleValueAndGradient                    one trilinear gather (core/voxel_stream.h)
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
+//   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
+//   BM_DsrEvaluationPortable/{jacobian}          DSR with the portable (non-AVX2) kernels
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
 //   BM_DsrEvaluationClinical/{jacobian}          DSR, 11 frames of 176x176x200 at 0.6 mm
 //   BM_BuildCandidatesClinical                   the candidate set at that size
 //   BM_DbaEvaluation                             Ceres Problem::Evaluate of DBA with
 //                                                Jacobians, 6 frames of 48x48x40
-// Counters: ns per observation (an intensity difference the objective evaluates).
+// Counters: ns per observation (an intensity difference the objective evaluates). The
+// kernel path is the best this CPU has (core/voxel_stream.h) unless named.
 #include <benchmark/benchmark.h>
 
 #include <memory>
@@ -112,6 +115,36 @@ void BM_ApeEvaluation(benchmark::State& state) {
   SetObservationCounter(state, system.observations);
 }
 BENCHMARK(BM_ApeEvaluation)->ArgsProduct({{0, 1}, {1, 2}})->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// APE with its Gauss-Newton matrix added in DSR's batched form instead of pair by pair (a
+// measurement: how much of APE's cost is its pair-by-pair matrix), 2 threads.
+void BM_ApeEvaluationBatchedHessian(benchmark::State& state) {
+  const Problem& p = Paper();
+  NormalEquations system;
+  for (auto _ : state) {
+    AccumulateApeSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), true, 2,
+                        &system, /*batched_hessian=*/true);
+    benchmark::DoNotOptimize(system.cost);
+  }
+  SetObservationCounter(state, system.observations);
+}
+BENCHMARK(BM_ApeEvaluationBatchedHessian)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// DSR with the portable kernels (the twin of the AVX2 ones), 2 threads.
+void BM_DsrEvaluationPortable(benchmark::State& state) {
+  const Problem& p = Paper();
+  const KernelPath saved = ActiveKernelPath();
+  SetKernelPath(KernelPath::kPortable);
+  NormalEquations system;
+  for (auto _ : state) {
+    AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
+                            state.range(0) != 0, 2, &system);
+    benchmark::DoNotOptimize(system.cost);
+  }
+  SetKernelPath(saved);
+  SetObservationCounter(state, system.observations);
+}
+BENCHMARK(BM_DsrEvaluationPortable)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_DsrEvaluationFrames(benchmark::State& state) {
   const std::unique_ptr<Problem> p =

@@ -97,12 +97,15 @@ void FillReport(const ceres::Solver::Summary& summary,
       summary.minimizer_time_in_seconds / std::max(1, report->num_iterations);
 }
 
-int64_t PeakResidentBytes() {
+namespace {
+
+// A "Vm...:  N kB" line of /proc/self/status in bytes, 0 when absent.
+int64_t StatusBytes(const std::string& key) {
   std::ifstream status("/proc/self/status");
   std::string line;
   while (std::getline(status, line)) {
-    if (line.rfind("VmHWM:", 0) == 0) {
-      std::istringstream s(line.substr(6));
+    if (line.rfind(key, 0) == 0) {
+      std::istringstream s(line.substr(key.size()));
       int64_t kb = 0;
       s >> kb;
       return kb * 1024;
@@ -110,6 +113,12 @@ int64_t PeakResidentBytes() {
   }
   return 0;
 }
+
+}  // namespace
+
+int64_t PeakResidentBytes() { return StatusBytes("VmHWM:"); }
+
+int64_t CurrentResidentBytes() { return StatusBytes("VmRSS:"); }
 
 int64_t PhysicalMemoryBytes() {
   const long pages = sysconf(_SC_PHYS_PAGES), page_size = sysconf(_SC_PAGE_SIZE);

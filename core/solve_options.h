@@ -96,6 +96,8 @@ void FillReport(const ceres::Solver::Summary& summary,
 
 // Peak resident set size of this process in bytes (VmHWM), 0 when unknown.
 int64_t PeakResidentBytes();
+// Resident set size of this process now in bytes (VmRSS), 0 when unknown.
+int64_t CurrentResidentBytes();
 // Physical memory of the machine in bytes, 0 when unknown.
 int64_t PhysicalMemoryBytes();
 

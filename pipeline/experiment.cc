@@ -25,7 +25,7 @@ std::string Serialize(const ComparisonRow& row) {
   s << row.ok << ' ' << row.mae_translation_voxels << ' ' << row.mae_translation_mm << ' '
     << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
     << row.iterations << ' ' << row.seconds_per_iteration << ' '
-    << row.differences_per_iteration << ' ' << row.seconds << ' '
+    << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << row.frame_from_world.size();
   for (const Eigen::Isometry3d& t : row.frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -40,7 +40,8 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   size_t poses = 0;
   s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
       row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
-      row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >> poses;
+      row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
+      row->added_memory_mb >> poses;
   if (!s || poses > 1000) return false;
   row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
   for (Eigen::Isometry3d& t : row->frame_from_world) {
@@ -56,6 +57,9 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
 
 ComparisonRow RunInProcess(const ExperimentSequence& sequence, const RegistrationOptions& options) {
   ComparisonRow row;
+  // Memory at the start (in a child: what it shares with the parent), in MB; the parent
+  // turns it into the run's added memory with the child's peak.
+  row.added_memory_mb = CurrentResidentBytes() / 1048576.0;
   const auto start = std::chrono::steady_clock::now();
   const std::vector<Eigen::Isometry3d> identity(sequence.frames.size(),
                                                 Eigen::Isometry3d::Identity());
@@ -115,6 +119,7 @@ ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOp
   int fds[2];
   if (pipe(fds) != 0) {
     row = RunInProcess(sequence, options);  // no isolation available: run here
+    row.added_memory_mb = 0.0;               // unknown without a process of its own
   } else {
     std::fflush(nullptr);
     const pid_t pid = fork();
@@ -153,7 +158,10 @@ ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOp
       row.failure = "the run ended without a result (exit status " +
                     std::to_string(WEXITSTATUS(status)) + ")";
     }
-    if (waited == pid) row.peak_memory_mb = usage.ru_maxrss / 1024.0;  // kB on Linux
+    if (waited == pid) {
+      row.peak_memory_mb = usage.ru_maxrss / 1024.0;  // kB on Linux
+      row.added_memory_mb = std::max(0.0, row.peak_memory_mb - row.added_memory_mb);
+    }
   }
   row.method = options.mode + (options.pairwise_init ? "+pairwise_init" : "");
   row.sequence = sequence.name;
@@ -165,13 +173,13 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
   s.precision(9);
   s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
        "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
-       "intensity_differences_per_iteration,seconds,peak_memory_mb,failure\n";
+       "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,failure\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
       << ',' << r.tre_mean_mm << ',' << r.tre_max_mm << ',' << r.iterations << ','
       << r.seconds_per_iteration << ',' << r.differences_per_iteration << ',' << r.seconds
-      << ',' << r.peak_memory_mb << ',' << CsvField(r.failure) << '\n';
+      << ',' << r.peak_memory_mb << ',' << r.added_memory_mb << ',' << CsvField(r.failure) << '\n';
   }
   return s.str();
 }
@@ -186,11 +194,11 @@ std::string ComparisonMarkdown(const std::vector<ComparisonRow>& rows) {
   std::ostringstream s;
   s << "| method | runs ok | MAE translation (voxels) | MAE rotation (rad) | TRE mean (mm) | "
        "iterations | time / iteration (s) | intensity differences / iteration | total (s) | "
-       "peak memory (MB) |\n";
-  s << "|---|---|---|---|---|---|---|---|---|---|\n";
+       "peak memory (MB) | added memory (MB) |\n";
+  s << "|---|---|---|---|---|---|---|---|---|---|---|\n";
   char line[512];
   for (const std::string& m : methods) {
-    std::vector<double> t, r, tre, it, spi, dpi, sec, mem;
+    std::vector<double> t, r, tre, it, spi, dpi, sec, mem, added;
     int ok = 0;
     for (const ComparisonRow* row : by_method[m]) {
       if (!row->ok) continue;
@@ -203,15 +211,17 @@ std::string ComparisonMarkdown(const std::vector<ComparisonRow>& rows) {
       dpi.push_back(row->differences_per_iteration);
       sec.push_back(row->seconds);
       mem.push_back(row->peak_memory_mb);
+      added.push_back(row->added_memory_mb);
     }
     std::snprintf(line, sizeof(line),
-                  "| %s | %d/%zu | %.4g | %.3g | %.4g | %.0f | %.4g | %.4g | %.3g | %.0f |\n",
+                  "| %s | %d/%zu | %.4g | %.3g | %.4g | %.0f | %.4g | %.4g | %.3g | %.0f | %.0f |\n",
                   m.c_str(), ok, by_method[m].size(), Median(t), Median(r), Median(tre),
-                  Median(it), Median(spi), Median(dpi), Median(sec), Median(mem));
+                  Median(it), Median(spi), Median(dpi), Median(sec), Median(mem), Median(added));
     s << line;
   }
   s << "\nMedians over sequences; time and intensity differences per iteration at the finest "
-       "pyramid level.\n";
+       "pyramid level; added memory: the run's peak minus what its process held when it "
+       "started (the sequence, the libraries).\n";
   return s.str();
 }
 

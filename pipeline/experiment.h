@@ -34,6 +34,10 @@ struct ComparisonRow {
   double differences_per_iteration = 0.0;  // finest level: intensity differences per evaluation
   double seconds = 0.0;             // the whole run (pyramid, initialiser, solves)
   double peak_memory_mb = 0.0;      // the run's process
+  // What the run added to the memory its process started with (the inputs, the libraries
+  // and whatever the comparison itself holds, e.g. the phantom): peak minus resident at
+  // the start of the run. The method's own memory.
+  double added_memory_mb = 0.0;
   std::vector<Eigen::Isometry3d> frame_from_world;
 };
 

@@ -72,6 +72,25 @@ TEST(Ape, PerVoxelCostIsKTimesTheDsrCost) {
   EXPECT_GT(Relative(ape.gradient / ape.gradient.norm(), dsr.gradient / dsr.gradient.norm()), 1e-3);
 }
 
+TEST(Ape, BatchedFormOfItsGaussNewtonMatrixIsTheSameMatrix) {
+  // The bench's measurement variant (batched_hessian) must change only how H is summed.
+  SequenceOptions o;
+  o.num_frames = 5;
+  o.size = 16;
+  o.noise_sigma = 5.0;
+  o.frame_offset = 2.0;
+  const auto s = MakeSequence(o);
+  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 8);
+  const CandidateSet cand = Candidates(s, poses);
+  NormalEquations pairs, batched;
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &pairs);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &batched, true);
+  EXPECT_EQ(pairs.cost, batched.cost);
+  EXPECT_TRUE(pairs.gradient == batched.gradient);
+  ASSERT_GT(pairs.hessian.norm(), 0.0);
+  EXPECT_LT(Relative(batched.hessian, pairs.hessian), 1e-12);
+}
+
 TEST(Ape, StreamedSystemMatchesPerPairReference) {
   uint64_t seed = 11;
   for (int num_frames : {2, 3, 4}) {
