@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # End-to-end performance comparisons in one run, on the same simulated data (issue 6):
-#   (a) DSR vs DBA (Ceres DENSE_SCHUR) on a problem small enough for DBA
+#   (a) DSR vs DBA (Ceres DENSE_SCHUR) on a problem small enough for DBA, both registering
+#       it fully (3-level pyramid); plus the memory a dsr_register process holds before it
+#       reads anything (the shared libraries), which both modes carry
 #   (b) DSR vs APE at 11 frames of 96x96x80: intensity differences and time per iteration
 #   (c) DSR time per iteration and peak memory versus frames (3..11) and frame size
 #       (48^3 .. 176x176x200 at 0.6 mm), with a log-log plot
@@ -22,12 +24,13 @@ compare() {  # name, then dsr_compare flags
     2> "$out/$name.log" > /dev/null || echo "compare: $name failed: $(tail -1 "$out/$name.log")" >&2
 }
 echo "compare: kernels (Google Benchmark)" >&2
+[ -x /usr/bin/time ] || DEBIAN_FRONTEND=noninteractive apt-get install -y -qq time >/dev/null
 "${DSR_BUILD_DIR:-build}/bench/kernels_bench" --benchmark_repetitions=3 \
   --benchmark_report_aggregates_only=true --benchmark_out="$out/kernels.json" \
   --benchmark_out_format=json > "$out/kernels.txt"
 echo "compare: (a) DSR vs DBA" >&2
-compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64 --pyramid_levels=1 \
-  --max_iterations=8
+compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64
+/usr/bin/time -f "%M" -o "$out/library_floor_kb.txt" "$bin/dsr_register" --help > /dev/null 2>&1 || true
 echo "compare: (b) DSR vs APE" >&2
 compare dsr_vs_ape --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
 echo "compare: (c) frames" >&2
