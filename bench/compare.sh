@@ -10,13 +10,14 @@
 # plus the Google Benchmark kernels (bench/kernels_bench.cc). Every registration runs in its
 # own process (dsr_compare), so peak memory is per run. Writes bench/results/: kernels.json,
 # one CSV per part, summary.md (markdown tables) and scaling.png.
-# Usage: bash bench/compare.sh [--quick]   (--quick: smaller sizes, for a smoke test)
+# Usage: bash bench/compare.sh [--quick]   (--quick: smaller sizes, one run each, for a smoke test)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 quick="${1:-}"
 DSR_BUILD_DIR="${DSR_BUILD_DIR:-build}" bash scripts/build.sh -DDSR_BUILD_BENCHMARKS=ON
 bin="${DSR_BUILD_DIR:-build}/tools"
 out=bench/results
+rm -rf "$out"
 mkdir -p "$out"
 compare() {  # name, then dsr_compare flags
   local name="$1"; shift
@@ -33,24 +34,29 @@ compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64
 /usr/bin/time -f "%M" -o "$out/library_floor_kb.txt" "$bin/dsr_register" --help > /dev/null 2>&1 || true
 echo "compare: (b) DSR vs APE" >&2
 compare dsr_vs_ape --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
-echo "compare: (c) frames" >&2
+# (c) and (d) run each point 3 times (folders *_r1.._r3); the summary takes medians, so a
+# noisy neighbour on the machine moves one run, not the slope.
+repeats=3
 frames_list="3 5 7 9 11"
 sizes="48,48,48 64,64,64 96,96,80 128,128,128 176,176,200"
-[ "$quick" = "--quick" ] && frames_list="3 5" && sizes="48,48,48 64,64,64"
-for f in $frames_list; do
-  compare "frames_$f" --methods=dsr --num_frames="$f" --frame_size=96,96,80
-done
-echo "compare: (c) sizes" >&2
-for s in $sizes; do
-  spacing=0; phantom=192
-  if [ "$s" = "128,128,128" ]; then phantom=256; fi   # 128 mm frames need a larger source
-  if [ "$s" = "176,176,200" ]; then spacing=0.6; fi   # clinical: 106x106x120 mm
-  compare "size_${s//,/x}" --methods=dsr --num_frames=11 --frame_size="$s" --frame_spacing=$spacing \
-    --phantom_size=$phantom
-done
-echo "compare: (d) threads" >&2
-for t in 1 2; do
-  compare "threads_$t" --methods=dsr --num_frames=11 --frame_size=96,96,80 --num_threads=$t
+[ "$quick" = "--quick" ] && frames_list="3 5" && sizes="48,48,48 64,64,64" && repeats=1
+for r in $(seq 1 $repeats); do
+  echo "compare: (c) frames, run $r" >&2
+  for f in $frames_list; do
+    compare "frames_${f}_r$r" --methods=dsr --num_frames="$f" --frame_size=96,96,80
+  done
+  echo "compare: (c) sizes, run $r" >&2
+  for s in $sizes; do
+    spacing=0; phantom=192
+    if [ "$s" = "128,128,128" ]; then phantom=256; fi   # 128 mm frames need a larger source
+    if [ "$s" = "176,176,200" ]; then spacing=0.6; fi   # clinical: 106x106x120 mm
+    compare "size_${s//,/x}_r$r" --methods=dsr --num_frames=11 --frame_size="$s" \
+      --frame_spacing=$spacing --phantom_size=$phantom
+  done
+  echo "compare: (d) threads, run $r" >&2
+  for t in 1 2; do
+    compare "threads_${t}_r$r" --methods=dsr --num_frames=11 --frame_size=96,96,80 --num_threads=$t
+  done
 done
 python="$(bash scripts/python_env.sh)"
 "$python" bench/summarize.py "$out" "$(nproc)"

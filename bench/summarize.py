@@ -104,17 +104,28 @@ def main():
             md.append(f"| {m['method']} | {float(m['intensity_differences_per_iteration']):.3g} | {float(m['seconds_per_iteration']):.3f} | {float(m['mae_translation_voxels']):.4f} |")
         md.append(f"\nAPE / DSR: {float(a['intensity_differences_per_iteration']) / float(d['intensity_differences_per_iteration']):.2f}x intensity differences, {float(a['seconds_per_iteration']) / float(d['seconds_per_iteration']):.2f}x time per iteration.\n")
 
-    # (c) scaling.
+    # (c) scaling: each point run several times (folders NAME_rK); medians per point.
+    def median(v):
+        v = sorted(v)
+        n = len(v)
+        return v[n // 2] if n % 2 else 0.5 * (v[n // 2 - 1] + v[n // 2])
+
     def series(prefix, key):
-        pts = []
+        groups = {}
         for name in sorted(os.listdir(out)):
             if not name.startswith(prefix) or not os.path.isdir(os.path.join(out, name)):
                 continue
+            base = name.rsplit("_r", 1)[0] if "_r" in name else name
             for x in rows(os.path.join(out, name)):
                 if x["ok"] == "1":
-                    pts.append((key(name, x), float(x["seconds_per_iteration"]), float(x["peak_memory_mb"]),
-                                float(x["intensity_differences_per_iteration"]), float(x["seconds"]),
-                                float(x["tre_mean_mm"]), name))
+                    groups.setdefault(base, []).append(x)
+        pts = []
+        for base, xs in groups.items():
+            pts.append((key(base, xs[0]), median([float(x["seconds_per_iteration"]) for x in xs]),
+                        median([float(x["peak_memory_mb"]) for x in xs]),
+                        median([float(x["intensity_differences_per_iteration"]) for x in xs]),
+                        median([float(x["seconds"]) for x in xs]),
+                        median([float(x["tre_mean_mm"]) for x in xs]), f"{base} ({len(xs)} runs)"))
         return sorted(pts)
 
     frames = series("frames_", lambda n, x: int(n.split("_")[1]))
@@ -142,7 +153,7 @@ def main():
         s_td = slope([p[3] for p in pts], [p[1] for p in pts])
         md.append(f"## (c) DSR versus {label}\n\nlog-log slopes: time per iteration {s_t:.2f}, peak memory {s_m:.2f}; "
                   f"intensity differences {s_d:.2f}, so time per iteration against intensity differences {s_td:.2f}\n")
-        md.append("| run | x | intensity differences / iteration | time / iteration (s) | total (s) | peak memory (MB) | TRE mean (mm) |\n|---|---|---|---|---|---|---|")
+        md.append("| point | x | intensity differences / iteration | time / iteration (s, median) | total (s, median) | peak memory (MB) | TRE mean (mm) |\n|---|---|---|---|---|---|---|")
         for p in pts:
             md.append(f"| {p[6]} | {p[0]} | {p[3]:.3g} | {p[1]:.3f} | {p[4]:.2f} | {p[2]:.0f} | {p[5]:.4f} |")
         md.append("")
@@ -152,18 +163,22 @@ def main():
     fig.savefig(tmp, dpi=110)
     os.replace(tmp, os.path.join(out, "scaling.png"))
 
-    # (d) threads.
+    # (d) threads: medians over the runs.
     t = {}
     for n in (1, 2):
-        r = rows(os.path.join(out, f"threads_{n}"))
-        if r and r[0]["ok"] == "1":
-            t[n] = r[0]
+        xs = []
+        for name in sorted(os.listdir(out)):
+            if name == f"threads_{n}" or name.startswith(f"threads_{n}_r"):
+                xs += [x for x in rows(os.path.join(out, name)) if x["ok"] == "1"]
+        if xs:
+            t[n] = (median([float(x["seconds_per_iteration"]) for x in xs]),
+                    median([float(x["seconds"]) for x in xs]), len(xs))
     if 1 in t and 2 in t:
-        md.append("## (d) threads (11 frames of 96x96x80)\n")
-        md.append("| threads | time / iteration (s) | total (s) |\n|---|---|---|")
+        md.append("## (d) threads (11 frames of 96x96x80, medians)\n")
+        md.append("| threads | runs | time / iteration (s) | total (s) |\n|---|---|---|---|")
         for n in (1, 2):
-            md.append(f"| {n} | {float(t[n]['seconds_per_iteration']):.3f} | {float(t[n]['seconds']):.2f} |")
-        md.append(f"\n2 threads: {float(t[1]['seconds_per_iteration']) / float(t[2]['seconds_per_iteration']):.2f}x faster per iteration, {float(t[1]['seconds']) / float(t[2]['seconds']):.2f}x in total.\n")
+            md.append(f"| {n} | {t[n][2]} | {t[n][0]:.3f} | {t[n][1]:.2f} |")
+        md.append(f"\n2 threads: {t[1][0] / t[2][0]:.2f}x faster per iteration, {t[1][1] / t[2][1]:.2f}x in total.\n")
 
     tmp = os.path.join(out, "summary.md.tmp")
     with open(tmp, "w") as f:

@@ -11,6 +11,7 @@
 
 #include "core/hessian_batch.h"
 #include "core/voxel_stream.h"
+#include "kernel_paths.h"
 
 namespace dsr {
 namespace {
@@ -18,21 +19,8 @@ namespace {
 // Same products summed in another order: agreement to rounding.
 constexpr double kRelativeTolerance = 1e-12;
 
-// Restores the kernel path a test changed.
-class KernelPathScope {
- public:
-  explicit KernelPathScope(KernelPath path) : saved_(ActiveKernelPath()) { SetKernelPath(path); }
-  ~KernelPathScope() { SetKernelPath(saved_); }
-
- private:
-  KernelPath saved_;
-};
-
-std::vector<KernelPath> AvailablePaths() {
-  std::vector<KernelPath> paths = {KernelPath::kPortable};
-  if (KernelPathAvailable(KernelPath::kAvx2)) paths.push_back(KernelPath::kAvx2);
-  return paths;
-}
+using testing_kernels::AvailablePaths;
+using testing_kernels::KernelPathScope;
 
 // Fills a batch with `num_voxels` random voxels whose observer sets are drawn from
 // `num_sets` random sets of at least two of `m` frames, in runs of random length; DSR's

@@ -51,6 +51,16 @@ void ExpectSameSolve(const SolveReport& with, const SolveReport& without, bool f
             2 * without.jacobian_passes + without.cost_passes);
 }
 
+// Solves with `solve` given the options' SolveOptions, with and without reuse.
+template <class Options, class Solve>
+void SolveBothWays(Options options, const Solve& solve, SolveReport* with, SolveReport* without) {
+  std::string error;
+  options.solve.reuse_evaluations = true;
+  ASSERT_TRUE(solve(options, with, &error)) << error;
+  options.solve.reuse_evaluations = false;
+  ASSERT_TRUE(solve(options, without, &error)) << error;
+}
+
 TEST(StreamedCost, ReusingPassesDoesNotChangeDsrSolves) {
   for (uint64_t seed : {3, 4}) {
     const auto s = Sequence(seed);
@@ -61,10 +71,9 @@ TEST(StreamedCost, ReusingPassesDoesNotChangeDsrSolves) {
     options.solve.log_progress = false;
     options.solve.max_iterations = 30;
     SolveReport with, without;
-    std::string error;
-    ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &with, &error)) << error;
-    options.solve.reuse_evaluations = false;
-    ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &without, &error)) << error;
+    SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
+      return SolveDsr(s.frames, cand, init, o, r, e);
+    }, &with, &without);
     ASSERT_GT(without.num_iterations, 2);
     EXPECT_EQ(without.cost_passes, without.num_iterations * 3);  // one per trial, per chunk
     ExpectSameSolve(with, without, /*fewer_passes=*/true);
@@ -79,10 +88,9 @@ TEST(StreamedCost, ReusingPassesDoesNotChangeApeSolves) {
   options.solve.log_progress = false;
   options.solve.max_iterations = 30;
   SolveReport with, without;
-  std::string error;
-  ASSERT_TRUE(SolveApe(s.frames, cand, init, options, &with, &error)) << error;
-  options.solve.reuse_evaluations = false;
-  ASSERT_TRUE(SolveApe(s.frames, cand, init, options, &without, &error)) << error;
+  SolveBothWays(options, [&](const BaselineOptions& o, SolveReport* r, std::string* e) {
+    return SolveApe(s.frames, cand, init, o, r, e);
+  }, &with, &without);
   ExpectSameSolve(with, without, /*fewer_passes=*/false);
 }
 
@@ -97,10 +105,9 @@ TEST(StreamedCost, StepRuleOffMeansNoLazyFinalPoint) {
   options.solve.max_iterations = 12;
   options.solve.step_tolerance_voxels = 0.0;
   SolveReport with, without;
-  std::string error;
-  ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &with, &error)) << error;
-  options.solve.reuse_evaluations = false;
-  ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &without, &error)) << error;
+  SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
+    return SolveDsr(s.frames, cand, init, o, r, e);
+  }, &with, &without);
   ExpectSameSolve(with, without, /*fewer_passes=*/false);
 }
 

@@ -11,6 +11,7 @@
 #include <memory>
 
 #include "core/voxel_stream.h"
+#include "kernel_paths.h"
 #include "dsr_reduced/reduced_cost.h"
 #include "test_problems.h"
 
@@ -27,20 +28,8 @@ constexpr double kValueTolerance = 1e-10;      // intensities are O(100)
 constexpr double kJacobianTolerance = 1e-10;   // relative to the Jacobian's norm
 constexpr double kSystemRelativeTolerance = 1e-12;
 
-class KernelPathScope {
- public:
-  explicit KernelPathScope(KernelPath path) : saved_(ActiveKernelPath()) { SetKernelPath(path); }
-  ~KernelPathScope() { SetKernelPath(saved_); }
-
- private:
-  KernelPath saved_;
-};
-
-std::vector<KernelPath> AvailablePaths() {
-  std::vector<KernelPath> paths = {KernelPath::kPortable};
-  if (KernelPathAvailable(KernelPath::kAvx2)) paths.push_back(KernelPath::kAvx2);
-  return paths;
-}
+using testing_kernels::AvailablePaths;
+using testing_kernels::KernelPathScope;
 
 testing_problems::TestSequence Sequence(uint64_t seed) {
   SequenceOptions o;
