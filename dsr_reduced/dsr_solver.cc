@@ -70,7 +70,6 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
                                        options.solve.num_threads);
-    chunk->set_policy(EvaluationPolicyFor(frames, options.solve));
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -81,6 +80,10 @@ int64_t DsrProblem::LastObservations() const {
   int64_t total = 0;
   for (const ReducedChunkCost* chunk : chunks_) total += chunk->last_observations();
   return total;
+}
+
+void DsrProblem::SetEvaluationPolicy(const StreamedEvaluationPolicy& policy) {
+  for (ReducedChunkCost* chunk : chunks_) chunk->set_policy(policy);
 }
 
 std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
@@ -96,6 +99,9 @@ bool SolveDsr(const std::vector<Frame>& frames,
               SolveReport* report,
               std::string* error) {
   DsrProblem dsr(frames, candidates, initial_frame_from_world, options);
+  // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
+  // it is set for this solve only (core/streamed_cost.h).
+  dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
   ceres::Solver::Options solver_options;
   options.solve.ToCeres(options.reference_cost ? "SPARSE_NORMAL_CHOLESKY" : "DENSE_QR",
                         &solver_options);

@@ -41,12 +41,15 @@ class DsrProblem {
   // the reference cost, which does not count them.
   int64_t LastObservations() const;
   // The fast path's blocks (empty for the reference cost).
-  const std::vector<const ReducedChunkCost*>& chunks() const { return chunks_; }
+  const std::vector<ReducedChunkCost*>& chunks() const { return chunks_; }
+  // How the fast path's blocks reuse their passes (core/streamed_cost.h); none by
+  // default, so that evaluations outside a solve are plain ones.
+  void SetEvaluationPolicy(const StreamedEvaluationPolicy& policy);
 
  private:
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
-  std::vector<const ReducedChunkCost*> chunks_;  // owned by problem_
+  std::vector<ReducedChunkCost*> chunks_;  // owned by problem_
 };
 
 // Solves. A solve that runs but is not usable returns true with report->usable = false.
