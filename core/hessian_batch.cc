@@ -75,7 +75,9 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
   int rows[VoxelBatch::kMaxVoxels];  // first observation of each voxel, grouped
   for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.begin[t];
 
+#ifdef DSR_HAVE_AVX2_KERNELS
   const bool avx2 = ActiveKernelPath() == KernelPath::kAvx2;
+#endif
   for (int g = 0; g < num_groups; ++g) {
     int frame[kMaxFrames];
     int k = 0;

@@ -97,8 +97,6 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
       pass_parameters_ = flat;
       pass_has_jacobian_ = speculate;
       pass_is_final_ = final_step;
-    } else {
-      ++counts_.reused;
     }
     last_observations_ = pass_.observations;
     if (!std::isfinite(pass_.cost)) return false;
@@ -112,11 +110,9 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
   last_was_cost_only_ = false;
   if (accepted_trial) speculate_next_ = true;
   if (same_point && pass_has_jacobian_) {
-    ++counts_.reused;
     accepted_ = pass_;
   } else if (same_point && pass_is_final_ && static_cast<int>(accepted_poses_.size()) == m) {
     // The solve ends here: the previous point's Gauss-Newton model, this point's cost.
-    ++counts_.reused;
     accepted_.cost = pass_.cost;
     accepted_.observations = pass_.observations;
     accepted_poses_ = poses;

@@ -57,11 +57,10 @@ struct StreamedEvaluationPolicy {
   double step_tolerance_voxels = 0.0;
 };
 
-// Passes over the voxels a block made, and evaluations it answered without one.
+// Passes over the voxels a block made.
 struct StreamedPassCounts {
   int jacobian_passes = 0;
   int cost_passes = 0;
-  int reused = 0;
 };
 
 // The policy the solvers give their blocks: speculate and lazy final Jacobians when
