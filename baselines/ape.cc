@@ -25,18 +25,14 @@ struct ApeVoxelTerm {
     double* h = acc->hessian.data();
     double* g = acc->gradient.data();
     const int n = acc->n;
-    double jac[kMaxFrames][6];
-    if (with_jacobian) {
-      for (int a = 0; a < k; ++a) CompactJacobian(obs.jac[a], jac[a]);
-    }
     for (int a = 0; a < k; ++a) {
       for (int b = a + 1; b < k; ++b) {
         const double e = obs.value[a] - obs.value[b];
         acc->cost += e * e;
         if (!with_jacobian) continue;
         const int fa = obs.frame[a], fb = obs.frame[b];
-        const double* ja = jac[a];
-        const double* jb = jac[b];
+        const double* ja = obs.jac[a];
+        const double* jb = obs.jac[b];
         for (int i = 0; i < 6; ++i) {
           g[6 * fa + i] += ja[i] * e;
           g[6 * fb + i] -= jb[i] * e;

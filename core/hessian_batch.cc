@@ -10,7 +10,7 @@
 namespace dsr {
 namespace internal {
 
-void AddGroupHessianPortable(const double (*jac)[8],
+void AddGroupHessianPortable(const double (*jac)[6],
                              const int* first,
                              int num_rows,
                              int k,
@@ -25,8 +25,7 @@ void AddGroupHessianPortable(const double (*jac)[8],
         const double* ja = jac[first[r] + a];
         const double* jb = jac[first[r] + b];
         for (int i = 0; i < 6; ++i) {
-          const double x = ja[JacobianLane(i)];
-          for (int j = 0; j < 6; ++j) sum[i][j] += x * jb[JacobianLane(j)];
+          for (int j = 0; j < 6; ++j) sum[i][j] += ja[i] * jb[j];
         }
       }
       const double scale = weights.shared + (a == b ? weights.diagonal : 0.0);

@@ -5,10 +5,13 @@
 // to every pair of its observers: k(k+1)/2 6x6 blocks. Added voxel by voxel, every one of
 // those multiply-adds loads and stores an element of H. Neighbouring voxels mostly have
 // the same observers, so a batch of voxels is grouped by observer set, and for each group
-// and pair (a, b) the kernel sums J_a^T J_b over the group's voxels in registers
-// (a 6x8 tile: 12 AVX2 accumulators) before adding it, scaled, to H once:
+// and pair (a, b) the kernel sums J_a^T J_b over the group's voxels in registers before
+// adding it, scaled, to H once:
 //   H_ab += (delta_ab * diagonal + shared) sum_{voxels v of the group} J_av^T J_bv.
-// Same sums as voxel by voxel, added in another order.
+// Same sums as voxel by voxel, added in another order. The batch stores a voxel's k
+// Jacobians contiguously (6k doubles, its row S_v = [J_0v ... J_{k-1,v}]), so the AVX2
+// kernel reads the columns of two blocks (12 doubles, 3 registers) at once with no
+// padding lane: 3 rows x 12 columns per tile (core/kernels_avx2.cc).
 //
 // The slow twin is the per-voxel AddOuter path of the same term (tests compare them).
 #ifndef DSR_CORE_HESSIAN_BATCH_H_
@@ -36,10 +39,10 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
 
 namespace internal {
 
-// One group: `num_rows` voxels with the same k observers `frame[0..k)`, voxel r's padded
+// One group: `num_rows` voxels with the same k observers `frame[0..k)`, voxel r's
 // Jacobians at jac[first[r] + a]. Adds scale_ab * sum_r J_a^T J_b to block (frame[a],
 // frame[b]) for a <= b, with scale_ab = shared + (a == b ? diagonal : 0).
-void AddGroupHessianPortable(const double (*jac)[8],
+void AddGroupHessianPortable(const double (*jac)[6],
                              const int* first,
                              int num_rows,
                              int k,

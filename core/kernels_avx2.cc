@@ -61,8 +61,28 @@ DSR_TARGET_AVX2 inline __m256d CellRow(const float* r, __m256d wx0, __m256d wx1)
                          _mm256_mul_pd(_mm256_cvtps_pd(_mm_loadu_ps(r)), wx0));
 }
 
-DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f, const Point& p, double sample[4]) {
+DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f,
+                                      const double ahead[4],
+                                      const Point& p,
+                                      double sample[4]) {
   const __m256d u = Affine(f.a, p);
+  {
+    // The hint: the cell of u + ahead, clamped into the grid (max first: a NaN lane
+    // becomes 0).
+    const __m256d later = _mm256_min_pd(
+        _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, _mm256_loadu_pd(ahead))), _mm256_setzero_pd()),
+        _mm256_loadu_pd(f.max_cell));
+    const __m128i index = _mm256_cvttpd_epi32(later);
+    const int64_t cell = _mm_cvtsi128_si32(index) + f.stride_y * _mm_extract_epi32(index, 1) +
+                         f.stride_z * _mm_extract_epi32(index, 2);
+    const char* c = reinterpret_cast<const char*>(f.data + 4 * cell);
+    const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
+    _mm_prefetch(c, _MM_HINT_T0);
+    _mm_prefetch(c + sy, _MM_HINT_T0);
+    _mm_prefetch(c + sz, _MM_HINT_T0);
+    _mm_prefetch(c + sy + sz, _MM_HINT_T0);
+    _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (cell >> 3)), _MM_HINT_T0);
+  }
   __m256d fl;
   int64_t cell;
   if (!CellOf(f, u, &fl, &cell)) return false;
@@ -85,7 +105,7 @@ DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f, const Point& p, doubl
 DSR_TARGET_AVX2 inline void JacobianOne(const PosedFrame& f,
                                         const Point& p,
                                         const double sample[4],
-                                        double jac[8]) {
+                                        double jac[6]) {
   const __m256d s = _mm256_loadu_pd(sample);
   const __m256d gu = _mm256_permute4x64_pd(s, 0x55), gv = _mm256_permute4x64_pd(s, 0xAA),
                 gw = _mm256_permute4x64_pd(s, 0xFF);
@@ -97,21 +117,10 @@ DSR_TARGET_AVX2 inline void JacobianOne(const PosedFrame& f,
   const __m256d cross = _mm256_fmsub_pd(
       _mm256_permute4x64_pd(q, 0xC9), _mm256_permute4x64_pd(grad, 0xD2),
       _mm256_mul_pd(_mm256_permute4x64_pd(q, 0xD2), _mm256_permute4x64_pd(grad, 0xC9)));
+  // [grad, 0] then [cross, 0] over lanes 3..6: jac[0..5] = [grad; cross], and jac[6] (the
+  // next slot's first entry, written again when that slot is) gets the zero lane.
   _mm256_storeu_pd(jac, grad);
-  _mm256_storeu_pd(jac + 4, cross);
-}
-
-DSR_TARGET_AVX2 inline void PrefetchOne(const PosedFrame& f, const Point& p) {
-  __m256d fl;
-  int64_t cell;
-  if (!CellOf(f, Affine(f.a, p), &fl, &cell)) return;
-  const char* c = reinterpret_cast<const char*>(f.data + 4 * cell);
-  const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
-  _mm_prefetch(c, _MM_HINT_T0);
-  _mm_prefetch(c + sy, _MM_HINT_T0);
-  _mm_prefetch(c + sz, _MM_HINT_T0);
-  _mm_prefetch(c + sy + sz, _MM_HINT_T0);
-  _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (cell >> 3)), _MM_HINT_T0);
+  _mm256_storeu_pd(jac + 3, cross);
 }
 
 #define DSR_KERNEL_ATTR DSR_TARGET_AVX2
@@ -129,8 +138,26 @@ int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
   return SampleVoxelBatchLoop(posed, candidates, v, end, with_jacobian, batch);
 }
 
-// sum_r J_a^T J_b for one pair (a, b) of a group, as 6 rows x 8 lanes in 12 registers.
-DSR_TARGET_AVX2 void AddGroupHessianAvx2(const double (*jac)[8],
+namespace {
+
+// h[0..3] += s * x.
+DSR_TARGET_AVX2 inline void AddScaled4(double* h, __m256d s, __m256d x) {
+  _mm256_storeu_pd(h, _mm256_fmadd_pd(s, x, _mm256_loadu_pd(h)));
+}
+// h[0..1] += s * x.
+DSR_TARGET_AVX2 inline void AddScaled2(double* h, __m128d s, __m128d x) {
+  _mm_storeu_pd(h, _mm_fmadd_pd(s, x, _mm_loadu_pd(h)));
+}
+
+}  // namespace
+
+// The group's rows S_r = [J_0 ... J_{k-1}] are 6k consecutive doubles each. For every
+// block row a and half of it (3 rows of the 6), the kernel walks the columns of blocks
+// b >= a two blocks (12 columns, 3 registers) at a time: 9 accumulators, each row r adds
+// S_r[i] * S_r[12 columns] for its 3 rows i (3 broadcasts, 3 loads, 9 FMAs: no padding
+// lane), then the tile is scaled per block and added to H. An odd last block is a 3 x 6
+// tile (a 4-lane and a 2-lane register per row).
+DSR_TARGET_AVX2 void AddGroupHessianAvx2(const double (*jac)[6],
                                          const int* first,
                                          int num_rows,
                                          int k,
@@ -138,29 +165,62 @@ DSR_TARGET_AVX2 void AddGroupHessianAvx2(const double (*jac)[8],
                                          const HessianWeights& weights,
                                          double* h,
                                          int n) {
-  constexpr int kRowLane[6] = {0, 1, 2, 4, 5, 6};
+  const double* rows[VoxelBatch::kMaxVoxels];
+  for (int r = 0; r < num_rows; ++r) rows[r] = jac[first[r]];
   for (int a = 0; a < k; ++a) {
-    for (int b = a; b < k; ++b) {
-      __m256d acc[6][2];
-      for (int i = 0; i < 6; ++i) acc[i][0] = acc[i][1] = _mm256_setzero_pd();
-      for (int r = 0; r < num_rows; ++r) {
-        const double* ja = jac[first[r] + a];
-        const double* jb = jac[first[r] + b];
-        const __m256d b0 = _mm256_loadu_pd(jb), b1 = _mm256_loadu_pd(jb + 4);
-        for (int i = 0; i < 6; ++i) {
-          const __m256d x = _mm256_broadcast_sd(ja + kRowLane[i]);
-          acc[i][0] = _mm256_fmadd_pd(x, b0, acc[i][0]);
-          acc[i][1] = _mm256_fmadd_pd(x, b1, acc[i][1]);
+    for (int i0 = 6 * a; i0 < 6 * a + 6; i0 += 3) {
+      double* h_row = h + static_cast<int64_t>(6 * frame[a] + i0 - 6 * a) * n;
+      for (int b = a; b < k; b += 2) {
+        const int c = 6 * b;
+        const double wb = weights.shared + (b == a ? weights.diagonal : 0.0);
+        if (b + 1 < k) {
+          __m256d acc[3][3];
+          for (int i = 0; i < 3; ++i) acc[i][0] = acc[i][1] = acc[i][2] = _mm256_setzero_pd();
+          for (int r = 0; r < num_rows; ++r) {
+            const double* s = rows[r];
+            const __m256d c0 = _mm256_loadu_pd(s + c), c1 = _mm256_loadu_pd(s + c + 4),
+                          c2 = _mm256_loadu_pd(s + c + 8);
+            for (int i = 0; i < 3; ++i) {
+              const __m256d x = _mm256_broadcast_sd(s + i0 + i);
+              acc[i][0] = _mm256_fmadd_pd(x, c0, acc[i][0]);
+              acc[i][1] = _mm256_fmadd_pd(x, c1, acc[i][1]);
+              acc[i][2] = _mm256_fmadd_pd(x, c2, acc[i][2]);
+            }
+          }
+          // Columns 0..5 belong to block b (weight wb), 6..11 to block b + 1 (b + 1 > a).
+          const __m256d s0 = _mm256_set1_pd(wb), s2 = _mm256_set1_pd(weights.shared);
+          for (int i = 0; i < 3; ++i) {
+            double* hb = h_row + static_cast<int64_t>(i) * n + 6 * frame[b];
+            double* hb1 = h_row + static_cast<int64_t>(i) * n + 6 * frame[b + 1];
+            AddScaled4(hb, s0, acc[i][0]);
+            AddScaled2(hb + 4, _mm256_castpd256_pd128(s0), _mm256_castpd256_pd128(acc[i][1]));
+            AddScaled2(hb1, _mm256_castpd256_pd128(s2), _mm256_extractf128_pd(acc[i][1], 1));
+            AddScaled4(hb1 + 2, s2, acc[i][2]);
+          }
+        } else {
+          __m256d acc4[3];
+          __m128d acc2[3];
+          for (int i = 0; i < 3; ++i) {
+            acc4[i] = _mm256_setzero_pd();
+            acc2[i] = _mm_setzero_pd();
+          }
+          for (int r = 0; r < num_rows; ++r) {
+            const double* s = rows[r];
+            const __m256d c0 = _mm256_loadu_pd(s + c);
+            const __m128d c1 = _mm_loadu_pd(s + c + 4);
+            for (int i = 0; i < 3; ++i) {
+              const __m256d x = _mm256_broadcast_sd(s + i0 + i);
+              acc4[i] = _mm256_fmadd_pd(x, c0, acc4[i]);
+              acc2[i] = _mm_fmadd_pd(_mm256_castpd256_pd128(x), c1, acc2[i]);
+            }
+          }
+          const __m256d s0 = _mm256_set1_pd(wb);
+          for (int i = 0; i < 3; ++i) {
+            double* hb = h_row + static_cast<int64_t>(i) * n + 6 * frame[b];
+            AddScaled4(hb, s0, acc4[i]);
+            AddScaled2(hb + 4, _mm256_castpd256_pd128(s0), acc2[i]);
+          }
         }
-      }
-      const __m256d scale = _mm256_set1_pd(weights.shared + (a == b ? weights.diagonal : 0.0));
-      for (int i = 0; i < 6; ++i) {
-        double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
-        // Columns 0..2 from lanes 0..2 of acc[i][0], columns 3..5 from lanes 0..2 of acc[i][1].
-        const __m256d head = _mm256_blend_pd(acc[i][0], _mm256_permute4x64_pd(acc[i][1], 0x00), 0x8);
-        _mm256_storeu_pd(row, _mm256_fmadd_pd(scale, head, _mm256_loadu_pd(row)));
-        const __m128d tail = _mm256_castpd256_pd128(_mm256_permute4x64_pd(acc[i][1], 0x09));
-        _mm_storeu_pd(row + 4, _mm_fmadd_pd(_mm256_castpd256_pd128(scale), tail, _mm_loadu_pd(row + 4)));
       }
     }
   }

@@ -35,7 +35,7 @@ int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
                              bool with_jacobian,
                              VoxelBatch* batch);
 
-void AddGroupHessianAvx2(const double (*jac)[8],
+void AddGroupHessianAvx2(const double (*jac)[6],
                          const int* first,
                          int num_rows,
                          int k,

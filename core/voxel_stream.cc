@@ -1,6 +1,7 @@
 // Posed frames, the kernel-path choice and the portable batch sampler (core/voxel_stream.h).
 #include "core/voxel_stream.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -31,11 +32,7 @@ struct Point {
 
 inline Point MakePoint(const double p[3]) { return {{p[0], p[1], p[2]}}; }
 
-inline bool SampleOne(const PosedFrame& f, const Point& p, double sample[4]) {
-  return SampleAt(f, p.p, sample);
-}
-
-inline void JacobianOne(const PosedFrame& f, const Point& p, const double sample[4], double jac[8]) {
+inline void JacobianOne(const PosedFrame& f, const Point& p, const double sample[4], double jac[6]) {
   ObservationJacobian(f, p.p, sample + 1, jac);
 }
 
@@ -55,16 +52,22 @@ inline bool CellOf(const PosedFrame& f, const double p[3], double u[3], double f
   return true;
 }
 
-inline void PrefetchOne(const PosedFrame& f, const Point& p) {
-  double u[3], fl[3];
-  int64_t cell;
-  if (!CellOf(f, p.p, u, fl, &cell)) return;
+inline bool SampleOne(const PosedFrame& f, const double ahead[4], const Point& p, double sample[4]) {
+  double later[3];
+  for (int d = 0; d < 3; ++d) {
+    const double u =
+        f.a[0][d] * p.p[0] + f.a[1][d] * p.p[1] + f.a[2][d] * p.p[2] + f.a[3][d] + ahead[d];
+    later[d] = std::min(std::max(0.0, std::floor(u)), f.max_cell[d]);  // NaN -> 0
+  }
+  const int64_t cell = static_cast<int64_t>(later[0]) + f.stride_y * static_cast<int64_t>(later[1]) +
+                       f.stride_z * static_cast<int64_t>(later[2]);
   const float* c = f.data + 4 * cell;
   __builtin_prefetch(c);
   __builtin_prefetch(c + 4 * f.stride_y);
   __builtin_prefetch(c + 4 * f.stride_z);
   __builtin_prefetch(c + 4 * (f.stride_y + f.stride_z));
   __builtin_prefetch(f.valid_bits + (cell >> 3));
+  return SampleAt(f, p.p, sample);
 }
 
 #define DSR_KERNEL_ATTR
@@ -140,21 +143,19 @@ bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
   return true;
 }
 
-void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[8]) {
+void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]) {
   double grad[3], q[3];
   for (int d = 0; d < 3; ++d) {
     grad[d] = f.g[0][d] * gu[0] + f.g[1][d] * gu[1] + f.g[2][d] * gu[2];
     q[d] = f.r[0][d] * p[0] + f.r[1][d] * p[1] + f.r[2][d] * p[2] + f.r[3][d];
   }
-  // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T), padded.
+  // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T).
   jac[0] = grad[0];
   jac[1] = grad[1];
   jac[2] = grad[2];
-  jac[3] = 0.0;
-  jac[4] = q[1] * grad[2] - q[2] * grad[1];
-  jac[5] = q[2] * grad[0] - q[0] * grad[2];
-  jac[6] = q[0] * grad[1] - q[1] * grad[0];
-  jac[7] = 0.0;
+  jac[3] = q[1] * grad[2] - q[2] * grad[1];
+  jac[4] = q[2] * grad[0] - q[0] * grad[2];
+  jac[5] = q[0] * grad[1] - q[1] * grad[0];
 }
 
 int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,

@@ -26,6 +26,7 @@
 #define DSR_CORE_VOXEL_STREAM_H_
 
 #include <algorithm>
+#include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -85,17 +86,17 @@ KernelPath ActiveKernelPath();
 void SetKernelPath(KernelPath path);
 const char* KernelPathName(KernelPath path);
 
-// Padded Jacobian layout: J_ij = [d/d rho (3), 0, d/d phi (3), 0] (two 4-lane vectors).
-constexpr int kJacobianLanes = 8;
-// Lane of tangent coordinate t (0..5, [rho; phi]) in a padded Jacobian.
-constexpr int JacobianLane(int t) { return t < 3 ? t : t + 1; }
+// Jacobian layout in a batch: J_ij = [d/d rho (3), d/d phi (3)], 6 doubles, the k
+// Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
+// Gauss-Newton kernel reads as 6k consecutive doubles).
+constexpr int kJacobianSize = 6;
 
 // Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
 // else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
 bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
-// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] (padded) from an index-space gradient `gu` at
-// world p, portable.
-void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[8]);
+// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p,
+// portable.
+void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]);
 
 // The observations of consecutive candidate voxels with at least two observers. Voxel t
 // has k_t = begin[t + 1] - begin[t] observations, in increasing frame order.
@@ -108,7 +109,9 @@ struct VoxelBatch {
   uint32_t observers[kMaxVoxels];  // bit f: frame f observes voxel t (sigma = 1)
   int frame[kMaxObservations];
   double value[kMaxObservations];
-  alignas(64) double jac[kMaxObservations][kJacobianLanes];  // only with Jacobians
+  // Only with Jacobians. One spare slot: the AVX2 sampler writes a Jacobian as two 4-lane
+  // stores, whose last lane lands in the next slot (overwritten in order, or unused).
+  alignas(64) double jac[kMaxObservations + 1][kJacobianSize];
 };
 
 // Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
@@ -122,12 +125,12 @@ int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
                          VoxelBatch* batch);
 
 // The observers of one voxel, as the stream hands them to a term: k >= 2 frames
-// `frame[a]` with value `value[a]` and, when Jacobians are wanted, padded J in `jac[a]`.
+// `frame[a]` with value `value[a]` and, when Jacobians are wanted, J in `jac[a]`.
 struct VoxelObservations {
   int k = 0;
   const int* frame = nullptr;
   const double* value = nullptr;
-  const double (*jac)[kJacobianLanes] = nullptr;
+  const double (*jac)[kJacobianSize] = nullptr;
 };
 
 // Per-block accumulator: H (row-major, n x n with n = 6m; terms fill at least the upper
@@ -141,14 +144,11 @@ struct VoxelAccumulator {
   int64_t frame_observations[kMaxFrames] = {};
 };
 
-// g_a += s J_a (padded J, 6 tangent entries of frame fa).
+// g_a += s J_a (6 tangent entries of frame fa).
+// (Eigen's fixed-size maps: three 2-lane packets; a plain loop stayed scalar here.)
 inline void AddGradient(double* g, int fa, const double* ja, double s) {
-  for (int t = 0; t < 6; ++t) g[6 * fa + t] += s * ja[JacobianLane(t)];
-}
-
-// The 6 tangent entries of a padded Jacobian.
-inline void CompactJacobian(const double* j8, double* j6) {
-  for (int t = 0; t < 6; ++t) j6[t] = j8[JacobianLane(t)];
+  Eigen::Map<Eigen::Matrix<double, 6, 1>>(g + 6 * static_cast<ptrdiff_t>(fa)) +=
+      s * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(ja);
 }
 
 // Adds J_a^T s J_b (6 entries each) to the (frame fa, frame fb) block of a row-major

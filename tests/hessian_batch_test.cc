@@ -43,9 +43,7 @@ void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBa
     for (uint32_t b = bits; b != 0; b &= b - 1) {
       const int o = batch->num_observations++;
       batch->frame[o] = __builtin_ctz(b);
-      for (int lane = 0; lane < kJacobianLanes; ++lane) {
-        batch->jac[o][lane] = lane == 3 || lane == 7 ? 0.0 : n01(rng);
-      }
+      for (int t = 0; t < kJacobianSize; ++t) batch->jac[o][t] = n01(rng);
     }
     batch->observers[batch->num_voxels] = bits;
     batch->begin[++batch->num_voxels] = batch->num_observations;
@@ -62,8 +60,7 @@ void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
   for (int t = 0; t < batch->num_voxels; ++t) {
     const int first = batch->begin[t], k = batch->begin[t + 1] - first;
     const HessianWeights& w = weights[k];
-    double jac[kMaxFrames][6];
-    for (int a = 0; a < k; ++a) CompactJacobian(batch->jac[first + a], jac[a]);
+    const double(*jac)[kJacobianSize] = batch->jac + first;
     for (int a = 0; a < k; ++a) {
       AddOuter(twin.data(), n, batch->frame[first + a], batch->frame[first + a], jac[a], jac[a],
                w.diagonal + w.shared);
