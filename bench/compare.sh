@@ -4,6 +4,7 @@
 #       it fully (3-level pyramid); plus the memory a dsr_register process holds before it
 #       reads anything (the shared libraries), which both modes carry
 #   (b) DSR vs APE at 11 frames of 96x96x80: intensity differences and time per iteration
+#       (5 runs, median of the per-run ratios)
 #   (c) DSR time per iteration and peak memory versus frames (3..11) and frame size
 #       (48^3 .. 176x176x200 at 0.6 mm), with a log-log plot
 #   (d) DSR with 1 vs 2 threads
@@ -32,8 +33,14 @@ echo "compare: kernels (Google Benchmark)" >&2
 echo "compare: (a) DSR vs DBA" >&2
 compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64
 /usr/bin/time -f "%M" -o "$out/library_floor_kb.txt" "$bin/dsr_register" --help > /dev/null 2>&1 || true
+# (b) runs 5 times (folders dsr_vs_ape_r1..r5; each run times DSR and APE back to back on
+# the same sequence); the summary takes the median of the per-run ratios.
 echo "compare: (b) DSR vs APE" >&2
-compare dsr_vs_ape --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
+ape_repeats=5
+[ "$quick" = "--quick" ] && ape_repeats=1
+for r in $(seq 1 $ape_repeats); do
+  compare "dsr_vs_ape_r$r" --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
+done
 # (c) and (d) run each point 3 times (folders *_r1.._r3); the summary takes medians, so a
 # noisy neighbour on the machine moves one run, not the slope.
 repeats=3

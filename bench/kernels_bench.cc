@@ -4,7 +4,8 @@
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
-//   BM_DsrEvaluationPortable/{jacobian}          DSR with the portable (non-AVX2) kernels
+//   BM_DsrEvaluationPortable/{jacobian}          DSR with the portable (non-SIMD) kernels
+//   BM_DsrEvaluationAvx2/1                       DSR with AVX2 kernels only (no AVX-512)
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
 //   BM_DsrEvaluationClinical/{jacobian}          DSR, 11 frames of 176x176x200 at 0.6 mm
 //   BM_BuildCandidatesClinical                   the candidate set at that size
@@ -130,11 +131,15 @@ void BM_ApeEvaluationBatchedHessian(benchmark::State& state) {
 }
 BENCHMARK(BM_ApeEvaluationBatchedHessian)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// DSR with the portable kernels (the twin of the AVX2 ones), 2 threads.
-void BM_DsrEvaluationPortable(benchmark::State& state) {
+// DSR with a given kernel path, 2 threads.
+void DsrEvaluationOnPath(benchmark::State& state, KernelPath path) {
+  if (!KernelPathAvailable(path)) {
+    state.SkipWithError("kernel path not available on this CPU");
+    return;
+  }
   const Problem& p = Paper();
   const KernelPath saved = ActiveKernelPath();
-  SetKernelPath(KernelPath::kPortable);
+  SetKernelPath(path);
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
@@ -144,7 +149,16 @@ void BM_DsrEvaluationPortable(benchmark::State& state) {
   SetKernelPath(saved);
   SetObservationCounter(state, system.observations);
 }
+
+// The portable kernels (the twin of the SIMD ones).
+void BM_DsrEvaluationPortable(benchmark::State& state) {
+  DsrEvaluationOnPath(state, KernelPath::kPortable);
+}
 BENCHMARK(BM_DsrEvaluationPortable)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// AVX2 throughout (where the default is the AVX-512 Gauss-Newton kernel, this shows its gain).
+void BM_DsrEvaluationAvx2(benchmark::State& state) { DsrEvaluationOnPath(state, KernelPath::kAvx2); }
+BENCHMARK(BM_DsrEvaluationAvx2)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_DsrEvaluationFrames(benchmark::State& state) {
   const std::unique_ptr<Problem> p =

@@ -5,6 +5,7 @@
 #include <glog/logging.h>
 
 #include "core/kernels_avx2.h"
+#include "core/kernels_avx512.h"
 #include "core/voxel_stream.h"
 
 namespace dsr {
@@ -74,9 +75,7 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
   int rows[VoxelBatch::kMaxVoxels];  // first observation of each voxel, grouped
   for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.begin[t];
 
-#ifdef DSR_HAVE_AVX2_KERNELS
-  const bool avx2 = ActiveKernelPath() == KernelPath::kAvx2;
-#endif
+  const KernelPath path = ActiveKernelPath();
   for (int g = 0; g < num_groups; ++g) {
     int frame[kMaxFrames];
     int k = 0;
@@ -84,8 +83,14 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
     DCHECK_GE(k, 2);
     const int* first = rows + group_start[g];
     const int num_rows = group_size[g];
+#ifdef DSR_HAVE_AVX512_KERNELS
+    if (path == KernelPath::kAvx512) {
+      internal::AddGroupHessianAvx512(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+      continue;
+    }
+#endif
 #ifdef DSR_HAVE_AVX2_KERNELS
-    if (avx2) {
+    if (path == KernelPath::kAvx2) {
       internal::AddGroupHessianAvx2(batch.jac, first, num_rows, k, frame, weights[k], h, n);
       continue;
     }

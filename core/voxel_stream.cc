@@ -7,16 +7,19 @@
 #include <cstring>
 
 #include "core/kernels_avx2.h"
+#include "core/kernels_avx512.h"
 
 namespace dsr {
 namespace {
 
 KernelPath BestKernelPath() {
-  const bool avx2 = internal::CpuHasAvx2Fma();
-  // DSR_KERNELS=portable forces the portable kernels (e.g. to compare the two paths).
+  // DSR_KERNELS=portable or =avx2 caps the choice (e.g. to compare the paths); an
+  // unavailable or unknown name leaves it to the CPU.
   const char* forced = std::getenv("DSR_KERNELS");
   if (forced != nullptr && std::strcmp(forced, "portable") == 0) return KernelPath::kPortable;
-  return avx2 ? KernelPath::kAvx2 : KernelPath::kPortable;
+  const bool cap_avx2 = forced != nullptr && std::strcmp(forced, "avx2") == 0;
+  if (!cap_avx2 && KernelPathAvailable(KernelPath::kAvx512)) return KernelPath::kAvx512;
+  return KernelPathAvailable(KernelPath::kAvx2) ? KernelPath::kAvx2 : KernelPath::kPortable;
 }
 
 KernelPath& MutableKernelPath() {
@@ -77,7 +80,15 @@ inline bool SampleOne(const PosedFrame& f, const double ahead[4], const Point& p
 }  // namespace
 
 bool KernelPathAvailable(KernelPath path) {
-  return path == KernelPath::kPortable || internal::CpuHasAvx2Fma();
+  switch (path) {
+    case KernelPath::kPortable:
+      return true;
+    case KernelPath::kAvx2:
+      return internal::CpuHasAvx2Fma();
+    case KernelPath::kAvx512:
+      return internal::CpuHasAvx2Fma() && internal::CpuHasAvx512();
+  }
+  return false;
 }
 
 KernelPath ActiveKernelPath() { return MutableKernelPath(); }
@@ -88,7 +99,15 @@ void SetKernelPath(KernelPath path) {
 }
 
 const char* KernelPathName(KernelPath path) {
-  return path == KernelPath::kAvx2 ? "avx2" : "portable";
+  switch (path) {
+    case KernelPath::kPortable:
+      return "portable";
+    case KernelPath::kAvx2:
+      return "avx2";
+    case KernelPath::kAvx512:
+      return "avx512";
+  }
+  return "?";
 }
 
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
@@ -165,7 +184,7 @@ int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
                          bool with_jacobian,
                          VoxelBatch* batch) {
 #ifdef DSR_HAVE_AVX2_KERNELS
-  if (ActiveKernelPath() == KernelPath::kAvx2) {
+  if (ActiveKernelPath() != KernelPath::kPortable) {  // kAvx512 samples with AVX2 too
     return internal::SampleVoxelBatchAvx2(posed, candidates, v, end, with_jacobian, batch);
   }
 #endif

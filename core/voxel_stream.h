@@ -75,10 +75,12 @@ std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world);
 
 // Which implementation of the sampler and of the batched Gauss-Newton kernel runs.
-// kAvx2 is the default where the CPU has AVX2 and FMA (checked at run time; the rest of
-// the build stays baseline x86-64); kPortable is plain C++, the twin tests compare with.
-// Both evaluate the same formulas; results agree to rounding (about 1e-15 relative).
-enum class KernelPath { kPortable, kAvx2 };
+// kAvx2: both in AVX2 + FMA; kAvx512: the AVX2 sampler with an AVX-512 Gauss-Newton
+// kernel (core/kernels_avx512.h); kPortable: plain C++, the twin tests compare with. The
+// default is the widest the CPU runs (checked at run time; the rest of the build stays
+// baseline x86-64); DSR_KERNELS=avx2 or =portable caps it. All evaluate the same
+// formulas; results agree to rounding (about 1e-15 relative).
+enum class KernelPath { kPortable, kAvx2, kAvx512 };
 bool KernelPathAvailable(KernelPath path);
 KernelPath ActiveKernelPath();
 // For tests and benchmarks; CHECKs that `path` is available. Not thread-safe: call it

@@ -24,6 +24,7 @@ class KernelPathScope {
 inline std::vector<KernelPath> AvailablePaths() {
   std::vector<KernelPath> paths = {KernelPath::kPortable};
   if (KernelPathAvailable(KernelPath::kAvx2)) paths.push_back(KernelPath::kAvx2);
+  if (KernelPathAvailable(KernelPath::kAvx512)) paths.push_back(KernelPath::kAvx512);
   return paths;
 }
 

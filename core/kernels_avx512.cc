@@ -1,0 +1,117 @@
+// AVX-512 group kernel of the batched Gauss-Newton matrix (core/hessian_batch.h): the
+// same sums as AddGroupHessianPortable and AddGroupHessianAvx2, eight lanes at a time.
+//
+// A group's rows S_r = [J_0 ... J_{k-1}] are 6k consecutive doubles each (core/voxel_stream.h).
+// For every block row a, the kernel walks the columns of blocks b >= a four blocks (24
+// columns, 3 registers) at a time, all 6 rows of block a at once: 18 accumulators (of
+// the 32 registers), each row r adding S_r[i] * S_r[24 columns] for i = 0..5 (6
+// broadcasts, 3 loads, 18 FMAs). A last chunk of 1-3 blocks loads only the registers it
+// needs (masked: nothing past the row). The 6 x 24 tile is then scaled per block and
+// added to H, 6 masked lanes per block row.
+#include "core/kernels_avx512.h"
+
+#include "core/hessian_batch.h"
+#include "core/voxel_stream.h"
+
+#ifdef DSR_HAVE_AVX512_KERNELS
+#include <immintrin.h>
+
+#define DSR_TARGET_AVX512 __attribute__((target("avx512f,fma")))
+
+namespace dsr {
+namespace internal {
+
+bool CpuHasAvx512() {
+  __builtin_cpu_init();
+  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx2") &&
+         __builtin_cpu_supports("fma");
+}
+
+namespace {
+
+// Sums S_r[i0 + i] * S_r[c .. c + 8 kVectors) over the rows for i = 0..5 into `tile`
+// (6 rows x 24 columns, row-major); the columns from `width` on are not read and come out 0.
+template <int kVectors>
+DSR_TARGET_AVX512 void SumTile(const double* const* rows,
+                               int num_rows,
+                               int i0,
+                               int c,
+                               int width,
+                               double tile[6][24]) {
+  __mmask8 mask[3];
+  for (int v = 0; v < 3; ++v) {
+    const int lanes = width - c - 8 * v;
+    mask[v] = lanes >= 8 ? 0xFF : lanes > 0 ? static_cast<__mmask8>((1u << lanes) - 1u) : 0;
+  }
+  __m512d acc[6][kVectors];
+  for (int i = 0; i < 6; ++i) {
+    for (int v = 0; v < kVectors; ++v) acc[i][v] = _mm512_setzero_pd();
+  }
+  for (int r = 0; r < num_rows; ++r) {
+    const double* s = rows[r];
+    __m512d col[kVectors];
+    for (int v = 0; v < kVectors; ++v) col[v] = _mm512_maskz_loadu_pd(mask[v], s + c + 8 * v);
+    for (int i = 0; i < 6; ++i) {
+      const __m512d x = _mm512_set1_pd(s[i0 + i]);
+      for (int v = 0; v < kVectors; ++v) acc[i][v] = _mm512_fmadd_pd(x, col[v], acc[i][v]);
+    }
+  }
+  for (int i = 0; i < 6; ++i) {
+    for (int v = 0; v < kVectors; ++v) _mm512_storeu_pd(tile[i] + 8 * v, acc[i][v]);
+    for (int v = kVectors; v < 3; ++v) _mm512_storeu_pd(tile[i] + 8 * v, _mm512_setzero_pd());
+  }
+}
+
+}  // namespace
+
+DSR_TARGET_AVX512 void AddGroupHessianAvx512(const double (*jac)[6],
+                                             const int* first,
+                                             int num_rows,
+                                             int k,
+                                             const int* frame,
+                                             const HessianWeights& weights,
+                                             double* h,
+                                             int n) {
+  const double* rows[VoxelBatch::kMaxVoxels];
+  for (int r = 0; r < num_rows; ++r) rows[r] = jac[first[r]];
+  const int width = 6 * k;
+  constexpr __mmask8 kBlockRow = 0x3F;  // 6 lanes
+  alignas(64) double tile[6][24];
+  for (int a = 0; a < k; ++a) {
+    const int i0 = 6 * a;
+    for (int c = i0; c < width; c += 24) {
+      const int blocks = (width - c) / 6 < 4 ? (width - c) / 6 : 4;
+      // 1 block: one register; 2: two; 3 or 4: three.
+      if (blocks == 1) {
+        SumTile<1>(rows, num_rows, i0, c, width, tile);
+      } else if (blocks == 2) {
+        SumTile<2>(rows, num_rows, i0, c, width, tile);
+      } else {
+        SumTile<3>(rows, num_rows, i0, c, width, tile);
+      }
+      for (int q = 0; q < blocks; ++q) {
+        const int b = c / 6 + q;
+        const __m512d scale = _mm512_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        for (int i = 0; i < 6; ++i) {
+          double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
+          const __m512d sum = _mm512_maskz_loadu_pd(kBlockRow, tile[i] + 6 * q);
+          _mm512_mask_storeu_pd(
+              row, kBlockRow, _mm512_fmadd_pd(scale, sum, _mm512_maskz_loadu_pd(kBlockRow, row)));
+        }
+      }
+    }
+  }
+}
+
+}  // namespace internal
+}  // namespace dsr
+
+#else  // !DSR_HAVE_AVX512_KERNELS
+
+namespace dsr {
+namespace internal {
+bool CpuHasAvx512() { return false; }
+}  // namespace internal
+}  // namespace dsr
+
+#endif

@@ -1,0 +1,40 @@
+// The AVX-512 group kernel of the batched Gauss-Newton matrix (core/kernels_avx512.cc).
+// Internal: callers go through AddBatchHessian, which picks the kernel path
+// (core/voxel_stream.h: KernelPath::kAvx512 = the AVX2 sampler with this kernel).
+//
+// Only this function is compiled for AVX-512 (a function attribute), so the library still
+// runs on any x86-64 CPU: the path is chosen at run time (CpuHasAvx512).
+#ifndef DSR_CORE_KERNELS_AVX512_H_
+#define DSR_CORE_KERNELS_AVX512_H_
+
+#include "core/kernels_avx2.h"
+
+#ifdef DSR_HAVE_AVX2_KERNELS
+#define DSR_HAVE_AVX512_KERNELS 1
+#endif
+
+namespace dsr {
+
+struct HessianWeights;
+
+namespace internal {
+
+// True when this build has the AVX-512 kernel and the CPU runs AVX-512F, AVX2 and FMA.
+bool CpuHasAvx512();
+
+#ifdef DSR_HAVE_AVX512_KERNELS
+// Same contract as AddGroupHessianPortable (core/hessian_batch.h).
+void AddGroupHessianAvx512(const double (*jac)[6],
+                           const int* first,
+                           int num_rows,
+                           int k,
+                           const int* frame,
+                           const HessianWeights& weights,
+                           double* h,
+                           int n);
+#endif
+
+}  // namespace internal
+}  // namespace dsr
+
+#endif  // DSR_CORE_KERNELS_AVX512_H_
