@@ -42,23 +42,22 @@ DSR_TARGET_AVX2 inline __m256d Affine(const double (*cols)[4], const Point& p) {
                       _mm256_fmadd_pd(_mm256_loadu_pd(cols[2]), p.z, _mm256_loadu_pd(cols[3]))));
 }
 
-// Lowest corner of the cell of u and its linear index; false when the cell is outside
-// the grid (or u is not finite: the comparisons are ordered).
-DSR_TARGET_AVX2 inline bool CellOf(const PosedFrame& f, __m256d u, __m256d* fl, int64_t* cell) {
-  *fl = _mm256_floor_pd(u);
-  const __m256d inside = _mm256_and_pd(_mm256_cmp_pd(*fl, _mm256_setzero_pd(), _CMP_GE_OQ),
-                                       _mm256_cmp_pd(*fl, _mm256_loadu_pd(f.max_cell), _CMP_LE_OQ));
-  if (_mm256_movemask_pd(inside) != 0xF) return false;
-  const __m128i index = _mm256_cvttpd_epi32(*fl);
-  *cell = _mm_cvtsi128_si32(index) + f.stride_y * _mm_extract_epi32(index, 1) +
-          f.stride_z * _mm_extract_epi32(index, 2);
-  return true;
-}
-
 // One row of the cell: x weights applied to the float4 at r and at r + 4.
 DSR_TARGET_AVX2 inline __m256d CellRow(const float* r, __m256d wx0, __m256d wx1) {
   return _mm256_fmadd_pd(_mm256_cvtps_pd(_mm_loadu_ps(r + 4)), wx1,
                          _mm256_mul_pd(_mm256_cvtps_pd(_mm_loadu_ps(r)), wx0));
+}
+
+// The linear indices of the cells whose lowest corners are `a` and `b` (integer-valued,
+// inside the grid): one dot product with (1, n_x, n_x n_y, 0) each, summed across lanes
+// together. Exact: the products and sums are integers far below 2^53.
+DSR_TARGET_AVX2 inline void TwoCells(const PosedFrame& f, __m256d a, __m256d b, int64_t* ca, int64_t* cb) {
+  const __m256d strides = _mm256_loadu_pd(f.strides);
+  // [a0 + a1, b0 + b1, a2 + a3, b2 + b3], then the two halves added.
+  const __m256d pairs = _mm256_hadd_pd(_mm256_mul_pd(a, strides), _mm256_mul_pd(b, strides));
+  const __m128d sums = _mm_add_pd(_mm256_castpd256_pd128(pairs), _mm256_extractf128_pd(pairs, 1));
+  *ca = _mm_cvttsd_si64(sums);
+  *cb = _mm_cvttsd_si64(_mm_unpackhi_pd(sums, sums));
 }
 
 DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f,
@@ -66,26 +65,29 @@ DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f,
                                       const Point& p,
                                       double sample[4]) {
   const __m256d u = Affine(f.a, p);
+  const __m256d max_cell = _mm256_loadu_pd(f.max_cell);
+  // The hint's cell: the cell of u + ahead, clamped into the grid (max first: a NaN lane
+  // becomes 0).
+  const __m256d later = _mm256_min_pd(
+      _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, _mm256_loadu_pd(ahead))), _mm256_setzero_pd()),
+      max_cell);
+  const __m256d fl = _mm256_floor_pd(u);
+  // fl inside the grid (ordered comparisons: false for NaN); clamped like the hint so the
+  // shared index computation below stays finite either way.
+  const __m256d inside = _mm256_and_pd(_mm256_cmp_pd(fl, _mm256_setzero_pd(), _CMP_GE_OQ),
+                                       _mm256_cmp_pd(fl, max_cell, _CMP_LE_OQ));
+  int64_t hint, cell;
+  TwoCells(f, later, _mm256_min_pd(_mm256_max_pd(fl, _mm256_setzero_pd()), max_cell), &hint, &cell);
   {
-    // The hint: the cell of u + ahead, clamped into the grid (max first: a NaN lane
-    // becomes 0).
-    const __m256d later = _mm256_min_pd(
-        _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, _mm256_loadu_pd(ahead))), _mm256_setzero_pd()),
-        _mm256_loadu_pd(f.max_cell));
-    const __m128i index = _mm256_cvttpd_epi32(later);
-    const int64_t cell = _mm_cvtsi128_si32(index) + f.stride_y * _mm_extract_epi32(index, 1) +
-                         f.stride_z * _mm_extract_epi32(index, 2);
-    const char* c = reinterpret_cast<const char*>(f.data + 4 * cell);
+    const char* c = reinterpret_cast<const char*>(f.data + 4 * hint);
     const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
     _mm_prefetch(c, _MM_HINT_T0);
     _mm_prefetch(c + sy, _MM_HINT_T0);
     _mm_prefetch(c + sz, _MM_HINT_T0);
     _mm_prefetch(c + sy + sz, _MM_HINT_T0);
-    _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (cell >> 3)), _MM_HINT_T0);
+    _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (hint >> 3)), _MM_HINT_T0);
   }
-  __m256d fl;
-  int64_t cell;
-  if (!CellOf(f, u, &fl, &cell)) return false;
+  if (_mm256_movemask_pd(inside) != 0xF) return false;
   if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
   const __m256d w1 = _mm256_sub_pd(u, fl);
   const __m256d w0 = _mm256_sub_pd(_mm256_set1_pd(1.0), w1);

@@ -123,6 +123,9 @@ std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
     for (int d = 0; d < 3; ++d) pf.max_cell[d] = n[d] - 2.0;
     pf.stride_y = n[0];
     pf.stride_z = int64_t{n[0]} * n[1];
+    pf.strides[0] = 1.0;
+    pf.strides[1] = static_cast<double>(pf.stride_y);
+    pf.strides[2] = static_cast<double>(pf.stride_z);
     const Eigen::Matrix3d rotation = frame_from_world[i].linear();
     const Eigen::Vector3d translation = frame_from_world[i].translation();
     const Eigen::Matrix3d a = f.index_from_physical() * rotation;

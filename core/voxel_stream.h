@@ -69,6 +69,7 @@ struct PosedFrame {
   double max_cell[4];          // n - 2 per axis (last valid cell index), 0 in lane 3
   double r[4][4];              // columns of R, then t: p_ij = R p + t (frame mm)
   double g[3][4];              // columns of (D S)^-T: index gradient -> physical gradient
+  double strides[4];           // 1, stride_y, stride_z, 0: a cell's linear index as a dot product
 };
 
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
