@@ -11,20 +11,18 @@
 namespace dsr {
 namespace internal {
 
-void AddGroupHessianPortable(const double (*jac)[6],
-                             const int* first,
-                             int num_rows,
-                             int k,
-                             const int* frame,
+void AddGroupHessianPortable(const HessianGroup& group,
                              const HessianWeights& weights,
                              double* h,
                              int n) {
+  const int k = group.k;
+  const int* frame = group.frame;
   for (int a = 0; a < k; ++a) {
     for (int b = a; b < k; ++b) {
       double sum[6][6] = {};
-      for (int r = 0; r < num_rows; ++r) {
-        const double* ja = jac[first[r] + a];
-        const double* jb = jac[first[r] + b];
+      for (int r = 0; r < group.num_rows; ++r) {
+        const double* ja = group.rows[r] + 6 * a;
+        const double* jb = group.rows[r] + 6 * b;
         for (int i = 0; i < 6; ++i) {
           for (int j = 0; j < 6; ++j) sum[i][j] += ja[i] * jb[j];
         }
@@ -72,8 +70,8 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
   for (int g = 0; g < num_groups; ++g) group_start[g + 1] = group_start[g] + group_size[g];
   int fill[VoxelBatch::kMaxVoxels];
   for (int g = 0; g < num_groups; ++g) fill[g] = group_start[g];
-  int rows[VoxelBatch::kMaxVoxels];  // first observation of each voxel, grouped
-  for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.begin[t];
+  const double* rows[VoxelBatch::kMaxVoxels];  // each voxel's Jacobians, grouped
+  for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.jac[batch.begin[t]];
 
   const KernelPath path = ActiveKernelPath();
   for (int g = 0; g < num_groups; ++g) {
@@ -81,21 +79,20 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
     int k = 0;
     for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
     DCHECK_GE(k, 2);
-    const int* first = rows + group_start[g];
-    const int num_rows = group_size[g];
+    const internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame};
 #ifdef DSR_HAVE_AVX512_KERNELS
     if (path == KernelPath::kAvx512) {
-      internal::AddGroupHessianAvx512(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+      internal::AddGroupHessianAvx512(group, weights[k], h, n);
       continue;
     }
 #endif
 #ifdef DSR_HAVE_AVX2_KERNELS
     if (path == KernelPath::kAvx2) {
-      internal::AddGroupHessianAvx2(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+      internal::AddGroupHessianAvx2(group, weights[k], h, n);
       continue;
     }
 #endif
-    internal::AddGroupHessianPortable(batch.jac, first, num_rows, k, frame, weights[k], h, n);
+    internal::AddGroupHessianPortable(group, weights[k], h, n);
   }
 }
 

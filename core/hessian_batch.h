@@ -39,14 +39,19 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
 
 namespace internal {
 
-// One group: `num_rows` voxels with the same k observers `frame[0..k)`, voxel r's
-// Jacobians at jac[first[r] + a]. Adds scale_ab * sum_r J_a^T J_b to block (frame[a],
-// frame[b]) for a <= b, with scale_ab = shared + (a == b ? diagonal : 0).
-void AddGroupHessianPortable(const double (*jac)[6],
-                             const int* first,
-                             int num_rows,
-                             int k,
-                             const int* frame,
+// One group of a batch: `num_rows` voxels with the same k observers `frame[0..k)`;
+// rows[r] points at voxel r's k Jacobians, its row S_r = [J_0 ... J_{k-1}] (6k doubles).
+struct HessianGroup {
+  const double* const* rows;
+  int num_rows;
+  int k;
+  const int* frame;
+};
+
+// Adds scale_ab * sum_r J_a^T J_b to block (frame[a], frame[b]) of the row-major n x n
+// `h` for a <= b, with scale_ab = shared + (a == b ? diagonal : 0). Every kernel path
+// (core/kernels_avx2.h, core/kernels_avx512.h) has this contract.
+void AddGroupHessianPortable(const HessianGroup& group,
                              const HessianWeights& weights,
                              double* h,
                              int n);

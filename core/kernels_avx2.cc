@@ -159,16 +159,13 @@ DSR_TARGET_AVX2 inline void AddScaled2(double* h, __m128d s, __m128d x) {
 // S_r[i] * S_r[12 columns] for its 3 rows i (3 broadcasts, 3 loads, 9 FMAs: no padding
 // lane), then the tile is scaled per block and added to H. An odd last block is a 3 x 6
 // tile (a 4-lane and a 2-lane register per row).
-DSR_TARGET_AVX2 void AddGroupHessianAvx2(const double (*jac)[6],
-                                         const int* first,
-                                         int num_rows,
-                                         int k,
-                                         const int* frame,
-                                         const HessianWeights& weights,
-                                         double* h,
-                                         int n) {
-  const double* rows[VoxelBatch::kMaxVoxels];
-  for (int r = 0; r < num_rows; ++r) rows[r] = jac[first[r]];
+DSR_TARGET_AVX2 void AddGroupHessianAvx2(const HessianGroup& group,
+                         const HessianWeights& weights,
+                         double* h,
+                         int n) {
+  const double* const* rows = group.rows;
+  const int num_rows = group.num_rows, k = group.k;
+  const int* frame = group.frame;
   for (int a = 0; a < k; ++a) {
     for (int i0 = 6 * a; i0 < 6 * a + 6; i0 += 3) {
       double* h_row = h + static_cast<int64_t>(6 * frame[a] + i0 - 6 * a) * n;

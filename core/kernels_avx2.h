@@ -24,6 +24,8 @@ struct VoxelBatch;
 
 namespace internal {
 
+struct HessianGroup;  // core/hessian_batch.h
+
 // True when this build has the AVX2 kernels and the CPU runs AVX2 and FMA.
 bool CpuHasAvx2Fma();
 
@@ -35,14 +37,7 @@ int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
                              bool with_jacobian,
                              VoxelBatch* batch);
 
-void AddGroupHessianAvx2(const double (*jac)[6],
-                         const int* first,
-                         int num_rows,
-                         int k,
-                         const int* frame,
-                         const HessianWeights& weights,
-                         double* h,
-                         int n);
+void AddGroupHessianAvx2(const HessianGroup& group, const HessianWeights& weights, double* h, int n);
 #endif
 
 }  // namespace internal

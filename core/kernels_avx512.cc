@@ -64,16 +64,13 @@ DSR_TARGET_AVX512 void SumTile(const double* const* rows,
 
 }  // namespace
 
-DSR_TARGET_AVX512 void AddGroupHessianAvx512(const double (*jac)[6],
-                                             const int* first,
-                                             int num_rows,
-                                             int k,
-                                             const int* frame,
-                                             const HessianWeights& weights,
-                                             double* h,
-                                             int n) {
-  const double* rows[VoxelBatch::kMaxVoxels];
-  for (int r = 0; r < num_rows; ++r) rows[r] = jac[first[r]];
+DSR_TARGET_AVX512 void AddGroupHessianAvx512(const HessianGroup& group,
+                         const HessianWeights& weights,
+                         double* h,
+                         int n) {
+  const double* const* rows = group.rows;
+  const int num_rows = group.num_rows, k = group.k;
+  const int* frame = group.frame;
   const int width = 6 * k;
   constexpr __mmask8 kBlockRow = 0x3F;  // 6 lanes
   alignas(64) double tile[6][24];

@@ -19,19 +19,14 @@ struct HessianWeights;
 
 namespace internal {
 
+struct HessianGroup;  // core/hessian_batch.h
+
 // True when this build has the AVX-512 kernel and the CPU runs AVX-512F, AVX2 and FMA.
 bool CpuHasAvx512();
 
 #ifdef DSR_HAVE_AVX512_KERNELS
 // Same contract as AddGroupHessianPortable (core/hessian_batch.h).
-void AddGroupHessianAvx512(const double (*jac)[6],
-                           const int* first,
-                           int num_rows,
-                           int k,
-                           const int* frame,
-                           const HessianWeights& weights,
-                           double* h,
-                           int n);
+void AddGroupHessianAvx512(const HessianGroup& group, const HessianWeights& weights, double* h, int n);
 #endif
 
 }  // namespace internal
