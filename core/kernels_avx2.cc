@@ -34,12 +34,40 @@ DSR_TARGET_AVX2 inline Point MakePoint(const double p[3]) {
   return {_mm256_set1_pd(p[0]), _mm256_set1_pd(p[1]), _mm256_set1_pd(p[2])};
 }
 
+// A frame's constants as registers (core/voxel_sampler_loop.inc: made once per run).
+struct FrameView {
+  __m256d a[4];      // columns of A, then b
+  __m256d max_cell;  // last valid cell index per axis
+  __m256d ahead;     // the prefetch hint's step
+  __m256d strides;   // 1, n_x, n_x n_y, 0
+  __m256d g[3];      // columns of (D S)^-T
+  __m256d r[4];      // columns of R, then t
+  const float* data;
+  const uint8_t* valid_bits;
+  int64_t stride_y, stride_z;  // in voxels
+};
+
+DSR_TARGET_AVX2 inline FrameView MakeFrameView(const PosedFrame& f, const double ahead[4]) {
+  FrameView view;
+  for (int c = 0; c < 4; ++c) {
+    view.a[c] = _mm256_loadu_pd(f.a[c]);
+    view.r[c] = _mm256_loadu_pd(f.r[c]);
+  }
+  for (int c = 0; c < 3; ++c) view.g[c] = _mm256_loadu_pd(f.g[c]);
+  view.max_cell = _mm256_loadu_pd(f.max_cell);
+  view.ahead = _mm256_loadu_pd(ahead);
+  view.strides = _mm256_loadu_pd(f.strides);
+  view.data = f.data;
+  view.valid_bits = f.valid_bits;
+  view.stride_y = f.stride_y;
+  view.stride_z = f.stride_z;
+  return view;
+}
+
 // cols[0] p.x + cols[1] p.y + cols[2] p.z + cols[3] (lane 3 stays 0).
-DSR_TARGET_AVX2 inline __m256d Affine(const double (*cols)[4], const Point& p) {
-  return _mm256_fmadd_pd(
-      _mm256_loadu_pd(cols[0]), p.x,
-      _mm256_fmadd_pd(_mm256_loadu_pd(cols[1]), p.y,
-                      _mm256_fmadd_pd(_mm256_loadu_pd(cols[2]), p.z, _mm256_loadu_pd(cols[3]))));
+DSR_TARGET_AVX2 inline __m256d Affine(const __m256d cols[4], const Point& p) {
+  return _mm256_fmadd_pd(cols[0], p.x,
+                         _mm256_fmadd_pd(cols[1], p.y, _mm256_fmadd_pd(cols[2], p.z, cols[3])));
 }
 
 // One row of the cell: x weights applied to the float4 at r and at r + 4.
@@ -51,26 +79,21 @@ DSR_TARGET_AVX2 inline __m256d CellRow(const float* r, __m256d wx0, __m256d wx1)
 // The linear indices of the cells whose lowest corners are `a` and `b` (integer-valued,
 // inside the grid): one dot product with (1, n_x, n_x n_y, 0) each, summed across lanes
 // together. Exact: the products and sums are integers far below 2^53.
-DSR_TARGET_AVX2 inline void TwoCells(const PosedFrame& f, __m256d a, __m256d b, int64_t* ca, int64_t* cb) {
-  const __m256d strides = _mm256_loadu_pd(f.strides);
+DSR_TARGET_AVX2 inline void TwoCells(const FrameView& f, __m256d a, __m256d b, int64_t* ca, int64_t* cb) {
   // [a0 + a1, b0 + b1, a2 + a3, b2 + b3], then the two halves added.
-  const __m256d pairs = _mm256_hadd_pd(_mm256_mul_pd(a, strides), _mm256_mul_pd(b, strides));
+  const __m256d pairs = _mm256_hadd_pd(_mm256_mul_pd(a, f.strides), _mm256_mul_pd(b, f.strides));
   const __m128d sums = _mm_add_pd(_mm256_castpd256_pd128(pairs), _mm256_extractf128_pd(pairs, 1));
   *ca = _mm_cvttsd_si64(sums);
   *cb = _mm_cvttsd_si64(_mm_unpackhi_pd(sums, sums));
 }
 
-DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f,
-                                      const double ahead[4],
-                                      const Point& p,
-                                      double sample[4]) {
+DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double sample[4]) {
   const __m256d u = Affine(f.a, p);
-  const __m256d max_cell = _mm256_loadu_pd(f.max_cell);
+  const __m256d max_cell = f.max_cell;
   // The hint's cell: the cell of u + ahead, clamped into the grid (max first: a NaN lane
   // becomes 0).
   const __m256d later = _mm256_min_pd(
-      _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, _mm256_loadu_pd(ahead))), _mm256_setzero_pd()),
-      max_cell);
+      _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, f.ahead)), _mm256_setzero_pd()), max_cell);
   const __m256d fl = _mm256_floor_pd(u);
   // fl inside the grid (ordered comparisons: false for NaN); clamped like the hint so the
   // shared index computation below stays finite either way.
@@ -104,25 +127,25 @@ DSR_TARGET_AVX2 inline bool SampleOne(const PosedFrame& f,
   return true;
 }
 
-DSR_TARGET_AVX2 inline void JacobianOne(const PosedFrame& f,
+DSR_TARGET_AVX2 inline void JacobianOne(const FrameView& f,
                                         const Point& p,
                                         const double sample[4],
                                         double jac[6]) {
   const __m256d s = _mm256_loadu_pd(sample);
   const __m256d gu = _mm256_permute4x64_pd(s, 0x55), gv = _mm256_permute4x64_pd(s, 0xAA),
                 gw = _mm256_permute4x64_pd(s, 0xFF);
-  const __m256d grad = _mm256_fmadd_pd(
-      _mm256_loadu_pd(f.g[0]), gu,
-      _mm256_fmadd_pd(_mm256_loadu_pd(f.g[1]), gv, _mm256_mul_pd(_mm256_loadu_pd(f.g[2]), gw)));
+  const __m256d grad =
+      _mm256_fmadd_pd(f.g[0], gu, _mm256_fmadd_pd(f.g[1], gv, _mm256_mul_pd(f.g[2], gw)));
   const __m256d q = Affine(f.r, p);  // p_ij
   // p_ij x grad = q.yzx * grad.zxy - q.zxy * grad.yzx (lane 3: 0 - 0).
   const __m256d cross = _mm256_fmsub_pd(
       _mm256_permute4x64_pd(q, 0xC9), _mm256_permute4x64_pd(grad, 0xD2),
       _mm256_mul_pd(_mm256_permute4x64_pd(q, 0xD2), _mm256_permute4x64_pd(grad, 0xC9)));
-  // [grad, 0] then [cross, 0] over lanes 3..6: jac[0..5] = [grad; cross], and jac[6] (the
-  // next slot's first entry, written again when that slot is) gets the zero lane.
-  _mm256_storeu_pd(jac, grad);
-  _mm256_storeu_pd(jac + 3, cross);
+  // jac[0..5] = [grad; cross] as [g0 g1 g2 c0] and [c1 c2]: nothing past jac[5] is
+  // written (the next slot may already hold another observation's Jacobian).
+  const __m256d shifted = _mm256_permute4x64_pd(cross, 0x39);  // [c1 c2 0 c0]
+  _mm256_storeu_pd(jac, _mm256_blend_pd(grad, shifted, 0x8));
+  _mm_storeu_pd(jac + 4, _mm256_castpd256_pd128(shifted));
 }
 
 #define DSR_KERNEL_ATTR DSR_TARGET_AVX2

@@ -35,8 +35,15 @@ struct Point {
 
 inline Point MakePoint(const double p[3]) { return {{p[0], p[1], p[2]}}; }
 
-inline void JacobianOne(const PosedFrame& f, const Point& p, const double sample[4], double jac[6]) {
-  ObservationJacobian(f, p.p, sample + 1, jac);
+struct FrameView {
+  const PosedFrame* f;
+  const double* ahead;
+};
+
+inline FrameView MakeFrameView(const PosedFrame& f, const double ahead[4]) { return {&f, ahead}; }
+
+inline void JacobianOne(const FrameView& view, const Point& p, const double sample[4], double jac[6]) {
+  ObservationJacobian(*view.f, p.p, sample + 1, jac);
 }
 
 // Continuous index of p in f and its cell; false outside the grid or for non-finite u.
@@ -55,7 +62,9 @@ inline bool CellOf(const PosedFrame& f, const double p[3], double u[3], double f
   return true;
 }
 
-inline bool SampleOne(const PosedFrame& f, const double ahead[4], const Point& p, double sample[4]) {
+inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
+  const PosedFrame& f = *view.f;
+  const double* ahead = view.ahead;
   double later[3];
   for (int d = 0; d < 3; ++d) {
     const double u =

@@ -112,9 +112,8 @@ struct VoxelBatch {
   uint32_t observers[kMaxVoxels];  // bit f: frame f observes voxel t (sigma = 1)
   int frame[kMaxObservations];
   double value[kMaxObservations];
-  // Only with Jacobians. One spare slot: the AVX2 sampler writes a Jacobian as two 4-lane
-  // stores, whose last lane lands in the next slot (overwritten in order, or unused).
-  alignas(64) double jac[kMaxObservations + 1][kJacobianSize];
+  // Only with Jacobians.
+  alignas(64) double jac[kMaxObservations][kJacobianSize];
 };
 
 // Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
