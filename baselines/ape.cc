@@ -17,6 +17,7 @@ struct ApeVoxelTerm {
   // Pair by pair, as APE evaluates it; in the batched form its H would be
   // H_ab = (k delta_ab - 1) J_a^T J_b.
   bool batched_hessian = false;
+  bool batched_gradient = false;  // its gradient is added pair by pair
   HessianWeights Weights(int k) const { return {static_cast<double>(k), -1.0}; }
 
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {

@@ -36,13 +36,69 @@ void AddGroupHessianPortable(const HessianGroup& group,
   }
 }
 
+void AddGroupGradientPortable(const HessianGroup& group, const double* const* residuals, double* g) {
+  for (int a = 0; a < group.k; ++a) {
+    double sum[6] = {};
+    for (int r = 0; r < group.num_rows; ++r) {
+      const double w = residuals[r][a];
+      const double* ja = group.rows[r] + 6 * a;
+      for (int i = 0; i < 6; ++i) sum[i] += w * ja[i];
+    }
+    double* ga = g + 6 * group.frame[a];
+    for (int i = 0; i < 6; ++i) ga[i] += sum[i];
+  }
+}
+
 }  // namespace internal
 
-void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, double* h, int n) {
+namespace {
+
+// The group's gradient (with `gradient`) and Gauss-Newton terms on `path`'s kernels.
+void AddGroup(KernelPath path,
+              const internal::HessianGroup& group,
+              const double* const* residuals,
+              const HessianWeights& weights,
+              double* h,
+              int n,
+              double* gradient) {
+  if (gradient != nullptr) {
+#ifdef DSR_HAVE_AVX2_KERNELS
+    if (path != KernelPath::kPortable) {
+      internal::AddGroupGradientAvx2(group, residuals, gradient);
+    } else {
+      internal::AddGroupGradientPortable(group, residuals, gradient);
+    }
+#else
+    internal::AddGroupGradientPortable(group, residuals, gradient);
+#endif
+  }
+#ifdef DSR_HAVE_AVX512_KERNELS
+  if (path == KernelPath::kAvx512) {
+    internal::AddGroupHessianAvx512(group, weights, h, n);
+    return;
+  }
+#endif
+#ifdef DSR_HAVE_AVX2_KERNELS
+  if (path == KernelPath::kAvx2) {
+    internal::AddGroupHessianAvx2(group, weights, h, n);
+    return;
+  }
+#endif
+  internal::AddGroupHessianPortable(group, weights, h, n);
+}
+
+}  // namespace
+
+void AddBatchHessian(const VoxelBatch& batch,
+                     const HessianWeights* weights,
+                     double* h,
+                     int n,
+                     double* gradient) {
   // Group the voxels by observer set: an open-addressing table (more slots than voxels),
   // groups numbered in order of first appearance, then a counting sort of the voxels.
-  constexpr int kTableSize = 2 * VoxelBatch::kMaxVoxels;
-  static_assert((kTableSize & (kTableSize - 1)) == 0, "power of two");
+  constexpr int kTableBits = 1 + __builtin_ctz(VoxelBatch::kMaxVoxels);
+  constexpr int kTableSize = 1 << kTableBits;
+  static_assert(kTableSize == 2 * VoxelBatch::kMaxVoxels, "kMaxVoxels: a power of two");
   int16_t slot_group[kTableSize];
   uint32_t slot_key[kTableSize];
   std::memset(slot_group, 0xff, sizeof(slot_group));  // -1: empty
@@ -52,7 +108,7 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
   int num_groups = 0;
   for (int t = 0; t < batch.num_voxels; ++t) {
     const uint32_t key = batch.observers[t];
-    uint32_t s = (key * 2654435761u) >> 22;  // top 10 bits: kTableSize = 1024
+    uint32_t s = (key * 2654435761u) >> (32 - kTableBits);  // top bits of the product
     while (slot_group[s] >= 0 && slot_key[s] != key) s = (s + 1) & (kTableSize - 1);
     if (slot_group[s] < 0) {
       slot_group[s] = static_cast<int16_t>(num_groups);
@@ -64,14 +120,18 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
     voxel_group[t] = slot_group[s];
     ++group_size[slot_group[s]];
   }
-  static_assert(kTableSize == 1 << 10, "hash uses the top 10 bits");
   int group_start[VoxelBatch::kMaxVoxels + 1];
   group_start[0] = 0;
   for (int g = 0; g < num_groups; ++g) group_start[g + 1] = group_start[g] + group_size[g];
   int fill[VoxelBatch::kMaxVoxels];
   for (int g = 0; g < num_groups; ++g) fill[g] = group_start[g];
-  const double* rows[VoxelBatch::kMaxVoxels];  // each voxel's Jacobians, grouped
-  for (int t = 0; t < batch.num_voxels; ++t) rows[fill[voxel_group[t]]++] = batch.jac[batch.begin[t]];
+  const double* rows[VoxelBatch::kMaxVoxels];       // each voxel's Jacobians, grouped
+  const double* residuals[VoxelBatch::kMaxVoxels];  // and its residuals (with g)
+  for (int t = 0; t < batch.num_voxels; ++t) {
+    const int r = fill[voxel_group[t]]++;
+    rows[r] = batch.jac[batch.begin[t]];
+    residuals[r] = batch.residual + batch.begin[t];
+  }
 
   const KernelPath path = ActiveKernelPath();
   for (int g = 0; g < num_groups; ++g) {
@@ -80,19 +140,7 @@ void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, dou
     for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
     DCHECK_GE(k, 2);
     const internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame};
-#ifdef DSR_HAVE_AVX512_KERNELS
-    if (path == KernelPath::kAvx512) {
-      internal::AddGroupHessianAvx512(group, weights[k], h, n);
-      continue;
-    }
-#endif
-#ifdef DSR_HAVE_AVX2_KERNELS
-    if (path == KernelPath::kAvx2) {
-      internal::AddGroupHessianAvx2(group, weights[k], h, n);
-      continue;
-    }
-#endif
-    internal::AddGroupHessianPortable(group, weights[k], h, n);
+    AddGroup(path, group, residuals + group_start[g], weights[k], h, n, gradient);
   }
 }
 

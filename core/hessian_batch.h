@@ -34,8 +34,14 @@ struct HessianWeights {
 // Adds the Gauss-Newton terms of every voxel of `batch` (which must hold Jacobians) to
 // the row-major n x n matrix `h` (n = 6m): the blocks (fa, fb) with fa <= fb, diagonal
 // blocks whole. `weights[k]` is the form for voxels with k observers (k = 2..kMaxFrames).
+// With `gradient` (n entries), also g_f += r J for every observation, from the
+// batch's residuals, summed per group first like H.
 // Uses the kernel path of ActiveKernelPath() (core/voxel_stream.h).
-void AddBatchHessian(const VoxelBatch& batch, const HessianWeights* weights, double* h, int n);
+void AddBatchHessian(const VoxelBatch& batch,
+                     const HessianWeights* weights,
+                     double* h,
+                     int n,
+                     double* gradient = nullptr);
 
 namespace internal {
 
@@ -55,6 +61,10 @@ void AddGroupHessianPortable(const HessianGroup& group,
                              const HessianWeights& weights,
                              double* h,
                              int n);
+
+// Adds sum_r residuals[r][a] J_a (row r's a-th Jacobian) to the 6 entries of frame[a]
+// in `g`, for every a. `residuals[r]` points at voxel r's k residuals.
+void AddGroupGradientPortable(const HessianGroup& group, const double* const* residuals, double* g);
 
 }  // namespace internal
 }  // namespace dsr

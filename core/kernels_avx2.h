@@ -1,5 +1,5 @@
 // The AVX2 + FMA implementations of the hot kernels (core/kernels_avx2.cc): the batch
-// sampler of core/voxel_stream.h and the group kernel of core/hessian_batch.h. Internal:
+// sampler of core/voxel_stream.h and the group kernels of core/hessian_batch.h. Internal:
 // callers go through SampleVoxelBatch and AddBatchHessian, which pick the kernel path.
 //
 // Only these functions are compiled for AVX2 (a function attribute), so the library
@@ -38,6 +38,8 @@ int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
                              VoxelBatch* batch);
 
 void AddGroupHessianAvx2(const HessianGroup& group, const HessianWeights& weights, double* h, int n);
+// AddGroupGradientPortable's contract (core/hessian_batch.h); the AVX-512 path uses it too.
+void AddGroupGradientAvx2(const HessianGroup& group, const double* const* residuals, double* g);
 #endif
 
 }  // namespace internal

@@ -12,10 +12,12 @@ namespace {
 
 // The DSR term of one voxel observed by k >= 2 frames: r_a = I_a - mu,
 //   cost += sum_a r_a^2,  g_a += J_a^T r_a,  H_ab += (delta_ab - 1/k) J_a^T J_b,
-// and frame a's share r_a^2 of the cost (for the per-frame misfits). H is added in
-// batches by the stream (fast path) or here voxel by voxel (the twin tests compare with).
+// and frame a's share r_a^2 of the cost (for the per-frame misfits). H and g are added in
+// batches by the stream from the Jacobians and the residuals the term writes (fast path),
+// or here voxel by voxel (the twin tests compare with).
 struct DsrVoxelTerm {
   bool batched_hessian = true;
+  bool batched_gradient = true;
   HessianWeights Weights(int k) const { return {1.0, -1.0 / k}; }
 
   // The voxel's numbers are read through restrict pointers and summed in locals: the
@@ -29,7 +31,9 @@ struct DsrVoxelTerm {
     double mean = 0.0;
     for (int a = 0; a < k; ++a) mean += value[a];
     mean /= k;
-    double residual[kMaxFrames];
+    // With a batched gradient the residuals go straight to the batch for the stream.
+    double local[kMaxFrames];
+    double* __restrict residual = obs.residual != nullptr ? obs.residual : local;
     double cost = 0.0;
     for (int a = 0; a < k; ++a) {
       const double r = value[a] - mean;
@@ -40,7 +44,7 @@ struct DsrVoxelTerm {
     }
     acc->cost += cost;
     acc->observations += k;
-    if (!with_jacobian) return;
+    if (!with_jacobian || obs.residual != nullptr) return;
     double* __restrict g = acc->gradient.data();
     for (int a = 0; a < k; ++a) AddGradient(g, frame[a], obs.jac[a], residual[a]);
     if (batched_hessian) return;
@@ -119,6 +123,7 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              bool batched_hessian) {
   DsrVoxelTerm term;
   term.batched_hessian = batched_hessian;
+  term.batched_gradient = batched_hessian;
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
                         num_threads, term, out);
 }

@@ -52,8 +52,8 @@ using ReducedSystem = NormalEquations;
 // Streams voxels [begin, end) of `candidates` at the given poses (core/voxel_stream.h):
 // bit-identical for any `num_threads`. With `with_jacobian` false only the cost (and
 // observation count) is computed; hessian/gradient are left empty. `batched_hessian`
-// false adds H voxel by voxel instead of in batches (core/hessian_batch.h): the slow twin
-// tests compare the fast path with.
+// false adds H and g voxel by voxel instead of in batches (core/hessian_batch.h): the
+// slow twin tests compare the fast path with.
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,

@@ -1,7 +1,7 @@
-// AddBatchHessian (core/hessian_batch.h) against the voxel-by-voxel AddOuter twin, on
-// random Jacobians and observer sets, for every kernel path this CPU has: a batch with
-// one voxel, batches with one observer set, with many interleaved sets, and with the
-// largest frame count.
+// AddBatchHessian (core/hessian_batch.h) against the voxel-by-voxel AddOuter and
+// AddGradient twins, on random Jacobians, residuals and observer sets, for every kernel
+// path this CPU has: a batch with one voxel, batches with one observer set, with many
+// interleaved sets, and with the largest frame count.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -44,6 +44,7 @@ void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBa
       const int o = batch->num_observations++;
       batch->frame[o] = __builtin_ctz(b);
       for (int t = 0; t < kJacobianSize; ++t) batch->jac[o][t] = n01(rng);
+      batch->residual[o] = n01(rng);
     }
     batch->observers[batch->num_voxels] = bits;
     batch->begin[++batch->num_voxels] = batch->num_observations;
@@ -56,12 +57,13 @@ void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
   HessianWeights weights[kMaxFrames + 1];
   for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};  // DSR's form
   const int n = 6 * m;
-  std::vector<double> twin(n * n, 0.0);
+  std::vector<double> twin(n * n, 0.0), twin_gradient(n, 0.0);
   for (int t = 0; t < batch->num_voxels; ++t) {
     const int first = batch->begin[t], k = batch->begin[t + 1] - first;
     const HessianWeights& w = weights[k];
     const double(*jac)[kJacobianSize] = batch->jac + first;
     for (int a = 0; a < k; ++a) {
+      AddGradient(twin_gradient.data(), batch->frame[first + a], jac[a], batch->residual[first + a]);
       AddOuter(twin.data(), n, batch->frame[first + a], batch->frame[first + a], jac[a], jac[a],
                w.diagonal + w.shared);
       for (int b = a + 1; b < k; ++b) {
@@ -72,8 +74,16 @@ void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
   }
   for (KernelPath path : AvailablePaths()) {
     KernelPathScope scope(path);
-    std::vector<double> batched(n * n, 0.0);
-    AddBatchHessian(*batch, weights, batched.data(), n);
+    std::vector<double> batched(n * n, 0.0), batched_gradient(n, 0.0);
+    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data());
+    double gradient_diff = 0.0, gradient_norm = 0.0;
+    for (int r = 0; r < n; ++r) {
+      gradient_diff += (batched_gradient[r] - twin_gradient[r]) * (batched_gradient[r] - twin_gradient[r]);
+      gradient_norm += twin_gradient[r] * twin_gradient[r];
+    }
+    ASSERT_GT(gradient_norm, 0.0);
+    EXPECT_LT(std::sqrt(gradient_diff / gradient_norm), kRelativeTolerance)
+        << KernelPathName(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
     // Compare the upper triangle (what the stream reads).
     double diff = 0.0, norm = 0.0;
     for (int r = 0; r < n; ++r) {
