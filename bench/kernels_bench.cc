@@ -6,6 +6,8 @@
 //   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
 //   BM_DsrEvaluationPortable/{jacobian}          DSR with the portable (non-SIMD) kernels
 //   BM_DsrEvaluationAvx2/1                       DSR with AVX2 kernels only (no AVX-512)
+//   BM_GaussNewtonBatch/{path}                   the batched Gauss-Newton matrix and
+//                                                gradient of one batch, per kernel path
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
 //   BM_DsrEvaluationClinical/{jacobian}          DSR, 11 frames of 176x176x200 at 0.6 mm
 //   BM_BuildCandidatesClinical                   the candidate set at that size
@@ -19,6 +21,7 @@
 #include <random>
 
 #include "baselines/baselines.h"
+#include "core/hessian_batch.h"
 #include "core/panorama.h"
 #include "core/voxel_stream.h"
 #include "dba/dba_problem.h"
@@ -130,6 +133,42 @@ void BM_ApeEvaluationBatchedHessian(benchmark::State& state) {
   SetObservationCounter(state, system.observations);
 }
 BENCHMARK(BM_ApeEvaluationBatchedHessian)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The batched Gauss-Newton matrix and gradient alone (AddBatchHessian, DSR's weights) on
+// one full batch of the sequence (from the middle of its voxels, sampled once; its
+// values stand in for residuals), repeated: the group kernels with the batch hot in the
+// caches, as the stream runs them right after sampling. Arg: the kernel path.
+void BM_GaussNewtonBatch(benchmark::State& state) {
+  const KernelPath path = static_cast<KernelPath>(state.range(0));
+  if (!KernelPathAvailable(path)) {
+    state.SkipWithError("kernel path not available on this CPU");
+    return;
+  }
+  const Problem& p = Paper();
+  const std::vector<PosedFrame> posed = PoseFrames(p.frames, p.poses);
+  const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
+  const int64_t end = p.candidates.num_voxels();
+  SampleVoxelBatch(posed, p.candidates, end / 2, end, true, batch.get());
+  for (int o = 0; o < batch->num_observations; ++o) batch->residual[o] = batch->value[o];
+  HessianWeights weights[kMaxFrames + 1];
+  for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};
+  const int n = 6 * static_cast<int>(p.frames.size());
+  std::vector<double> h(static_cast<size_t>(n) * n, 0.0), g(n, 0.0);
+  const KernelPath saved = ActiveKernelPath();
+  SetKernelPath(path);
+  for (auto _ : state) {
+    AddBatchHessian(*batch, weights, h.data(), n, g.data());
+    benchmark::DoNotOptimize(h.data());
+  }
+  SetKernelPath(saved);
+  SetObservationCounter(state, batch->num_observations);
+  state.counters["voxels"] = batch->num_voxels;
+}
+BENCHMARK(BM_GaussNewtonBatch)
+    ->Arg(static_cast<int>(KernelPath::kPortable))
+    ->Arg(static_cast<int>(KernelPath::kAvx2))
+    ->Arg(static_cast<int>(KernelPath::kAvx512))
+    ->Unit(benchmark::kMicrosecond);
 
 // DSR with a given kernel path, 2 threads.
 void DsrEvaluationOnPath(benchmark::State& state, KernelPath path) {

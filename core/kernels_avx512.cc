@@ -6,8 +6,8 @@
 // columns, 3 registers) at a time, all 6 rows of block a at once: 18 accumulators (of
 // the 32 registers), each row r adding S_r[i] * S_r[24 columns] for i = 0..5 (6
 // broadcasts, 3 loads, 18 FMAs). A last chunk of 1-3 blocks loads only the registers it
-// needs (masked: nothing past the row). The 6 x 24 tile is then scaled per block and
-// added to H, 6 masked lanes per block row.
+// needs (its last one masked: nothing past the row). The 6 x 24 tile is then scaled per
+// block and added to H, 6 masked lanes per block row.
 #include "core/kernels_avx512.h"
 
 #include "core/hessian_batch.h"
@@ -30,19 +30,20 @@ bool CpuHasAvx512() {
 namespace {
 
 // Sums S_r[i0 + i] * S_r[c .. c + 8 kVectors) over the rows for i = 0..5 into `tile`
-// (6 rows x 24 columns, row-major); the columns from `width` on are not read and come out 0.
-template <int kVectors>
+// (6 rows x 24 columns, row-major); the columns from `width` on are not read and come out
+// 0. Only the last register can reach past the row (kMaskLast): the others load whole,
+// so the loop holds one mask register and no mask moves (they would take the port of
+// half the FMAs).
+template <int kVectors, bool kMaskLast>
 DSR_TARGET_AVX512 void SumTile(const double* const* rows,
                                int num_rows,
                                int i0,
                                int c,
                                int width,
                                double tile[6][24]) {
-  __mmask8 mask[3];
-  for (int v = 0; v < 3; ++v) {
-    const int lanes = width - c - 8 * v;
-    mask[v] = lanes >= 8 ? 0xFF : lanes > 0 ? static_cast<__mmask8>((1u << lanes) - 1u) : 0;
-  }
+  const int last_lanes = width - c - 8 * (kVectors - 1);
+  const __mmask8 last_mask =
+      last_lanes >= 8 ? 0xFF : static_cast<__mmask8>((1u << last_lanes) - 1u);
   __m512d acc[6][kVectors];
   for (int i = 0; i < 6; ++i) {
     for (int v = 0; v < kVectors; ++v) acc[i][v] = _mm512_setzero_pd();
@@ -50,7 +51,10 @@ DSR_TARGET_AVX512 void SumTile(const double* const* rows,
   for (int r = 0; r < num_rows; ++r) {
     const double* s = rows[r];
     __m512d col[kVectors];
-    for (int v = 0; v < kVectors; ++v) col[v] = _mm512_maskz_loadu_pd(mask[v], s + c + 8 * v);
+    for (int v = 0; v < kVectors; ++v) {
+      col[v] = kMaskLast && v == kVectors - 1 ? _mm512_maskz_loadu_pd(last_mask, s + c + 8 * v)
+                                              : _mm512_loadu_pd(s + c + 8 * v);
+    }
     for (int i = 0; i < 6; ++i) {
       const __m512d x = _mm512_set1_pd(s[i0 + i]);
       for (int v = 0; v < kVectors; ++v) acc[i][v] = _mm512_fmadd_pd(x, col[v], acc[i][v]);
@@ -59,6 +63,30 @@ DSR_TARGET_AVX512 void SumTile(const double* const* rows,
   for (int i = 0; i < 6; ++i) {
     for (int v = 0; v < kVectors; ++v) _mm512_storeu_pd(tile[i] + 8 * v, acc[i][v]);
     for (int v = kVectors; v < 3; ++v) _mm512_storeu_pd(tile[i] + 8 * v, _mm512_setzero_pd());
+  }
+}
+
+// The tile of `blocks` (1..4) blocks from column c.
+DSR_TARGET_AVX512 inline void SumBlocks(const double* const* rows,
+                                        int num_rows,
+                                        int i0,
+                                        int c,
+                                        int width,
+                                        int blocks,
+                                        double tile[6][24]) {
+  // 1 block: one register (6 lanes); 2: two (8 + 4); 3: three (8 + 8 + 2); 4: three whole.
+  switch (blocks) {
+    case 1:
+      SumTile<1, true>(rows, num_rows, i0, c, width, tile);
+      break;
+    case 2:
+      SumTile<2, true>(rows, num_rows, i0, c, width, tile);
+      break;
+    case 3:
+      SumTile<3, true>(rows, num_rows, i0, c, width, tile);
+      break;
+    default:
+      SumTile<3, false>(rows, num_rows, i0, c, width, tile);
   }
 }
 
@@ -78,14 +106,7 @@ DSR_TARGET_AVX512 void AddGroupHessianAvx512(const HessianGroup& group,
     const int i0 = 6 * a;
     for (int c = i0; c < width; c += 24) {
       const int blocks = (width - c) / 6 < 4 ? (width - c) / 6 : 4;
-      // 1 block: one register; 2: two; 3 or 4: three.
-      if (blocks == 1) {
-        SumTile<1>(rows, num_rows, i0, c, width, tile);
-      } else if (blocks == 2) {
-        SumTile<2>(rows, num_rows, i0, c, width, tile);
-      } else {
-        SumTile<3>(rows, num_rows, i0, c, width, tile);
-      }
+      SumBlocks(rows, num_rows, i0, c, width, blocks, tile);
       for (int q = 0; q < blocks; ++q) {
         const int b = c / 6 + q;
         const __m512d scale = _mm512_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
