@@ -87,6 +87,21 @@ DSR_TARGET_AVX2 inline void TwoCells(const FrameView& f, __m256d a, __m256d b, i
   *cb = _mm_cvttsd_si64(_mm_unpackhi_pd(sums, sums));
 }
 
+// Whether every point between `first` and `last` has its cell inside the grid: both
+// ends' u at least kMargin inside [0, max_cell + 1) on each axis. u is affine in the
+// point, and each computed u is within about 1e-12 of the exact one (|u| < 2^11), so the
+// points in between are inside by nearly kMargin too. NaN: false.
+DSR_TARGET_AVX2 inline bool RunInside(const FrameView& f, const Point& first, const Point& last) {
+  constexpr double kMargin = 1e-6;
+  const __m256d u0 = Affine(f.a, first), u1 = Affine(f.a, last);
+  const __m256d lo = _mm256_min_pd(u0, u1), hi = _mm256_max_pd(u0, u1);
+  const __m256d ok = _mm256_and_pd(
+      _mm256_cmp_pd(lo, _mm256_set1_pd(kMargin), _CMP_GE_OQ),
+      _mm256_cmp_pd(hi, _mm256_add_pd(f.max_cell, _mm256_set1_pd(1.0 - kMargin)), _CMP_LE_OQ));
+  return (_mm256_movemask_pd(ok) & 0x7) == 0x7;  // lanes x, y, z
+}
+
+template <bool kInside>
 DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double sample[4]) {
   const __m256d u = Affine(f.a, p);
   const __m256d max_cell = f.max_cell;
@@ -95,12 +110,15 @@ DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double
   const __m256d later = _mm256_min_pd(
       _mm256_max_pd(_mm256_floor_pd(_mm256_add_pd(u, f.ahead)), _mm256_setzero_pd()), max_cell);
   const __m256d fl = _mm256_floor_pd(u);
-  // fl inside the grid (ordered comparisons: false for NaN); clamped like the hint so the
-  // shared index computation below stays finite either way.
-  const __m256d inside = _mm256_and_pd(_mm256_cmp_pd(fl, _mm256_setzero_pd(), _CMP_GE_OQ),
-                                       _mm256_cmp_pd(fl, max_cell, _CMP_LE_OQ));
   int64_t hint, cell;
-  TwoCells(f, later, _mm256_min_pd(_mm256_max_pd(fl, _mm256_setzero_pd()), max_cell), &hint, &cell);
+  if (kInside) {
+    TwoCells(f, later, fl, &hint, &cell);
+  } else {
+    // The sample's cell clamped like the hint's, so that the shared index computation
+    // stays finite either way; the bounds test follows the prefetch.
+    TwoCells(f, later, _mm256_min_pd(_mm256_max_pd(fl, _mm256_setzero_pd()), max_cell), &hint,
+             &cell);
+  }
   {
     const char* c = reinterpret_cast<const char*>(f.data + 4 * hint);
     const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
@@ -110,7 +128,12 @@ DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double
     _mm_prefetch(c + sy + sz, _MM_HINT_T0);
     _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (hint >> 3)), _MM_HINT_T0);
   }
-  if (_mm256_movemask_pd(inside) != 0xF) return false;
+  if (!kInside) {
+    // fl inside the grid (ordered comparisons: false for NaN).
+    const __m256d inside = _mm256_and_pd(_mm256_cmp_pd(fl, _mm256_setzero_pd(), _CMP_GE_OQ),
+                                         _mm256_cmp_pd(fl, max_cell, _CMP_LE_OQ));
+    if (_mm256_movemask_pd(inside) != 0xF) return false;
+  }
   if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
   const __m256d w1 = _mm256_sub_pd(u, fl);
   const __m256d w0 = _mm256_sub_pd(_mm256_set1_pd(1.0), w1);

@@ -62,6 +62,10 @@ inline bool CellOf(const PosedFrame& f, const double p[3], double u[3], double f
   return true;
 }
 
+// The portable sampler always tests the bounds (the twin stays the plain formula).
+inline bool RunInside(const FrameView&, const Point&, const Point&) { return false; }
+
+template <bool kInside>
 inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
   const PosedFrame& f = *view.f;
   const double* ahead = view.ahead;
