@@ -4,10 +4,10 @@
 #       it fully (3-level pyramid); plus the memory a dsr_register process holds before it
 #       reads anything (the shared libraries), which both modes carry
 #   (b) DSR vs APE at 11 frames of 96x96x80: intensity differences and time per iteration
-#       (5 runs, median of the per-run ratios)
+#       (7 runs, median of the per-run ratios)
 #   (c) DSR time per iteration and peak memory versus frames (3..11) and frame size
 #       (48^3 .. 176x176x200 at 0.6 mm), with a log-log plot
-#   (d) DSR with 1 vs 2 threads
+#   (d) DSR with 1 vs 2 threads (5 runs each, alternating)
 # plus the Google Benchmark kernels (bench/kernels_bench.cc). Every registration runs in its
 # own process (dsr_compare), so peak memory is per run. Writes bench/results/: kernels.json,
 # one CSV per part, summary.md (markdown tables) and scaling.png.
@@ -33,16 +33,19 @@ echo "compare: kernels (Google Benchmark)" >&2
 echo "compare: (a) DSR vs DBA" >&2
 compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64
 /usr/bin/time -f "%M" -o "$out/library_floor_kb.txt" "$bin/dsr_register" --help > /dev/null 2>&1 || true
-# (b) runs 5 times (folders dsr_vs_ape_r1..r5; each run times DSR and APE back to back on
-# the same sequence); the summary takes the median of the per-run ratios.
+# (b) runs 7 times (folders dsr_vs_ape_r1..r7; each run times DSR and APE back to back on
+# the same sequence); the summary takes the median of the per-run ratios. On a shared
+# machine a neighbour can double one run's DSR time (a 1-second run): 7 runs keep such a
+# run from moving the median.
 echo "compare: (b) DSR vs APE" >&2
-ape_repeats=5
+ape_repeats=7
 [ "$quick" = "--quick" ] && ape_repeats=1
 for r in $(seq 1 $ape_repeats); do
   compare "dsr_vs_ape_r$r" --methods=dsr,ape --num_frames=11 --frame_size=96,96,80
 done
-# (c) and (d) run each point 3 times (folders *_r1.._r3); the summary takes medians, so a
-# noisy neighbour on the machine moves one run, not the slope.
+# (c) and (d) run each point 3 times (folders *_r1.._r3), (d) twice more after the loop
+# (r4, r5); the summary takes medians, so a noisy neighbour on the machine moves one run,
+# not the slope or the thread ratio.
 repeats=3
 frames_list="3 5 7 9 11"
 sizes="48,48,48 64,64,64 96,96,80 128,128,128 176,176,200"
@@ -65,6 +68,14 @@ for r in $(seq 1 $repeats); do
     compare "threads_${t}_r$r" --methods=dsr --num_frames=11 --frame_size=96,96,80 --num_threads=$t
   done
 done
+if [ "$quick" != "--quick" ]; then
+  for r in 4 5; do
+    echo "compare: (d) threads, run $r" >&2
+    for t in 1 2; do
+      compare "threads_${t}_r$r" --methods=dsr --num_frames=11 --frame_size=96,96,80 --num_threads=$t
+    done
+  done
+fi
 python="$(bash scripts/python_env.sh)"
 "$python" bench/summarize.py "$out" "$(nproc)"
 echo "compare: wrote $out/summary.md and $out/scaling.png" >&2
