@@ -35,8 +35,8 @@ compare dsr_vs_dba --methods=dsr,dba --num_frames=6 --frame_size=80,80,64
 /usr/bin/time -f "%M" -o "$out/library_floor_kb.txt" "$bin/dsr_register" --help > /dev/null 2>&1 || true
 # (b) runs 7 times (folders dsr_vs_ape_r1..r7; each run times DSR and APE back to back on
 # the same sequence); the summary takes the median of the per-run ratios. On a shared
-# machine a neighbour can double one run's DSR time (a 1-second run): 7 runs keep such a
-# run from moving the median.
+# machine a neighbour can double one run's DSR time (a 1-second run): with 7 runs such a
+# run moves the median less.
 echo "compare: (b) DSR vs APE" >&2
 ape_repeats=7
 [ "$quick" = "--quick" ] && ape_repeats=1
