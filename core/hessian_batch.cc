@@ -53,6 +53,20 @@ void AddGroupGradientPortable(const HessianGroup& group, const double* const* re
 
 namespace {
 
+// The group's gradient on `path`'s kernels (both SIMD paths use the AVX2 one).
+void AddGroupGradient(KernelPath path,
+                      const internal::HessianGroup& group,
+                      const double* const* residuals,
+                      double* gradient) {
+#ifdef DSR_HAVE_AVX2_KERNELS
+  if (path != KernelPath::kPortable) {
+    internal::AddGroupGradientAvx2(group, residuals, gradient);
+    return;
+  }
+#endif
+  internal::AddGroupGradientPortable(group, residuals, gradient);
+}
+
 // The group's gradient (with `gradient`) and Gauss-Newton terms on `path`'s kernels.
 void AddGroup(KernelPath path,
               const internal::HessianGroup& group,
@@ -61,17 +75,7 @@ void AddGroup(KernelPath path,
               double* h,
               int n,
               double* gradient) {
-  if (gradient != nullptr) {
-#ifdef DSR_HAVE_AVX2_KERNELS
-    if (path != KernelPath::kPortable) {
-      internal::AddGroupGradientAvx2(group, residuals, gradient);
-    } else {
-      internal::AddGroupGradientPortable(group, residuals, gradient);
-    }
-#else
-    internal::AddGroupGradientPortable(group, residuals, gradient);
-#endif
-  }
+  if (gradient != nullptr) AddGroupGradient(path, group, residuals, gradient);
 #ifdef DSR_HAVE_AVX512_KERNELS
   if (path == KernelPath::kAvx512) {
     internal::AddGroupHessianAvx512(group, weights, h, n);
