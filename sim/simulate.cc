@@ -6,6 +6,7 @@
 #include <limits>
 #include <random>
 #include <sstream>
+#include <string>
 
 #include <glog/logging.h>
 
@@ -18,6 +19,49 @@ namespace {
 constexpr int kMaxFrames = 1000;
 constexpr int kMaxFrameSize = 2048;
 
+constexpr int kMaxMaskErosion = 50;
+
+// Bisection steps that clamp a walk's rotation step to the Euler-angle box: 2^-50 of a step.
+constexpr int kClampBisections = 50;
+// Rounding slack of the Euler-angle box test: angles recomputed from a rotation matrix that
+// was built from in-box angles may exceed the bound by a few ulps.
+constexpr double kEulerSlack = 1e-12;
+
+// Translate(c_f) * R * Translate(t - c_s).
+Eigen::Isometry3d FrameFromWorld(const Eigen::Matrix3d& rotation,
+                                 const Eigen::Vector3d& shift_mm,
+                                 const Eigen::Vector3d& frame_center,
+                                 const Eigen::Vector3d& source_center) {
+  Eigen::Isometry3d frame_from_world = Eigen::Isometry3d::Identity();
+  frame_from_world.linear() = rotation;
+  frame_from_world.translation() = frame_center + rotation * (shift_mm - source_center);
+  return frame_from_world;
+}
+
+// Whether R = Rz(gamma) Ry(beta) Rx(alpha) for some angles all within [-max, max]. The
+// principal angles (beta in [-pi/2, pi/2]) and their only alternative
+// (alpha +- pi, pi - beta, gamma +- pi) are both tried, so bounds >= 90 degrees work too.
+bool InEulerBox(const Eigen::Matrix3d& r, double max_angle) {
+  const double beta = -std::asin(std::clamp(r(2, 0), -1.0, 1.0));
+  const double alpha = std::atan2(r(2, 1), r(2, 2));
+  const double gamma = std::atan2(r(1, 0), r(0, 0));
+  const double bound = max_angle + kEulerSlack;
+  auto in = [bound](double a, double b, double g) {
+    return std::abs(a) <= bound && std::abs(b) <= bound && std::abs(g) <= bound;
+  };
+  auto flip = [](double angle) { return angle > 0.0 ? angle - M_PI : angle + M_PI; };
+  return in(alpha, beta, gamma) ||
+         in(flip(alpha), (beta >= 0.0 ? M_PI : -M_PI) - beta, flip(gamma));
+}
+
+// A unit vector uniform on the sphere from two draws: z = u, azimuth = pi u.
+Eigen::Vector3d DrawDirection(std::uniform_real_distribution<double>* u, std::mt19937_64* rng) {
+  const double z = (*u)(*rng);
+  const double azimuth = M_PI * (*u)(*rng);
+  const double rho = std::sqrt(std::max(0.0, 1.0 - z * z));
+  return Eigen::Vector3d(rho * std::cos(azimuth), rho * std::sin(azimuth), z);
+}
+
 std::vector<Eigen::Isometry3d> DrawPoses(const ImageGeometry& source,
                                          const ImageGeometry& frame,
                                          const SimulationOptions& o,
@@ -29,28 +73,75 @@ std::vector<Eigen::Isometry3d> DrawPoses(const ImageGeometry& source,
       frame.IndexToPhysical(0.5 * (frame.size.cast<double>() - Eigen::Vector3d::Ones()));
   const double max_angle = o.max_rotation_deg * M_PI / 180.0;
   const double max_shift_mm = o.max_translation_voxels * frame.spacing_mm[0];
+  const double step_angle = o.step_rotation_deg * M_PI / 180.0;
+  const double step_shift_mm = o.step_translation_voxels * frame.spacing_mm[0];
   std::vector<Eigen::Isometry3d> poses;
+  // The current frame's R and t (frame 0 draws them; the walk steps from them).
+  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d shift_mm = Eigen::Vector3d::Zero();
   for (int f = 0; f < o.num_frames; ++f) {
-    // Sequenced draws (argument evaluation order is unspecified in C++).
-    const double alpha = max_angle * u(*rng);
-    const double beta = max_angle * u(*rng);
-    const double gamma = max_angle * u(*rng);
-    Eigen::Vector3d shift_mm;
-    for (int a = 0; a < 3; ++a) shift_mm[a] = max_shift_mm * u(*rng);
-    const Eigen::Matrix3d rotation = (Eigen::AngleAxisd(gamma, Eigen::Vector3d::UnitZ()) *
-                                      Eigen::AngleAxisd(beta, Eigen::Vector3d::UnitY()) *
-                                      Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()))
-                                         .toRotationMatrix();
-    // Translate(c_f) * R * Translate(t - c_s).
-    Eigen::Isometry3d frame_from_world = Eigen::Isometry3d::Identity();
-    frame_from_world.linear() = rotation;
-    frame_from_world.translation() = frame_center + rotation * (shift_mm - source_center);
-    poses.push_back(frame_from_world);
+    if (f == 0 || o.pose_model == PoseModel::kRandom) {
+      // Sequenced draws (argument evaluation order is unspecified in C++).
+      const double alpha = max_angle * u(*rng);
+      const double beta = max_angle * u(*rng);
+      const double gamma = max_angle * u(*rng);
+      for (int a = 0; a < 3; ++a) shift_mm[a] = max_shift_mm * u(*rng);
+      rotation = (Eigen::AngleAxisd(gamma, Eigen::Vector3d::UnitZ()) *
+                  Eigen::AngleAxisd(beta, Eigen::Vector3d::UnitY()) *
+                  Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()))
+                     .toRotationMatrix();
+    } else {
+      const Eigen::Vector3d axis = DrawDirection(&u, rng);
+      const double angle = step_angle * 0.5 * (1.0 + u(*rng));
+      const Eigen::Vector3d direction = DrawDirection(&u, rng);
+      const double length_mm = step_shift_mm * 0.5 * (1.0 + u(*rng));
+      // R_i = R_{i-1} Q^T: Q acts on world_from_frame = R^T about the point the frame
+      // centre sees (c_s - t), which the rotation leaves where it is.
+      auto stepped = [&](double theta) {
+        return Eigen::Matrix3d(rotation * Eigen::AngleAxisd(-theta, axis).toRotationMatrix());
+      };
+      double inside = angle;
+      if (!InEulerBox(stepped(angle), max_angle)) {
+        // theta = 0 (the previous rotation) is inside the box; keep the inside end.
+        double lo = 0.0, hi = angle;
+        for (int i = 0; i < kClampBisections; ++i) {
+          const double mid = 0.5 * (lo + hi);
+          (InEulerBox(stepped(mid), max_angle) ? lo : hi) = mid;
+        }
+        inside = lo;
+      }
+      rotation = stepped(inside);
+      // t_i = t_{i-1} - d, clamped per axis to the box (moves each component towards the
+      // previous, in-box value, so |t_i - t_{i-1}| <= |d|).
+      shift_mm = (shift_mm - length_mm * direction).cwiseMax(-max_shift_mm).cwiseMin(max_shift_mm);
+    }
+    poses.push_back(FrameFromWorld(rotation, shift_mm, frame_center, source_center));
   }
   return poses;
 }
 
 }  // namespace
+
+const char* PoseModelToString(PoseModel model) {
+  switch (model) {
+    case PoseModel::kRandom:
+      return "random";
+    case PoseModel::kWalk:
+      return "walk";
+  }
+  return "";
+}
+
+bool StringToPoseModel(const std::string& text, PoseModel* model) {
+  CHECK(model != nullptr);
+  for (PoseModel m : {PoseModel::kRandom, PoseModel::kWalk}) {
+    if (text == PoseModelToString(m)) {
+      *model = m;
+      return true;
+    }
+  }
+  return false;
+}
 
 bool SimulationOptions::Validate(std::string* error) const {
   std::ostringstream s;
@@ -63,6 +154,12 @@ bool SimulationOptions::Validate(std::string* error) const {
     s << "--max_rotation_deg=" << max_rotation_deg << ": must be in [0, 180]";
   } else if (!range(max_translation_voxels, 0.0, std::numeric_limits<double>::max())) {
     s << "--max_translation_voxels=" << max_translation_voxels << ": must be finite and >= 0";
+  } else if (*PoseModelToString(pose_model) == '\0') {
+    s << "--pose_model=" << static_cast<int>(pose_model) << ": must be random or walk";
+  } else if (!range(step_rotation_deg, 0.0, 180.0)) {
+    s << "--step_rotation_deg=" << step_rotation_deg << ": must be in [0, 180]";
+  } else if (!range(step_translation_voxels, 0.0, std::numeric_limits<double>::max())) {
+    s << "--step_translation_voxels=" << step_translation_voxels << ": must be finite and >= 0";
   } else if (!range(noise_sigma, 0.0, std::numeric_limits<double>::max())) {
     s << "--sigma=" << noise_sigma << ": must be finite and >= 0";
   } else if ((frame_size.array() < 4).any() || (frame_size.array() > kMaxFrameSize).any()) {
@@ -77,6 +174,9 @@ bool SimulationOptions::Validate(std::string* error) const {
   } else if (!range(min_depth_voxels, 0.0, frame_size[2] - 3.0)) {
     s << "--min_depth_voxels=" << min_depth_voxels
       << ": must be in [0, frame depth - 3 = " << frame_size[2] - 3 << "]";
+  } else if (mask_erosion_voxels < 0 || mask_erosion_voxels > kMaxMaskErosion) {
+    s << "--mask_erosion=" << mask_erosion_voxels << ": must be in [0, " << kMaxMaskErosion
+      << "]";
   } else {
     return true;
   }
@@ -112,17 +212,22 @@ Mask PyramidFieldOfView(const ImageGeometry& g, const SimulationOptions& o) {
   return mask;
 }
 
-Mask ErodeFieldOfView(const Mask& fov) {
+Mask ErodeFieldOfView(const Mask& fov, int erosion_voxels) {
+  CHECK_GE(erosion_voxels, 0);
   const Eigen::Vector3i& n = fov.geometry.size;
-  Mask mask(fov.geometry, 0);
-  for (int k = 1; k + 1 < n[2]; ++k) {
-    for (int j = 1; j + 1 < n[1]; ++j) {
-      for (int i = 1; i + 1 < n[0]; ++i) {
-        mask.at(i, j, k) = fov.at(i, j, k) && fov.at(i - 1, j, k) && fov.at(i + 1, j, k) &&
-                                   fov.at(i, j - 1, k) && fov.at(i, j + 1, k) &&
-                                   fov.at(i, j, k - 1) && fov.at(i, j, k + 1)
-                               ? 1
-                               : 0;
+  Mask mask = fov;
+  for (int pass = 0; pass < erosion_voxels; ++pass) {
+    const Mask m = mask;
+    std::fill(mask.voxels.begin(), mask.voxels.end(), 0);
+    for (int k = 1; k + 1 < n[2]; ++k) {
+      for (int j = 1; j + 1 < n[1]; ++j) {
+        for (int i = 1; i + 1 < n[0]; ++i) {
+          mask.at(i, j, k) = m.at(i, j, k) && m.at(i - 1, j, k) && m.at(i + 1, j, k) &&
+                                     m.at(i, j - 1, k) && m.at(i, j + 1, k) &&
+                                     m.at(i, j, k - 1) && m.at(i, j, k + 1)
+                                 ? 1
+                                 : 0;
+        }
       }
     }
   }
@@ -152,11 +257,12 @@ bool Simulate(const Image& source,
 
   const ImageGeometry g = SimulatedFrameGeometry(source.geometry, options);
   const Mask fov = PyramidFieldOfView(g, options);
-  const Mask mask = ErodeFieldOfView(fov);
+  const Mask mask = ErodeFieldOfView(fov, options.mask_erosion_voxels);
   if (CountInside(mask) == 0) {
-    *error =
-        "the field of view is empty after the 1-voxel erosion: increase --frame_size, "
-        "--azimuth_deg or --elevation_deg, or decrease --min_depth_voxels";
+    *error = "the field of view is empty after the " +
+             std::to_string(options.mask_erosion_voxels) +
+             "-voxel erosion (--mask_erosion): increase --frame_size, --azimuth_deg or "
+             "--elevation_deg, or decrease --min_depth_voxels or --mask_erosion";
     return false;
   }
   std::mt19937_64 rng(options.seed);

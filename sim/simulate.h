@@ -10,25 +10,48 @@
 // with cx = (size_x - 1)/2, cy = (size_y - 1)/2 (the spacing is isotropic, so the test in
 // mm from the apex is the same in voxels).
 //
-// Poses (T_i = frame_from_world, world = the source's physical space, mm):
+// Poses (T_i = frame_from_world, world = the source's physical space, mm), always of the form
 //   frame_from_world_i = Translate(c_f) * R_i * Translate(t_i - c_s)
-// with c_f the frame grid's physical centre, c_s the source grid's physical centre,
-// R_i = Rz(gamma) Ry(beta) Rx(alpha) with the three Euler angles uniform in
-// [-max_rotation_deg, +max_rotation_deg], and t_i uniform in
-// [-max_translation_voxels, +max_translation_voxels] * s per world axis. So the frame centre
-// sees the world point c_s - t_i and the frame is rotated about it. Every frame, frame 0
-// included, gets a random pose; consumers re-express poses relative to frame 0 (DESIGN.md
-// section 1: world = frame 0). Draw order from std::mt19937_64(seed): per frame alpha,
-// beta, gamma, t_x, t_y, t_z; then the noise of frame 0, 1, ... in voxel order.
+// with c_f the frame grid's physical centre and c_s the source grid's physical centre: the
+// frame centre sees the world point c_s - t_i and the frame is rotated about it. The pose
+// box is R = Rz(gamma) Ry(beta) Rx(alpha) with each Euler angle in
+// [-max_rotation_deg, +max_rotation_deg] and t in [-max_translation_voxels,
+// +max_translation_voxels] * s per world axis. Consumers re-express poses relative to
+// frame 0 (DESIGN.md section 1: world = frame 0). Every draw below is u, uniform in [-1, 1),
+// from one std::mt19937_64(seed); after all poses come the noise draws of frame 0, 1, ...
+// in voxel order.
+//
+// PoseModel::kRandom (the paper's protocol): every frame, frame 0 included, independently
+// uniform in the box: per frame alpha, beta, gamma, t_x, t_y, t_z (= max * u each).
+//
+// PoseModel::kWalk (a probe tilted and shifted between acquisitions): frame 0 exactly as
+// kRandom (so both models share frame 0 for one seed); each next frame is the previous one
+// moved by a step applied in the world:
+//   world_from_frame_i = Translate(d) * RotateAbout(p, Q) * world_from_frame_{i-1},
+// where p = world_from_frame_{i-1} * c_f is the previous frame's centre in the world, Q a
+// rotation by theta in [0, step_rotation_deg] about a world axis a, and d a world
+// translation of length in [0, step_translation_voxels] * s. So the frame centre moves by d
+// exactly and the relative rotation of consecutive frames is Q: in the parametrisation
+// above, R_i = R_{i-1} Q^T and t_i = t_{i-1} - d. Draws per frame i >= 1: a_z = u,
+// a_azimuth = pi u (a = (sqrt(1 - a_z^2) cos, sqrt(1 - a_z^2) sin, a_z): uniform on the
+// sphere), theta = step (1 + u) / 2, then the direction of d likewise (z, azimuth) and its
+// length = step (1 + u) / 2: six draws per frame, as for kRandom.
+// The walk is clamped to the pose box, so it fits every source the box fits: each
+// component of t_i is clamped to the box (which only shortens d), and where R_i would
+// leave the Euler-angle box, theta is reduced (bisection on [0, theta], deterministic) to
+// the largest angle that keeps it inside. The step bounds therefore always hold, the box
+// bounds the whole sequence, and a frame stuck at a box face simply moves less.
 //
 // Intensities: the source's trilinear value at world_from_frame * x (Frame::InterpolateValue
 // on an all-ones mask), plus N(0, noise_sigma), clamped to 0..255, for field-of-view
 // voxels; 0 outside. Simulate fails if a field-of-view voxel maps outside the source grid.
 //
-// Masks: the field of view eroded by 1 voxel (6-neighbourhood; voxels on the grid border are
-// dropped too). The registration reads central-difference gradients at the 8 corners of a
-// valid trilinear cell, i.e. the 6 neighbours of mask voxels: with the erosion these are
-// always field-of-view voxels, never the zeros outside the pyramid.
+// Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
+// erosion a 6-neighbourhood erosion that also drops the grid border. The registration reads
+// central-difference gradients at the 8 corners of a valid trilinear cell, i.e. the 6
+// neighbours of mask voxels: with one voxel of erosion these are always field-of-view
+// voxels, never the zeros outside the pyramid. 0 writes the exact field of view (for
+// registrations that erode, or handle the edge, themselves).
 #ifndef DSR_SIM_SIMULATE_H_
 #define DSR_SIM_SIMULATE_H_
 
@@ -43,10 +66,21 @@
 
 namespace dsr {
 
+// How the frames' poses are drawn (see the header comment). dsr_simulate's --pose_model.
+enum class PoseModel { kRandom, kWalk };
+
+// "random" / "walk"; "" for a value outside the enum.
+const char* PoseModelToString(PoseModel model);
+// The inverse of PoseModelToString; false (and *model untouched) for any other text.
+bool StringToPoseModel(const std::string& text, PoseModel* model);
+
 struct SimulationOptions {
   int num_frames = 11;                   // >= 2 (the paper: 11)
+  PoseModel pose_model = PoseModel::kRandom;
   double max_rotation_deg = 12.0;        // per Euler angle, in [0, 180]
   double max_translation_voxels = 15.0;  // per world axis, in frame voxels, >= 0
+  double step_rotation_deg = 6.0;        // kWalk: largest rotation per step, in [0, 180]
+  double step_translation_voxels = 6.0;  // kWalk: largest shift per step, frame voxels, >= 0
   double noise_sigma = 25.0;             // intensity units, >= 0
   uint64_t seed = 1;
   Eigen::Vector3i frame_size = Eigen::Vector3i(96, 96, 80);  // voxels, depth along k
@@ -54,6 +88,7 @@ struct SimulationOptions {
   double azimuth_deg = 75.0;      // full opening angles of the pyramid, in (0, 180)
   double elevation_deg = 75.0;
   double min_depth_voxels = 4.0;  // near-field cut, in [0, frame_size[2] - 3]
+  int mask_erosion_voxels = 1;    // erosion of the written masks, in [0, 50]; 0 = the FOV
 
   // Checks ranges and cross-field rules. The message names the dsr_simulate flag
   // (e.g. "--num_frames=1: must be in [2, 1000]").
@@ -62,7 +97,7 @@ struct SimulationOptions {
 
 struct SimulatedSequence {
   std::vector<Image> frames;  // on the frame grid, 0..255, 0 outside the FOV
-  std::vector<Mask> masks;    // eroded field of view (identical for all frames)
+  std::vector<Mask> masks;    // the field of view eroded by mask_erosion_voxels (all equal)
   std::vector<Eigen::Isometry3d> frame_from_world;  // world = the source's physical space
 };
 
@@ -72,9 +107,9 @@ ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const Simulati
 // The pyramidal field of view on `frame` (before erosion), 1 inside.
 Mask PyramidFieldOfView(const ImageGeometry& frame, const SimulationOptions& options);
 
-// The mask written with each frame: `field_of_view` eroded by 1 voxel (6-neighbourhood),
-// grid-border voxels removed.
-Mask ErodeFieldOfView(const Mask& field_of_view);
+// The mask written with each frame: `field_of_view` eroded `erosion_voxels` (>= 0) times
+// by one voxel (6-neighbourhood, grid-border voxels removed each time); 0 returns it as is.
+Mask ErodeFieldOfView(const Mask& field_of_view, int erosion_voxels);
 
 // The ground-truth poses Simulate draws for `source` (the same first draws of the seeded
 // generator). options must be valid.
@@ -82,7 +117,7 @@ std::vector<Eigen::Isometry3d> SimulatedPoses(const ImageGeometry& source,
                                               const SimulationOptions& options);
 
 // Runs the protocol. Returns false with a one-line `error` when options are invalid, the
-// source is empty or has an invalid grid, the eroded field of view is empty, or a
+// source is empty or has an invalid grid, the (eroded) mask is empty, or a
 // field-of-view voxel of some frame maps outside the source grid (source too small for
 // these poses and this frame size). `sequence` is only written on success.
 bool Simulate(const Image& source,

@@ -3,6 +3,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
@@ -15,6 +16,7 @@
 #include "cli_run.h"
 #include "core/io_image.h"
 #include "core/io_poses.h"
+#include "sim/simulate.h"
 
 namespace dsr {
 namespace {
@@ -96,6 +98,43 @@ TEST_F(DsrSimulateCli, TinyRunWritesFramesMasksAndPoses) {
   EXPECT_EQ(a.voxels, b.voxels);
 }
 
+TEST_F(DsrSimulateCli, WalkAndMaskErosionReachTheSimulator) {
+  const fs::path random = dir_ / "random", walk = dir_ / "walk";
+  ASSERT_EQ(Simulate("--out_dir=" + random.string() + " " + Tiny() + " --seed=5").exit_code, 0);
+  const ToolRun run = Simulate("--out_dir=" + walk.string() + " " + Tiny() +
+                               " --seed=5 --pose_model=walk --step_rotation_deg=3 "
+                               "--step_translation_voxels=1 --mask_erosion=0");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  PosesFile random_poses, walk_poses;
+  std::string error;
+  ASSERT_TRUE(ReadPoses((random / "gt_poses.json").string(), 3, &random_poses, &error)) << error;
+  ASSERT_TRUE(ReadPoses((walk / "gt_poses.json").string(), 3, &walk_poses, &error)) << error;
+  // Frame 0 is drawn alike; then each frame is within one step of the previous (the frame
+  // centre in the world moves <= 1 voxel of 1 mm, the rotation <= 3 degrees). The JSON
+  // round trip keeps the 17 significant digits.
+  EXPECT_TRUE(walk_poses.frame_from_world[0].isApprox(random_poses.frame_from_world[0], 1e-12));
+  const Eigen::Vector3d center(9.5, 9.5, 7.5);  // of the 20x20x16 frame at 1 mm, origin 0
+  for (int f = 1; f < 3; ++f) {
+    const Eigen::Isometry3d& previous = walk_poses.frame_from_world[f - 1];
+    const Eigen::Isometry3d& next = walk_poses.frame_from_world[f];
+    EXPECT_LE((next.inverse() * center - previous.inverse() * center).norm(), 1.0 + 1e-9);
+    EXPECT_LE(Eigen::AngleAxisd(next.linear().transpose() * previous.linear()).angle(),
+              3.0 * M_PI / 180.0 + 1e-9);
+  }
+  // --mask_erosion=0: the masks are the exact field of view.
+  SimulationOptions o;
+  o.frame_size = Eigen::Vector3i(20, 20, 16);
+  o.min_depth_voxels = 2.0;
+  ImageGeometry g;
+  g.size = o.frame_size;
+  const Mask fov = PyramidFieldOfView(g, o);
+  for (const fs::path& folder : {random, walk}) {
+    Mask mask;
+    ASSERT_TRUE(ReadMask((folder / "mask_01.nii.gz").string(), g, &mask, &error)) << error;
+    EXPECT_EQ(mask.voxels, (folder == walk ? fov : ErodeFieldOfView(fov, 1)).voxels) << folder;
+  }
+}
+
 TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
   const std::string out = " --out_dir=" + (dir_ / "bad").string();
   struct Case {
@@ -109,6 +148,13 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
       {"--azimuth_deg=180" + out, "--azimuth_deg=180: must be in (0, 180)"},
       {"--max_rotation_deg=200" + out, "--max_rotation_deg=200"},
       {"--phantom_size=8" + out, "--phantom_size=8: must be in [16, 512]"},
+      {"--pose_model=spiral" + out, "--pose_model=spiral: must be random or walk"},
+      {"--pose_model=" + out, "--pose_model=: must be random or walk"},
+      {"--step_rotation_deg=181" + out, "--step_rotation_deg=181: must be in [0, 180]"},
+      {"--step_translation_voxels=-2" + out,
+       "--step_translation_voxels=-2: must be finite and >= 0"},
+      {"--mask_erosion=-1" + out, "--mask_erosion=-1: must be in [0, 50]"},
+      {"--mask_erosion=51" + out, "--mask_erosion=51: must be in [0, 50]"},
       {"--num_frames=abc" + out, "num_frames"},
       {"--no_such_flag=1" + out, "no_such_flag"},
       {"--source=" + (dir_ / "missing.nii.gz").string() + out, "missing.nii.gz: no such file"},
@@ -138,6 +184,8 @@ TEST_F(DsrSimulateCli, BadInputFoundAfterStartExitsWithOneErrorLine) {
       {"--min_depth_voxels=90" + out,
        "--min_depth_voxels=90: must be in [0, frame depth - 3 = 77]"},
       {"--phantom_size=40" + out, "outside the source grid"},
+      {"--mask_erosion=20 --frame_size=20,20,16 --min_depth_voxels=2" + out,
+       "empty after the 20-voxel erosion (--mask_erosion)"},
       {"--out_dir=" + (dir_ / "file" / "sub").string() + " " + Tiny(), "cannot create the folder"},
   };
   for (const Case& c : cases) {
@@ -161,6 +209,9 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "sigma",
                              "max_rotation_deg",
                              "max_translation_voxels",
+                             "pose_model",
+                             "step_rotation_deg",
+                             "step_translation_voxels",
                              "frame_size",
                              "frame_spacing",
                              "azimuth_deg",
@@ -168,6 +219,7 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "min_depth_voxels",
                              "phantom_size",
                              "phantom_seed",
+                             "mask_erosion",
                              "write_source"}) {
       EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)
           << help << " lacks --" << flag;

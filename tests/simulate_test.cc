@@ -1,8 +1,11 @@
 // Simulator (DESIGN.md section 6, sim/simulate.h): frames agree with each other under the
-// ground-truth poses, determinism, the protocol's pose ranges, noise statistics, the
-// field of view and its mask, option validation.
+// ground-truth poses, determinism, the protocol's pose ranges (random and walk), which
+// motions fit the default phantom, noise statistics, the field of view and its mask,
+// option validation.
+#include <algorithm>
 #include <cmath>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -128,18 +131,24 @@ TEST(Simulate, FramesAgreeUnderGroundTruthPoses) {
   for (const Eigen::Vector3d& spacing :
        {Eigen::Vector3d(1.0, 1.0, 1.0), Eigen::Vector3d(1.0, 1.25, 0.8)}) {
     const Image source = SmallSource(spacing);
-    SimulatedSequence s;
-    std::string error;
-    ASSERT_TRUE(Simulate(source, SmallOptions(), &s, &error)) << error;
-    ASSERT_EQ(s.frames.size(), 4u);
-    for (int j = 1; j < 4; ++j) {
-      const Agreement a = Compare(s, 0, j);
-      const Agreement b = Compare(s, j, 0);
-      ASSERT_GT(a.count, 2000) << "frames 0 and " << j << " barely overlap";
-      EXPECT_LT(a.mean_abs_difference, kResampleMeanAbsTolerance)
-          << "frame " << j << " into frame 0, spacing " << spacing.transpose();
-      EXPECT_LT(b.mean_abs_difference, kResampleMeanAbsTolerance)
-          << "frame 0 into frame " << j << ", spacing " << spacing.transpose();
+    for (PoseModel model : {PoseModel::kRandom, PoseModel::kWalk}) {
+      SimulationOptions o = SmallOptions();
+      o.pose_model = model;
+      SimulatedSequence s;
+      std::string error;
+      ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
+      ASSERT_EQ(s.frames.size(), 4u);
+      for (int j = 1; j < 4; ++j) {
+        const Agreement a = Compare(s, 0, j);
+        const Agreement b = Compare(s, j, 0);
+        ASSERT_GT(a.count, 2000) << "frames 0 and " << j << " barely overlap";
+        EXPECT_LT(a.mean_abs_difference, kResampleMeanAbsTolerance)
+            << "frame " << j << " into frame 0, spacing " << spacing.transpose() << ", "
+            << PoseModelToString(model);
+        EXPECT_LT(b.mean_abs_difference, kResampleMeanAbsTolerance)
+            << "frame 0 into frame " << j << ", spacing " << spacing.transpose() << ", "
+            << PoseModelToString(model);
+      }
     }
   }
 }
@@ -178,6 +187,168 @@ TEST(Simulate, DeterministicForASeedAndSeedsDiffer) {
   ASSERT_TRUE(Simulate(source, o, &c, &error)) << error;
   EXPECT_FALSE(a.frame_from_world[0].isApprox(c.frame_from_world[0], 1e-6));
   EXPECT_NE(a.frames[0].voxels, c.frames[0].voxels);
+}
+
+// The first rows of frame_from_world for frames 0, 1 and 10 of the default options (seed 1)
+// on the default phantom's grid, recorded from the simulator before the walk model was
+// added: existing random sequences must not change. 1e-12 leaves room for a libm whose
+// sin/cos differ in the last bit; on the development machine they are bit-identical.
+constexpr double kRecordedPoseTolerance = 1e-12;
+
+ImageGeometry DefaultPhantomGrid() {
+  PhantomOptions p;
+  ImageGeometry phantom;
+  phantom.size = Eigen::Vector3i::Constant(p.size);
+  phantom.spacing_mm = Eigen::Vector3d::Constant(p.spacing_mm);
+  phantom.origin_mm = Eigen::Vector3d::Constant(-0.5 * (p.size - 1) * p.spacing_mm);
+  return phantom;
+}
+
+TEST(Simulate, RandomPosesAreTheRecordedOnes) {
+  struct Recorded {
+    int frame;
+    double row0[4];
+    double row2[4];
+  };
+  const Recorded recorded[] = {
+      {0,
+       {0.9882181614469411, 0.04336483958258794, -0.14677995801336038, 31.29467641750668},
+       {0.15171335619231227, -0.150992650787284, 0.9768235649087781, 50.050115060303355}},
+      {1,
+       {0.9837317423746683, -0.027079694648590724, -0.1775909603055242, 51.52515578578681},
+       {0.17732176752488096, -0.012056868987724378, 0.9840790733838745, 42.02641480116703}},
+      {10,
+       {0.9667376088942824, 0.18586863212253713, -0.17570215463181568, 41.589966226499435},
+       {0.20766258935382118, -0.16936099796769058, 0.963427787304401, 37.943921157809555}},
+  };
+  SimulationOptions o;
+  ASSERT_EQ(o.pose_model, PoseModel::kRandom);  // the default
+  const std::vector<Eigen::Isometry3d> poses = SimulatedPoses(DefaultPhantomGrid(), o);
+  ASSERT_EQ(poses.size(), 11u);
+  for (const Recorded& r : recorded) {
+    const Eigen::Matrix4d t = poses[r.frame].matrix();
+    for (int c = 0; c < 4; ++c) {
+      EXPECT_NEAR(t(0, c), r.row0[c], kRecordedPoseTolerance) << "frame " << r.frame;
+      EXPECT_NEAR(t(2, c), r.row2[c], kRecordedPoseTolerance) << "frame " << r.frame;
+    }
+  }
+}
+
+// (alpha, beta, gamma) with R = Rz(gamma) Ry(beta) Rx(alpha), beta in [-pi/2, pi/2].
+Eigen::Vector3d EulerZyx(const Eigen::Matrix3d& r) {
+  return Eigen::Vector3d(
+      std::atan2(r(2, 1), r(2, 2)), -std::asin(r(2, 0)), std::atan2(r(1, 0), r(0, 0)));
+}
+
+// A walk's consecutive frames: the rotation angle of world_from_frame_i *
+// frame_from_world_{i-1} (the step Q), and how far the frame centre moved in the world.
+struct WalkStep {
+  double angle = 0.0;
+  double shift_mm = 0.0;
+};
+WalkStep StepBetween(const Eigen::Isometry3d& previous,
+                     const Eigen::Isometry3d& next,
+                     const Eigen::Vector3d& frame_center) {
+  WalkStep step;
+  step.angle = Eigen::AngleAxisd(next.linear().transpose() * previous.linear()).angle();
+  step.shift_mm = (next.inverse() * frame_center - previous.inverse() * frame_center).norm();
+  return step;
+}
+
+TEST(Simulate, WalkStepsStayWithinTheirBoundsAndTheBox) {
+  ImageGeometry source;  // anisotropic and off-centre: steps are in frame voxels (0.7 mm)
+  source.size = Eigen::Vector3i(100, 120, 90);
+  source.spacing_mm = Eigen::Vector3d(0.7, 0.9, 1.1);
+  source.origin_mm = Eigen::Vector3d(-3.0, 5.0, 2.0);
+  const Eigen::Vector3d c_s =
+      source.IndexToPhysical(0.5 * (source.size.cast<double>() - Eigen::Vector3d::Ones()));
+  struct Case {
+    double max_rotation_deg, max_translation_voxels, step_rotation_deg, step_translation_voxels;
+    bool clamped;  // the box is small against the steps
+  };
+  const Case cases[] = {
+      {30.0, 40.0, 6.0, 6.0, false},  // the walk protocol's steps in a roomy box
+      {2.0, 1.0, 10.0, 10.0, true},   // steps far larger than the box
+      {45.0, 10.0, 3.0, 2.0, false},
+  };
+  for (const Case& c : cases) {
+    SimulationOptions o;
+    o.pose_model = PoseModel::kWalk;
+    o.num_frames = 300;
+    o.max_rotation_deg = c.max_rotation_deg;
+    o.max_translation_voxels = c.max_translation_voxels;
+    o.step_rotation_deg = c.step_rotation_deg;
+    o.step_translation_voxels = c.step_translation_voxels;
+    const std::vector<Eigen::Isometry3d> poses = SimulatedPoses(source, o);
+    ASSERT_EQ(poses.size(), 300u);
+    const ImageGeometry frame = SimulatedFrameGeometry(source, o);
+    const Eigen::Vector3d c_f =
+        frame.IndexToPhysical(0.5 * (frame.size.cast<double>() - Eigen::Vector3d::Ones()));
+    const double step_angle = c.step_rotation_deg * M_PI / 180.0;
+    const double step_shift = c.step_translation_voxels * 0.7;
+    const double max_angle = c.max_rotation_deg * M_PI / 180.0;
+    const double max_shift = c.max_translation_voxels * 0.7;
+    double largest_angle = 0.0, largest_shift = 0.0;
+    for (size_t f = 0; f < poses.size(); ++f) {
+      const Eigen::Matrix3d r = poses[f].linear();
+      ASSERT_NEAR((r.transpose() * r - Eigen::Matrix3d::Identity()).norm(), 0.0, 1e-12);
+      const Eigen::Vector3d euler = EulerZyx(r);
+      const Eigen::Vector3d seen = poses[f].inverse() * c_f;  // = c_s - t
+      EXPECT_LE(euler.cwiseAbs().maxCoeff(), max_angle + 1e-9) << "frame " << f;
+      EXPECT_LE((seen - c_s).cwiseAbs().maxCoeff(), max_shift + 1e-9) << "frame " << f;
+      if (f == 0) continue;
+      const WalkStep step = StepBetween(poses[f - 1], poses[f], c_f);
+      EXPECT_LE(step.angle, step_angle + 1e-9) << "frame " << f;
+      EXPECT_LE(step.shift_mm, step_shift + 1e-9) << "frame " << f;
+      largest_angle = std::max(largest_angle, step.angle);
+      largest_shift = std::max(largest_shift, step.shift_mm);
+    }
+    if (!c.clamped) {
+      // Uniform step sizes, 299 of each, rarely clamped in a roomy box: they span the range.
+      EXPECT_GT(largest_angle, 0.95 * step_angle);
+      EXPECT_GT(largest_shift, 0.95 * step_shift);
+    } else {
+      EXPECT_GT(largest_angle, 0.0);  // clamped, yet still moving
+      EXPECT_GT(largest_shift, 0.0);
+    }
+  }
+}
+
+TEST(Simulate, WalkIsDeterministicAndStartsWhereRandomStarts) {
+  const ImageGeometry grid = DefaultPhantomGrid();
+  SimulationOptions o;
+  o.pose_model = PoseModel::kWalk;
+  const std::vector<Eigen::Isometry3d> a = SimulatedPoses(grid, o);
+  const std::vector<Eigen::Isometry3d> b = SimulatedPoses(grid, o);
+  for (size_t f = 0; f < a.size(); ++f) {
+    EXPECT_TRUE(a[f].matrix() == b[f].matrix()) << "frame " << f;
+  }
+  SimulationOptions random = o;
+  random.pose_model = PoseModel::kRandom;
+  const std::vector<Eigen::Isometry3d> r = SimulatedPoses(grid, random);
+  EXPECT_TRUE(a[0].matrix() == r[0].matrix()) << "frame 0 is drawn as in the random model";
+  EXPECT_FALSE(a[1].isApprox(r[1], 1e-6));
+  // Consecutive walk frames are within one step (the default 6 voxels of 1 mm).
+  const Eigen::Vector3d c_f = 0.5 * (o.frame_size.cast<double>() - Eigen::Vector3d::Ones());
+  EXPECT_LE(StepBetween(a[0], a[1], c_f).shift_mm, 6.0 + 1e-9);
+  o.seed = 2;
+  const std::vector<Eigen::Isometry3d> c = SimulatedPoses(grid, o);
+  EXPECT_FALSE(a[0].isApprox(c[0], 1e-6));
+  EXPECT_FALSE(a[5].isApprox(c[5], 1e-6));
+
+  // Whole sequences, noise included.
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  SimulationOptions small = SmallOptions();
+  small.pose_model = PoseModel::kWalk;
+  small.noise_sigma = 25.0;
+  SimulatedSequence s1, s2;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, small, &s1, &error)) << error;
+  ASSERT_TRUE(Simulate(source, small, &s2, &error)) << error;
+  for (int f = 0; f < small.num_frames; ++f) {
+    EXPECT_EQ(s1.frames[f].voxels, s2.frames[f].voxels) << "frame " << f;
+    EXPECT_TRUE(s1.frame_from_world[f].matrix() == s2.frame_from_world[f].matrix());
+  }
 }
 
 TEST(Simulate, PosesFollowTheProtocol) {
@@ -221,28 +392,103 @@ TEST(Simulate, PosesFollowTheProtocol) {
   EXPECT_GT(largest_shift, 0.95 * 15.0 * 0.7);
 }
 
+// The corners of each slice's field-of-view rectangle (frame indices): the field of view
+// is convex, so a rigid map sends all of it inside a box iff it sends these inside.
+std::vector<Eigen::Vector3d> FieldOfViewCorners(const Mask& fov) {
+  const ImageGeometry& g = fov.geometry;
+  std::vector<Eigen::Vector3d> corners;
+  for (int k = 0; k < g.size[2]; ++k) {
+    Eigen::Vector2i lo(g.size[0], g.size[1]), hi(-1, -1);
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        if (!fov.at(i, j, k)) continue;
+        lo = lo.cwiseMin(Eigen::Vector2i(i, j));
+        hi = hi.cwiseMax(Eigen::Vector2i(i, j));
+      }
+    }
+    if (hi[0] < 0) continue;  // empty slice
+    for (int c = 0; c < 4; ++c) {
+      corners.emplace_back(c & 1 ? hi[0] : lo[0], c & 2 ? hi[1] : lo[1], k);
+    }
+  }
+  return corners;
+}
+
+// Whether every field-of-view voxel (given by FieldOfViewCorners on `frame`) of a frame at
+// `frame_from_world` maps inside `source` (index in [0, size - 1]).
+bool FieldOfViewFits(const ImageGeometry& source,
+                     const ImageGeometry& frame,
+                     const std::vector<Eigen::Vector3d>& fov_corners,
+                     const Eigen::Isometry3d& frame_from_world) {
+  const Eigen::Vector3d upper = source.size.cast<double>() - Eigen::Vector3d::Ones();
+  const Eigen::Isometry3d world_from_frame = frame_from_world.inverse();
+  for (const Eigen::Vector3d& corner : fov_corners) {
+    const Eigen::Vector3d ijk =
+        source.PhysicalToIndex(world_from_frame * frame.IndexToPhysical(corner));
+    if ((ijk.array() < 0.0).any() || (ijk.array() > upper.array()).any()) return false;
+  }
+  return true;
+}
+
 TEST(Simulate, DefaultsFitTheDefaultPhantomForAnySeed) {
   // dsr_simulate's defaults must never fail: every frame-box corner (a superset of the
-  // field of view, which is convex) maps inside the default 192^3 phantom, for many seeds.
-  PhantomOptions p;
-  ImageGeometry phantom;
-  phantom.size = Eigen::Vector3i::Constant(p.size);
-  phantom.spacing_mm = Eigen::Vector3d::Constant(p.spacing_mm);
-  phantom.origin_mm = Eigen::Vector3d::Constant(-0.5 * (p.size - 1) * p.spacing_mm);
-  SimulationOptions o;
-  const ImageGeometry frame = SimulatedFrameGeometry(phantom, o);
-  const Eigen::Vector3d upper = phantom.size.cast<double>() - Eigen::Vector3d::Ones();
-  for (uint64_t seed = 1; seed <= 300; ++seed) {
-    o.seed = seed;
-    for (const Eigen::Isometry3d& t : SimulatedPoses(phantom, o)) {
-      for (int c = 0; c < 8; ++c) {
-        const Eigen::Vector3d corner((c & 1) * (frame.size[0] - 1),
-                                     ((c >> 1) & 1) * (frame.size[1] - 1),
-                                     ((c >> 2) & 1) * (frame.size[2] - 1));
-        const Eigen::Vector3d ijk =
-            phantom.PhysicalToIndex(t.inverse() * frame.IndexToPhysical(corner));
-        ASSERT_TRUE((ijk.array() >= 0.0).all() && (ijk.array() <= upper.array()).all())
-            << "seed " << seed << " corner " << c << " -> " << ijk.transpose();
+  // field of view, which is convex) maps inside the default 192^3 phantom, for many seeds,
+  // with either pose model (the walk stays in the random model's pose box).
+  const ImageGeometry phantom = DefaultPhantomGrid();
+  for (PoseModel model : {PoseModel::kRandom, PoseModel::kWalk}) {
+    SimulationOptions o;
+    o.pose_model = model;
+    const ImageGeometry frame = SimulatedFrameGeometry(phantom, o);
+    const Eigen::Vector3d upper = phantom.size.cast<double>() - Eigen::Vector3d::Ones();
+    for (uint64_t seed = 1; seed <= 300; ++seed) {
+      o.seed = seed;
+      for (const Eigen::Isometry3d& t : SimulatedPoses(phantom, o)) {
+        for (int c = 0; c < 8; ++c) {
+          const Eigen::Vector3d corner((c & 1) * (frame.size[0] - 1),
+                                       ((c >> 1) & 1) * (frame.size[1] - 1),
+                                       ((c >> 2) & 1) * (frame.size[2] - 1));
+          const Eigen::Vector3d ijk =
+              phantom.PhysicalToIndex(t.inverse() * frame.IndexToPhysical(corner));
+          ASSERT_TRUE((ijk.array() >= 0.0).all() && (ijk.array() <= upper.array()).all())
+              << PoseModelToString(model) << " seed " << seed << " corner " << c << " -> "
+              << ijk.transpose();
+        }
+      }
+    }
+  }
+}
+
+TEST(Simulate, LargerMotionsFitWhereTheHelpSaysTheyFit) {
+  // dsr_simulate's --max_rotation_deg and --phantom_size help, for 96x96x80 frames: the
+  // default 192^3 phantom fits +/-45 degrees with +/-10 voxels, and a 208^3 phantom the
+  // "wide" +/-25 degrees with +/-20 voxels (192^3 has only 0.4 voxel to spare there over
+  // 1000 seeds, and walks leave it), for either pose model. Field-of-view voxels, not the
+  // frame box: the pyramid is narrow near its apex.
+  struct Case {
+    int phantom_size;
+    double max_rotation_deg, max_translation_voxels;
+  };
+  for (const Case& c : {Case{192, 45.0, 10.0}, Case{208, 25.0, 20.0}}) {
+    ImageGeometry phantom;
+    phantom.size = Eigen::Vector3i::Constant(c.phantom_size);
+    phantom.origin_mm = Eigen::Vector3d::Constant(-0.5 * (c.phantom_size - 1));
+    for (PoseModel model : {PoseModel::kRandom, PoseModel::kWalk}) {
+      SimulationOptions o;
+      o.pose_model = model;
+      o.max_rotation_deg = c.max_rotation_deg;
+      o.max_translation_voxels = c.max_translation_voxels;
+      const ImageGeometry frame = SimulatedFrameGeometry(phantom, o);
+      const std::vector<Eigen::Vector3d> corners =
+          FieldOfViewCorners(PyramidFieldOfView(frame, o));
+      for (uint64_t seed = 1; seed <= 200; ++seed) {
+        o.seed = seed;
+        const std::vector<Eigen::Isometry3d> poses = SimulatedPoses(phantom, o);
+        for (size_t f = 0; f < poses.size(); ++f) {
+          ASSERT_TRUE(FieldOfViewFits(phantom, frame, corners, poses[f]))
+              << c.phantom_size << "^3, " << c.max_rotation_deg << " deg, "
+              << c.max_translation_voxels << " voxels, " << PoseModelToString(model)
+              << ", seed " << seed << ", frame " << f;
+        }
       }
     }
   }
@@ -306,7 +552,7 @@ TEST(Simulate, FieldOfViewIsAPyramidAndTheMaskIsItsErosion) {
   EXPECT_EQ(fov.at(0, 15, 39), 1);  // wide enough at depth to reach the box sides
   EXPECT_EQ(fov.at(0, 15, 10), 0);
 
-  const Mask mask = ErodeFieldOfView(fov);
+  const Mask mask = ErodeFieldOfView(fov, 1);
   ASSERT_GT(CountInside(mask), 0);
   EXPECT_LT(CountInside(mask), CountInside(fov));
   for (int k = 0; k < g.size[2]; ++k) {
@@ -334,6 +580,54 @@ TEST(Simulate, FieldOfViewIsAPyramidAndTheMaskIsItsErosion) {
   for (const Mask& m : s.masks) EXPECT_EQ(m.voxels, mask.voxels);
 }
 
+TEST(Simulate, MaskErosionCountsVoxelsAndZeroIsTheFieldOfView) {
+  SimulationOptions o;
+  o.frame_size = Eigen::Vector3i(41, 31, 40);
+  o.min_depth_voxels = 3.0;
+  o.num_frames = 2;
+  o.max_translation_voxels = 2.0;
+  ImageGeometry g;
+  g.size = o.frame_size;
+  const Mask fov = PyramidFieldOfView(g, o);
+  EXPECT_EQ(ErodeFieldOfView(fov, 0).voxels, fov.voxels);
+  const Mask once = ErodeFieldOfView(fov, 1);
+  const Mask twice = ErodeFieldOfView(fov, 2);
+  EXPECT_EQ(twice.voxels, ErodeFieldOfView(once, 1).voxels);
+  EXPECT_LT(CountInside(twice), CountInside(once));
+
+  ImageGeometry source_grid;
+  source_grid.size = Eigen::Vector3i(90, 90, 90);
+  source_grid.origin_mm = Eigen::Vector3d::Constant(-44.5);
+  const Image source(source_grid, 100.0f);
+  for (int erosion : {0, 2}) {
+    o.mask_erosion_voxels = erosion;
+    SimulatedSequence s;
+    std::string error;
+    ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
+    for (const Mask& m : s.masks) EXPECT_EQ(m.voxels, (erosion == 0 ? fov : twice).voxels);
+  }
+  // An erosion that eats the whole field of view is refused, naming the flag.
+  o.mask_erosion_voxels = 30;
+  SimulatedSequence s;
+  std::string error;
+  EXPECT_FALSE(Simulate(source, o, &s, &error));
+  EXPECT_NE(error.find("--mask_erosion"), std::string::npos) << error;
+}
+
+TEST(Simulate, PoseModelNames) {
+  PoseModel model = PoseModel::kWalk;
+  EXPECT_TRUE(StringToPoseModel("random", &model));
+  EXPECT_EQ(model, PoseModel::kRandom);
+  EXPECT_TRUE(StringToPoseModel("walk", &model));
+  EXPECT_EQ(model, PoseModel::kWalk);
+  for (const char* bad : {"", "Walk", "random ", "spiral"}) {
+    EXPECT_FALSE(StringToPoseModel(bad, &model)) << bad;
+    EXPECT_EQ(model, PoseModel::kWalk) << "untouched on failure";
+  }
+  EXPECT_STREQ(PoseModelToString(PoseModel::kRandom), "random");
+  EXPECT_STREQ(PoseModelToString(PoseModel::kWalk), "walk");
+}
+
 TEST(Simulate, ValidateRejectsNonsense) {
   struct Case {
     void (*edit)(SimulationOptions*);
@@ -352,6 +646,13 @@ TEST(Simulate, ValidateRejectsNonsense) {
       {[](SimulationOptions* o) { o->azimuth_deg = 0.0; }, "--azimuth_deg"},
       {[](SimulationOptions* o) { o->elevation_deg = 180.0; }, "--elevation_deg"},
       {[](SimulationOptions* o) { o->min_depth_voxels = 78.0; }, "--min_depth_voxels"},
+      {[](SimulationOptions* o) { o->pose_model = static_cast<PoseModel>(7); },
+       "--pose_model=7"},
+      {[](SimulationOptions* o) { o->step_rotation_deg = 181.0; }, "--step_rotation_deg=181"},
+      {[](SimulationOptions* o) { o->step_translation_voxels = -1.0; },
+       "--step_translation_voxels=-1"},
+      {[](SimulationOptions* o) { o->mask_erosion_voxels = -1; }, "--mask_erosion=-1"},
+      {[](SimulationOptions* o) { o->mask_erosion_voxels = 51; }, "--mask_erosion=51"},
   };
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (const Case& c : cases) {

@@ -33,14 +33,34 @@ DEFINE_double(sigma,
               25.0,
               "Standard deviation of the additive Gaussian noise inside the field of view, in "
               "intensity units (0..255 scale), >= 0 (the paper: 25).");
+DEFINE_string(pose_model,
+              "random",
+              "How the frames' poses are drawn: random (the paper: every frame independently "
+              "uniform in the pose box of --max_rotation_deg and --max_translation_voxels) or "
+              "walk (frame 0 as random, then each frame the previous one rotated about its "
+              "centre by at most --step_rotation_deg about a random axis and shifted by at "
+              "most --step_translation_voxels in a random direction, like a probe moved "
+              "between acquisitions; clamped to the pose box).");
 DEFINE_double(max_rotation_deg,
               12.0,
-              "Each of the three Euler angles of a frame's rotation is uniform in "
-              "[-this, +this] degrees, in [0, 180] (the paper: 12).");
+              "Each of the three Euler angles of a frame's rotation is within [-this, +this] "
+              "degrees (uniform with --pose_model=random), in [0, 180] (the paper: 12). "
+              "Larger motions need room in the source: for 96x96x80 frames the default 192^3 "
+              "phantom fits 45 degrees with 10 voxels, but 25 degrees with 20 voxels only "
+              "just (an unlucky draw leaves it by a voxel): use --phantom_size=208 there.");
 DEFINE_double(max_translation_voxels,
               15.0,
-              "Each world-axis component of a frame's translation is uniform in [-this, +this] "
-              "frame voxels, >= 0 (the paper: 15).");
+              "Each world-axis component of a frame's translation is within [-this, +this] "
+              "frame voxels (uniform with --pose_model=random), >= 0 (the paper: 15).");
+DEFINE_double(step_rotation_deg,
+              6.0,
+              "--pose_model=walk: the rotation between consecutive frames, about a uniformly "
+              "random axis through the previous frame's centre, is uniform in [0, this] "
+              "degrees, in [0, 180].");
+DEFINE_double(step_translation_voxels,
+              6.0,
+              "--pose_model=walk: the shift of the frame centre between consecutive frames, "
+              "in a uniformly random direction, is uniform in [0, this] frame voxels, >= 0.");
 DEFINE_string(frame_size,
               "96,96,80",
               "Frame grid size in voxels 'nx,ny,nz', each in [4, 2048]; the pyramid's depth "
@@ -61,12 +81,18 @@ DEFINE_double(min_depth_voxels,
 DEFINE_int32(phantom_size,
              192,
              "Built-in phantom size in voxels per axis (1 mm spacing), in [16, 512]. The "
-             "default fits the default frames and motions.");
+             "default fits the default frames and motions; 208 fits them at "
+             "--max_rotation_deg=25 --max_translation_voxels=20.");
 DEFINE_uint64(phantom_seed,
               1,
               "Seed of the built-in phantom's layout jitter and texture. Kept apart from "
               "--seed so that sequences with different --seed are cut from the same volume, "
               "as in the paper.");
+DEFINE_int32(mask_erosion,
+             1,
+             "Erosion of the written masks mask_XX.nii.gz, in voxels (6-neighbourhood per "
+             "voxel), in [0, 50]: 1 keeps central-difference gradients inside the field of "
+             "view; 0 writes the exact field of view.");
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
@@ -79,6 +105,13 @@ bool ValidateNonNegative(const char* flag, double v) {
 }
 bool ValidateRotation(const char* flag, double v) {
   return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 180.0, flag, v, "must be in [0, 180]");
+}
+bool ValidatePoseModel(const char* flag, const std::string& v) {
+  dsr::PoseModel model;
+  return dsr::CheckFlag(dsr::StringToPoseModel(v, &model), flag, v, "must be random or walk");
+}
+bool ValidateMaskErosion(const char* flag, int32_t v) {
+  return dsr::CheckFlag(v >= 0 && v <= 50, flag, v, "must be in [0, 50]");
 }
 bool ValidateOpeningAngle(const char* flag, double v) {
   return dsr::CheckFlag(std::isfinite(v) && v > 0.0 && v < 180.0, flag, v, "must be in (0, 180)");
@@ -103,6 +136,10 @@ DEFINE_validator(num_frames, &ValidateNumFrames);
 DEFINE_validator(sigma, &ValidateNonNegative);
 DEFINE_validator(max_rotation_deg, &ValidateRotation);
 DEFINE_validator(max_translation_voxels, &ValidateNonNegative);
+DEFINE_validator(pose_model, &ValidatePoseModel);
+DEFINE_validator(step_rotation_deg, &ValidateRotation);
+DEFINE_validator(step_translation_voxels, &ValidateNonNegative);
+DEFINE_validator(mask_erosion, &ValidateMaskErosion);
 DEFINE_validator(frame_size, &ValidateFrameSize);
 DEFINE_validator(frame_spacing, &ValidateNonNegative);
 DEFINE_validator(azimuth_deg, &ValidateOpeningAngle);
@@ -123,7 +160,8 @@ int main(int argc, char** argv) {
   dsr::InitTool(
       "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
       "field of view, Gaussian noise) from the built-in phantom or --source.\n"
-      "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] ...\n"
+      "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
+      "[--pose_model=random|walk] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       {"out_dir"},
@@ -134,6 +172,10 @@ int main(int argc, char** argv) {
   options.num_frames = FLAGS_num_frames;
   options.max_rotation_deg = FLAGS_max_rotation_deg;
   options.max_translation_voxels = FLAGS_max_translation_voxels;
+  CHECK(dsr::StringToPoseModel(FLAGS_pose_model, &options.pose_model));  // validated
+  options.step_rotation_deg = FLAGS_step_rotation_deg;
+  options.step_translation_voxels = FLAGS_step_translation_voxels;
+  options.mask_erosion_voxels = FLAGS_mask_erosion;
   options.noise_sigma = FLAGS_sigma;
   options.seed = FLAGS_seed;
   CHECK(dsr::ParseSize3(FLAGS_frame_size, &options.frame_size));  // validated by its validator
