@@ -148,17 +148,23 @@ bool SolveSequential(const std::vector<Frame>& frames,
 struct RelativePose {
   int i = 0, k = 0;
   Eigen::Isometry3d k_from_i = Eigen::Isometry3d::Identity();
+  // Scales the residual [rho; phi] per component (1 / its standard deviation): all ones
+  // for Lie normalisation, which weighs millimetres and radians alike.
+  Vector6d sqrt_information = Vector6d::Ones();
 };
 
 // Global poses (frame 0 fixed at `initial[0]`) minimising sum over the measurements of
 // ||Log(Z_ki^-1 T_k T_i^-1)||^2 (tangent [rho; phi], DESIGN.md section 1), on the SE(3)
-// manifold with Ceres, from `initial`.
+// manifold with Ceres, from `initial`. Each residual is scaled by its sqrt_information;
+// with cauchy_scale > 0 the squared norms pass through Ceres's CauchyLoss of that scale
+// (a robust graph: a wrong measurement pulls with a bounded force).
 bool SolvePoseGraph(const std::vector<RelativePose>& measurements,
                     const std::vector<Eigen::Isometry3d>& initial,
                     const SolveOptions& solve,
                     std::vector<Eigen::Isometry3d>* frame_from_world,
                     SolveReport* report,
-                    std::string* error);
+                    std::string* error,
+                    double cauchy_scale = 0.0);
 
 }  // namespace dsr
 

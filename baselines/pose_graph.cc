@@ -14,7 +14,8 @@ namespace {
 
 // Residual Log(Z^-1 T_k T_i^-1) for pose blocks [qx qy qz qw tx ty tz] (core/se3.h).
 struct RelativePoseResidual {
-  explicit RelativePoseResidual(const Eigen::Isometry3d& k_from_i) {
+  RelativePoseResidual(const Eigen::Isometry3d& k_from_i, const Vector6d& sqrt_information)
+      : sqrt_information_(sqrt_information) {
     // Store Z^-1 = (i_from_k) as quaternion (w, x, y, z for ceres/rotation.h) and t.
     const Eigen::Isometry3d inv = k_from_i.inverse();
     const Eigen::Quaterniond q(inv.linear());
@@ -45,14 +46,17 @@ struct RelativePoseResidual {
     for (int d = 0; d < 3; ++d) te[d] += T(z_inv_t_[d]);
     const T qe_xyzw[4] = {qe[1], qe[2], qe[3], qe[0]};
     LogSE3Quaternion(qe_xyzw, te, residual);
+    for (int d = 0; d < 6; ++d) residual[d] *= T(sqrt_information_[d]);
     return true;
   }
 
-  static ceres::CostFunction* Create(const Eigen::Isometry3d& k_from_i) {
+  static ceres::CostFunction* Create(const RelativePose& z) {
     return new ceres::AutoDiffCostFunction<RelativePoseResidual, 6, kPoseAmbientSize,
-                                           kPoseAmbientSize>(new RelativePoseResidual(k_from_i));
+                                           kPoseAmbientSize>(
+        new RelativePoseResidual(z.k_from_i, z.sqrt_information));
   }
 
+  Vector6d sqrt_information_;
   std::array<double, 4> z_inv_q_;
   std::array<double, 3> z_inv_t_;
 };
@@ -64,7 +68,8 @@ bool SolvePoseGraph(const std::vector<RelativePose>& measurements,
                     const SolveOptions& solve,
                     std::vector<Eigen::Isometry3d>* frame_from_world,
                     SolveReport* report,
-                    std::string* error) {
+                    std::string* error,
+                    double cauchy_scale) {
   const int m = static_cast<int>(initial.size());
   static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
   ceres::Problem::Options problem_options;
@@ -78,8 +83,10 @@ bool SolvePoseGraph(const std::vector<RelativePose>& measurements,
   problem.SetParameterBlockConstant(poses[0].data());
   for (const RelativePose& z : measurements) {
     CHECK(0 <= z.i && z.i < z.k && z.k < m);
-    problem.AddResidualBlock(RelativePoseResidual::Create(z.k_from_i), nullptr,
-                             poses[z.i].data(), poses[z.k].data());
+    ceres::LossFunction* loss =
+        cauchy_scale > 0.0 ? new ceres::CauchyLoss(cauchy_scale) : nullptr;  // owned by problem
+    problem.AddResidualBlock(RelativePoseResidual::Create(z), loss, poses[z.i].data(),
+                             poses[z.k].data());
   }
   ceres::Solver::Options options;
   SolveOptions graph = solve;

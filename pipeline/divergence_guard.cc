@@ -68,12 +68,21 @@ std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
   return misfit;
 }
 
-bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why) {
-  if (!(max_ratio > 0.0) || misfits.empty()) return false;
-  // Reference: the lower quartile, so that up to three quarters of the frames may be off.
+namespace {
+
+// The misfits' reference: their lower quartile, so that up to three quarters of the frames
+// may be off.
+double LowerQuartile(const std::vector<double>& misfits) {
   std::vector<double> sorted = misfits;
   std::sort(sorted.begin(), sorted.end());
-  const double reference = sorted[(sorted.size() - 1) / 4];
+  return sorted[(sorted.size() - 1) / 4];
+}
+
+}  // namespace
+
+bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why) {
+  if (!(max_ratio > 0.0) || misfits.empty()) return false;
+  const double reference = LowerQuartile(misfits);
   const size_t worst = std::max_element(misfits.begin(), misfits.end()) - misfits.begin();
   if (!(misfits[worst] > max_ratio * reference)) return false;
   std::ostringstream s;
@@ -86,33 +95,48 @@ bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::st
   return true;
 }
 
+std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio) {
+  std::vector<int> outliers;
+  if (!(max_ratio > 0.0) || misfits.empty()) return outliers;
+  const double reference = LowerQuartile(misfits);
+  for (size_t i = 0; i < misfits.size(); ++i) {
+    if (misfits[i] > max_ratio * reference) outliers.push_back(static_cast<int>(i));
+  }
+  return outliers;
+}
+
 bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,
                                const CandidateSet& candidates,
-                               std::string* why) {
-  return Diverged(frames, CandidateOverlap(candidates), candidates.grid.spacing_mm, why);
+                               std::string* why,
+                               std::vector<int>* slid) {
+  return Diverged(frames, CandidateOverlap(candidates), candidates.grid.spacing_mm, why, slid);
 }
 
 bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,
                                const Eigen::MatrixXi& overlap,
                                const Eigen::Vector3d& panorama_spacing_mm,
-                               std::string* why) {
+                               std::string* why,
+                               std::vector<int>* slid) {
   const std::vector<double> tied = TiedFractions(frames, overlap, panorama_spacing_mm);
   if (initial_.empty()) {
     initial_ = tied;
     return false;
   }
   const auto percent = [](double f) { return static_cast<int>(100.0 * f + 0.5); };
+  bool diverged = false;
   for (size_t i = 1; i < tied.size(); ++i) {
     if (!(tied[i] < min_kept_ * initial_[i])) continue;
+    if (slid != nullptr) slid->push_back(static_cast<int>(i));
+    if (diverged) continue;  // `why` names the first such frame
+    diverged = true;
     std::ostringstream s;
     s << "diverged: frame " << i << " slid out of the overlap (its best chain of overlapping "
       << "frames to frame 0 covers " << percent(tied[i]) << "% of its field of view, down "
       << "from " << percent(initial_[i]) << "% at the initial poses; --min_kept_overlap="
       << min_kept_ << "); give better initial poses with --init";
     *why = s.str();
-    return true;
   }
-  return false;
+  return diverged;
 }
 
 }  // namespace dsr

@@ -55,6 +55,9 @@ std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
 // a wrong local minimum that still overlaps them (which the overlap guard below cannot
 // see). max_ratio 0 never reports.
 bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why);
+// Every frame whose misfit exceeds max_ratio times the lower quartile (empty when
+// max_ratio is 0): the frames recovery re-places (init/recovery.h).
+std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio);
 
 class DivergenceGuard {
  public:
@@ -64,11 +67,13 @@ class DivergenceGuard {
   // The first call records the fractions at the initial poses and returns false. Later
   // calls return true, with `why` naming the frame, when some frame's fraction (at the
   // poses `candidates` was built at) fell below min_kept times its initial value.
+  // `slid`, when given, receives every such frame.
   bool Diverged(const std::vector<Frame>& frames, const CandidateSet& candidates,
-                std::string* why);
+                std::string* why, std::vector<int>* slid = nullptr);
   // The same on CandidateOverlap(candidates), given the panorama spacing.
   bool Diverged(const std::vector<Frame>& frames, const Eigen::MatrixXi& overlap,
-                const Eigen::Vector3d& panorama_spacing_mm, std::string* why);
+                const Eigen::Vector3d& panorama_spacing_mm, std::string* why,
+                std::vector<int>* slid = nullptr);
 
  private:
   double min_kept_;

@@ -163,7 +163,10 @@ ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOp
       row.added_memory_mb = std::max(0.0, row.peak_memory_mb - row.added_memory_mb);
     }
   }
-  row.method = options.mode + (options.pairwise_init ? "+pairwise_init" : "");
+  row.method = options.mode + (options.init == InitialPoses::kPairwise ? "+pairwise_init"
+                                : options.init == InitialPoses::kGlobal ? "+global_init"
+                                : options.max_recoveries > 0            ? "+auto"
+                                                                        : "");
   row.sequence = sequence.name;
   return row;
 }

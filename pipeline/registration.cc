@@ -16,6 +16,8 @@
 #include "dba/dba_problem.h"
 #include "dsr_reduced/dsr_solver.h"
 #include "dsr_reduced/reduced_cost.h"
+#include "init/pair_graph.h"
+#include "init/recovery.h"
 #include "pipeline/divergence_guard.h"
 
 namespace dsr {
@@ -139,6 +141,19 @@ std::vector<std::string> ModeNames() {
   return {"dsr", "dba", "pairwise", "lie_normalization", "sequential", "ape"};
 }
 
+std::vector<std::string> InitialisationNames() {
+  return {"auto", "identity", "pairwise", "global"};
+}
+
+bool SetInitialisation(const std::string& name, int max_recoveries, RegistrationOptions* options) {
+  options->init = name == "pairwise" ? InitialPoses::kPairwise
+                  : name == "global" ? InitialPoses::kGlobal
+                                     : InitialPoses::kGiven;
+  options->max_recoveries = name == "identity" || name == "pairwise" ? 0 : max_recoveries;
+  const std::vector<std::string> names = InitialisationNames();
+  return std::find(names.begin(), names.end(), name) != names.end();
+}
+
 bool RegistrationOptions::Validate(std::string* error) const {
   const std::vector<std::string> modes = ModeNames();
   if (std::find(modes.begin(), modes.end(), mode) == modes.end()) {
@@ -183,6 +198,21 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if (min_shared_voxels < 1) {
     return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
   }
+  if (max_recoveries < 0 || max_recoveries > 10) {
+    return bad("max_recoveries", std::to_string(max_recoveries), "must be in [0, 10]");
+  }
+  if (max_recoveries > 0 && max_misfit_ratio == 0.0 && min_kept_overlap == 0.0) {
+    return bad("max_recoveries", std::to_string(max_recoveries),
+               "recovery needs a check that flags frames: --max_misfit_ratio or "
+               "--min_kept_overlap must not be 0");
+  }
+  if (search_max_axis_voxels < 8) {
+    return bad("search_max_axis", std::to_string(search_max_axis_voxels), "must be >= 8");
+  }
+  if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
+    *error = "--" + *error;
+    return false;
+  }
   if (mode == "dsr") {
     DsrOptions dsr;
     dsr.solve = solve;
@@ -200,92 +230,90 @@ bool RegistrationOptions::Validate(std::string* error) const {
   return true;
 }
 
-bool Register(const std::vector<Image>& images,
-              const std::vector<Mask>& masks,
-              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-              const RegistrationOptions& options,
-              RegistrationResult* result,
-              std::string* error) {
-  const auto start = std::chrono::steady_clock::now();
+namespace {
+
+// The pyramids of every frame, finest level first (level 0 empty: the input itself).
+struct Pyramids {
+  std::vector<std::vector<ImageLevel>> levels;  // [frame][level]
+  int num_levels = 0;                           // common to every frame
+};
+
+// Frames of one pyramid level. When `release` is set, the level's images are freed once
+// the frames hold their copies (no recovery can come back to them).
+std::vector<Frame> LevelFrames(const std::vector<Image>& images,
+                               const std::vector<Mask>& masks,
+                               Pyramids* pyramids,
+                               int level,
+                               bool release,
+                               int num_threads) {
   const int m = static_cast<int>(images.size());
-  if (m < 2) {
-    *error = "need at least 2 frames, got " + std::to_string(m);
-    return false;
-  }
-  if (m > kMaxFrames) {
-    *error = "at most " + std::to_string(kMaxFrames) + " frames, got " + std::to_string(m);
-    return false;
-  }
-  CHECK_EQ(masks.size(), images.size());
-  CHECK_EQ(initial_frame_from_world.size(), images.size());
-  if (!options.Validate(error)) return false;
-  *result = RegistrationResult();
-  // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
-  std::vector<Eigen::Isometry3d> start_poses = RelativeToFrame0(initial_frame_from_world);
-  if (options.pairwise_init && options.mode != "pairwise") {
-    RegistrationOptions init_options = options;
-    init_options.mode = "pairwise";
-    init_options.pairwise_init = false;
-    // The initial poses are judged by this run's own checks of its final poses.
-    init_options.min_kept_overlap = 0.0;
-    init_options.max_misfit_ratio = 0.0;
-    init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
-    init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
-    RegistrationResult init;
-    if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {
-      *error = "--init=pairwise: " + *error;
-      return false;
-    }
-    if (!init.usable) {
-      result->failure = "--init=pairwise: " + init.failure;
-      result->frame_from_world = start_poses;
-      result->seconds = Seconds(start);
-      return true;
-    }
-    start_poses = init.frame_from_world;
-    result->init_seconds = init.seconds;
-    result->init_iterations = init.total_iterations;
-    result->init_frame_from_world = start_poses;
-  }
+  std::vector<Frame> frames(m);
+  ParallelFor(0, m, num_threads, [&](int64_t i) {
+    ImageLevel& stored = pyramids->levels[i][level];
+    const bool input_is_level = level == 0 && stored.image.empty();
+    frames[i] = input_is_level ? Frame(images[i], masks[i]) : Frame(stored.image, stored.mask);
+    if (release) stored = ImageLevel();
+  });
+  return frames;
+}
 
-  // Pyramids, coarsest level last.
-  std::vector<std::vector<ImageLevel>> pyramids(m);
-  int levels = options.pyramid_levels;
-  for (int i = 0; i < m; ++i) {
-    pyramids[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
-                               options.pyramid_sigma_voxels, options.finest_sigma_voxels,
-                               options.pyramid_min_size, options.solve.num_threads);
-    levels = std::min(levels, static_cast<int>(pyramids[i].size()));
-  }
-  result->pyramid_seconds = Seconds(start) - result->init_seconds;
+// The frames the global search works on: the coarsest pyramid level, halved further until
+// no axis is longer than options.search_max_axis_voxels.
+std::vector<Frame> SearchFrames(const std::vector<Image>& images,
+                                const std::vector<Mask>& masks,
+                                const Pyramids& pyramids,
+                                const RegistrationOptions& options) {
+  const int m = static_cast<int>(images.size());
+  const int coarsest = pyramids.num_levels - 1;
+  std::vector<Frame> frames(m);
+  ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
+    const ImageLevel& stored = pyramids.levels[i][coarsest];
+    ImageLevel level = stored.image.empty() ? ImageLevel{images[i], masks[i]} : stored;
+    while (level.image.geometry.size.maxCoeff() > options.search_max_axis_voxels &&
+           level.image.geometry.size.minCoeff() >= 8) {
+      ImageLevel next = Downsample(level.image, level.mask, options.pyramid_sigma_voxels, 1);
+      if (CountInside(next.mask) == 0) break;
+      level = std::move(next);
+    }
+    frames[i] = Frame(level.image, level.mask);
+  });
+  return frames;
+}
 
-  const int constant = ConstantFrame(images, masks);
-  if (constant >= 0) {
-    *error = "frame " + std::to_string(constant) +
-             " has the same value everywhere in its field of view: nothing to register";
-    return false;
-  }
+// The coarse-to-fine solves from `start_poses`: every level's solves with candidate
+// rebuilds, the divergence guard at each rebuild and the checks of the final poses; with
+// `check_every_level`, the misfit check also after each coarse level. Returns false for
+// bad input or set-up problems; a registration that is not usable returns true with
+// result->usable = false, result->failure and result->flagged_frames.
+bool SolveLevels(const std::vector<Image>& images,
+                 const std::vector<Mask>& masks,
+                 const std::vector<Eigen::Isometry3d>& start_poses,
+                 const RegistrationOptions& options,
+                 bool check_every_level,
+                 Pyramids* pyramids,
+                 RegistrationResult* result,
+                 std::string* error) {
+  const int m = static_cast<int>(images.size());
   std::vector<Eigen::Isometry3d> poses = start_poses;
   result->usable = true;
+  result->flagged_frames.clear();
+  result->failure.clear();
   bool determined_checked = false;
   DivergenceGuard guard(options.min_kept_overlap);
   // Ends the registration as not usable: the poses reached do not register the frames.
-  const auto diverged = [&](const std::string& why) {
+  const auto diverged = [&](int level, const std::string& why, std::vector<int> flagged) {
     result->usable = false;
-    result->failure = "not usable after the solve at pyramid level " +
-                      std::to_string(result->solves.back().level) + ": " + why;
+    result->failure = "not usable after the solve at pyramid level " + std::to_string(level) +
+                      ": " + why;
+    result->flagged_frames = std::move(flagged);
     result->frame_from_world = poses;
-    result->seconds = Seconds(start);
     return true;
   };
+  const bool release = options.max_recoveries == 0;
+  const int levels = pyramids->num_levels;
   for (int level = levels - 1; level >= 0; --level) {
-    std::vector<Frame> frames(m);
-    ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
-      const bool input_is_level = level == 0 && pyramids[i][0].image.empty();
-      frames[i] = input_is_level ? Frame(images[i], masks[i])
-                                 : Frame(pyramids[i][level].image, pyramids[i][level].mask);
-      pyramids[i][level] = ImageLevel();  // the frame holds its own copy from here on
-    });
+    std::vector<Frame> frames =
+        LevelFrames(images, masks, pyramids, level, release, options.solve.num_threads);
     int empty_frame = -1;
     for (int i = m - 1; i >= 0; --i) {
       if (frames[i].num_valid_cells() == 0) empty_frame = i;
@@ -309,9 +337,10 @@ bool Register(const std::vector<Image>& images,
     const bool pair_based = options.mode == "pairwise" || options.mode == "lie_normalization" ||
                             options.mode == "sequential";
     const int max_rebuilds = pair_based ? 0 : options.max_rebuilds;
-    // The last solve's candidates and how far it moved the frames (for the final checks).
+    // The last solve's candidates and how far it moved the frames (for the checks).
     CandidateSet last_candidates;
     double last_motion = std::numeric_limits<double>::infinity();
+    bool solved = false;
     for (int rebuild = 0; rebuild <= max_rebuilds; ++rebuild) {
       LevelSolve record;
       record.level = level;
@@ -324,9 +353,10 @@ bool Register(const std::vector<Image>& images,
       record.candidate_observations = candidates.NumObservations();
       const Eigen::MatrixXi overlap = CandidateOverlap(candidates);
       std::string why;
+      std::vector<int> slid;
       if (options.min_kept_overlap > 0.0 &&
-          guard.Diverged(frames, overlap, grid.spacing_mm, &why)) {
-        return diverged(why);
+          guard.Diverged(frames, overlap, grid.spacing_mm, &why, &slid)) {
+        return diverged(result->solves.empty() ? level : result->solves.back().level, why, slid);
       }
       std::string connect_error;
       if (!CheckConnected(overlap, options.min_shared_voxels, &connect_error)) {
@@ -391,52 +421,177 @@ bool Register(const std::vector<Image>& images,
         result->failure = "the solve at pyramid level " + std::to_string(level) +
                           " is not usable: " + result->solves.back().report.termination;
         result->frame_from_world = poses;
-        result->seconds = Seconds(start);
         return true;
       }
-      if (level == 0) {
-        last_candidates = std::move(candidates);
-        last_motion = motion;
-      }
+      solved = true;
+      last_candidates = std::move(candidates);
+      last_motion = motion;
       if (motion <= options.rebuild_tolerance_voxels) break;
     }
-    if (level == 0) {
-      // Checks of the final poses. When the last solve moved no field-of-view corner by
-      // more than the rebuild tolerance, its candidates stand for the final poses' (as
-      // the rebuild rule has it); otherwise candidates are built at the final poses.
-      CandidateSet final_candidates;
-      if (last_motion <= options.rebuild_tolerance_voxels) {
-        final_candidates = std::move(last_candidates);
-      } else {
-        ImageGeometry final_grid;
-        if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
-          return false;
+    if (level > 0) {
+      // With recovery, a frame in a wrong minimum is caught here, on a coarse level, where
+      // re-placing it and starting again costs little. The misfits are those of the last
+      // solve's candidates (at the poses it reached, up to the rebuild tolerance).
+      if (check_every_level && solved) {
+        const std::vector<double> misfits =
+            FrameMisfits(frames, last_candidates, poses, options.solve.num_threads);
+        std::string why;
+        if (MisfitOutlier(misfits, options.max_misfit_ratio, &why)) {
+          return diverged(level, why, MisfitOutliers(misfits, options.max_misfit_ratio));
         }
-        final_candidates = BuildCandidates(frames, poses, final_grid, 0);
       }
-      std::string why;
-      if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, final_candidates, &why)) {
-        return diverged(why);
+      continue;
+    }
+    // Checks of the final poses. When the last solve moved no field-of-view corner by more
+    // than the rebuild tolerance, its candidates stand for the final poses' (as the rebuild
+    // rule has it); otherwise candidates are built at the final poses.
+    CandidateSet final_candidates;
+    if (last_motion <= options.rebuild_tolerance_voxels) {
+      final_candidates = std::move(last_candidates);
+    } else {
+      ImageGeometry final_grid;
+      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
+        return false;
       }
-      // DSR's last pass was at the final poses over these candidates when the solve kept
-      // it (core/streamed_cost.h): its per-frame costs are the misfits' sums.
-      const SolveReport& last = result->solves.back().report;
-      const bool reuse_last_pass = options.mode == "dsr" &&
-                                   last_motion <= options.rebuild_tolerance_voxels &&
-                                   static_cast<int>(last.final_frame_cost.size()) == m;
-      if (reuse_last_pass) {
-        result->frame_misfits =
-            MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
-      } else {
-        result->frame_misfits =
-            FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
-      }
-      if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
-        return diverged(why);
-      }
+      final_candidates = BuildCandidates(frames, poses, final_grid, 0);
+    }
+    std::string why;
+    std::vector<int> slid;
+    if (options.min_kept_overlap > 0.0 && guard.Diverged(frames, final_candidates, &why, &slid)) {
+      return diverged(0, why, slid);
+    }
+    // DSR's last pass was at the final poses over these candidates when the solve kept it
+    // (core/streamed_cost.h): its per-frame costs are the misfits' sums.
+    const SolveReport& last = result->solves.back().report;
+    const bool reuse_last_pass = options.mode == "dsr" &&
+                                 last_motion <= options.rebuild_tolerance_voxels &&
+                                 static_cast<int>(last.final_frame_cost.size()) == m;
+    if (reuse_last_pass) {
+      result->frame_misfits =
+          MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
+    } else {
+      result->frame_misfits =
+          FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
+    }
+    if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
+      return diverged(0, why, MisfitOutliers(result->frame_misfits, options.max_misfit_ratio));
     }
   }
   result->frame_from_world = poses;
+  return true;
+}
+
+}  // namespace
+
+bool Register(const std::vector<Image>& images,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  const int m = static_cast<int>(images.size());
+  if (m < 2) {
+    *error = "need at least 2 frames, got " + std::to_string(m);
+    return false;
+  }
+  if (m > kMaxFrames) {
+    *error = "at most " + std::to_string(kMaxFrames) + " frames, got " + std::to_string(m);
+    return false;
+  }
+  CHECK_EQ(masks.size(), images.size());
+  CHECK_EQ(initial_frame_from_world.size(), images.size());
+  if (!options.Validate(error)) return false;
+  *result = RegistrationResult();
+  // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
+  std::vector<Eigen::Isometry3d> start_poses = RelativeToFrame0(initial_frame_from_world);
+  if (options.init == InitialPoses::kPairwise && options.mode != "pairwise") {
+    RegistrationOptions init_options = options;
+    init_options.mode = "pairwise";
+    init_options.init = InitialPoses::kGiven;
+    init_options.max_recoveries = 0;
+    // The initial poses are judged by this run's own checks of its final poses.
+    init_options.min_kept_overlap = 0.0;
+    init_options.max_misfit_ratio = 0.0;
+    init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
+    init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
+    RegistrationResult init;
+    if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {
+      *error = "--init=pairwise: " + *error;
+      return false;
+    }
+    if (!init.usable) {
+      result->failure = "--init=pairwise: " + init.failure;
+      result->frame_from_world = start_poses;
+      result->seconds = Seconds(start);
+      return true;
+    }
+    start_poses = init.frame_from_world;
+    result->init_seconds = init.seconds;
+    result->init_iterations = init.total_iterations;
+    result->init_frame_from_world = start_poses;
+  }
+
+  // Pyramids, coarsest level last.
+  Pyramids pyramids;
+  pyramids.levels.resize(m);
+  pyramids.num_levels = options.pyramid_levels;
+  for (int i = 0; i < m; ++i) {
+    pyramids.levels[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
+                                      options.pyramid_sigma_voxels, options.finest_sigma_voxels,
+                                      options.pyramid_min_size, options.solve.num_threads);
+    pyramids.num_levels =
+        std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
+  }
+  result->pyramid_seconds = Seconds(start) - result->init_seconds;
+
+  const int constant = ConstantFrame(images, masks);
+  if (constant >= 0) {
+    *error = "frame " + std::to_string(constant) +
+             " has the same value everywhere in its field of view: nothing to register";
+    return false;
+  }
+  std::vector<Frame> search_frames;  // built when the global search is first needed
+  if (options.init == InitialPoses::kGlobal) {
+    const auto init_start = std::chrono::steady_clock::now();
+    search_frames = SearchFrames(images, masks, pyramids, options);
+    PairGraphReport graph;
+    if (!GlobalInitialPoses(search_frames, options.search, &start_poses, &graph, error)) {
+      *error = "--init=global: " + *error;
+      return false;
+    }
+    result->init_seconds = Seconds(init_start);
+    result->init_frame_from_world = start_poses;
+  }
+  std::vector<Eigen::Isometry3d> poses = start_poses;
+  for (int round = 0;; ++round) {
+    if (!SolveLevels(images, masks, poses, options, options.max_recoveries > 0, &pyramids,
+                     result, error)) {
+      return false;
+    }
+    if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty()) {
+      break;
+    }
+    // Recovery: re-place the flagged frames against the panorama of the others.
+    const auto recovery_start = std::chrono::steady_clock::now();
+    if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
+    RegistrationResult::Recovery recovery;
+    recovery.after_level = result->solves.empty() ? 0 : result->solves.back().level;
+    recovery.why = result->failure;
+    std::vector<Eigen::Isometry3d> replaced;
+    std::string why;
+    if (!ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
+                       options.search, &replaced, &recovery.frames, &why)) {
+      LOG(INFO) << "recovery not possible: " << why;
+      break;
+    }
+    recovery.seconds = Seconds(recovery_start);
+    const bool moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
+                                   [](const FrameReplacement& f) { return f.moved; });
+    result->recoveries.push_back(recovery);
+    if (!moved) break;  // the search found nothing better: the failure stands
+    poses = RelativeToFrame0(replaced);
+  }
   result->seconds = Seconds(start);
   return true;
 }

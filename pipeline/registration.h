@@ -26,17 +26,37 @@
 #include "core/observation.h"
 #include "core/solve_options.h"
 #include "core/volume.h"
+#include "init/placement_search.h"
+#include "init/recovery.h"
 
 namespace dsr {
+
+// Where the registration starts (before any recovery).
+enum class InitialPoses {
+  kGiven,     // the poses passed to Register (e.g. identity, or a file)
+  kPairwise,  // the pairwise baseline's poses from the given ones: the paper's initialiser
+  kGlobal,    // the pair graph of init/pair_graph.h: every pair searched globally, placed
+              // along a maximum-confidence spanning tree, refined by a robust pose graph
+};
 
 struct RegistrationOptions {
   // "dsr" (reduced problem, default), "dba" (full bundle adjustment) or a baseline of
   // baselines/baselines.h: "pairwise", "lie_normalization", "sequential", "ape".
   std::string mode = "dsr";
-  // Start from the poses of the pairwise baseline (the whole pipeline run once with
-  // mode "pairwise" from the given initial poses) instead of the given poses: the paper's
-  // initialisation.
-  bool pairwise_init = false;
+  // kPairwise runs the whole pipeline once with mode "pairwise" from the given poses and
+  // starts from its result.
+  InitialPoses init = InitialPoses::kGiven;
+  // Recovery (init/recovery.h): when the checks below flag frames after a level's solves,
+  // those frames are re-placed by the global search against the panorama of the others and
+  // the registration starts again from the coarsest level, at most this many times
+  // (0: a flagged frame ends the registration as not usable). With recovery on, the checks
+  // also run after every coarse level, so that a wrong minimum is caught early and cheaply.
+  int max_recoveries = 0;
+  // The global search of recovery and of InitialPoses::kGlobal. It runs on the coarsest
+  // pyramid level, halved further until no axis of a frame is longer than
+  // search_max_axis_voxels.
+  PlacementSearchOptions search;
+  int search_max_axis_voxels = 32;
   SolveOptions solve;             // per solve; max_iterations is the finest level's limit
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
 
@@ -94,10 +114,20 @@ struct RegistrationResult {
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
   int total_iterations = 0;
-  // The pairwise initialiser's run (pairwise_init), not counted above.
+  // Frames the checks named when not usable (a wrong minimum, or slid out of the overlap).
+  std::vector<int> flagged_frames;
+  // The initialiser's run (InitialPoses other than kGiven), not counted above.
   double init_seconds = 0.0;
   int init_iterations = 0;
   std::vector<Eigen::Isometry3d> init_frame_from_world;
+  // One record per recovery: why, after which level, the frames re-placed and their scores.
+  struct Recovery {
+    int after_level = 0;
+    std::string why;
+    std::vector<FrameReplacement> frames;
+    double seconds = 0.0;  // the search (the solves that follow are counted above)
+  };
+  std::vector<Recovery> recoveries;
   // The last solve's panorama grid and, for --mode=dba, its optimised intensities on that
   // grid (0 at voxels that are not candidates); empty for other modes.
   ImageGeometry grid;
@@ -106,6 +136,20 @@ struct RegistrationResult {
 
 // Names accepted by RegistrationOptions::mode.
 std::vector<std::string> ModeNames();
+
+// Recoveries of the tools' --init=auto, global and FILE starts (--max_recoveries default).
+constexpr int kDefaultMaxRecoveries = 2;
+
+// The tools' --init values other than a poses file:
+//   auto      the given poses (identity), recovery when the checks flag frames (default);
+//   identity  the given poses, no recovery (the paper's start; faithful comparisons);
+//   pairwise  the pairwise baseline's poses, no recovery (the paper's initialiser);
+//   global    the pair graph's poses (init/pair_graph.h), then recovery when needed.
+// Sets options->init and options->max_recoveries (to `max_recoveries` where recovery
+// applies, else 0). Returns false for any other name (then a poses file is meant: the
+// given poses, with recovery).
+bool SetInitialisation(const std::string& name, int max_recoveries, RegistrationOptions* options);
+std::vector<std::string> InitialisationNames();
 
 // Registers. `initial_frame_from_world` is re-expressed relative to frame 0 first.
 // Returns false with `error` for bad input or set-up problems (e.g. frames that do not

@@ -307,7 +307,7 @@ TEST(Baselines, PairwiseInitialiserFeedsTheMode) {
   static const SimulatedSequence sequence = SmallSequence();
   RegistrationOptions o;
   o.mode = "dsr";
-  o.pairwise_init = true;
+  o.init = InitialPoses::kPairwise;
   o.solve.log_progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;

@@ -37,8 +37,12 @@ DEFINE_double(max_rotation_deg, 12.0, "Simulated rotations: each Euler angle wit
 DEFINE_double(max_translation_voxels, 15.0, "Simulated translations: each world-axis "
               "component within +/- this many voxels.");
 DEFINE_int32(phantom_size, 192, "Built-in phantom size (voxels per axis), in [16, 512].");
-DEFINE_string(init, "identity", "Initial poses of every method: 'identity', or 'pairwise' "
-              "(each method other than pairwise starts from the pairwise baseline's poses).");
+DEFINE_string(init, "identity", "Initial poses of every method: 'identity' (the paper's "
+              "comparison), 'pairwise' (each method other than pairwise starts from the "
+              "pairwise baseline's poses), 'auto' (identity, with dsr_register's recovery of "
+              "flagged frames) or 'global' (the pair graph's poses, then recovery). With auto "
+              "and global, the checks that flag frames default to dsr_register's "
+              "(--max_misfit_ratio=2, --min_kept_overlap=0.25) unless set.");
 DEFINE_string(out_dir, "", "Output folder (created if missing). Required.");
 DEFINE_int32(num_threads, 0, "Threads per run (0 = all cores).");
 DEFINE_int32(max_iterations, 100, "Iteration limit of each finest-level solve, >= 1.");
@@ -50,6 +54,9 @@ DEFINE_double(min_kept_overlap, 0.0, "Divergence guard of dsr_register (a frame 
 DEFINE_double(max_misfit_ratio, 0.0, "Misfit check of dsr_register (a frame that does not "
               "match the others at the final poses fails the run); off by default here. 0 or > 1.");
 DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
+DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
+            "false: with each frame's non-zero voxels eroded by one voxel, as dsr_register "
+            "does without --masks.");
 
 namespace {
 
@@ -85,6 +92,7 @@ bool LoadSequence(const std::string& folder, dsr::ExperimentSequence* out, std::
         !dsr::ReadMask(masks[i], out->frames[i].geometry, &out->masks[i], error)) {
       return false;
     }
+    if (!FLAGS_sequence_masks) out->masks[i] = dsr::MaskFromNonZero(out->frames[i], 1);
   }
   dsr::PosesFile gt;
   if (!dsr::ReadPoses((fs::path(folder) / "gt_poses.json").string(),
@@ -115,8 +123,11 @@ int main(int argc, char** argv) {
       return Fail("--methods: unknown method '" + m + "'");
     }
   }
-  if (FLAGS_init != "identity" && FLAGS_init != "pairwise") {
-    return Fail("--init=" + FLAGS_init + ": must be identity or pairwise");
+  {
+    dsr::RegistrationOptions probe;
+    if (!dsr::SetInitialisation(FLAGS_init, 0, &probe)) {
+      return Fail("--init=" + FLAGS_init + ": must be identity, pairwise, auto or global");
+    }
   }
   if (FLAGS_num_sequences < 1 || FLAGS_num_sequences > 100) {
     return Fail("--num_sequences=" + std::to_string(FLAGS_num_sequences) + ": must be in [1, 100]");
@@ -144,9 +155,23 @@ int main(int argc, char** argv) {
   base.panorama_spacing = FLAGS_panorama_spacing;
   base.min_kept_overlap = FLAGS_min_kept_overlap;
   base.max_misfit_ratio = FLAGS_max_misfit_ratio;
+  base.search.num_threads = FLAGS_num_threads;
+  base.search.refine.log_progress = false;
+  const bool recovers = FLAGS_init == "auto" || FLAGS_init == "global";
+  if (recovers && gflags::GetCommandLineFlagInfoOrDie("max_misfit_ratio").is_default &&
+      gflags::GetCommandLineFlagInfoOrDie("min_kept_overlap").is_default) {
+    const dsr::RegistrationOptions defaults;
+    base.min_kept_overlap = defaults.min_kept_overlap;
+    base.max_misfit_ratio = defaults.max_misfit_ratio;
+  }
+  // The pairwise baseline started from the pairwise baseline is the baseline itself.
+  const auto init_for = [](const std::string& method) {
+    return method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init;
+  };
   for (const std::string& m : methods) {
     dsr::RegistrationOptions o = base;
     o.mode = m;
+    dsr::SetInitialisation(init_for(m), dsr::kDefaultMaxRecoveries, &o);
     if (!o.Validate(&error)) return Fail(error);
   }
   namespace fs = std::filesystem;
@@ -198,7 +223,7 @@ int main(int argc, char** argv) {
     for (const std::string& m : methods) {
       dsr::RegistrationOptions o = base;
       o.mode = m;
-      o.pairwise_init = FLAGS_init == "pairwise" && m != "pairwise";
+      dsr::SetInitialisation(init_for(m), dsr::kDefaultMaxRecoveries, &o);
       dsr::ComparisonRow row = dsr::RunMethod(sequence, o);
       std::fprintf(stderr, "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
                    row.method.c_str(), row.sequence.c_str(), row.ok ? "ok    " : "FAILED",

@@ -34,9 +34,23 @@ DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no -
 DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
               "(full direct bundle adjustment in Ceres; small problems only), or one of the "
               "paper's baselines: pairwise, lie_normalization, sequential, ape.");
-DEFINE_string(init, "identity", "Initial poses: 'identity', 'pairwise' (the pairwise "
-              "baseline's poses, itself started from identity: the paper's initialisation) "
-              "or a poses JSON file (DESIGN.md section 1) with one entry per image.");
+DEFINE_string(init, "auto", "Initial poses: 'auto' (identity; frames the checks flag after a "
+              "level are re-placed by a global search against the others and the "
+              "registration starts again, at most --max_recoveries times), 'identity' "
+              "(no recovery), 'pairwise' (the pairwise baseline's poses, itself started from "
+              "identity: the paper's initialisation; no recovery), 'global' (every pair "
+              "searched globally, frames placed along the most confident pairs, then "
+              "recovery as auto) or a poses JSON file (docs/design.md) with one entry per "
+              "image (then recovery as auto).");
+DEFINE_int32(max_recoveries, dsr::kDefaultMaxRecoveries, "--init=auto, global or FILE: how "
+             "many times flagged frames may be re-placed, in [0, 10] (0 = a flagged frame is "
+             "a failure, exit 1).");
+DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
+              "within this angle of frame 0's orientation, in (0, 180].");
+DEFINE_int32(search_rotations, 500, "Global search: about this many rotations sampled, in "
+             "[1, 100000] (more: finer, slower).");
+DEFINE_int32(search_max_axis, 32, "Global search: on the coarsest pyramid level, halved further "
+             "until no frame axis is longer than this many voxels, >= 8 (larger: finer, slower).");
 DEFINE_double(panorama_spacing, 1.0, "Panorama voxel spacing as a multiple of frame 0's "
               "spacing (at every pyramid level), > 0. Larger = fewer voxels, less memory.");
 DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
@@ -114,7 +128,7 @@ int main(int argc, char** argv) {
       "registers several 3D images simultaneously (DSR: direct simultaneous registration).\n"
       "  dsr_register --images=a.nii.gz,b.nii.gz,... --out_poses=poses.json [--masks=...]\n"
       "      [--mode=dsr|dba|pairwise|lie_normalization|sequential|ape]\n"
-      "      [--init=identity|pairwise|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
+      "      [--init=auto|identity|pairwise|global|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
       "Exit status: 0 ok, 2 bad input, 1 the solve failed (no pose file written). "
       "--helpshort lists this tool's flags only.",
       {"images", "out_poses"}, &argc, &argv);
@@ -146,6 +160,12 @@ int main(int argc, char** argv) {
   options.max_misfit_ratio = FLAGS_max_misfit_ratio;
   options.dsr_num_chunks = FLAGS_num_chunks;
   options.dsr_reference_cost = FLAGS_reference_cost;
+  const bool init_from_file = !dsr::SetInitialisation(FLAGS_init, FLAGS_max_recoveries, &options);
+  options.search.max_rotation_deg = FLAGS_search_rotation_deg;
+  options.search.num_rotations = FLAGS_search_rotations;
+  options.search_max_axis_voxels = FLAGS_search_max_axis;
+  options.search.num_threads = FLAGS_num_threads;
+  options.search.refine.log_progress = false;
   if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {
     return Fail("--memory_budget_mb=" + std::to_string(FLAGS_memory_budget_mb) + ": must be >= 0");
   }
@@ -200,7 +220,9 @@ int main(int argc, char** argv) {
     inputs.push_back(dsr::CanonicalPath(p));
   }
   for (const std::string& p : mask_paths) inputs.push_back(dsr::CanonicalPath(p));
-  for (const std::string& p : {FLAGS_init, FLAGS_gt_poses}) inputs.push_back(dsr::CanonicalPath(p));
+  for (const std::string& p : {init_from_file ? FLAGS_init : std::string(), FLAGS_gt_poses}) {
+    inputs.push_back(dsr::CanonicalPath(p));
+  }
   for (const auto& [flag, path] : {std::pair<std::string, std::string>{"out_poses", FLAGS_out_poses},
                                    {"out_panorama", FLAGS_out_panorama}}) {
     if (!dsr::CheckOutputFile(flag, path, inputs, &error)) return Fail(error);
@@ -234,14 +256,10 @@ int main(int argc, char** argv) {
     return Fail(error);
   }
   std::vector<Eigen::Isometry3d> initial(m, Eigen::Isometry3d::Identity());
-  if (FLAGS_init != "identity") {
-    if (FLAGS_init == "pairwise") {
-      options.pairwise_init = true;
-    } else {
-      dsr::PosesFile init;
-      if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
-      initial = init.frame_from_world;
-    }
+  if (init_from_file) {
+    dsr::PosesFile init;
+    if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
+    initial = init.frame_from_world;
   }
   dsr::PosesFile gt;
   if (!FLAGS_gt_poses.empty() && !dsr::ReadPoses(FLAGS_gt_poses, m, &gt, &error)) {
@@ -251,6 +269,18 @@ int main(int argc, char** argv) {
 
   dsr::RegistrationResult result;
   if (!dsr::Register(images, masks, initial, options, &result, &error)) return Fail(error);
+  for (const dsr::RegistrationResult::Recovery& r : result.recoveries) {
+    std::string frames;
+    for (const dsr::FrameReplacement& f : r.frames) {
+      char line[160];
+      std::snprintf(line, sizeof(line), "%sframe %d %s (NCC %.3f -> %.3f, moved %.1f deg, %.1f mm)",
+                    frames.empty() ? "" : "; ", f.frame, f.moved ? "re-placed" : "kept",
+                    f.ncc_before, f.ncc_after, f.rotation_change_deg, f.translation_change_mm);
+      frames += line;
+    }
+    std::printf("dsr_register: recovery after pyramid level %d (%.2f s): %s; because %s\n",
+                r.after_level, r.seconds, frames.c_str(), r.why.c_str());
+  }
   if (!result.usable) return Fail(result.failure, dsr::kExitFailed);
 
   dsr::PosesFile out;

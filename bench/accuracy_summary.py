@@ -1,0 +1,48 @@
+#!/usr/bin/env python3
+"""Summarises bench/accuracy.sh runs: one Markdown row per (method, source, protocol, masks).
+
+Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv [...]
+A run succeeds when dsr_compare reports it ok and its mean TRE is below 0.1 mm; TRE and
+time medians are over the successful runs, the max TRE over every run that returned poses.
+"""
+import csv
+import statistics
+import sys
+
+SUCCESS_TRE_MM = 0.1
+
+
+def main(argv):
+    init = "?"
+    groups = []
+    for arg in argv[1:]:
+        if arg.startswith("--init="):
+            init = arg.split("=", 1)[1]
+            continue
+        source, protocol, masks, path = arg.split(",", 3)
+        groups.append((source, protocol, masks, path))
+    print(f"Initialiser: `--init={init}`. Success: mean TRE < {SUCCESS_TRE_MM} mm.\n")
+    print("| method | source | protocol | masks | success | median TRE (mm) | max TRE (mm) "
+          "| median time (s) | failures |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for source, protocol, masks, path in groups:
+        with open(path, newline="") as f:
+            rows = list(csv.DictReader(f))
+        by_method = {}
+        for r in rows:
+            by_method.setdefault(r["method"], []).append(r)
+        for method, runs in by_method.items():
+            ok = [r for r in runs if r["ok"] == "1" and float(r["tre_mean_mm"]) < SUCCESS_TRE_MM]
+            tre_ok = [float(r["tre_mean_mm"]) for r in ok]
+            tre_all = [float(r["tre_mean_mm"]) for r in runs if r["ok"] == "1"]
+            times = [float(r["seconds"]) for r in ok]
+            failed = sorted(r["sequence"] for r in runs if r not in ok)
+            print(f"| {method} | {source} | {protocol} | {masks} | {len(ok)}/{len(runs)} | "
+                  f"{statistics.median(tre_ok) if tre_ok else float('nan'):.4f} | "
+                  f"{max(tre_all) if tre_all else float('nan'):.3g} | "
+                  f"{statistics.median(times) if times else float('nan'):.2f} | "
+                  f"{' '.join(failed) if failed else '-'} |")
+
+
+if __name__ == "__main__":
+    main(sys.argv)

@@ -1,0 +1,259 @@
+#include "init/placement_search.h"
+
+#include <algorithm>
+#include <cmath>
+#include <mutex>
+
+#include <glog/logging.h>
+
+#include "baselines/baselines.h"
+#include "core/parallel.h"
+#include "init/masked_ncc.h"
+#include "init/rotation_grid.h"
+
+namespace dsr {
+namespace {
+
+constexpr double kDegree = M_PI / 180.0;
+
+// The volume's values and valid-cell map on its own grid (the NCC's image and mask).
+void ValuesAndValidCells(const Frame& frame, Image* values, Mask* valid) {
+  const ImageGeometry& g = frame.geometry();
+  *values = Image(g, 0.0f);
+  *valid = Mask(g, 0);
+  const float* data = frame.interleaved();
+  for (int64_t l = 0; l < g.NumVoxels(); ++l) {
+    if (!frame.IsValidCell(l)) continue;
+    values->voxels[l] = data[4 * l];
+    valid->voxels[l] = 1;
+  }
+}
+
+// Physical centre of the frame's valid cells' bounding box.
+Eigen::Vector3d ValidCentre(const Frame& frame) {
+  return frame.geometry().IndexToPhysical(frame.ValidIndexBox().center());
+}
+
+// Pearson correlation from sums over n pairs (a, b) shifted by reference values.
+struct Correlation {
+  double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
+  int64_t n = 0;
+  void Add(double a, double b) {
+    sa += a;
+    sb += b;
+    saa += a * a;
+    sbb += b * b;
+    sab += a * b;
+    ++n;
+  }
+  double Value() const {
+    if (n < 2) return -std::numeric_limits<double>::infinity();
+    const double var_a = saa - sa * sa / n, var_b = sbb - sb * sb / n;
+    // A flat side (relative to its own scale) has no correlation.
+    constexpr double kFlat = 1e-12;
+    if (!(var_a > kFlat * saa) || !(var_b > kFlat * sbb)) {
+      return -std::numeric_limits<double>::infinity();
+    }
+    return std::clamp((sab - sa * sb / n) / std::sqrt(var_a * var_b), -1.0, 1.0);
+  }
+};
+
+// The moving field of view rotated onto the fixed grid's axes (see SearchPeaks).
+struct RotatedGrid {
+  Eigen::Vector3i size;
+  Eigen::Vector3d half_extent;  // in fixed voxels: W index q sits at y = D S (q - half)
+};
+
+}  // namespace
+
+bool PlacementSearchOptions::Validate(std::string* error) const {
+  auto bad = [&](const std::string& name, double value, const std::string& rule) {
+    *error = name + "=" + std::to_string(value) + ": " + rule;
+    return false;
+  };
+  if (!(max_rotation_deg > 0.0 && max_rotation_deg <= 180.0)) {
+    return bad("search_rotation_deg", max_rotation_deg, "must be in (0, 180]");
+  }
+  if (num_rotations < 1 || num_rotations > 100000) {
+    return bad("search_rotations", num_rotations, "must be in [1, 100000]");
+  }
+  if (num_refined < 1 || num_refined > 100) {
+    return bad("search_refined", num_refined, "must be in [1, 100]");
+  }
+  if (!(distinct_rotation_deg >= 0.0 && distinct_rotation_deg <= 180.0)) {
+    return bad("distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
+  }
+  if (!(min_overlap_fraction > 0.0 && min_overlap_fraction <= 1.0)) {
+    return bad("search_min_overlap", min_overlap_fraction, "must be in (0, 1]");
+  }
+  return refine.Validate(error);
+}
+
+Placement ScorePlacement(const Frame& fixed,
+                         const Frame& moving,
+                         const Eigen::Isometry3d& moving_from_fixed,
+                         double min_overlap_fraction) {
+  const ImageGeometry& g = moving.geometry();
+  const Eigen::Isometry3d fixed_from_moving = moving_from_fixed.inverse();
+  const float* data = moving.interleaved();
+  Correlation c;
+  int64_t valid = 0;
+  for (int k = 0; k < g.size[2]; ++k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        const int64_t l = g.LinearIndex(i, j, k);
+        if (!moving.IsValidCell(l)) continue;
+        ++valid;
+        double value = 0.0;
+        const Eigen::Vector3d x = fixed_from_moving * g.IndexToPhysical(Eigen::Vector3d(i, j, k));
+        if (fixed.Sample(x, &value, nullptr)) c.Add(value, data[4 * l]);
+      }
+    }
+  }
+  Placement p;
+  p.moving_from_fixed = moving_from_fixed;
+  p.overlap = c.n;
+  p.overlap_fraction = valid > 0 ? static_cast<double>(c.n) / valid : 0.0;
+  if (p.overlap_fraction >= min_overlap_fraction) p.ncc = c.Value();
+  return p;
+}
+
+std::vector<Placement> SearchPeaks(const Frame& fixed,
+                                   const Frame& moving,
+                                   const Eigen::Matrix3d& centre,
+                                   const PlacementSearchOptions& options) {
+  const std::vector<Eigen::Matrix3d> rotations =
+      RotationsInBall(centre, options.max_rotation_deg * kDegree, options.num_rotations);
+  const ImageGeometry& fg = fixed.geometry();
+  const Eigen::Matrix3d fixed_index_from_physical = fg.PhysicalToIndexMatrix();
+  const Eigen::Matrix3d fixed_physical_from_index = fg.IndexToPhysicalMatrix();
+  const Eigen::Vector3d c_m = ValidCentre(moving);
+
+  // One grid W for every rotation (MaskedNcc prepares the fixed side for one moving size):
+  // large enough for the moving valid box under any sampled rotation. W index q stands for
+  // the point y = D_f S_f (q - half) of the rotated moving frame, whose moving point is
+  // x = R y + c_m (R = the rotation of moving_from_fixed).
+  const Eigen::AlignedBox3d box = moving.ValidIndexBox();
+  Eigen::Vector3d half = Eigen::Vector3d::Zero();
+  for (const Eigen::Matrix3d& r : rotations) {
+    for (int corner = 0; corner < 8; ++corner) {
+      const Eigen::Vector3d x = moving.geometry().IndexToPhysical(
+          box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(corner)));
+      const Eigen::Vector3d z = fixed_index_from_physical * (r.transpose() * (x - c_m));
+      half = half.cwiseMax(z.cwiseAbs());
+    }
+  }
+  half = half.array().ceil();
+  const Eigen::Vector3i w_size = (2.0 * half).cast<int>() + Eigen::Vector3i::Ones();
+  ImageGeometry w_grid = fg;
+  w_grid.size = w_size;
+
+  Image fixed_values;
+  Mask fixed_valid;
+  ValuesAndValidCells(fixed, &fixed_values, &fixed_valid);
+  const MaskedNcc ncc(fixed_values, fixed_valid, w_size);
+  // Moving valid cells in fixed voxels (the NCC counts fixed-grid voxels).
+  const double moving_fov_in_fixed_voxels = static_cast<double>(moving.num_valid_cells()) *
+                                            moving.geometry().spacing_mm.prod() /
+                                            fg.spacing_mm.prod();
+  const int64_t min_overlap = std::max<int64_t>(
+      8, std::llround(options.min_overlap_fraction * moving_fov_in_fixed_voxels));
+
+  std::vector<Placement> peaks(rotations.size());
+  ParallelFor(0, static_cast<int64_t>(rotations.size()), options.num_threads, [&](int64_t r) {
+    const Eigen::Matrix3d& rotation = rotations[r];
+    // Moving index of W voxel q: A q + b.
+    const Eigen::Matrix3d a =
+        moving.index_from_physical() * rotation * fixed_physical_from_index;
+    const Eigen::Vector3d b = moving.ToIndex(c_m - rotation * fixed_physical_from_index * half);
+    Image w(w_grid, 0.0f);
+    Mask w_mask(w_grid, 0);
+    for (int k = 0; k < w_size[2]; ++k) {
+      for (int j = 0; j < w_size[1]; ++j) {
+        for (int i = 0; i < w_size[0]; ++i) {
+          double value = 0.0;
+          if (!moving.SampleAtIndex(a * Eigen::Vector3d(i, j, k) + b, &value, nullptr)) continue;
+          const int64_t l = w_grid.LinearIndex(i, j, k);
+          w.voxels[l] = static_cast<float>(value);
+          w_mask.voxels[l] = 1;
+        }
+      }
+    }
+    const NccPeak peak = ncc.Best(w, w_mask, min_overlap);
+    // Fixed voxel q + s holds W voxel q: p = o_f + D_f S_f (q + s) = t + y with
+    // t = o_f + D_f S_f (s + half), so fixed_from_moving = Translate(t) R^T Translate(-c_m).
+    const Eigen::Vector3d t =
+        fg.origin_mm + fixed_physical_from_index * (peak.shift.cast<double>() + half);
+    Eigen::Isometry3d fixed_from_moving = Eigen::Isometry3d::Identity();
+    fixed_from_moving.linear() = rotation.transpose();
+    fixed_from_moving.translation() = t - rotation.transpose() * c_m;
+    Placement& p = peaks[r];
+    p.moving_from_fixed = fixed_from_moving.inverse();
+    p.ncc = peak.ncc;
+    p.overlap = peak.overlap;
+    p.overlap_fraction = moving_fov_in_fixed_voxels > 0.0
+                             ? std::min(1.0, peak.overlap / moving_fov_in_fixed_voxels)
+                             : 0.0;
+  });
+  // Best first; ties keep the rotation order (deterministic).
+  std::stable_sort(peaks.begin(), peaks.end(),
+                   [](const Placement& a, const Placement& b) { return a.ncc > b.ncc; });
+  while (!peaks.empty() && !std::isfinite(peaks.back().ncc)) peaks.pop_back();
+  return peaks;
+}
+
+std::vector<Placement> SearchPlacement(const Frame& fixed,
+                                       const Frame& moving,
+                                       const Eigen::Matrix3d& centre,
+                                       const std::vector<Eigen::Isometry3d>& extra_starts,
+                                       const PlacementSearchOptions& options) {
+  const std::vector<Placement> peaks = SearchPeaks(fixed, moving, centre, options);
+  // The best distinct peaks: a peak close to a chosen one (rotation and moving centre in
+  // the fixed volume) is the same basin.
+  const Eigen::Vector3d c_m = ValidCentre(moving);
+  const double same_translation_mm = 3.0 * fixed.geometry().spacing_mm.maxCoeff();
+  std::vector<Placement> starts;
+  for (const Placement& p : peaks) {
+    if (static_cast<int>(starts.size()) >= options.num_refined) break;
+    const Eigen::Vector3d centre_p = p.moving_from_fixed.inverse() * c_m;
+    bool distinct = true;
+    for (const Placement& q : starts) {
+      if (RotationAngleBetween(p.moving_from_fixed.linear(), q.moving_from_fixed.linear()) <
+              options.distinct_rotation_deg * kDegree &&
+          (centre_p - q.moving_from_fixed.inverse() * c_m).norm() < same_translation_mm) {
+        distinct = false;
+        break;
+      }
+    }
+    if (distinct) starts.push_back(p);
+  }
+  for (const Eigen::Isometry3d& extra : extra_starts) {
+    Placement p;
+    p.moving_from_fixed = extra;
+    p.from_search = false;
+    starts.push_back(p);
+  }
+  BaselineOptions pair;
+  pair.solve = options.refine;
+  pair.solve.num_threads = options.num_threads;
+  pair.panorama_spacing = 1.0;
+  std::vector<Placement> refined;
+  for (const Placement& start : starts) {
+    Eigen::Isometry3d pose = start.moving_from_fixed;
+    SolveReport report;
+    std::string why;
+    // RegisterPair writes the pose only after a usable solve: a start whose overlap is too
+    // small to solve on is scored as it is.
+    RegisterPair(fixed, Eigen::Isometry3d::Identity(), moving, pair, &pose, &report, &why);
+    Placement scored = ScorePlacement(fixed, moving, pose, options.min_overlap_fraction);
+    scored.from_search = start.from_search;
+    VLOG(1) << "placement candidate: search NCC " << start.ncc << " -> refined NCC "
+            << scored.ncc << " (overlap " << scored.overlap_fraction << ")";
+    if (std::isfinite(scored.ncc)) refined.push_back(scored);
+  }
+  std::stable_sort(refined.begin(), refined.end(),
+                   [](const Placement& a, const Placement& b) { return a.ncc > b.ncc; });
+  return refined;
+}
+
+}  // namespace dsr

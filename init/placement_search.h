@@ -1,0 +1,92 @@
+// Global search for the rigid placement of one volume (the moving frame) relative to
+// another (a frame or a panorama), independent of any starting pose (DESIGN notes in
+// docs/design.md, "Global initialisation").
+//
+//   for each rotation R within max_rotation of a centre (init/rotation_grid.h):
+//     resample the moving field of view rotated by R^T about its centre onto a grid with
+//     the fixed volume's spacing and axes;
+//     the best integer translation by masked normalised cross-correlation over every
+//     shift at which the two fields of view overlap enough (init/masked_ncc.h, FFTs);
+//   keep the best few distinct (rotation, translation) peaks, refine each with the local
+//   pair solver (mean squared difference over the overlap, baselines/RegisterPair), and
+//   score each refined placement by the masked NCC of the overlap.
+//
+// Both volumes are given as `Frame`s on one pyramid level (coarse: the search costs
+// rotations x FFTs of the padded grids); a volume's field of view for the NCC is its
+// valid-cell map (the cells whose 8 corners are inside its mask). NCC, not the squared difference, ranks the
+// candidates: it does not reward a small overlap with a low variance, and it is blind to a
+// gain and an offset between the volumes (a panorama mixes several frames).
+#ifndef DSR_INIT_PLACEMENT_SEARCH_H_
+#define DSR_INIT_PLACEMENT_SEARCH_H_
+
+#include <limits>
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/frame.h"
+#include "core/solve_options.h"
+#include "core/volume.h"
+
+namespace dsr {
+
+struct PlacementSearchOptions {
+  // Rotations sampled within this angle of the centre rotation, about num_rotations of them.
+  double max_rotation_deg = 45.0;
+  int num_rotations = 500;
+  // Best distinct peaks refined by the local solver (plus the caller's extra starts).
+  int num_refined = 3;
+  // Two peaks are the same candidate when their rotations differ by less than this and
+  // their translations by less than 3 fixed voxels.
+  double distinct_rotation_deg = 15.0;
+  // A placement counts only when this fraction of the moving field of view lies inside
+  // the fixed one (both in the NCC search and in the final score).
+  double min_overlap_fraction = 0.25;
+  // Local refinement of each candidate (a pair solve on the search level).
+  SolveOptions refine;
+  int num_threads = 0;  // <= 0: all hardware threads
+
+  // `error` names the option.
+  bool Validate(std::string* error) const;
+};
+
+struct Placement {
+  Eigen::Isometry3d moving_from_fixed = Eigen::Isometry3d::Identity();  // physical mm
+  // Masked NCC of the two volumes over their overlap at this placement (-inf: the overlap
+  // is below min_overlap_fraction of the moving field of view).
+  double ncc = -std::numeric_limits<double>::infinity();
+  int64_t overlap = 0;       // moving valid voxels that land in the fixed field of view
+  double overlap_fraction = 0.0;  // of the moving field of view
+  bool from_search = true;   // false: one of the caller's extra starts
+};
+
+// Masked NCC of `fixed` and `moving` at `moving_from_fixed`: over the moving frame's valid
+// voxels (integer indices) whose point lands on a valid sample of `fixed`. The overlap
+// fields are filled; ncc is -inf when the overlap is below `min_overlap_fraction` of the
+// moving field of view or either side is flat there.
+Placement ScorePlacement(const Frame& fixed,
+                         const Frame& moving,
+                         const Eigen::Isometry3d& moving_from_fixed,
+                         double min_overlap_fraction);
+
+// The search described above. `centre` is the rotation part of moving_from_fixed the
+// rotations are sampled around; `extra_starts` are further moving_from_fixed poses to
+// refine and score alongside (e.g. the current pose). Returns every refined candidate,
+// best NCC first; empty when nothing overlaps enough. Deterministic.
+std::vector<Placement> SearchPlacement(const Frame& fixed,
+                                       const Frame& moving,
+                                       const Eigen::Matrix3d& centre,
+                                       const std::vector<Eigen::Isometry3d>& extra_starts,
+                                       const PlacementSearchOptions& options);
+
+// The search without refinement: the best translation for each sampled rotation, as
+// placements sorted best NCC first (for tests and measurements).
+std::vector<Placement> SearchPeaks(const Frame& fixed,
+                                   const Frame& moving,
+                                   const Eigen::Matrix3d& centre,
+                                   const PlacementSearchOptions& options);
+
+}  // namespace dsr
+
+#endif  // DSR_INIT_PLACEMENT_SEARCH_H_

@@ -1,0 +1,47 @@
+// Recovery of frames that a solve left in a wrong minimum (docs/design.md, "Recovery").
+//
+// The pipeline's checks (pipeline/divergence_guard.h) name the frames that do not agree
+// with the others after a solve: a misfit far above the frames' lower quartile, or a
+// frame that slid out of the overlap. Each such frame is re-placed by the global search
+// (init/placement_search.h) against the mean panorama of the frames that passed, at their
+// current poses, on a coarse pyramid level; its current pose is refined and scored beside
+// the search's candidates, so a frame is only moved to a placement that matches the
+// panorama better. The pipeline then solves again from the new poses.
+#ifndef DSR_INIT_RECOVERY_H_
+#define DSR_INIT_RECOVERY_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "core/frame.h"
+#include "init/placement_search.h"
+
+namespace dsr {
+
+struct FrameReplacement {
+  int frame = 0;
+  double ncc_before = 0.0;  // masked NCC against the panorama at the current pose
+  double ncc_after = 0.0;   // at the chosen placement
+  double rotation_change_deg = 0.0;    // between the current pose and the chosen one
+  double translation_change_mm = 0.0;  // of the frame's field-of-view centre in world
+  bool moved = false;  // false: the current pose scored best (kept)
+};
+
+// Re-places each frame of `flagged` (see above). `frames` are one pyramid level of every
+// frame, `frame_from_world` the current poses (world = frame 0's physical space, frame 0
+// may itself be flagged). The search's rotations are centred on the world's orientation
+// (frame 0's), where a sequence's frames are expected. Returns false with `error` when
+// fewer than one frame passed or the passed frames' panorama cannot be built.
+bool ReplaceFrames(const std::vector<Frame>& frames,
+                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   const std::vector<int>& flagged,
+                   const PlacementSearchOptions& options,
+                   std::vector<Eigen::Isometry3d>* replaced,
+                   std::vector<FrameReplacement>* records,
+                   std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_INIT_RECOVERY_H_
