@@ -1,6 +1,7 @@
 #include "core/volume.h"
 
 #include <algorithm>
+#include <vector>
 #include <cmath>
 #include <sstream>
 
@@ -94,8 +95,40 @@ void ErodeAlongAxis(int axis, int r, Mask* mask) {
 }  // namespace
 
 Mask MaskFromNonZero(const Image& image, int erosion_voxels) {
-  Mask mask(image.geometry, 0);
-  for (size_t v = 0; v < image.voxels.size(); ++v) mask.voxels[v] = image.voxels[v] != 0.0f;
+  // Outside: the zero voxels connected to the grid border through zero voxels (6-neighbour
+  // flood fill); every other voxel is inside, so zeros enclosed by data (noise clamped at
+  // 0, dark anatomy) do not punch holes that the erosion would widen 27-fold.
+  const ImageGeometry& g = image.geometry;
+  Mask mask(g, 1);
+  std::vector<int64_t> stack;
+  const auto visit = [&](int i, int j, int k) {
+    const int64_t l = g.LinearIndex(i, j, k);
+    if (mask.voxels[l] == 0 || image.voxels[l] != 0.0f) return;
+    mask.voxels[l] = 0;
+    stack.push_back(l);
+  };
+  for (int k = 0; k < g.size[2]; ++k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        const bool border = i == 0 || j == 0 || k == 0 || i == g.size[0] - 1 ||
+                            j == g.size[1] - 1 || k == g.size[2] - 1;
+        if (border) visit(i, j, k);
+      }
+    }
+  }
+  while (!stack.empty()) {
+    const int64_t l = stack.back();
+    stack.pop_back();
+    const int i = static_cast<int>(l % g.size[0]);
+    const int j = static_cast<int>((l / g.size[0]) % g.size[1]);
+    const int k = static_cast<int>(l / (int64_t{g.size[0]} * g.size[1]));
+    if (i > 0) visit(i - 1, j, k);
+    if (i + 1 < g.size[0]) visit(i + 1, j, k);
+    if (j > 0) visit(i, j - 1, k);
+    if (j + 1 < g.size[1]) visit(i, j + 1, k);
+    if (k > 0) visit(i, j, k - 1);
+    if (k + 1 < g.size[2]) visit(i, j, k + 1);
+  }
   if (erosion_voxels > 0) {
     for (int axis = 0; axis < 3; ++axis) ErodeAlongAxis(axis, erosion_voxels, &mask);
   }

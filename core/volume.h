@@ -79,7 +79,9 @@ struct Volume {
 using Image = Volume<float>;   // intensities
 using Mask = Volume<uint8_t>;  // field of view: 1 inside, 0 outside
 
-// A mask that is 1 where `image` is non-zero, then eroded by `erosion_voxels` voxels
+// A field-of-view mask from an image that is zero outside its field of view: 1 except at
+// the zero voxels connected to the grid border through zero voxels (so zeros enclosed by
+// non-zero data, e.g. noise clamped at 0, stay inside), then eroded by `erosion_voxels` voxels
 // (6-connected structuring element applied `erosion_voxels` times along each axis, i.e.
 // a box of half-width `erosion_voxels`). Voxels on the image border count as outside.
 Mask MaskFromNonZero(const Image& image, int erosion_voxels);

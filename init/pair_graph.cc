@@ -29,6 +29,8 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
   const auto start = std::chrono::steady_clock::now();
   const int m = static_cast<int>(frames.size());
   *report = PairGraphReport();
+  PlacementSearchOptions pair_options = options;
+  pair_options.num_rotations = options.num_pair_rotations;
   // 1. Every pair, searched globally.
   for (int i = 0; i < m; ++i) {
     for (int k = i + 1; k < m; ++k) {
@@ -36,7 +38,7 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
       edge.i = i;
       edge.k = k;
       const std::vector<Placement> found =
-          SearchPlacement(frames[i], frames[k], Eigen::Matrix3d::Identity(), {}, options);
+          SearchPlacement(frames[i], frames[k], Eigen::Matrix3d::Identity(), {}, pair_options);
       edge.ncc = -std::numeric_limits<double>::infinity();
       if (!found.empty()) {
         edge.k_from_i = found.front().moving_from_fixed;

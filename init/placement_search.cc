@@ -77,6 +77,9 @@ bool PlacementSearchOptions::Validate(std::string* error) const {
   if (num_rotations < 1 || num_rotations > 100000) {
     return bad("search_rotations", num_rotations, "must be in [1, 100000]");
   }
+  if (num_pair_rotations < 1 || num_pair_rotations > 100000) {
+    return bad("pair_search_rotations", num_pair_rotations, "must be in [1, 100000]");
+  }
   if (num_refined < 1 || num_refined > 100) {
     return bad("search_refined", num_refined, "must be in [1, 100]");
   }
@@ -87,6 +90,10 @@ bool PlacementSearchOptions::Validate(std::string* error) const {
     return bad("search_min_overlap", min_overlap_fraction, "must be in (0, 1]");
   }
   return refine.Validate(error);
+}
+
+double ScoreMinOverlap(const PlacementSearchOptions& options) {
+  return 0.5 * options.min_overlap_fraction;
 }
 
 Placement ScorePlacement(const Frame& fixed,
@@ -160,40 +167,48 @@ std::vector<Placement> SearchPeaks(const Frame& fixed,
       8, std::llround(options.min_overlap_fraction * moving_fov_in_fixed_voxels));
 
   std::vector<Placement> peaks(rotations.size());
-  ParallelFor(0, static_cast<int64_t>(rotations.size()), options.num_threads, [&](int64_t r) {
-    const Eigen::Matrix3d& rotation = rotations[r];
-    // Moving index of W voxel q: A q + b.
-    const Eigen::Matrix3d a =
-        moving.index_from_physical() * rotation * fixed_physical_from_index;
-    const Eigen::Vector3d b = moving.ToIndex(c_m - rotation * fixed_physical_from_index * half);
+  // Rotations in blocks, each block with its own resampling buffers (allocating them per
+  // rotation cost a tenth of the search).
+  const int64_t num_rotations = static_cast<int64_t>(rotations.size());
+  const int64_t block = std::max<int64_t>(1, num_rotations / (4 * ResolveThreads(options.num_threads)));
+  ParallelFor(0, (num_rotations + block - 1) / block, options.num_threads, [&](int64_t b) {
     Image w(w_grid, 0.0f);
     Mask w_mask(w_grid, 0);
-    for (int k = 0; k < w_size[2]; ++k) {
-      for (int j = 0; j < w_size[1]; ++j) {
-        for (int i = 0; i < w_size[0]; ++i) {
-          double value = 0.0;
-          if (!moving.SampleAtIndex(a * Eigen::Vector3d(i, j, k) + b, &value, nullptr)) continue;
-          const int64_t l = w_grid.LinearIndex(i, j, k);
-          w.voxels[l] = static_cast<float>(value);
-          w_mask.voxels[l] = 1;
+    for (int64_t r = b * block; r < std::min(num_rotations, (b + 1) * block); ++r) {
+      const Eigen::Matrix3d& rotation = rotations[r];
+      // Moving index of W voxel q: A q + b.
+      const Eigen::Matrix3d a =
+          moving.index_from_physical() * rotation * fixed_physical_from_index;
+      const Eigen::Vector3d offset =
+          moving.ToIndex(c_m - rotation * fixed_physical_from_index * half);
+      for (int k = 0; k < w_size[2]; ++k) {
+        for (int j = 0; j < w_size[1]; ++j) {
+          for (int i = 0; i < w_size[0]; ++i) {
+            const int64_t l = w_grid.LinearIndex(i, j, k);
+            double value = 0.0;
+            const bool valid =
+                moving.SampleAtIndex(a * Eigen::Vector3d(i, j, k) + offset, &value, nullptr);
+            w.voxels[l] = valid ? static_cast<float>(value) : 0.0f;
+            w_mask.voxels[l] = valid ? 1 : 0;
+          }
         }
       }
+      const NccPeak peak = ncc.Best(w, w_mask, min_overlap);
+      // Fixed voxel q + s holds W voxel q: p = o_f + D_f S_f (q + s) = t + y with
+      // t = o_f + D_f S_f (s + half), so fixed_from_moving = Translate(t) R^T Translate(-c_m).
+      const Eigen::Vector3d t =
+          fg.origin_mm + fixed_physical_from_index * (peak.shift.cast<double>() + half);
+      Eigen::Isometry3d fixed_from_moving = Eigen::Isometry3d::Identity();
+      fixed_from_moving.linear() = rotation.transpose();
+      fixed_from_moving.translation() = t - rotation.transpose() * c_m;
+      Placement& p = peaks[r];
+      p.moving_from_fixed = fixed_from_moving.inverse();
+      p.ncc = peak.ncc;
+      p.overlap = peak.overlap;
+      p.overlap_fraction = moving_fov_in_fixed_voxels > 0.0
+                               ? std::min(1.0, peak.overlap / moving_fov_in_fixed_voxels)
+                               : 0.0;
     }
-    const NccPeak peak = ncc.Best(w, w_mask, min_overlap);
-    // Fixed voxel q + s holds W voxel q: p = o_f + D_f S_f (q + s) = t + y with
-    // t = o_f + D_f S_f (s + half), so fixed_from_moving = Translate(t) R^T Translate(-c_m).
-    const Eigen::Vector3d t =
-        fg.origin_mm + fixed_physical_from_index * (peak.shift.cast<double>() + half);
-    Eigen::Isometry3d fixed_from_moving = Eigen::Isometry3d::Identity();
-    fixed_from_moving.linear() = rotation.transpose();
-    fixed_from_moving.translation() = t - rotation.transpose() * c_m;
-    Placement& p = peaks[r];
-    p.moving_from_fixed = fixed_from_moving.inverse();
-    p.ncc = peak.ncc;
-    p.overlap = peak.overlap;
-    p.overlap_fraction = moving_fov_in_fixed_voxels > 0.0
-                             ? std::min(1.0, peak.overlap / moving_fov_in_fixed_voxels)
-                             : 0.0;
   });
   // Best first; ties keep the rotation order (deterministic).
   std::stable_sort(peaks.begin(), peaks.end(),
@@ -245,7 +260,7 @@ std::vector<Placement> SearchPlacement(const Frame& fixed,
     // RegisterPair writes the pose only after a usable solve: a start whose overlap is too
     // small to solve on is scored as it is.
     RegisterPair(fixed, Eigen::Isometry3d::Identity(), moving, pair, &pose, &report, &why);
-    Placement scored = ScorePlacement(fixed, moving, pose, options.min_overlap_fraction);
+    Placement scored = ScorePlacement(fixed, moving, pose, ScoreMinOverlap(options));
     scored.from_search = start.from_search;
     VLOG(1) << "placement candidate: search NCC " << start.ncc << " -> refined NCC "
             << scored.ncc << " (overlap " << scored.overlap_fraction << ")";

@@ -32,16 +32,22 @@
 namespace dsr {
 
 struct PlacementSearchOptions {
-  // Rotations sampled within this angle of the centre rotation, about num_rotations of them.
+  // Rotations sampled within this angle of the centre rotation, about num_rotations of them
+  // (200 within 45 degrees: about 8 degrees apart, well inside the local solver's reach).
   double max_rotation_deg = 45.0;
-  int num_rotations = 500;
+  int num_rotations = 200;
   // Best distinct peaks refined by the local solver (plus the caller's extra starts).
   int num_refined = 3;
+  // Rotations per pair of the pair graph (init/pair_graph.h), which searches m(m-1)/2 pairs:
+  // fewer than num_rotations, about 11 degrees apart within 45 degrees.
+  int num_pair_rotations = 60;
   // Two peaks are the same candidate when their rotations differ by less than this and
   // their translations by less than 3 fixed voxels.
   double distinct_rotation_deg = 15.0;
   // A placement counts only when this fraction of the moving field of view lies inside
-  // the fixed one (both in the NCC search and in the final score).
+  // the fixed one in the NCC search, and half of it in the final score (whose overlap
+  // counts the moving valid voxels that land on valid cells of the fixed volume: a
+  // refinement by the mean squared difference may also trade a little overlap for fit).
   double min_overlap_fraction = 0.25;
   // Local refinement of each candidate (a pair solve on the search level).
   SolveOptions refine;
@@ -60,6 +66,10 @@ struct Placement {
   double overlap_fraction = 0.0;  // of the moving field of view
   bool from_search = true;   // false: one of the caller's extra starts
 };
+
+// The overlap fraction below which ScorePlacement gives -inf in the search (see
+// min_overlap_fraction).
+double ScoreMinOverlap(const PlacementSearchOptions& options);
 
 // Masked NCC of `fixed` and `moving` at `moving_from_fixed`: over the moving frame's valid
 // voxels (integer indices) whose point lands on a valid sample of `fixed`. The overlap

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 
 #include <glog/logging.h>
 
@@ -9,6 +10,61 @@
 #include "init/rotation_grid.h"
 
 namespace dsr {
+
+namespace {
+
+// The mean panorama of `frames` at their poses as a Frame in world coordinates; its field of
+// view is the voxels some frame observes (Frame's gradients never read outside it, and on
+// a coarse level an erosion would leave little: the frames' own valid cells are already
+// only a part of their grids there). False with `error` when it cannot be built.
+bool PanoramaFrame(const std::vector<Frame>& frames,
+                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   int num_threads,
+                   Frame* panorama,
+                   std::string* error) {
+  ImageGeometry grid;
+  if (!BuildPanoramaGrid(frames, frame_from_world, 1.0, &grid, error)) return false;
+  const PanoramaImages fused = FusePanoramaMean(frames, frame_from_world, grid, num_threads);
+  Image seen(grid, 0.0f);
+  for (size_t l = 0; l < seen.voxels.size(); ++l) seen.voxels[l] = fused.count.voxels[l] > 0;
+  *panorama = Frame(fused.mean, MaskFromNonZero(seen, 0));
+  if (panorama->num_valid_cells() == 0) {
+    *error = "the panorama of the frames that passed the checks is empty";
+    return false;
+  }
+  return true;
+}
+
+// How well a placed frame matches the others: the median, over up to kReferenceFrames of
+// the passed frames, of each one's NCC against the panorama of the other passed frames
+// (-inf with fewer than two passed frames).
+constexpr int kReferenceFrames = 4;
+double ReferenceNcc(const std::vector<Frame>& passed,
+                    const std::vector<Eigen::Isometry3d>& passed_poses,
+                    const PlacementSearchOptions& options) {
+  const int n = static_cast<int>(passed.size());
+  std::vector<double> scores;
+  for (int r = 0; r < std::min(n, kReferenceFrames) && n >= 2; ++r) {
+    const int p = r * n / std::min(n, kReferenceFrames);
+    std::vector<Frame> others;
+    std::vector<Eigen::Isometry3d> others_poses;
+    for (int i = 0; i < n; ++i) {
+      if (i == p) continue;
+      others.push_back(passed[i]);
+      others_poses.push_back(passed_poses[i]);
+    }
+    Frame panorama;
+    std::string ignored;
+    if (!PanoramaFrame(others, others_poses, options.num_threads, &panorama, &ignored)) continue;
+    scores.push_back(
+        ScorePlacement(panorama, passed[p], passed_poses[p], ScoreMinOverlap(options)).ncc);
+  }
+  if (scores.empty()) return -std::numeric_limits<double>::infinity();
+  std::sort(scores.begin(), scores.end());
+  return scores[(scores.size() - 1) / 2];
+}
+
+}  // namespace
 
 bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -35,34 +91,33 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
     *error = "recovery: every frame was flagged, no panorama to place them against";
     return false;
   }
-  ImageGeometry grid;
-  if (!BuildPanoramaGrid(passed, passed_poses, 1.0, &grid, error)) {
+  Frame panorama;
+  if (!PanoramaFrame(passed, passed_poses, options.num_threads, &panorama, error)) {
     *error = "recovery: " + *error;
     return false;
   }
-  const PanoramaImages fused = FusePanoramaMean(passed, passed_poses, grid, options.num_threads);
-  // The panorama's field of view: voxels a passed frame observes, eroded by one voxel so
-  // that its gradients use observed voxels only (as a frame's mask).
-  Image seen(grid, 0.0f);
-  for (size_t l = 0; l < seen.voxels.size(); ++l) seen.voxels[l] = fused.count.voxels[l] > 0;
-  const Frame panorama(fused.mean, MaskFromNonZero(seen, 1));
-  if (panorama.num_valid_cells() == 0) {
-    *error = "recovery: the panorama of the frames that passed the checks is empty";
-    return false;
-  }
+  const double reference = ReferenceNcc(passed, passed_poses, options);
 
   *replaced = frame_from_world;
   records->clear();
   for (int f : flagged) {
     // World = the panorama's physical space, so moving_from_fixed is frame_from_world.
     const Eigen::Isometry3d current = frame_from_world[f];
-    const std::vector<Placement> candidates = SearchPlacement(
-        panorama, frames[f], Eigen::Matrix3d::Identity(), {current}, options);
     FrameReplacement record;
     record.frame = f;
     record.ncc_before =
-        ScorePlacement(panorama, frames[f], current, options.min_overlap_fraction).ncc;
+        ScorePlacement(panorama, frames[f], current, ScoreMinOverlap(options)).ncc;
     record.ncc_after = record.ncc_before;
+    record.reference_ncc = reference;
+    if (std::isfinite(reference) && record.ncc_before >= reference - kKeepNccMargin) {
+      VLOG(1) << "recovery: frame " << f << " kept without a search (NCC " << record.ncc_before
+              << ", the passed frames' " << reference << ")";
+      records->push_back(record);
+      continue;
+    }
+    record.searched = true;
+    const std::vector<Placement> candidates = SearchPlacement(
+        panorama, frames[f], Eigen::Matrix3d::Identity(), {current}, options);
     if (!candidates.empty() && candidates.front().from_search) {
       const Eigen::Isometry3d& chosen = candidates.front().moving_from_fixed;
       const Eigen::Vector3d centre_in_frame =
@@ -78,7 +133,8 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
       record.ncc_after = candidates.front().ncc;
     }
     VLOG(1) << "recovery: frame " << f << " NCC " << record.ncc_before << " -> "
-            << record.ncc_after << (record.moved ? " (moved)" : " (kept)");
+            << record.ncc_after << " (passed frames " << reference << ")"
+            << (record.moved ? " (moved)" : " (kept)");
     records->push_back(record);
   }
   return true;

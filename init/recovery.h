@@ -20,20 +20,25 @@
 
 namespace dsr {
 
+// See ReplaceFrames.
+constexpr double kKeepNccMargin = 0.02;
+
 struct FrameReplacement {
   int frame = 0;
   double ncc_before = 0.0;  // masked NCC against the panorama at the current pose
   double ncc_after = 0.0;   // at the chosen placement
   double rotation_change_deg = 0.0;    // between the current pose and the chosen one
   double translation_change_mm = 0.0;  // of the frame's field-of-view centre in world
-  bool moved = false;  // false: the current pose scored best (kept)
+  bool moved = false;     // false: kept (the current pose scored best, or no search)
+  bool searched = false;  // false: kept without a search (it matched like the passed ones)
+  double reference_ncc = 0.0;  // how well the passed frames match each other
 };
 
-// Re-places each frame of `flagged` (see above). `frames` are one pyramid level of every
-// frame, `frame_from_world` the current poses (world = frame 0's physical space, frame 0
-// may itself be flagged). The search's rotations are centred on the world's orientation
-// (frame 0's), where a sequence's frames are expected. Returns false with `error` when
-// fewer than one frame passed or the passed frames' panorama cannot be built.
+// Re-places each frame of `flagged` (see above). A flagged frame that already matches the
+// panorama about as well as the passed frames match each other (its NCC within
+// kKeepNccMargin of theirs: the median over a few passed frames of each one's NCC against
+// the panorama of the other passed frames) is kept without a search: one wrong frame raises
+// the misfits of the frames it overlaps, which are then flagged with it.
 bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                    const std::vector<int>& flagged,

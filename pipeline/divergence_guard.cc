@@ -102,6 +102,8 @@ std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_r
   for (size_t i = 0; i < misfits.size(); ++i) {
     if (misfits[i] > max_ratio * reference) outliers.push_back(static_cast<int>(i));
   }
+  std::stable_sort(outliers.begin(), outliers.end(),
+                   [&](int a, int b) { return misfits[a] > misfits[b]; });
   return outliers;
 }
 

@@ -55,8 +55,8 @@ std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
 // a wrong local minimum that still overlaps them (which the overlap guard below cannot
 // see). max_ratio 0 never reports.
 bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why);
-// Every frame whose misfit exceeds max_ratio times the lower quartile (empty when
-// max_ratio is 0): the frames recovery re-places (init/recovery.h).
+// Every frame whose misfit exceeds max_ratio times the lower quartile, worst first (empty
+// when max_ratio is 0): the frames recovery re-places (init/recovery.h).
 std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio);
 
 class DivergenceGuard {

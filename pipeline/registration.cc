@@ -552,11 +552,16 @@ bool Register(const std::vector<Image>& images,
     return false;
   }
   std::vector<Frame> search_frames;  // built when the global search is first needed
-  if (options.init == InitialPoses::kGlobal) {
-    const auto init_start = std::chrono::steady_clock::now();
-    search_frames = SearchFrames(images, masks, pyramids, options);
+  const auto global_poses = [&](std::vector<Eigen::Isometry3d>* poses) {
+    if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
     PairGraphReport graph;
-    if (!GlobalInitialPoses(search_frames, options.search, &start_poses, &graph, error)) {
+    return GlobalInitialPoses(search_frames, options.search, poses, &graph, error);
+  };
+  bool global_used = options.init == InitialPoses::kGlobal;
+  bool replaced_frames = false;
+  if (global_used) {
+    const auto init_start = std::chrono::steady_clock::now();
+    if (!global_poses(&start_poses)) {
       *error = "--init=global: " + *error;
       return false;
     }
@@ -572,25 +577,46 @@ bool Register(const std::vector<Image>& images,
     if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty()) {
       break;
     }
-    // Recovery: re-place the flagged frames against the panorama of the others.
+    // Recovery. With most frames passing, the flagged ones are re-placed against the
+    // panorama of the others; with more than a third flagged (or after that was tried) the
+    // panorama is not to be trusted, and every frame is placed from scratch by the pair
+    // graph (once).
     const auto recovery_start = std::chrono::steady_clock::now();
     if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
     RegistrationResult::Recovery recovery;
     recovery.after_level = result->solves.empty() ? 0 : result->solves.back().level;
     recovery.why = result->failure;
-    std::vector<Eigen::Isometry3d> replaced;
-    std::string why;
-    if (!ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
-                       options.search, &replaced, &recovery.frames, &why)) {
-      LOG(INFO) << "recovery not possible: " << why;
-      break;
+    const bool most_passed = 3 * static_cast<int>(result->flagged_frames.size()) <= m;
+    bool moved = false;
+    std::vector<Eigen::Isometry3d> next;
+    // Frames are re-placed against the others once; if the registration still fails, the
+    // others were not to be trusted either.
+    if (most_passed && !replaced_frames) {
+      replaced_frames = true;
+      std::string why;
+      if (ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
+                        options.search, &next, &recovery.frames, &why)) {
+        moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
+                            [](const FrameReplacement& f) { return f.moved; });
+      } else {
+        LOG(INFO) << why;
+      }
+    }
+    if (!moved && !global_used) {
+      global_used = true;
+      recovery.global = true;
+      std::string why;
+      if (!global_poses(&next)) {
+        LOG(INFO) << "recovery by the pair graph not possible: " << *error;
+        error->clear();
+      } else {
+        moved = true;
+      }
     }
     recovery.seconds = Seconds(recovery_start);
-    const bool moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
-                                   [](const FrameReplacement& f) { return f.moved; });
     result->recoveries.push_back(recovery);
-    if (!moved) break;  // the search found nothing better: the failure stands
-    poses = RelativeToFrame0(replaced);
+    if (!moved) break;  // nothing better was found: the failure stands
+    poses = RelativeToFrame0(next);
   }
   result->seconds = Seconds(start);
   return true;

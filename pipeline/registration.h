@@ -47,8 +47,10 @@ struct RegistrationOptions {
   // starts from its result.
   InitialPoses init = InitialPoses::kGiven;
   // Recovery (init/recovery.h): when the checks below flag frames after a level's solves,
-  // those frames are re-placed by the global search against the panorama of the others and
-  // the registration starts again from the coarsest level, at most this many times
+  // those frames are re-placed by the global search against the panorama of the others (or,
+  // when more than a third are flagged or that finds nothing better, every frame by the
+  // pair graph, once) and the registration starts again from the coarsest level, at most
+  // this many times
   // (0: a flagged frame ends the registration as not usable). With recovery on, the checks
   // also run after every coarse level, so that a wrong minimum is caught early and cheaply.
   int max_recoveries = 0;
@@ -124,7 +126,10 @@ struct RegistrationResult {
   struct Recovery {
     int after_level = 0;
     std::string why;
+    // The flagged frames re-placed against the panorama of the others (empty when more
+    // than a third were flagged), and whether every frame was then placed by the pair graph.
     std::vector<FrameReplacement> frames;
+    bool global = false;
     double seconds = 0.0;  // the search (the solves that follow are counted above)
   };
   std::vector<Recovery> recoveries;

@@ -134,6 +134,27 @@ TEST(MaskFromNonZero, ErodesByTheGivenNumberOfVoxels) {
   EXPECT_EQ(CountInside(full), 10 * 10 * 10);
 }
 
+// Zeros enclosed by data (noise clamped at 0, dark anatomy) are inside the field of view;
+// zeros connected to the outside are not.
+TEST(MaskFromNonZero, KeepsEnclosedZerosInside) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(12, 12, 12);
+  Image image(g, 0.0f);
+  for (int k = 2; k < 10; ++k)
+    for (int j = 2; j < 10; ++j)
+      for (int i = 2; i < 10; ++i) image.at(i, j, k) = 5.0f;
+  image.at(5, 5, 5) = 0.0f;  // enclosed: inside
+  image.at(4, 6, 7) = 0.0f;
+  for (int i = 2; i < 5; ++i) image.at(i, 3, 3) = 0.0f;  // a channel from the outside: outside
+  const Mask mask = MaskFromNonZero(image, 0);
+  EXPECT_EQ(mask.at(5, 5, 5), 1);
+  EXPECT_EQ(mask.at(4, 6, 7), 1);
+  EXPECT_EQ(mask.at(4, 3, 3), 0);
+  EXPECT_EQ(CountInside(mask), 8 * 8 * 8 - 3);
+  // Eroded, an enclosed zero removes nothing around it.
+  EXPECT_EQ(MaskFromNonZero(image, 1).at(5, 5, 6), 1);
+}
+
 TEST(ObserveSample, JacobianMatchesNumericDerivativeOnLinearField) {
   const ImageGeometry g = ObliqueAnisotropicGeometry();
   const Eigen::Vector3d slope(0.8, -1.1, 2.0);

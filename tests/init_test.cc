@@ -14,6 +14,7 @@
 #include "core/se3.h"
 #include "init/pair_graph.h"
 #include "init/placement_search.h"
+#include "init/recovery.h"
 #include "init/rotation_grid.h"
 #include "pipeline/registration.h"
 #include "sim/phantom.h"
@@ -132,7 +133,7 @@ TEST(PlacementSearch, FindsAFortyDegreeTwentyVoxelOffset) {
 
   PlacementSearchOptions search;
   search.max_rotation_deg = 45.0;
-  search.num_rotations = 400;
+  search.num_rotations = 200;
   search.num_threads = 2;
   search.refine.log_progress = false;
   const std::vector<Placement> found =
@@ -170,7 +171,7 @@ RegistrationOptions SmallOptions() {
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
-  o.search.num_rotations = 300;
+  o.search.num_rotations = 200;
   o.search.num_threads = 2;
   o.search.refine.log_progress = false;
   return o;
@@ -235,13 +236,49 @@ TEST(Recovery, RePlacesAFrameStartedSixtyDegreesOff) {
   ASSERT_TRUE(Register(s.frames, s.masks, start, o, &recovered, &error)) << error;
   ASSERT_TRUE(recovered.usable) << recovered.failure;
   ASSERT_FALSE(recovered.recoveries.empty());
-  bool replaced = false;
+  // Frame 3 re-placed against the others, or (when its wrong pose got a neighbour flagged
+  // too: 2 of 5 frames) every frame placed by the pair graph.
+  bool replaced = recovered.recoveries.front().global;
   for (const FrameReplacement& f : recovered.recoveries.front().frames) {
     replaced = replaced || (f.frame == off && f.moved);
   }
   EXPECT_TRUE(replaced);
   const PoseErrorSummary errors = ComparePoses(recovered.frame_from_world, s.frame_from_world, s.masks);
   EXPECT_LT(errors.tre_mean_mm, 0.1);
+}
+
+// The re-placement itself: frame 3 turned 60 degrees off its true pose is placed against
+// the panorama of the others (at their true poses) to within the search level's reach of
+// the local solver; a frame that was not off is kept without a search.
+TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
+  const SimulatedSequence s = SmallSequence(5);
+  const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(s.frame_from_world);
+  std::vector<Frame> frames;
+  for (size_t f = 0; f < s.frames.size(); ++f) frames.push_back(Coarse({s.frames[f], s.masks[f]}, 1));
+  std::vector<Eigen::Isometry3d> poses = truth;
+  const int off = 3;
+  const Eigen::Vector3d centre = frames[off].geometry().IndexToPhysical(frames[off].ValidIndexBox().center());
+  Eigen::Isometry3d turn = Eigen::Isometry3d::Identity();
+  turn.linear() = ExpSO3(Eigen::Vector3d(1.0, 1.0, 0.0).normalized() * 60.0 * kDegree);
+  turn.translation() = centre - turn.linear() * centre;
+  poses[off] = turn * poses[off];
+  PlacementSearchOptions search;
+  search.num_threads = 2;
+  search.refine.log_progress = false;
+  std::vector<Eigen::Isometry3d> replaced;
+  std::vector<FrameReplacement> records;
+  std::string error;
+  ASSERT_TRUE(ReplaceFrames(frames, poses, {off, 1}, search, &replaced, &records, &error)) << error;
+  ASSERT_EQ(records.size(), 2u);
+  EXPECT_TRUE(records[0].moved);
+  EXPECT_GT(records[0].ncc_after, records[0].ncc_before);
+  EXPECT_FALSE(records[1].searched);  // frame 1 matches the panorama as the others do
+  EXPECT_TRUE(replaced[1].matrix() == poses[1].matrix());
+  const Eigen::Isometry3d error_pose = replaced[off] * truth[off].inverse();
+  const Eigen::Vector3d centre_in_world = truth[off].inverse() * centre;
+  // Within the local solver's reach at the search level (2 mm voxels here).
+  EXPECT_LT((error_pose * centre_in_world - centre_in_world).norm(), 2.0);
+  EXPECT_LT(LogSO3(error_pose.linear()).norm(), 2.0 * kDegree);
 }
 
 // Recovery changes nothing where nothing is flagged: the same poses, bit for bit.

@@ -47,8 +47,11 @@ DEFINE_int32(max_recoveries, dsr::kDefaultMaxRecoveries, "--init=auto, global or
              "a failure, exit 1).");
 DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
               "within this angle of frame 0's orientation, in (0, 180].");
-DEFINE_int32(search_rotations, 500, "Global search: about this many rotations sampled, in "
+DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
              "[1, 100000] (more: finer, slower).");
+DEFINE_int32(pair_search_rotations, 60, "Global search of --init=global and of a recovery "
+             "that places every frame: about this many rotations per pair of frames, in "
+             "[1, 100000].");
 DEFINE_int32(search_max_axis, 32, "Global search: on the coarsest pyramid level, halved further "
              "until no frame axis is longer than this many voxels, >= 8 (larger: finer, slower).");
 DEFINE_double(panorama_spacing, 1.0, "Panorama voxel spacing as a multiple of frame 0's "
@@ -164,6 +167,7 @@ int main(int argc, char** argv) {
   options.search.max_rotation_deg = FLAGS_search_rotation_deg;
   options.search.num_rotations = FLAGS_search_rotations;
   options.search_max_axis_voxels = FLAGS_search_max_axis;
+  options.search.num_pair_rotations = FLAGS_pair_search_rotations;
   options.search.num_threads = FLAGS_num_threads;
   options.search.refine.log_progress = false;
   if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {
@@ -273,11 +277,18 @@ int main(int argc, char** argv) {
     std::string frames;
     for (const dsr::FrameReplacement& f : r.frames) {
       char line[160];
-      std::snprintf(line, sizeof(line), "%sframe %d %s (NCC %.3f -> %.3f, moved %.1f deg, %.1f mm)",
-                    frames.empty() ? "" : "; ", f.frame, f.moved ? "re-placed" : "kept",
-                    f.ncc_before, f.ncc_after, f.rotation_change_deg, f.translation_change_mm);
+      if (f.moved) {
+        std::snprintf(line, sizeof(line), "%sframe %d re-placed (NCC %.3f -> %.3f, moved %.1f "
+                      "deg, %.1f mm)", frames.empty() ? "" : "; ", f.frame, f.ncc_before,
+                      f.ncc_after, f.rotation_change_deg, f.translation_change_mm);
+      } else {
+        std::snprintf(line, sizeof(line), "%sframe %d kept (NCC %.3f%s)",
+                      frames.empty() ? "" : "; ", f.frame, f.ncc_before,
+                      f.searched ? ", no better placement found" : ", as good as a re-placed frame");
+      }
       frames += line;
     }
+    if (r.global) frames += std::string(frames.empty() ? "" : "; ") + "every frame placed by the pair graph";
     std::printf("dsr_register: recovery after pyramid level %d (%.2f s): %s; because %s\n",
                 r.after_level, r.seconds, frames.c_str(), r.why.c_str());
   }
