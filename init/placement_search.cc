@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <mutex>
+#include <sstream>
 
 #include <glog/logging.h>
 
@@ -68,26 +69,28 @@ struct RotatedGrid {
 
 bool PlacementSearchOptions::Validate(std::string* error) const {
   auto bad = [&](const std::string& name, double value, const std::string& rule) {
-    *error = name + "=" + std::to_string(value) + ": " + rule;
+    std::ostringstream s;
+    s << name << "=" << value << ": " << rule;
+    *error = s.str();
     return false;
   };
   if (!(max_rotation_deg > 0.0 && max_rotation_deg <= 180.0)) {
-    return bad("search_rotation_deg", max_rotation_deg, "must be in (0, 180]");
+    return bad("--search_rotation_deg", max_rotation_deg, "must be in (0, 180]");
   }
   if (num_rotations < 1 || num_rotations > 100000) {
-    return bad("search_rotations", num_rotations, "must be in [1, 100000]");
+    return bad("--search_rotations", num_rotations, "must be in [1, 100000]");
   }
   if (num_pair_rotations < 1 || num_pair_rotations > 100000) {
-    return bad("pair_search_rotations", num_pair_rotations, "must be in [1, 100000]");
+    return bad("--pair_search_rotations", num_pair_rotations, "must be in [1, 100000]");
   }
   if (num_refined < 1 || num_refined > 100) {
-    return bad("search_refined", num_refined, "must be in [1, 100]");
+    return bad("PlacementSearchOptions::num_refined", num_refined, "must be in [1, 100]");
   }
   if (!(distinct_rotation_deg >= 0.0 && distinct_rotation_deg <= 180.0)) {
-    return bad("distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
+    return bad("PlacementSearchOptions::distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
   }
   if (!(min_overlap_fraction > 0.0 && min_overlap_fraction <= 1.0)) {
-    return bad("search_min_overlap", min_overlap_fraction, "must be in (0, 1]");
+    return bad("PlacementSearchOptions::min_overlap_fraction", min_overlap_fraction, "must be in (0, 1]");
   }
   return refine.Validate(error);
 }

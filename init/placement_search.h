@@ -53,7 +53,7 @@ struct PlacementSearchOptions {
   SolveOptions refine;
   int num_threads = 0;  // <= 0: all hardware threads
 
-  // `error` names the option.
+  // `error` names the option by its dsr_register flag.
   bool Validate(std::string* error) const;
 };
 

@@ -210,7 +210,6 @@ bool RegistrationOptions::Validate(std::string* error) const {
     return bad("search_max_axis", std::to_string(search_max_axis_voxels), "must be >= 8");
   }
   if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
-    *error = "--" + *error;
     return false;
   }
   if (mode == "dsr") {

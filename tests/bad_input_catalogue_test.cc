@@ -247,6 +247,13 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --mode=dba --memory_budget_mb=0.01", "--mode=dsr");
   Register(base + " --min_kept_overlap=-0.1", "--min_kept_overlap");
   Register(base + " --max_misfit_ratio=nan", "--max_misfit_ratio");
+  Register(base + " --max_recoveries=11", "--max_recoveries");
+  Register(base + " --max_misfit_ratio=0 --min_kept_overlap=0", "--max_recoveries");
+  Register(base + " --search_rotations=0", "--search_rotations=0:");
+  Register(base + " --pair_search_rotations=-5", "--pair_search_rotations=-5:");
+  Register(base + " --search_rotation_deg=200", "--search_rotation_deg=200:");
+  Register(base + " --search_max_axis=4", "--search_max_axis");
+  Register(base + " --init=no_such_start", "no_such_start");
 }
 
 TEST_F(BadInputCatalogue, OutputPaths) {
@@ -285,6 +292,8 @@ TEST_F(BadInputCatalogue, Fuse) {
 TEST_F(BadInputCatalogue, Compare) {
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr,magic", "--methods");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=random", "--init");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=global --max_misfit_ratio=0 --min_kept_overlap=0",
+         "--max_recoveries");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --num_sequences=0", "--num_sequences");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --max_misfit_ratio=1", "--max_misfit_ratio");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --frame_size=8,8", "--frame_size");
