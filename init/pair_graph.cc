@@ -1,5 +1,6 @@
 #include "init/pair_graph.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <limits>
@@ -18,6 +19,10 @@ namespace {
 // this many search voxels in translation (at the frame's centre) and this many degrees.
 constexpr double kInlierVoxels = 3.0;
 constexpr double kInlierDegrees = 10.0;
+// Pairs searched first: each frame with this many next frames in the given order.
+constexpr int kIndexSpan = 2;
+// A frame whose best pair NCC is this far below the frames' median has all its pairs searched.
+constexpr double kWeakNccMargin = 0.05;
 
 }  // namespace
 
@@ -31,23 +36,48 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
   *report = PairGraphReport();
   PlacementSearchOptions pair_options = options;
   pair_options.num_rotations = options.num_pair_rotations;
-  // 1. Every pair, searched globally.
+  // 1. Pairs searched globally: first each frame with its kIndexSpan nearest frames in the
+  // given order (consecutive acquisitions usually overlap most), then every other pair of
+  // each frame whose best pair is weak (below the frames' median best NCC by
+  // kWeakNccMargin) or missing, so that frames in any order still find their partners.
+  std::vector<std::vector<bool>> searched(m, std::vector<bool>(m, false));
+  const auto search = [&](int i, int k) {
+    if (searched[i][k]) return;
+    searched[i][k] = searched[k][i] = true;
+    PairEdge edge;
+    edge.i = i;
+    edge.k = k;
+    const std::vector<Placement> found =
+        SearchPlacement(frames[i], frames[k], Eigen::Matrix3d::Identity(), {}, pair_options);
+    edge.ncc = -std::numeric_limits<double>::infinity();
+    if (!found.empty()) {
+      edge.k_from_i = found.front().moving_from_fixed;
+      edge.ncc = found.front().ncc;
+      edge.overlap_fraction = found.front().overlap_fraction;
+    }
+    VLOG(1) << "pair " << i << "-" << k << ": NCC " << edge.ncc << ", overlap "
+            << edge.overlap_fraction;
+    report->edges.push_back(edge);
+  };
   for (int i = 0; i < m; ++i) {
-    for (int k = i + 1; k < m; ++k) {
-      PairEdge edge;
-      edge.i = i;
-      edge.k = k;
-      const std::vector<Placement> found =
-          SearchPlacement(frames[i], frames[k], Eigen::Matrix3d::Identity(), {}, pair_options);
-      edge.ncc = -std::numeric_limits<double>::infinity();
-      if (!found.empty()) {
-        edge.k_from_i = found.front().moving_from_fixed;
-        edge.ncc = found.front().ncc;
-        edge.overlap_fraction = found.front().overlap_fraction;
-      }
-      VLOG(1) << "pair " << i << "-" << k << ": NCC " << edge.ncc << ", overlap "
-              << edge.overlap_fraction;
-      report->edges.push_back(edge);
+    for (int k = i + 1; k < std::min(m, i + 1 + kIndexSpan); ++k) search(i, k);
+  }
+  const auto best_ncc = [&]() {
+    std::vector<double> best(m, -std::numeric_limits<double>::infinity());
+    for (const PairEdge& e : report->edges) {
+      best[e.i] = std::max(best[e.i], e.ncc);
+      best[e.k] = std::max(best[e.k], e.ncc);
+    }
+    return best;
+  };
+  const std::vector<double> best = best_ncc();
+  std::vector<double> sorted = best;
+  std::sort(sorted.begin(), sorted.end());
+  const double median = sorted[(m - 1) / 2];
+  for (int f = 0; f < m; ++f) {
+    if (std::isfinite(best[f]) && best[f] >= median - kWeakNccMargin) continue;
+    for (int k = 0; k < m; ++k) {
+      if (k != f) search(std::min(f, k), std::max(f, k));
     }
   }
   // 2. Maximum-NCC spanning tree from frame 0 (Prim), placing each frame as it joins.

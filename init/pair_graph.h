@@ -1,8 +1,10 @@
 // Global initial poses from a pair graph (docs/design.md, "Global initialisation"), for
 // frames in any order and with no starting poses:
 //
-//   1. every pair (i, k) is searched globally (init/placement_search.h): the best placement
+//   1. pairs (i, k) are searched globally (init/placement_search.h): the best placement
 //      Z_ki = frame_k_from_frame_i and its score, the masked NCC of the pair's overlap;
+//      each frame with its two next frames in the given order first, then every pair of
+//      a frame whose best pair is weak or missing (frames in any order find partners);
 //   2. the frames are placed along the maximum-NCC spanning tree of the pair graph from
 //      frame 0 (the most trusted pair results, not a chain in index order);
 //   3. every pair whose placement agrees with the tree's (within a few search voxels and
