@@ -1,5 +1,6 @@
 // Trilinear sampling of intensity and central-difference gradient volumes with the
-// field-of-view validity rule (DESIGN.md section 2). See frame.h for the layout.
+// field-of-view validity rule (DESIGN.md section 2). See frame.h for the gradient rule
+// and the layout.
 #include "core/frame.h"
 
 #include <algorithm>
@@ -47,42 +48,47 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
 
   const Eigen::Vector3i n = geometry_.size;
   const int64_t num = geometry_.NumVoxels();
-  std::vector<float> interleaved;
-  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
   const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
   const float* v = image.voxels.data();
-  for (int k = 0; k < n[2]; ++k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        const int64_t l = geometry_.LinearIndex(i, j, k);
-        const int ijk[3] = {i, j, k};
-        float* out = &interleaved[4 * l];
-        out[0] = v[l];
-        for (int a = 0; a < 3; ++a) {
-          // Central difference inside, one-sided on the border, 0 for a single slice.
-          const int lo = ijk[a] > 0 ? 1 : 0;
-          const int hi = ijk[a] < n[a] - 1 ? 1 : 0;
-          const int span = lo + hi;
-          out[1 + a] = span == 0 ? 0.0f
-                                 : (v[l + hi * stride[a]] - v[l - lo * stride[a]]) /
-                                       static_cast<float>(span);
-        }
+  const uint8_t* m = mask.voxels.data();
+
+  // Stencil voxels (the gradient rule, frame.h): inside the mask with all 6 neighbours in
+  // the grid and inside the mask, i.e. the mask eroded by the 6-neighbourhood, with the grid
+  // border outside. Only they may be corners of a valid cell.
+  std::vector<uint8_t> stencil(static_cast<size_t>(num), uint8_t{0});
+  for (int k = 1; k + 1 < n[2]; ++k) {
+    for (int j = 1; j + 1 < n[1]; ++j) {
+      const int64_t row = geometry_.LinearIndex(0, j, k);
+      for (int i = 1; i + 1 < n[0]; ++i) {
+        const int64_t l = row + i;
+        stencil[l] = m[l] && m[l - 1] && m[l + 1] && m[l - stride[1]] && m[l + stride[1]] &&
+                     m[l - stride[2]] && m[l + stride[2]];
       }
     }
   }
 
+  // Values everywhere (resampling reads them without the mask rule); central differences
+  // at stencil voxels only, 0 elsewhere (no valid cell reads those).
+  std::vector<float> interleaved;
+  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
+  for (int64_t l = 0; l < num; ++l) {
+    float* out = &interleaved[4 * l];
+    out[0] = v[l];
+    if (!stencil[l]) continue;
+    for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
+  }
   interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
 
   std::vector<uint8_t> valid(static_cast<size_t>(num / 8 + 2), uint8_t{0});
   int lo[3] = {n[0], n[1], n[2]}, hi[3] = {-1, -1, -1};  // valid cells' index range
-  const uint8_t* m = mask.voxels.data();
+  const uint8_t* c = stencil.data();
   for (int k = 0; k + 1 < n[2]; ++k) {
     for (int j = 0; j + 1 < n[1]; ++j) {
-      // The 4 mask rows holding the corners of the cells (i, j, k), i = 0..n[0]-2.
-      const uint8_t* r00 = m + geometry_.LinearIndex(0, j, k);
-      const uint8_t* r10 = m + geometry_.LinearIndex(0, j + 1, k);
-      const uint8_t* r01 = m + geometry_.LinearIndex(0, j, k + 1);
-      const uint8_t* r11 = m + geometry_.LinearIndex(0, j + 1, k + 1);
+      // The 4 stencil rows holding the corners of the cells (i, j, k), i = 0..n[0]-2.
+      const uint8_t* r00 = c + geometry_.LinearIndex(0, j, k);
+      const uint8_t* r10 = c + geometry_.LinearIndex(0, j + 1, k);
+      const uint8_t* r01 = c + geometry_.LinearIndex(0, j, k + 1);
+      const uint8_t* r11 = c + geometry_.LinearIndex(0, j + 1, k + 1);
       const int64_t row = geometry_.LinearIndex(0, j, k);
       for (int i = 0; i + 1 < n[0]; ++i) {
         const bool all = r00[i] && r00[i + 1] && r10[i] && r10[i + 1] && r01[i] && r01[i + 1] &&

@@ -2,15 +2,33 @@
 //
 // Sampling at a physical point x (mm, frame coordinates): u = (D S)^-1 (x - o); the value
 // I(u) by trilinear interpolation of the voxels, and the gradient by trilinear
-// interpolation of central-difference gradient volumes (index units, one-sided on the
-// image border), converted to physical units: grad_x I = (D S)^-T grad_u I (= D S^-1
-// grad_u I for an orthonormal D). The sample is valid (sigma_ij = 1) when all 8 trilinear
-// neighbours of u lie inside the frame and inside its field-of-view mask.
+// interpolation of central-difference gradient volumes (index units), converted to
+// physical units: grad_x I = (D S)^-T grad_u I (= D S^-1 grad_u I for an orthonormal D).
+//
+// The gradient rule, one for every mode (all of them sample through this class or its
+// interleaved data): no gradient reads a voxel outside the field-of-view mask.
+//  * Stencil voxels: inside the mask with all 6 neighbours inside the mask (the grid border
+//    counts as outside), i.e. the mask eroded by the 6-neighbourhood. Only they carry a
+//    gradient, the central difference g_a(l) = (I(l + e_a) - I(l - e_a)) / 2; all other
+//    voxels store 0, which no valid sample reads.
+//  * The sample is valid (sigma_ij = 1) when all 8 trilinear neighbours of u are stencil
+//    voxels.
+// Why: at the mask border a central difference would read the background (0 in volumes
+// exported with their field of view), and a Gauss-Newton fixed point with such Jacobians
+// is not the minimiser of the cost: every frame ends offset the same way. Differences
+// kept inside the mask by going one-sided at its border are biased as well: such a g(l)
+// involves the noise of I(l) itself, which the sample's value shares, so J^T r has a
+// non-zero mean along the border normal. Interpolated central differences are
+// uncorrelated with the interpolated value at every u (in 1D, value (1-w) I0 + w I1,
+// gradient (1-w)(I1 - I-1)/2 + w(I2 - I0)/2: covariance -(1-w)w/2 + w(1-w)/2 = 0). The
+// exact slope of the trilinear interpolant (piecewise constant) measured worse than
+// either. The price is the outermost voxel layer of the mask, in which no valid cell has
+// a corner.
 //
 // Memory layout: one interleaved float4 [I, dI/du, dI/dv, dI/dw] per voxel, x-fastest, so
 // one trilinear gather reads value and gradient together; plus one bit per voxel for the
 // valid-cell map (cell (i,j,k) is valid when its 8 corners (i..i+1, j..j+1, k..k+1) are
-// inside the mask; bit l % 8 of byte l / 8 for linear index l). 16.125 bytes per voxel in
+// stencil voxels; bit l % 8 of byte l / 8 for linear index l). 16.125 bytes per voxel in
 // all; the bit map (0.8 MB for 6M voxels) stays in cache where a byte map would not.
 #ifndef DSR_CORE_FRAME_H_
 #define DSR_CORE_FRAME_H_
@@ -43,7 +61,8 @@ class Frame {
   const Eigen::Matrix3d& index_from_physical() const { return index_from_physical_; }
   const Eigen::Matrix3d& gradient_to_physical() const { return gradient_to_physical_; }
 
-  // True when the trilinear cell of continuous index `ijk` is valid (sigma = 1).
+  // True when the trilinear cell of continuous index `ijk` is valid (sigma = 1: its 8
+  // corners are stencil voxels, see above).
   bool IsValidIndex(const Eigen::Vector3d& ijk) const;
 
   // Samples at a physical point. Returns false (sigma = 0) and leaves outputs untouched

@@ -165,30 +165,14 @@ ImageLevel Downsample(const Image& image, const Mask& mask, double sigma_voxels,
   ImageLevel level;
   level.image = Image(g);
   level.image.voxels = std::move(value.v);
+  // The coarse mask: the fine mask at 2c (see pyramid.h).
   level.mask = Mask(g, 0);
   const Eigen::Vector3i& n = image.geometry.size;
   for (int k = 0; k < g.size[2]; ++k) {
     for (int j = 0; j < g.size[1]; ++j) {
       for (int i = 0; i < g.size[0]; ++i) {
         const int c[3] = {n[0] > 1 ? 2 * i : i, n[1] > 1 ? 2 * j : j, n[2] > 1 ? 2 * k : k};
-        bool inside = true;
-        for (int dk = -1; dk <= 1 && inside; ++dk) {
-          for (int dj = -1; dj <= 1 && inside; ++dj) {
-            for (int di = -1; di <= 1 && inside; ++di) {
-              const int x = c[0] + di, y = c[1] + dj, z = c[2] + dk;
-              if (x < 0 || y < 0 || z < 0 || x >= n[0] || y >= n[1] || z >= n[2]) {
-                // Beyond a flat axis there is nothing to erode; elsewhere the grid border
-                // counts as outside.
-                const bool flat_axis_step = (n[0] == 1 && di != 0) || (n[1] == 1 && dj != 0) ||
-                                            (n[2] == 1 && dk != 0);
-                if (!flat_axis_step) inside = false;
-                continue;
-              }
-              inside = mask.voxels[image.geometry.LinearIndex(x, y, z)] != 0;
-            }
-          }
-        }
-        level.mask.at(i, j, k) = inside ? 1 : 0;
+        level.mask.at(i, j, k) = mask.voxels[image.geometry.LinearIndex(c[0], c[1], c[2])] != 0;
       }
     }
   }

@@ -6,10 +6,13 @@
 // so that the field-of-view edge does not darken, then sampled at every second voxel:
 // coarse voxel c sits at fine index 2c (same origin and direction, spacing doubled,
 // size = floor((n - 1) / 2) + 1). The coarse image keeps the smoothed values wherever the
-// smoothed mask is positive (a few voxels past the field of view, so that gradients at
-// the edge are not cut). The coarse mask is the fine mask at 2c eroded by one fine voxel
-// (every fine voxel within +/-1 of 2c inside), so coarse valid cells see only data from
-// inside the field of view. An axis with a single voxel is neither smoothed nor halved.
+// smoothed mask is positive (a few voxels past the field of view, for resampling). The
+// coarse mask is the fine mask at 2c: a coarse voxel is in the field of view when the fine
+// voxel it sits on is, and its value is then a normalised average of field-of-view voxels.
+// No erosion is added: Frame keeps every gradient, and so every valid cell, one voxel
+// inside the mask at each level (core/frame.h), and an erosion here would compound level
+// by level and cut the coarse levels' overlap. An axis with a single voxel is neither
+// smoothed nor halved.
 #ifndef DSR_CORE_PYRAMID_H_
 #define DSR_CORE_PYRAMID_H_
 

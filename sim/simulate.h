@@ -47,11 +47,11 @@
 // voxels; 0 outside. Simulate fails if a field-of-view voxel maps outside the source grid.
 //
 // Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
-// erosion a 6-neighbourhood erosion that also drops the grid border. The registration reads
-// central-difference gradients at the 8 corners of a valid trilinear cell, i.e. the 6
-// neighbours of mask voxels: with one voxel of erosion these are always field-of-view
-// voxels, never the zeros outside the pyramid. 0 writes the exact field of view (for
-// registrations that erode, or handle the edge, themselves).
+// erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
+// field of view. The registration's gradients read mask voxels only whatever the mask
+// (core/frame.h: a valid cell's corners need their 6 neighbours inside the mask), so for
+// this project erosion only shrinks the data; 1 suits registrations that read one voxel
+// past their mask.
 #ifndef DSR_SIM_SIMULATE_H_
 #define DSR_SIM_SIMULATE_H_
 

@@ -81,7 +81,20 @@ TEST_F(DsrRegisterCli, RegistersWritesPosesPanoramaAndPrintsErrors) {
   EXPECT_EQ(poses.images[1], "frame_01.nii.gz");
   Image panorama;
   ASSERT_TRUE(ReadImage(panorama_path, &panorama, &error)) << error;
-  EXPECT_GT(panorama.geometry.NumVoxels(), 28 * 32 * 32);
+  // Larger than one frame's field of view (the bounding box of its mask, in voxels of the
+  // same spacing): the panorama spans the frames' valid cells, which lie inside the masks.
+  Image frame;
+  ASSERT_TRUE(ReadImage(Seq("frame_00.nii.gz"), &frame, &error)) << error;
+  Mask mask;
+  ASSERT_TRUE(ReadMask(Seq("mask_00.nii.gz"), frame.geometry, &mask, &error)) << error;
+  Eigen::AlignedBox3i box;
+  for (int k = 0; k < mask.geometry.size[2]; ++k)
+    for (int j = 0; j < mask.geometry.size[1]; ++j)
+      for (int i = 0; i < mask.geometry.size[0]; ++i)
+        if (mask.at(i, j, k) != 0) box.extend(Eigen::Vector3i(i, j, k));
+  ASSERT_FALSE(box.isEmpty());
+  const Eigen::Vector3i extent = box.sizes() + Eigen::Vector3i::Ones();
+  EXPECT_GT(panorama.geometry.NumVoxels(), int64_t{extent[0]} * extent[1] * extent[2]);
 }
 
 TEST_F(DsrRegisterCli, DbaModeAndMasksFromImages) {

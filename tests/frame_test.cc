@@ -1,6 +1,7 @@
 // Sampler (DESIGN.md section 2): on a volume whose intensity is linear in physical space,
 // trilinear interpolation and central differences are exact, so values and physical
-// gradients must be reproduced up to float storage rounding.
+// gradients must be reproduced up to float storage rounding, wherever the sample is valid,
+// whatever the image holds outside the mask (the gradient rule of core/frame.h).
 #include "core/frame.h"
 
 #include <random>
@@ -70,9 +71,11 @@ TEST(Frame, LinearFieldIsReproducedExactly) {
     std::mt19937_64 rng(7);
     std::uniform_real_distribution<double> u(0.0, 1.0);
     for (int n = 0; n < 200; ++n) {
-      // Anywhere in the grid, the border included (one-sided differences are exact too).
-      const Eigen::Vector3d ijk(u(rng) * (g.size[0] - 1.001), u(rng) * (g.size[1] - 1.001),
-                                u(rng) * (g.size[2] - 1.001));
+      // Anywhere in the valid cells: all but the outer voxel layer (the grid border counts
+      // as outside the mask, so its voxels have no central difference).
+      const Eigen::Vector3d ijk(1.0 + u(rng) * (g.size[0] - 3.001),
+                                1.0 + u(rng) * (g.size[1] - 3.001),
+                                1.0 + u(rng) * (g.size[2] - 3.001));
       const Eigen::Vector3d x = g.IndexToPhysical(ijk);
       double value;
       Eigen::Vector3d gradient;
@@ -84,32 +87,107 @@ TEST(Frame, LinearFieldIsReproducedExactly) {
   }
 }
 
-TEST(Frame, ValidityNeedsAllEightNeighboursInsideTheMask) {
+TEST(Frame, ValidityNeedsEveryCornersCentralDifferenceInsideTheMask) {
   ImageGeometry g;
   g.size = Eigen::Vector3i(6, 6, 6);
   Mask mask(g, 1);
   mask.at(3, 3, 3) = 0;
   const Frame frame(Image(g, 1.0f), mask);
   double value;
-  // Cells (2..3)^3 touch the hole; (0.5, 0.5, 0.5) does not.
-  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(0.5, 0.5, 0.5), &value, nullptr));
+  // Corners must be inside the mask with their 6 neighbours: voxels 1..4 per axis (the
+  // grid border counts as outside) except the hole and its 6 neighbours.
+  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(1.5, 1.5, 1.5), &value, nullptr));
+  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(3.0, 1.0, 1.0), &value, nullptr));
+  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(1.5, 1.5, 3.5), &value, nullptr));
+  // Cells (2..3)^3 touch the hole.
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(2.5, 2.5, 2.5), &value, nullptr));
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(3.5, 3.5, 3.5), &value, nullptr));
-  EXPECT_TRUE(frame.Sample(Eigen::Vector3d(4.0, 1.0, 1.0), &value, nullptr));
-  // Outside the grid, on the last index, or non-finite: invalid.
+  // Its 8 corners are inside the mask, but corner (2, 3, 3)'s difference along x would
+  // read the hole.
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(1.5, 3.5, 3.5), &value, nullptr));
+  // On the grid border, outside the grid, on the last index, or non-finite: invalid.
+  EXPECT_FALSE(frame.Sample(Eigen::Vector3d(0.5, 0.5, 0.5), &value, nullptr));
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(-0.01, 1.0, 1.0), &value, nullptr));
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(5.0, 1.0, 1.0), &value, nullptr));
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(NAN, 1.0, 1.0), &value, nullptr));
   EXPECT_FALSE(frame.Sample(Eigen::Vector3d(1e30, 1.0, 1.0), &value, nullptr));
-  EXPECT_EQ(frame.num_valid_cells(), 125 - 8);
+  // Of the 27 cells with corners in 1..4, only those with two lowest-corner coordinates
+  // equal to 1 keep every corner off the hole's 7-voxel cross.
+  EXPECT_EQ(frame.num_valid_cells(), 7);
+}
+
+TEST(Frame, GradientsNeverReadOutsideTheMask) {
+  // A linear field inside a ball-shaped field of view, 0 outside (and, second, a constant
+  // that is no continuation of the field): every valid sample has the field's exact
+  // gradient, the cells at the ball's edge included.
+  const ImageGeometry g = ObliqueAnisotropicGeometry();
+  const Eigen::Vector3d slope(0.8, -1.1, 2.0);
+  const Eigen::Vector3d center(5.5, 4.5, 4.0);
+  for (const float outside : {0.0f, 1000.0f}) {
+    Image image = LinearImage(g, slope, 100.0);
+    Mask mask(g, 0);
+    for (int k = 0; k < g.size[2]; ++k)
+      for (int j = 0; j < g.size[1]; ++j)
+        for (int i = 0; i < g.size[0]; ++i) {
+          const bool inside = (Eigen::Vector3d(i, j, k) - center).norm() <= 4.2;
+          mask.at(i, j, k) = inside ? 1 : 0;
+          if (!inside) image.at(i, j, k) = outside;
+        }
+    const Frame frame(image, mask);
+    // Valid cells: those whose 8 corners lie in the mask eroded by the 6-neighbourhood.
+    const auto stencil = [&](int i, int j, int k) {
+      const auto in = [&](int x, int y, int z) {
+        return x >= 0 && y >= 0 && z >= 0 && x < g.size[0] && y < g.size[1] && z < g.size[2] &&
+               mask.at(x, y, z) != 0;
+      };
+      return in(i, j, k) && in(i - 1, j, k) && in(i + 1, j, k) && in(i, j - 1, k) &&
+             in(i, j + 1, k) && in(i, j, k - 1) && in(i, j, k + 1);
+    };
+    int64_t expected_cells = 0, edge_cells = 0;
+    for (int k = 0; k + 1 < g.size[2]; ++k)
+      for (int j = 0; j + 1 < g.size[1]; ++j)
+        for (int i = 0; i + 1 < g.size[0]; ++i) {
+          bool corners_in_mask = true, corners_in_stencil = true;
+          for (int c = 0; c < 8; ++c) {
+            const int x = i + (c & 1), y = j + (c >> 1 & 1), z = k + (c >> 2 & 1);
+            corners_in_mask = corners_in_mask && mask.at(x, y, z) != 0;
+            corners_in_stencil = corners_in_stencil && stencil(x, y, z);
+          }
+          expected_cells += corners_in_stencil;
+          edge_cells += corners_in_mask && !corners_in_stencil;
+          EXPECT_EQ(frame.IsValidIndex(Eigen::Vector3d(i + 0.5, j + 0.5, k + 0.5)),
+                    corners_in_stencil)
+              << i << " " << j << " " << k;
+        }
+    EXPECT_EQ(frame.num_valid_cells(), expected_cells);
+    ASSERT_GT(expected_cells, 20);
+    ASSERT_GT(edge_cells, 20);  // the rule drops cells, not only the mask's corners
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    int valid = 0;
+    for (int n = 0; n < 2000; ++n) {
+      const Eigen::Vector3d ijk(u(rng) * (g.size[0] - 1.001), u(rng) * (g.size[1] - 1.001),
+                                u(rng) * (g.size[2] - 1.001));
+      double value;
+      Eigen::Vector3d gradient;
+      if (!frame.Sample(g.IndexToPhysical(ijk), &value, &gradient)) continue;
+      ++valid;
+      EXPECT_NEAR(value, slope.dot(g.IndexToPhysical(ijk)) + 100.0, kFloatValueTolerance);
+      EXPECT_LT((gradient - slope).norm(), kFloatGradientTolerance)
+          << "outside " << outside << " at " << ijk.transpose() << ": " << gradient.transpose();
+    }
+    EXPECT_GT(valid, 100);
+  }
 }
 
 TEST(Frame, DilatedValidCellsGrowByTheMargin) {
   ImageGeometry g;
   g.size = Eigen::Vector3i(10, 10, 10);
   Mask mask(g, 0);
-  mask.at(4, 4, 4) = mask.at(5, 4, 4) = mask.at(4, 5, 4) = mask.at(5, 5, 4) = 1;
-  mask.at(4, 4, 5) = mask.at(5, 4, 5) = mask.at(4, 5, 5) = mask.at(5, 5, 5) = 1;
+  // A 4^3 block: its inner 2^3 voxels have all 6 neighbours inside, one valid cell.
+  for (int k = 3; k <= 6; ++k)
+    for (int j = 3; j <= 6; ++j)
+      for (int i = 3; i <= 6; ++i) mask.at(i, j, k) = 1;
   const Frame frame(Image(g, 1.0f), mask);
   EXPECT_EQ(frame.num_valid_cells(), 1);
   const std::vector<uint8_t> dilated = frame.DilatedValidCells(2);

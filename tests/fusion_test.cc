@@ -93,16 +93,19 @@ TEST(Fusion, MeanAndFeatherMatchBruteForce) {
 
 TEST(Fusion, DistanceMapIsCityBlockDistanceToTheInvalidRegion) {
   ImageGeometry g;
-  g.size = Eigen::Vector3i(9, 9, 9);
+  g.size = Eigen::Vector3i(11, 11, 11);
   Image image(g, 1.0f);
   Mask mask(g, 1);
-  const Frame frame(image, mask);  // valid cells: 0..7 on each axis
+  // Valid cells: 1..8 on each axis (the grid border has no central difference inside the
+  // mask, so no valid cell has a corner there; core/frame.h).
+  const Frame frame(image, mask);
   const Volume<float> d = ValidCellDistance(frame);
-  EXPECT_EQ(d.at(8, 4, 4), 0.0f);  // last index: not a valid cell
-  EXPECT_EQ(d.at(0, 4, 4), 1.0f);  // next to the grid border
-  EXPECT_EQ(d.at(3, 3, 3), 4.0f);  // min over axes of distance to -1 or to 8
-  EXPECT_EQ(d.at(4, 4, 4), 4.0f);
-  EXPECT_EQ(d.at(1, 2, 3), 2.0f);
+  EXPECT_EQ(d.at(9, 5, 5), 0.0f);  // last corner: not a valid cell
+  EXPECT_EQ(d.at(0, 5, 5), 0.0f);  // the grid border
+  EXPECT_EQ(d.at(1, 5, 5), 1.0f);  // next to it
+  EXPECT_EQ(d.at(4, 4, 4), 4.0f);  // min over axes of distance to 0 or to 9
+  EXPECT_EQ(d.at(5, 5, 5), 4.0f);
+  EXPECT_EQ(d.at(2, 3, 4), 2.0f);
 }
 
 TEST(Fusion, EnlargementOfTwoDisjointFramesIsTwo) {

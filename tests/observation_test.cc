@@ -14,6 +14,20 @@ ImageGeometry Cube(int n) {
   return g;
 }
 
+// A frame of constant `value` whose valid cells span physical [0, 9]^3 mm: its mask is
+// [-1, 10]^3 (a valid cell's corners need their 6 neighbours inside; core/frame.h), in a
+// grid with one more voxel of room on each side, so that cells within a margin of 1 of
+// the valid region are inside the grid.
+Frame UniformFrame(float value) {
+  ImageGeometry g = Cube(14);
+  g.origin_mm = Eigen::Vector3d::Constant(-2.0);
+  Mask mask(g, 0);
+  for (int k = 1; k <= 12; ++k)
+    for (int j = 1; j <= 12; ++j)
+      for (int i = 1; i <= 12; ++i) mask.at(i, j, k) = 1;
+  return Frame(Image(g, value), mask);
+}
+
 Eigen::Isometry3d Translation(double x, double y, double z) {
   Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
   t.translation() = Eigen::Vector3d(x, y, z);
@@ -28,8 +42,8 @@ struct TwoFrames {
 // Frame 0 at the world origin, frame 1 seeing world x in [5, 14] (x_frame = x_world - 5).
 TwoFrames MakeTwoFrames(float value0, float value1) {
   TwoFrames t;
-  t.frames.emplace_back(Image(Cube(10), value0), Mask(Cube(10), 1));
-  t.frames.emplace_back(Image(Cube(10), value1), Mask(Cube(10), 1));
+  t.frames.push_back(UniformFrame(value0));
+  t.frames.push_back(UniformFrame(value1));
   t.poses = {Eigen::Isometry3d::Identity(), Translation(-5, 0, 0)};
   return t;
 }
@@ -74,7 +88,7 @@ TEST(BuildCandidates, KeepsVoxelsWithTwoCandidateObservers) {
 
 TEST(CheckConnected, NamesFramesWithoutOverlap) {
   TwoFrames t = MakeTwoFrames(1, 2);
-  t.frames.emplace_back(Image(Cube(10), 3.0f), Mask(Cube(10), 1));
+  t.frames.push_back(UniformFrame(3.0f));
   t.poses.push_back(Translation(-40, 0, 0));
   ImageGeometry grid;
   std::string error;

@@ -44,6 +44,8 @@ SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
   options.max_translation_voxels = setup.max_translation_voxels;
   options.max_rotation_deg = setup.max_rotation_deg;
   options.min_depth_voxels = 2.0;
+  // Masks equal to the field of view: Frame keeps gradients inside them (core/frame.h).
+  options.mask_erosion_voxels = 0;
   options.seed = setup.seed;
   SimulatedSequence sequence;
   std::string error;

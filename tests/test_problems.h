@@ -5,6 +5,7 @@
 #ifndef DSR_TESTS_TEST_PROBLEMS_H_
 #define DSR_TESTS_TEST_PROBLEMS_H_
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -28,6 +29,7 @@ struct Blob {
 struct TestSequence {
   std::vector<Frame> frames;
   std::vector<Image> images;
+  std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world, world = frame 0 (T_0 = I)
 };
 
@@ -39,7 +41,15 @@ struct SequenceOptions {
   double frame_offset = 5.0;   // mm between consecutive frame centres along x
   double max_rotation = 0.05;  // rad, per axis
   double max_translation = 1.5;  // mm, per axis
-  int erosion = 1;             // mask = box eroded by this many voxels
+  // Valid cells' corners fill the box eroded by this many voxels (at least 1: the grid
+  // border is never a corner). The mask is the box eroded by one voxel less: a corner's
+  // central differences read its 6 neighbours, which must lie inside the mask
+  // (core/frame.h).
+  int erosion = 1;
+  // Fields of view that cut through the structure, as exported ultrasound volumes have:
+  // each frame is 0 outside a ball (radius 0.45 size, about the frame's centre) and its
+  // mask is exactly that ball (`erosion` is then unused).
+  bool ball_field_of_view = false;
   uint64_t seed = 1;
   // Lattice-aligned frames: no rotation, translations in whole voxels, noise attached to
   // the world lattice point. All frames are then crops of one discrete volume, so at the
@@ -112,11 +122,25 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
                                                         o.spacing, o.seed)
                                          : noise(rng)));
     Mask mask(g, 0);
-    for (int k = o.erosion; k < o.size - o.erosion; ++k)
-      for (int j = o.erosion; j < o.size - o.erosion; ++j)
-        for (int a = o.erosion; a < o.size - o.erosion; ++a) mask.at(a, j, k) = 1;
+    if (o.ball_field_of_view) {
+      const double radius = 0.45 * o.size;
+      const Eigen::Vector3d center = Eigen::Vector3d::Constant(0.5 * (o.size - 1));
+      for (int k = 0; k < o.size; ++k)
+        for (int j = 0; j < o.size; ++j)
+          for (int a = 0; a < o.size; ++a) {
+            const bool inside = (Eigen::Vector3d(a, j, k) - center).norm() <= radius;
+            mask.at(a, j, k) = inside ? 1 : 0;
+            if (!inside) image.at(a, j, k) = 0.0f;
+          }
+    } else {
+      const int e = std::max(0, o.erosion - 1);
+      for (int k = e; k < o.size - e; ++k)
+        for (int j = e; j < o.size - e; ++j)
+          for (int a = e; a < o.size - e; ++a) mask.at(a, j, k) = 1;
+    }
     s.frames.emplace_back(image, mask);
     s.images.push_back(std::move(image));
+    s.masks.push_back(std::move(mask));
   }
   s.ground_truth = RelativeToFrame0(raw);
   return s;

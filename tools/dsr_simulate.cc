@@ -91,8 +91,8 @@ DEFINE_uint64(phantom_seed,
 DEFINE_int32(mask_erosion,
              1,
              "Erosion of the written masks mask_XX.nii.gz, in voxels (6-neighbourhood per "
-             "voxel), in [0, 50]: 1 keeps central-difference gradients inside the field of "
-             "view; 0 writes the exact field of view.");
+             "voxel), in [0, 50]; 0 writes the exact field of view (the registration's "
+             "gradients never read outside a mask, so no erosion is needed for them).");
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
