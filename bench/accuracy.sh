@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Accuracy benchmark (issue 19 item 7): registers N seeded simulated sequences per source,
+# Accuracy benchmark: registers N seeded simulated sequences per source,
 # protocol and mask kind with dsr_compare and writes one table of success rates (mean TRE
 # below 0.1 mm), median and max TRE and median time.
 #

@@ -1,7 +1,7 @@
 // Masked normalised cross-correlation over every integer shift, computed with FFTs
 // (Padfield, "Masked object registration in the Fourier domain", IEEE TIP 21(5), 2012).
 //
-// Used by the global search of issue 19 (item 1): for each sampled rotation the moving
+// Used by the global search (init/placement_search.h): for each sampled rotation the moving
 // volume is resampled rotated onto a grid with the fixed volume's spacing and axes, and the
 // best integer translation between the two fields of view is the peak of this map.
 //
