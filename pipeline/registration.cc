@@ -604,7 +604,6 @@ bool Register(const std::vector<Image>& images,
     if (!moved && !global_used) {
       global_used = true;
       recovery.global = true;
-      std::string why;
       if (!global_poses(&next)) {
         LOG(INFO) << "recovery by the pair graph not possible: " << *error;
         error->clear();
