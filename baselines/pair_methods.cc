@@ -268,11 +268,7 @@ bool SolveSequential(const std::vector<Frame>& frames,
     }
     const PanoramaImages fused =
         FusePanoramaMean(placed, placed_poses, grid, options.solve.num_threads);
-    // The panorama's field of view: voxels some placed frame observes, as it is (Frame
-    // keeps its gradients on observed voxels, core/frame.h).
-    Image seen(grid, 0.0f);
-    for (size_t l = 0; l < seen.voxels.size(); ++l) seen.voxels[l] = fused.count.voxels[l] > 0;
-    const Frame panorama(fused.mean, MaskFromNonZero(seen, 0));
+    const Frame panorama = PanoramaAsFrame(fused);
     SolveReport part;
     std::string why;
     const std::string name = "frame " + std::to_string(k) + " to panorama ";

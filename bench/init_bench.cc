@@ -87,10 +87,7 @@ void BM_SearchPlacementPanorama(benchmark::State& state) {
   ImageGeometry grid;
   std::string error;
   if (!BuildPanoramaGrid(others, poses, 1.0, &grid, &error)) std::abort();
-  const PanoramaImages fused = FusePanoramaMean(others, poses, grid, 1);
-  Image seen(grid, 0.0f);
-  for (size_t l = 0; l < seen.voxels.size(); ++l) seen.voxels[l] = fused.count.voxels[l] > 0;
-  const Frame panorama(fused.mean, MaskFromNonZero(seen, 0));
+  const Frame panorama = PanoramaAsFrame(FusePanoramaMean(others, poses, grid, 1));
   PlacementSearchOptions o = Options(200);
   o.num_threads = static_cast<int>(state.range(0));
   o.refine.num_threads = o.num_threads;

@@ -54,6 +54,14 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
   return true;
 }
 
+Frame PanoramaAsFrame(const PanoramaImages& fused) {
+  Mask observed(fused.count.geometry, 0);
+  for (size_t l = 0; l < observed.voxels.size(); ++l) {
+    observed.voxels[l] = fused.count.voxels[l] > 0;
+  }
+  return Frame(fused.mean, observed);
+}
+
 Image ResampleOntoGrid(const Frame& frame,
                        const Eigen::Isometry3d& frame_from_world,
                        const ImageGeometry& grid,

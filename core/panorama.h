@@ -59,6 +59,12 @@ PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    double feather_voxels,
                                    int num_threads);
 
+// The fused panorama as a Frame in world coordinates (what a frame is registered to, in the
+// sequential baseline and in recovery): the mean image, with the voxels some frame observes
+// (count > 0) as its field of view, unobserved gaps included as outside. Frame's gradients
+// never read outside it (core/frame.h), so no erosion is needed.
+Frame PanoramaAsFrame(const PanoramaImages& fused);
+
 // Frame resampled onto `grid` under its pose: its trilinear value where sigma = 1, else 0.
 Image ResampleOntoGrid(const Frame& frame,
                        const Eigen::Isometry3d& frame_from_world,

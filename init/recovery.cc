@@ -13,10 +13,10 @@ namespace dsr {
 
 namespace {
 
-// The mean panorama of `frames` at their poses as a Frame in world coordinates; its field of
-// view is the voxels some frame observes (Frame's gradients never read outside it, and on
-// a coarse level an erosion would leave little: the frames' own valid cells are already
-// only a part of their grids there). False with `error` when it cannot be built.
+// The mean panorama of `frames` at their poses as a Frame in world coordinates
+// (PanoramaAsFrame: not eroded, which on a coarse level would leave little, the frames' own
+// valid cells being only a part of their grids there). False with `error` when it cannot
+// be built.
 bool PanoramaFrame(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                    int num_threads,
@@ -24,10 +24,7 @@ bool PanoramaFrame(const std::vector<Frame>& frames,
                    std::string* error) {
   ImageGeometry grid;
   if (!BuildPanoramaGrid(frames, frame_from_world, 1.0, &grid, error)) return false;
-  const PanoramaImages fused = FusePanoramaMean(frames, frame_from_world, grid, num_threads);
-  Image seen(grid, 0.0f);
-  for (size_t l = 0; l < seen.voxels.size(); ++l) seen.voxels[l] = fused.count.voxels[l] > 0;
-  *panorama = Frame(fused.mean, MaskFromNonZero(seen, 0));
+  *panorama = PanoramaAsFrame(FusePanoramaMean(frames, frame_from_world, grid, num_threads));
   if (panorama->num_valid_cells() == 0) {
     *error = "the panorama of the frames that passed the checks is empty";
     return false;

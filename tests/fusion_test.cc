@@ -124,6 +124,25 @@ TEST(Fusion, EnlargementOfTwoDisjointFramesIsTwo) {
   EXPECT_DOUBLE_EQ(fused.EnlargementRatio(), 2.0);
 }
 
+// The panorama as a Frame: observed voxels are its field of view; an unobserved gap enclosed
+// by observed voxels stays outside (no hole filling), so no valid cell touches it.
+TEST(Fusion, PanoramaAsFrameLeavesUnobservedGapsOutside) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(12, 12, 12);
+  PanoramaImages fused;
+  fused.mean = Image(g, 5.0f);
+  fused.count = Volume<uint8_t>(g, 2);
+  fused.count.at(6, 6, 6) = 0;  // the gap
+  fused.mean.at(6, 6, 6) = 0.0f;
+  const Frame panorama = PanoramaAsFrame(fused);
+  // A cell is valid when its 8 corners carry gradients, i.e. they and their 6 neighbours
+  // are observed: every cell within two voxels of the gap is invalid.
+  EXPECT_FALSE(panorama.IsValidCell(g.LinearIndex(5, 5, 5)));
+  EXPECT_FALSE(panorama.IsValidCell(g.LinearIndex(6, 6, 4)));
+  EXPECT_TRUE(panorama.IsValidCell(g.LinearIndex(2, 2, 2)));
+  EXPECT_TRUE(panorama.IsValidCell(g.LinearIndex(6, 6, 2)));
+}
+
 TEST(ItkTransform, FilesRoundTripAndResampleLikeTheProject) {
   TempDir dir;
   SequenceOptions o;
