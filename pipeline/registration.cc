@@ -551,10 +551,13 @@ bool Register(const std::vector<Image>& images,
     return false;
   }
   std::vector<Frame> search_frames;  // built when the global search is first needed
-  const auto global_poses = [&](std::vector<Eigen::Isometry3d>* poses) {
+  const auto search_level = [&]() -> const std::vector<Frame>& {
     if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
+    return search_frames;
+  };
+  const auto global_poses = [&](std::vector<Eigen::Isometry3d>* poses) {
     PairGraphReport graph;
-    return GlobalInitialPoses(search_frames, options.search, poses, &graph, error);
+    return GlobalInitialPoses(search_level(), options.search, poses, &graph, error);
   };
   bool global_used = options.init == InitialPoses::kGlobal;
   bool replaced_frames = false;
@@ -581,7 +584,6 @@ bool Register(const std::vector<Image>& images,
     // panorama is not to be trusted, and every frame is placed from scratch by the pair
     // graph (once).
     const auto recovery_start = std::chrono::steady_clock::now();
-    if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
     RegistrationResult::Recovery recovery;
     recovery.after_level = result->solves.empty() ? 0 : result->solves.back().level;
     recovery.why = result->failure;
@@ -593,7 +595,7 @@ bool Register(const std::vector<Image>& images,
     if (most_passed && !replaced_frames) {
       replaced_frames = true;
       std::string why;
-      if (ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
+      if (ReplaceFrames(search_level(), result->frame_from_world, result->flagged_frames,
                         options.search, &next, &recovery.frames, &why)) {
         moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
                             [](const FrameReplacement& f) { return f.moved; });
