@@ -68,17 +68,13 @@ std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
   return misfit;
 }
 
-namespace {
-
-// The misfits' reference: their lower quartile, so that up to three quarters of the frames
-// may be off.
-double LowerQuartile(const std::vector<double>& misfits) {
-  std::vector<double> sorted = misfits;
+// The misfits' reference is their lower quartile, so that up to three quarters of the
+// frames may be off.
+double LowerQuartile(const std::vector<double>& values) {
+  std::vector<double> sorted = values;
   std::sort(sorted.begin(), sorted.end());
   return sorted[(sorted.size() - 1) / 4];
 }
-
-}  // namespace
 
 bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why) {
   if (!(max_ratio > 0.0) || misfits.empty()) return false;

@@ -49,6 +49,9 @@ std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
 std::vector<double> MisfitsFromFrameCosts(const std::vector<double>& frame_cost,
                                           const std::vector<int64_t>& frame_observations);
 
+// The lower quartile of `values` (non-empty): the element at rank (n - 1) / 4.
+double LowerQuartile(const std::vector<double>& values);
+
 // True (and `why` naming the worst frame) when some frame's misfit exceeds max_ratio times
 // the lower quartile of the frames' misfits (robust to up to three quarters of the frames
 // being off): that frame does not agree with the others, typically

@@ -19,6 +19,7 @@
 #include "init/pair_graph.h"
 #include "init/recovery.h"
 #include "pipeline/divergence_guard.h"
+#include "pipeline/pair_check.h"
 
 namespace dsr {
 namespace {
@@ -195,16 +196,22 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if (!(max_misfit_ratio == 0.0 || (max_misfit_ratio > 1.0 && std::isfinite(max_misfit_ratio)))) {
     return bad("max_misfit_ratio", std::to_string(max_misfit_ratio), "must be 0 (off) or > 1");
   }
+  if (!(max_pair_mismatch_ratio == 0.0 ||
+        (max_pair_mismatch_ratio > 1.0 && std::isfinite(max_pair_mismatch_ratio)))) {
+    return bad("max_pair_mismatch_ratio", std::to_string(max_pair_mismatch_ratio),
+               "must be 0 (off) or > 1");
+  }
   if (min_shared_voxels < 1) {
     return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
   }
   if (max_recoveries < 0 || max_recoveries > 10) {
     return bad("max_recoveries", std::to_string(max_recoveries), "must be in [0, 10]");
   }
-  if (max_recoveries > 0 && max_misfit_ratio == 0.0 && min_kept_overlap == 0.0) {
+  if (max_recoveries > 0 && max_misfit_ratio == 0.0 && min_kept_overlap == 0.0 &&
+      max_pair_mismatch_ratio == 0.0) {
     return bad("max_recoveries", std::to_string(max_recoveries),
-               "recovery needs a check that flags frames: --max_misfit_ratio or "
-               "--min_kept_overlap must not be 0");
+               "recovery needs a check that flags frames: --max_misfit_ratio, "
+               "--max_pair_mismatch_ratio or --min_kept_overlap must not be 0");
   }
   if (search_max_axis_voxels < 8) {
     return bad("search_max_axis", std::to_string(search_max_axis_voxels), "must be >= 8");
@@ -289,6 +296,7 @@ bool SolveLevels(const std::vector<Image>& images,
                  const std::vector<Eigen::Isometry3d>& start_poses,
                  const RegistrationOptions& options,
                  bool check_every_level,
+                 const std::vector<Frame>& search_frames,
                  Pyramids* pyramids,
                  RegistrationResult* result,
                  std::string* error) {
@@ -438,6 +446,11 @@ bool SolveLevels(const std::vector<Image>& images,
         if (MisfitOutlier(misfits, options.max_misfit_ratio, &why)) {
           return diverged(level, why, MisfitOutliers(misfits, options.max_misfit_ratio));
         }
+        std::vector<int> flagged;
+        if (PairDisagreement(PairMismatches(search_frames, poses, options.solve.num_threads), m,
+                             options.max_pair_mismatch_ratio, &flagged, &why)) {
+          return diverged(level, why, flagged);
+        }
       }
       continue;
     }
@@ -474,6 +487,11 @@ bool SolveLevels(const std::vector<Image>& images,
     }
     if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
       return diverged(0, why, MisfitOutliers(result->frame_misfits, options.max_misfit_ratio));
+    }
+    std::vector<int> flagged;
+    if (PairDisagreement(PairMismatches(search_frames, poses, options.solve.num_threads), m,
+                         options.max_pair_mismatch_ratio, &flagged, &why)) {
+      return diverged(0, why, flagged);
     }
   }
   result->frame_from_world = poses;
@@ -512,6 +530,7 @@ bool Register(const std::vector<Image>& images,
     // The initial poses are judged by this run's own checks of its final poses.
     init_options.min_kept_overlap = 0.0;
     init_options.max_misfit_ratio = 0.0;
+    init_options.max_pair_mismatch_ratio = 0.0;
     init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
     init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
     RegistrationResult init;
@@ -550,14 +569,12 @@ bool Register(const std::vector<Image>& images,
              " has the same value everywhere in its field of view: nothing to register";
     return false;
   }
-  std::vector<Frame> search_frames;  // built when the global search is first needed
-  const auto search_level = [&]() -> const std::vector<Frame>& {
-    if (search_frames.empty()) search_frames = SearchFrames(images, masks, pyramids, options);
-    return search_frames;
-  };
+  // The coarse search level: of the global search, recovery and the pair check (built
+  // before any solve releases the coarsest level; small).
+  const std::vector<Frame> search_frames = SearchFrames(images, masks, pyramids, options);
   const auto global_poses = [&](std::vector<Eigen::Isometry3d>* poses) {
     PairGraphReport graph;
-    return GlobalInitialPoses(search_level(), options.search, poses, &graph, error);
+    return GlobalInitialPoses(search_frames, options.search, poses, &graph, error);
   };
   bool global_used = options.init == InitialPoses::kGlobal;
   bool replaced_frames = false;
@@ -572,8 +589,8 @@ bool Register(const std::vector<Image>& images,
   }
   std::vector<Eigen::Isometry3d> poses = start_poses;
   for (int round = 0;; ++round) {
-    if (!SolveLevels(images, masks, poses, options, options.max_recoveries > 0, &pyramids,
-                     result, error)) {
+    if (!SolveLevels(images, masks, poses, options, options.max_recoveries > 0, search_frames,
+                     &pyramids, result, error)) {
       return false;
     }
     if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty()) {
@@ -595,7 +612,7 @@ bool Register(const std::vector<Image>& images,
     if (most_passed && !replaced_frames) {
       replaced_frames = true;
       std::string why;
-      if (ReplaceFrames(search_level(), result->frame_from_world, result->flagged_frames,
+      if (ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
                         options.search, &next, &recovery.frames, &why)) {
         moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
                             [](const FrameReplacement& f) { return f.moved; });

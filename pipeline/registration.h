@@ -86,6 +86,12 @@ struct RegistrationOptions {
   // this multiple of the frames' lower quartile (a frame stuck in a wrong minimum). 0 or > 1;
   // 0 turns it off.
   double max_misfit_ratio = 2.0;
+  // Pair check of the poses after every level (pipeline/pair_check.h): the registration is
+  // not usable when two overlapping frames match each other (1 - NCC over their overlap, on
+  // the search level) this many times worse than the pairs' lower quartile (frames split
+  // into groups that do not agree, which the misfit check cannot see). 0 or > 1; 0 turns it
+  // off.
+  double max_pair_mismatch_ratio = 5.0;
 
   // Mode-specific.
   int dsr_num_chunks = 1;

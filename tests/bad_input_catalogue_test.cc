@@ -248,7 +248,10 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --min_kept_overlap=-0.1", "--min_kept_overlap");
   Register(base + " --max_misfit_ratio=nan", "--max_misfit_ratio");
   Register(base + " --max_recoveries=11", "--max_recoveries");
-  Register(base + " --max_misfit_ratio=0 --min_kept_overlap=0", "--max_recoveries");
+  Register(base + " --max_misfit_ratio=0 --min_kept_overlap=0 --max_pair_mismatch_ratio=0",
+           "--max_recoveries");
+  Register(base + " --max_pair_mismatch_ratio=1", "--max_pair_mismatch_ratio");
+  Register(base + " --max_pair_mismatch_ratio=inf", "--max_pair_mismatch_ratio");
   Register(base + " --search_rotations=0", "--search_rotations=0:");
   Register(base + " --pair_search_rotations=-5", "--pair_search_rotations=-5:");
   Register(base + " --search_rotation_deg=200", "--search_rotation_deg=200:");
@@ -296,6 +299,8 @@ TEST_F(BadInputCatalogue, Compare) {
          "--max_recoveries");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --num_sequences=0", "--num_sequences");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --max_misfit_ratio=1", "--max_misfit_ratio");
+  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --max_pair_mismatch_ratio=0.5",
+         "--max_pair_mismatch_ratio");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --frame_size=8,8", "--frame_size");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr --sequences=" + In("no_such_folder"),
          "no_such_folder");

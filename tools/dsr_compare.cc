@@ -42,7 +42,8 @@ DEFINE_string(init, "identity", "Initial poses of every method: 'identity' (the 
               "pairwise baseline's poses), 'auto' (identity, with dsr_register's recovery of "
               "flagged frames) or 'global' (the pair graph's poses, then recovery). With auto "
               "and global, the checks that flag frames default to dsr_register's "
-              "(--max_misfit_ratio=2, --min_kept_overlap=0.25) unless set.");
+              "(--max_misfit_ratio=2, --max_pair_mismatch_ratio=5, --min_kept_overlap=0.25) unless "
+              "set.");
 DEFINE_string(out_dir, "", "Output folder (created if missing). Required.");
 DEFINE_int32(num_threads, 0, "Threads per run (0 = all cores).");
 DEFINE_int32(max_iterations, 100, "Iteration limit of each finest-level solve, >= 1.");
@@ -53,6 +54,8 @@ DEFINE_double(min_kept_overlap, 0.0, "Divergence guard of dsr_register (a frame 
               "poses are measured, diverged or not. In [0, 1).");
 DEFINE_double(max_misfit_ratio, 0.0, "Misfit check of dsr_register (a frame that does not "
               "match the others at the final poses fails the run); off by default here. 0 or > 1.");
+DEFINE_double(max_pair_mismatch_ratio, 0.0, "Pair check of dsr_register (two overlapping "
+              "frames that do not match each other fail the run); off by default here. 0 or > 1.");
 DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
 DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
             "false: with each frame's non-zero voxels eroded by one voxel, as dsr_register "
@@ -155,14 +158,17 @@ int main(int argc, char** argv) {
   base.panorama_spacing = FLAGS_panorama_spacing;
   base.min_kept_overlap = FLAGS_min_kept_overlap;
   base.max_misfit_ratio = FLAGS_max_misfit_ratio;
+  base.max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
   base.search.num_threads = FLAGS_num_threads;
   base.search.refine.log_progress = false;
   const bool recovers = FLAGS_init == "auto" || FLAGS_init == "global";
   if (recovers && gflags::GetCommandLineFlagInfoOrDie("max_misfit_ratio").is_default &&
+      gflags::GetCommandLineFlagInfoOrDie("max_pair_mismatch_ratio").is_default &&
       gflags::GetCommandLineFlagInfoOrDie("min_kept_overlap").is_default) {
     const dsr::RegistrationOptions defaults;
     base.min_kept_overlap = defaults.min_kept_overlap;
     base.max_misfit_ratio = defaults.max_misfit_ratio;
+    base.max_pair_mismatch_ratio = defaults.max_pair_mismatch_ratio;
   }
   // The pairwise baseline started from the pairwise baseline is the baseline itself.
   const auto init_for = [](const std::string& method) {

@@ -93,6 +93,10 @@ DEFINE_double(max_misfit_ratio, 2.0, "Misfit check: final poses at which a frame
               "difference to the panorama exceeds this multiple of the frames' lower quartile "
               "(a frame stuck in a wrong minimum) are a failure (exit 1), not a result; 0 = off "
               "or > 1.");
+DEFINE_double(max_pair_mismatch_ratio, 5.0, "Pair check: poses at which two overlapping "
+              "frames match each other (1 - NCC over their overlap, on the coarsest level) "
+              "worse than this multiple of the pairs' lower quartile (frames split into groups "
+              "that disagree) are a failure (exit 1), not a result; 0 = off or > 1.");
 DEFINE_int32(num_chunks, 1, "dsr: residual blocks the candidate voxels are split into, >= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
             "small problems only).");
@@ -161,6 +165,7 @@ int main(int argc, char** argv) {
   options.rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
   options.min_kept_overlap = FLAGS_min_kept_overlap;
   options.max_misfit_ratio = FLAGS_max_misfit_ratio;
+  options.max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
   options.dsr_num_chunks = FLAGS_num_chunks;
   options.dsr_reference_cost = FLAGS_reference_cost;
   const bool init_from_file = !dsr::SetInitialisation(FLAGS_init, FLAGS_max_recoveries, &options);
