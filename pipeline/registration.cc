@@ -19,6 +19,7 @@
 #include "init/pair_graph.h"
 #include "init/recovery.h"
 #include "pipeline/divergence_guard.h"
+#include "pipeline/input_checks.h"
 #include "pipeline/pair_check.h"
 
 namespace dsr {
@@ -353,7 +354,13 @@ bool SolveLevels(const std::vector<Image>& images,
       record.level = level;
       record.rebuild = rebuild;
       ImageGeometry grid;
-      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, error)) return false;
+      if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, error)) {
+        if (result->solves.empty()) return false;  // the initial poses: bad input
+        // The poses a solve reached spread the frames over a space no panorama can hold.
+        const std::string why = "diverged: the solve moved the frames far apart (" + *error + ")";
+        error->clear();
+        return diverged(result->solves.back().level, why, {});
+      }
       record.panorama_spacing_mm = grid.spacing_mm;
       CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
       record.candidate_voxels = candidates.num_voxels();
@@ -463,7 +470,9 @@ bool SolveLevels(const std::vector<Image>& images,
     } else {
       ImageGeometry final_grid;
       if (!BuildPanoramaGrid(frames, poses, options.panorama_spacing, &final_grid, error)) {
-        return false;
+        const std::string why = "diverged: the solve moved the frames far apart (" + *error + ")";
+        error->clear();
+        return diverged(0, why, {});
       }
       final_candidates = BuildCandidates(frames, poses, final_grid, 0);
     }
@@ -498,28 +507,15 @@ bool SolveLevels(const std::vector<Image>& images,
   return true;
 }
 
-}  // namespace
-
-bool Register(const std::vector<Image>& images,
-              const std::vector<Mask>& masks,
-              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-              const RegistrationOptions& options,
-              RegistrationResult* result,
-              std::string* error) {
-  const auto start = std::chrono::steady_clock::now();
+// Register on intensities already brought to a usual scale (see Register).
+bool RegisterScaled(const std::vector<Image>& images,
+                    const std::vector<Mask>& masks,
+                    const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                    const RegistrationOptions& options,
+                    std::chrono::steady_clock::time_point start,
+                    RegistrationResult* result,
+                    std::string* error) {
   const int m = static_cast<int>(images.size());
-  if (m < 2) {
-    *error = "need at least 2 frames, got " + std::to_string(m);
-    return false;
-  }
-  if (m > kMaxFrames) {
-    *error = "at most " + std::to_string(kMaxFrames) + " frames, got " + std::to_string(m);
-    return false;
-  }
-  CHECK_EQ(masks.size(), images.size());
-  CHECK_EQ(initial_frame_from_world.size(), images.size());
-  if (!options.Validate(error)) return false;
-  *result = RegistrationResult();
   // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
   std::vector<Eigen::Isometry3d> start_poses = RelativeToFrame0(initial_frame_from_world);
   if (options.init == InitialPoses::kPairwise && options.mode != "pairwise") {
@@ -636,6 +632,67 @@ bool Register(const std::vector<Image>& images,
     poses = RelativeToFrame0(next);
   }
   result->seconds = Seconds(start);
+  return true;
+}
+
+// Costs, misfits and intensities of a registration on intensities scaled by 2^exponent,
+// in the input's units.
+void UnscaleResult(int exponent, RegistrationResult* result) {
+  const auto cost = [&](double c) { return std::ldexp(c, -2 * exponent); };
+  for (LevelSolve& solve : result->solves) {
+    SolveReport& r = solve.report;
+    r.initial_cost = cost(r.initial_cost);
+    r.final_cost = cost(r.final_cost);
+    for (IterationRecord& it : r.iterations) it.cost = cost(it.cost);
+    for (double& c : r.final_frame_cost) c = cost(c);
+  }
+  for (double& misfit : result->frame_misfits) misfit = std::ldexp(misfit, -exponent);
+  for (float& v : result->dba_intensities.voxels) v = std::ldexp(v, -exponent);
+}
+
+}  // namespace
+
+bool Register(const std::vector<Image>& input_images,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error) {
+  const auto start = std::chrono::steady_clock::now();
+  const int m = static_cast<int>(input_images.size());
+  if (m < 2) {
+    *error = "need at least 2 frames, got " + std::to_string(m);
+    return false;
+  }
+  if (m > kMaxFrames) {
+    *error = "at most " + std::to_string(kMaxFrames) + " frames, got " + std::to_string(m);
+    return false;
+  }
+  CHECK_EQ(masks.size(), input_images.size());
+  CHECK_EQ(initial_frame_from_world.size(), input_images.size());
+  if (!options.Validate(error)) return false;
+  if (!CheckRegistrationInputs(input_images, initial_frame_from_world, options, error)) {
+    return false;
+  }
+  *result = RegistrationResult();
+  // Intensities far from a usual scale are brought to it by a power of two
+  // (pipeline/input_checks.h); the reported costs are scaled back at the end.
+  const int exponent = IntensityScaleExponent(IntensitySpread(input_images, masks));
+  if (exponent == 0) {
+    return RegisterScaled(input_images, masks, initial_frame_from_world, options, start, result,
+                          error);
+  }
+  LOG(INFO) << "intensities scaled by 2^" << exponent
+            << " for the solves (their spread is far from a usual scale); the costs printed "
+               "during the solves are in those units";
+  std::vector<Image> scaled = input_images;
+  for (Image& image : scaled) {
+    for (float& v : image.voxels) v = std::ldexp(v, exponent);
+  }
+  if (!RegisterScaled(scaled, masks, initial_frame_from_world, options, start, result, error)) {
+    return false;
+  }
+  UnscaleResult(exponent, result);
   return true;
 }
 

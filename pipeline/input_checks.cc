@@ -1,0 +1,125 @@
+#include "pipeline/input_checks.h"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+
+#include "pipeline/registration.h"
+
+namespace dsr {
+namespace {
+
+std::string Format(double value) {
+  std::ostringstream s;
+  s.precision(3);
+  s << value;
+  return s.str();
+}
+
+std::string FormatVector(const Eigen::Vector3d& v) {
+  return Format(v[0]) + " " + Format(v[1]) + " " + Format(v[2]);
+}
+
+Eigen::Vector3d Extent(const ImageGeometry& g) {
+  return g.size.cast<double>().cwiseProduct(g.spacing_mm);
+}
+
+}  // namespace
+
+bool CheckRegistrationInputs(const std::vector<Image>& images,
+                             const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                             const RegistrationOptions& options,
+                             std::string* error) {
+  const ImageGeometry& first = images[0].geometry;
+  for (size_t i = 1; i < images.size(); ++i) {
+    const Eigen::Vector3d ratio = images[i].geometry.spacing_mm.cwiseQuotient(first.spacing_mm);
+    const double worst = std::max(ratio.maxCoeff(), 1.0 / ratio.minCoeff());
+    if (!(worst <= kMaxSpacingRatio)) {
+      *error = "frame " + std::to_string(i) + " has a voxel spacing of " +
+               FormatVector(images[i].geometry.spacing_mm) + " mm, " + Format(worst) +
+               " times " + (ratio.maxCoeff() > 1.0 ? "coarser" : "finer") + " than frame 0's (" +
+               FormatVector(first.spacing_mm) +
+               " mm): frames of one sequence share a scale (within a factor of " +
+               Format(kMaxSpacingRatio) + "); check that image's header";
+      return false;
+    }
+  }
+  const int shortest_axis = first.size.minCoeff();
+  if (options.finest_sigma_voxels > 0.25 * shortest_axis) {
+    *error = "--smoothing=" + Format(options.finest_sigma_voxels) +
+             ": a Gaussian of that many voxels erases every structure of frame 0 (" +
+             std::to_string(shortest_axis) + " voxels along its shortest axis); must be at most " +
+             Format(0.25 * shortest_axis);
+    return false;
+  }
+  const double shortest_extent = Extent(first).minCoeff();
+  const double panorama_voxel = first.spacing_mm.minCoeff() * options.panorama_spacing;
+  if (panorama_voxel > shortest_extent / 8.0) {
+    *error = "--panorama_spacing=" + Format(options.panorama_spacing) + ": panorama voxels of " +
+             Format(panorama_voxel) + " mm leave fewer than 8 across frame 0's field of view (" +
+             Format(shortest_extent) + " mm along its shortest axis); must be at most " +
+             Format(shortest_extent / 8.0 / first.spacing_mm.minCoeff());
+    return false;
+  }
+  // Frame centres in world at the initial poses.
+  double largest_extent = 0.0;
+  for (const Image& image : images) {
+    largest_extent = std::max(largest_extent, Extent(image.geometry).norm());
+  }
+  const auto centre_in_world = [&](size_t i) {
+    const ImageGeometry& g = images[i].geometry;
+    const Eigen::Vector3d centre =
+        g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
+    return Eigen::Vector3d(initial_frame_from_world[i].inverse() * centre);
+  };
+  const Eigen::Vector3d centre0 = centre_in_world(0);
+  for (size_t i = 1; i < images.size(); ++i) {
+    const double distance = (centre_in_world(i) - centre0).stableNorm();
+    if (!(distance <= kMaxInitialSpread * largest_extent)) {
+      *error = "the initial poses (--init) place frame " + std::to_string(i) + " " +
+               Format(distance) + " mm from frame 0, more than " + Format(kMaxInitialSpread) +
+               " times the frames' size (" + Format(largest_extent) +
+               " mm): check the poses file's translations (millimetres, world to frame)";
+      return false;
+    }
+  }
+  return true;
+}
+
+double IntensitySpread(const std::vector<Image>& images, const std::vector<Mask>& masks) {
+  int64_t total = 0;
+  for (const Mask& mask : masks) total += static_cast<int64_t>(mask.voxels.size());
+  const int64_t stride = std::max<int64_t>(1, total / 1000000);
+  std::vector<float> samples;
+  for (size_t f = 0; f < images.size(); ++f) {
+    const std::vector<float>& v = images[f].voxels;
+    const std::vector<uint8_t>& inside = masks[f].voxels;
+    for (size_t l = 0; l < v.size(); l += stride) {
+      if (inside[l] && std::isfinite(v[l])) samples.push_back(v[l]);
+    }
+  }
+  if (samples.empty()) return 0.0;
+  const auto median_of = [](std::vector<float>* values) {
+    const size_t mid = values->size() / 2;
+    std::nth_element(values->begin(), values->begin() + mid, values->end());
+    return static_cast<double>((*values)[mid]);
+  };
+  const double median = median_of(&samples);
+  std::vector<float> deviations(samples.size());
+  double sum = 0.0;
+  for (size_t s = 0; s < samples.size(); ++s) {
+    const double d = std::abs(static_cast<double>(samples[s]) - median);
+    deviations[s] = static_cast<float>(d);
+    sum += d;
+  }
+  const double mad = median_of(&deviations);
+  return mad > 0.0 ? mad : sum / static_cast<double>(samples.size());
+}
+
+int IntensityScaleExponent(double spread) {
+  if (!(spread > 0.0) || !std::isfinite(spread)) return 0;
+  if (spread >= kMinIntensitySpread && spread <= kMaxIntensitySpread) return 0;
+  return static_cast<int>(std::lround(std::log2(kTargetIntensitySpread / spread)));
+}
+
+}  // namespace dsr

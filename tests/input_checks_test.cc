@@ -1,0 +1,149 @@
+// Checks of a registration's inputs (pipeline/input_checks.h): intensities at any scale
+// give the same poses (the solver's tolerances see normalised intensities), and inputs that
+// would fail later under another name are refused naming what is wrong.
+#include <cmath>
+
+#include <gtest/gtest.h>
+
+#include "core/eval.h"
+#include "core/se3.h"
+#include "pipeline/input_checks.h"
+#include "pipeline/registration.h"
+#include "sim/phantom.h"
+#include "sim/simulate.h"
+
+namespace dsr {
+namespace {
+
+SimulatedSequence SmallSequence() {
+  PhantomOptions phantom;
+  phantom.size = 96;
+  SimulationOptions o;
+  o.num_frames = 4;
+  o.frame_size = Eigen::Vector3i(40, 40, 32);
+  o.noise_sigma = 10.0;
+  o.max_translation_voxels = 4.0;
+  o.max_rotation_deg = 6.0;
+  o.min_depth_voxels = 2.0;
+  o.mask_erosion_voxels = 0;
+  o.seed = 5;
+  SimulatedSequence s;
+  std::string error;
+  EXPECT_TRUE(Simulate(MakePhantom(phantom), o, &s, &error)) << error;
+  return s;
+}
+
+RegistrationOptions SmallOptions() {
+  RegistrationOptions o;
+  o.solve.log_progress = false;
+  o.solve.num_threads = 2;
+  o.pyramid_levels = 2;
+  o.pyramid_min_size = 8;
+  return o;
+}
+
+TEST(IntensityScale, ExponentIsZeroInsideTheBandAndNormalisesOutside) {
+  EXPECT_EQ(IntensityScaleExponent(0.0), 0);
+  EXPECT_EQ(IntensityScaleExponent(std::nan("")), 0);
+  EXPECT_EQ(IntensityScaleExponent(kMinIntensitySpread), 0);
+  EXPECT_EQ(IntensityScaleExponent(30.0), 0);
+  EXPECT_EQ(IntensityScaleExponent(kMaxIntensitySpread), 0);
+  for (double spread : {1e-12, 3e-5, 1e5, 1e12, 1e30}) {
+    const int e = IntensityScaleExponent(spread);
+    const double normalised = std::ldexp(spread, e);
+    EXPECT_GT(normalised, kTargetIntensitySpread / std::sqrt(2.0) - 1e-9) << spread;
+    EXPECT_LT(normalised, kTargetIntensitySpread * std::sqrt(2.0) + 1e-9) << spread;
+  }
+}
+
+TEST(IntensityScale, SpreadIsTheMedianAbsoluteDeviation) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(10, 10, 10);
+  Image image(g, 0.0f);
+  Mask mask(g, 1);
+  for (int64_t l = 0; l < g.NumVoxels(); ++l) image.voxels[l] = static_cast<float>(l % 10);
+  // Values 0..9 equally often: median 5, absolute deviations 5,4,3,2,1,0,1,2,3,4 -> median 3.
+  EXPECT_DOUBLE_EQ(IntensitySpread({image}, {mask}), 3.0);
+  // Mostly one value (a dark field of view): the mean absolute deviation instead.
+  Image dark(g, 0.0f);
+  dark.voxels[0] = 1000.0f;
+  EXPECT_NEAR(IntensitySpread({dark}, {mask}), 1.0, 1e-9);
+  // Outside the mask does not count.
+  Mask none(g, 0);
+  EXPECT_EQ(IntensitySpread({image}, {none}), 0.0);
+}
+
+// The same sequence at 1, 1e-12 and 1e12 times its intensities: the same poses (up to the
+// rounding of the scaled floats), and costs in the input's units.
+TEST(IntensityScale, PosesDoNotDependOnTheIntensityUnit) {
+  const SimulatedSequence s = SmallSequence();
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  const RegistrationOptions o = SmallOptions();
+  RegistrationResult reference;
+  std::string error;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &reference, &error)) << error;
+  ASSERT_TRUE(reference.usable) << reference.failure;
+  EXPECT_LT(ComparePoses(reference.frame_from_world, s.frame_from_world, s.masks).tre_mean_mm, 0.1);
+  for (double scale : {1e-12, 1e12}) {
+    std::vector<Image> frames = s.frames;
+    for (Image& f : frames) {
+      for (float& v : f.voxels) v = static_cast<float>(v * scale);
+    }
+    RegistrationResult scaled;
+    ASSERT_TRUE(Register(frames, s.masks, identity, o, &scaled, &error)) << error;
+    ASSERT_TRUE(scaled.usable) << scale << ": " << scaled.failure;
+    EXPECT_GT(scaled.total_iterations, 0) << scale;
+    for (size_t f = 1; f < s.frames.size(); ++f) {
+      const Eigen::Isometry3d d =
+          scaled.frame_from_world[f] * reference.frame_from_world[f].inverse();
+      EXPECT_LT(LogSE3(d).norm(), 1e-4) << "scale " << scale << ", frame " << f;
+    }
+    const double ratio = scaled.solves.back().report.final_cost /
+                         reference.solves.back().report.final_cost;
+    EXPECT_NEAR(std::log10(ratio), 2.0 * std::log10(scale), 0.01) << scale;
+    ASSERT_EQ(scaled.frame_misfits.size(), reference.frame_misfits.size());
+    EXPECT_NEAR(scaled.frame_misfits[1] / reference.frame_misfits[1], scale, 1e-3 * scale);
+  }
+}
+
+TEST(CheckRegistrationInputs, NamesWhatIsWrong) {
+  const SimulatedSequence s = SmallSequence();
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  RegistrationOptions o = SmallOptions();
+  std::string error;
+  EXPECT_TRUE(CheckRegistrationInputs(s.frames, identity, o, &error)) << error;
+
+  // A frame whose header says nanometres.
+  std::vector<Image> frames = s.frames;
+  frames[2].geometry.spacing_mm *= 1e-9;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  EXPECT_NE(error.find("frame 2 has a voxel spacing"), std::string::npos) << error;
+  EXPECT_NE(error.find("finer than frame 0's"), std::string::npos) << error;
+  frames[2].geometry.spacing_mm = s.frames[2].geometry.spacing_mm * 1e9;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  EXPECT_NE(error.find("coarser"), std::string::npos) << error;
+
+  // A smoothing that erases the frames.
+  o.finest_sigma_voxels = 1e6;
+  EXPECT_FALSE(CheckRegistrationInputs(s.frames, identity, o, &error));
+  EXPECT_NE(error.find("--smoothing=1e+06"), std::string::npos) << error;
+  o.finest_sigma_voxels = 1.0;
+  EXPECT_TRUE(CheckRegistrationInputs(s.frames, identity, o, &error)) << error;
+
+  // Panorama voxels larger than the frames.
+  o.panorama_spacing = 1e300;
+  EXPECT_FALSE(CheckRegistrationInputs(s.frames, identity, o, &error));
+  EXPECT_NE(error.find("--panorama_spacing=1e+300"), std::string::npos) << error;
+  o.panorama_spacing = 1.0;
+
+  // An initial translation of 1e300 mm names --init (and does not overflow to a pass).
+  std::vector<Eigen::Isometry3d> far = identity;
+  far[3].translation() = Eigen::Vector3d(1e300, 1e300, 0.0);
+  EXPECT_FALSE(CheckRegistrationInputs(s.frames, far, o, &error));
+  EXPECT_NE(error.find("(--init) place frame 3"), std::string::npos) << error;
+  far[3].translation() = Eigen::Vector3d(500.0, 0.0, 0.0);  // apart, but a sane number
+  EXPECT_TRUE(CheckRegistrationInputs(s.frames, far, o, &error)) << error;
+}
+
+}  // namespace
+}  // namespace dsr
