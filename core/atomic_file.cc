@@ -236,8 +236,14 @@ bool WriteFilesViaTemporaryFolder(
   }
   std::vector<fs::path> files;
   std::error_code ec;
-  for (const auto& entry : fs::directory_iterator(temp_folder, ec)) {
-    if (entry.path().filename() != filename) files.push_back(entry.path());
+  for (fs::directory_iterator it(temp_folder, ec), end; !ec && it != end; it.increment(ec)) {
+    if (it->path().filename() != filename) files.push_back(it->path());
+  }
+  if (ec) {
+    // A data file missed here would be left behind while its header is published.
+    clean_up();
+    *error = path + ": cannot list the written files (" + ec.message() + ")";
+    return false;
   }
   files.push_back(temp_path);  // the header goes last
   for (const fs::path& file : files) {

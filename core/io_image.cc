@@ -1,12 +1,14 @@
 // Image and mask IO (see io_image.h): the rules around the ITK adapter (io_itk.h), which
 // cannot see Eigen. Geometry is validated with ImageGeometry::Validate from the header,
 // before any voxel is read; voxels must be finite; masks must lie on the image's grid and
-// contain at least one inside voxel; writes are atomic (atomic_file.h).
+// contain at least one inside voxel; writes are verified by reading them back (io_itk.h,
+// VerifyWritten) and atomic (atomic_file.h), so a failed write never replaces a file.
 #include "core/io_image.h"
 
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstring>
 #include <sstream>
 
 #include <glog/logging.h>
@@ -188,6 +190,22 @@ bool ReadMask(const std::string& path,
   }
   *mask = std::move(out);
   return true;
+}
+
+bool ImageDataFiles(const std::string& path, std::vector<std::string>* files, std::string* error) {
+  return itk_io::DataFiles(path, files, error);
+}
+
+std::vector<std::string> WrittenImageFiles(const std::string& path) {
+  // MetaIO replaces the header's suffix by "raw" (".zraw" if compressed, which .mhd never
+  // is here); teem drops ".nhdr" and appends ".raw". Both match the suffix
+  // case-sensitively, so "X.NHDR" is one attached file (and "X.MHD" is refused).
+  for (const char* detached : {".mhd", ".nhdr"}) {
+    if (EndsWith(path, detached)) {
+      return {path, path.substr(0, path.size() - std::strlen(detached)) + ".raw"};
+    }
+  }
+  return {path};
 }
 
 bool WriteImage(const Image& image, const std::string& path, std::string* error) {

@@ -10,8 +10,16 @@
 // they return zeros or garbage for the missing part (MetaImage only prints to std::cerr).
 // So before ITK reads the voxels, the data block of those formats is checked here: its
 // size for uncompressed data, a full decompression (zlib checks its CRC/Adler-32) for
-// compressed data. That costs one extra decompression of .nii.gz and compressed .mha
-// files; NRRD (teem) already reports such errors itself.
+// compressed data. The expected size comes from the datatype and the sizes only (a NIfTI
+// bitpix that disagrees is refused), and covers every file a MetaImage names (a data
+// file, or each LIST slice file). niftilib also replaces NaN/Inf float voxels by 0, so
+// NIfTI float data is scanned for them on the way. That costs one extra decompression of
+// .nii.gz and compressed .mha files and one extra read of float .nii files; NRRD (teem)
+// already reports such errors itself.
+//
+// Writing: the NIfTI and MetaImage writers report success when the disk is full or a
+// file-size limit is hit, so every written file is read back (VerifyWritten) with the same
+// checks, demanding the exact size.
 #include "core/io_itk.h"
 
 #include <algorithm>
@@ -20,6 +28,7 @@
 #include <cerrno>
 #include <climits>
 #include <cstdint>
+#include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
@@ -30,7 +39,9 @@
 #include <mutex>
 #include <new>
 #include <regex>
+#include <sstream>
 #include <streambuf>
+#include <vector>
 
 #include <itkImage.h>
 #include <itkImageFileWriter.h>
@@ -293,85 +304,240 @@ T LoadAt(const unsigned char* bytes, size_t offset, bool swap) {
   return value;
 }
 
-// NIfTI-1 (348-byte header) or NIfTI-2 (540-byte header), plain or gzip-compressed: the
-// file must hold vox_offset + product(dim) * bitpix / 8 bytes once decompressed.
-bool CheckNiftiData(const std::string& path, std::string* reason) {
+// ---- NIfTI ----
+
+// NIfTI datatype codes with their names and sizes (nifti1.h). The data size of a file
+// follows from the datatype, as niftilib reads it: bitpix is redundant, so a bitpix that
+// disagrees marks a damaged or hand-edited header whose size cannot be trusted.
+struct NiftiType {
+  int code;
+  const char* name;
+  int bits;
+};
+constexpr NiftiType kNiftiTypes[] = {
+    {2, "uint8", 8},         {4, "int16", 16},        {8, "int32", 32},      {16, "float32", 32},
+    {32, "complex64", 64},   {64, "float64", 64},     {128, "rgb24", 24},    {256, "int8", 8},
+    {512, "uint16", 16},     {768, "uint32", 32},     {1024, "int64", 64},   {1280, "uint64", 64},
+    {1536, "float128", 128}, {1792, "complex128", 128}, {2048, "complex256", 256},
+    {2304, "rgba32", 32}};
+
+const NiftiType* FindNiftiType(int code) {
+  for (const NiftiType& type : kNiftiTypes) {
+    if (type.code == code) return &type;
+  }
+  return nullptr;
+}
+
+// Where the voxels of a NIfTI-1 (348-byte header) or NIfTI-2 (540-byte header) file are.
+struct NiftiLayout {
+  int32_t header_size = 0;
+  bool swap = false;
+  int datatype = 0;
+  int bitpix = 0;
+  int64_t size[3] = {1, 1, 1};  // dim[1..3], for voxel indices in messages
+  uint64_t voxels = 1;          // product of dim[1..dim[0]]
+  uint64_t data_start = 0;      // vox_offset
+};
+
+// Reads the header at the start of `file` (gzopen'ed, so compressed or not). False when it
+// is not a header this file knows (ITK accepted it, so ITK is left to read it).
+bool ReadNiftiLayout(gzFile file, NiftiLayout* layout) {
+  unsigned char header[540];
+  if (gzread(file, header, 348) != 348) return false;
+  const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
+  layout->swap = sizeof_hdr != 348 && sizeof_hdr != 540;
+  layout->header_size = layout->swap ? LoadAt<int32_t>(header, 0, true) : sizeof_hdr;
+  const bool swap = layout->swap;
+  if (layout->header_size == 348) {
+    const int ndim = std::clamp<int>(LoadAt<int16_t>(header, 40, swap), 1, 7);
+    for (int d = 1; d <= ndim; ++d) {
+      const int64_t n = std::max<int16_t>(LoadAt<int16_t>(header, 40 + 2 * d, swap), 1);
+      if (d <= 3) layout->size[d - 1] = n;
+      layout->voxels *= static_cast<uint64_t>(n);
+    }
+    layout->datatype = LoadAt<int16_t>(header, 70, swap);
+    layout->bitpix = LoadAt<int16_t>(header, 72, swap);
+    const float vox_offset = LoadAt<float>(header, 108, swap);  // NaN or huge: ITK's problem
+    layout->data_start =
+        vox_offset > 348.0f && vox_offset < 1e15f ? static_cast<uint64_t>(vox_offset) : 348;
+    return true;
+  }
+  if (layout->header_size == 540) {
+    if (gzread(file, header + 348, 540 - 348) != 540 - 348) return false;
+    const int ndim = static_cast<int>(std::clamp<int64_t>(LoadAt<int64_t>(header, 16, swap), 1, 7));
+    for (int d = 1; d <= ndim; ++d) {
+      // Clamped so that the product cannot overflow; ITK refuses such sizes anyway.
+      const int64_t n = std::clamp<int64_t>(LoadAt<int64_t>(header, 16 + 8 * d, swap), 1, 1 << 30);
+      if (d <= 3) layout->size[d - 1] = n;
+      layout->voxels *= static_cast<uint64_t>(n);
+    }
+    layout->datatype = LoadAt<int16_t>(header, 12, swap);
+    layout->bitpix = LoadAt<int16_t>(header, 14, swap);
+    layout->data_start =
+        static_cast<uint64_t>(std::max<int64_t>(LoadAt<int64_t>(header, 168, swap), 540));
+    return true;
+  }
+  return false;
+}
+
+// A header whose bitpix disagrees with its datatype is refused: which of the two is wrong
+// cannot be known, and a file cut to the bitpix size would otherwise pass the size check
+// while niftilib, reading by datatype, zero-fills the rest.
+bool CheckNiftiBitpix(const std::string& path, std::string* reason) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (file == nullptr) return true;  // the data check reports unreadable files
+  std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
+  NiftiLayout layout;
+  if (!ReadNiftiLayout(file, &layout)) return true;
+  const NiftiType* type = FindNiftiType(layout.datatype);
+  if (type == nullptr || type->bits == layout.bitpix) return true;
+  *reason = "bitpix " + std::to_string(layout.bitpix) + " disagrees with datatype " + type->name +
+            " (" + std::to_string(type->bits) + " bits)";
+  return false;
+}
+
+// Finds the first non-finite value in a stream of float32 or float64 voxels that arrives
+// in chunks of any size (and alignment) at increasing offsets.
+class NonFiniteScan {
+ public:
+  // `element_bytes` 4 or 8; 0 scans nothing (integer voxels cannot be NaN).
+  NonFiniteScan(uint64_t data_start, uint64_t data_bytes, int element_bytes, bool swap)
+      : begin_(data_start), end_(data_start + data_bytes), element_(element_bytes), swap_(swap) {}
+
+  bool active() const { return element_ != 0; }
+  bool found() const { return first_ >= 0; }
+  int64_t first_index() const { return first_; }
+  bool first_is_nan() const { return first_is_nan_; }
+
+  // `bytes` are the stream's bytes [offset, offset + count).
+  void Feed(const unsigned char* bytes, size_t count, uint64_t offset) {
+    if (!active() || found()) return;
+    const uint64_t from = std::max(offset, begin_);
+    const uint64_t to = std::min<uint64_t>(offset + count, end_);
+    for (uint64_t at = from; at < to && !found();) {
+      const unsigned char* p = bytes + (at - offset);
+      if (pending_ == 0 && to - at >= static_cast<uint64_t>(element_)) {
+        Check(p);  // a whole element in this chunk
+        at += static_cast<uint64_t>(element_);
+      } else {  // an element split across chunks
+        carry_[pending_++] = *p;
+        ++at;
+        if (pending_ == element_) {
+          Check(carry_);
+          pending_ = 0;
+        }
+      }
+    }
+  }
+
+ private:
+  void Check(const unsigned char* p) {
+    bool bad = false;
+    bool nan = false;
+    if (element_ == 4) {
+      const uint32_t bits = LoadAt<uint32_t>(p, 0, swap_);
+      bad = (bits & 0x7f800000u) == 0x7f800000u;
+      nan = (bits & 0x007fffffu) != 0;
+    } else {
+      const uint64_t bits = LoadAt<uint64_t>(p, 0, swap_);
+      bad = (bits & 0x7ff0000000000000ull) == 0x7ff0000000000000ull;
+      nan = (bits & 0x000fffffffffffffull) != 0;
+    }
+    if (bad) {
+      first_ = index_;
+      first_is_nan_ = nan;
+    }
+    ++index_;
+  }
+
+  uint64_t begin_;
+  uint64_t end_;
+  int element_;
+  bool swap_;
+  unsigned char carry_[8] = {};
+  int pending_ = 0;
+  int64_t index_ = 0;
+  int64_t first_ = -1;
+  bool first_is_nan_ = false;
+};
+
+// How a data check failed: the block is incomplete or corrupt ("cannot read the voxels"),
+// or a voxel is not finite (said the way io_image.cc says it for the other formats).
+enum class DataProblem { kNone, kData, kVoxel };
+
+// NIfTI-1 or NIfTI-2, plain or gzip-compressed: once decompressed the file must hold
+// vox_offset + product(dim) * (datatype size) bytes, exactly if `exact` (files just
+// written) else at least. Float voxels are scanned for NaN/Inf because niftilib's
+// nifti_read_buffer silently replaces them by 0 ("fixes bad floats"), so ITK never shows
+// them. The scan rides along the decompression for .nii.gz and costs one read of the file
+// for .nii.
+DataProblem CheckNiftiData(const std::string& path, bool exact, std::string* reason) {
   gzFile file = gzopen(path.c_str(), "rb");  // also reads uncompressed files
   if (file == nullptr) {
     *reason = std::strerror(errno);
-    return false;
+    return DataProblem::kData;
   }
   std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
-  unsigned char header[540];
-  if (gzread(file, header, 348) != 348) {
+  NiftiLayout layout;
+  if (!ReadNiftiLayout(file, &layout)) {
+    if (!exact) return DataProblem::kNone;  // not a header this check knows; ITK read it
     *reason = "header ends early";
-    return false;
+    return DataProblem::kData;
   }
-  const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
-  const int32_t swapped_sizeof_hdr = LoadAt<int32_t>(header, 0, true);
-  const bool swap = sizeof_hdr != 348 && sizeof_hdr != 540;
-  const int32_t header_size = swap ? swapped_sizeof_hdr : sizeof_hdr;
-  uint64_t voxels = 1;
-  int bitpix = 0;
-  uint64_t data_start = 0;
-  if (header_size == 348) {
-    const int ndim = std::clamp<int>(LoadAt<int16_t>(header, 40, swap), 1, 7);
-    for (int d = 1; d <= ndim; ++d) {
-      voxels *=
-          static_cast<uint64_t>(std::max<int16_t>(LoadAt<int16_t>(header, 40 + 2 * d, swap), 1));
-    }
-    bitpix = LoadAt<int16_t>(header, 72, swap);
-    const float vox_offset = LoadAt<float>(header, 108, swap);  // NaN or huge: ITK's problem
-    data_start =
-        vox_offset > 348.0f && vox_offset < 1e15f ? static_cast<uint64_t>(vox_offset) : 348;
-  } else if (header_size == 540) {
-    if (gzread(file, header + 348, 540 - 348) != 540 - 348) {
-      *reason = "header ends early";
-      return false;
-    }
-    const int ndim = static_cast<int>(std::clamp<int64_t>(LoadAt<int64_t>(header, 16, swap), 1, 7));
-    for (int d = 1; d <= ndim; ++d) {
-      voxels *=
-          static_cast<uint64_t>(std::max<int64_t>(LoadAt<int64_t>(header, 16 + 8 * d, swap), 1));
-    }
-    bitpix = LoadAt<int16_t>(header, 14, swap);
-    data_start = static_cast<uint64_t>(std::max<int64_t>(LoadAt<int64_t>(header, 168, swap), 540));
-  } else {
-    return true;  // not a NIfTI header this check knows; ITK accepted it, so let ITK read it
-  }
-  const uint64_t expected = data_start + voxels * static_cast<uint64_t>(std::max(bitpix, 0) / 8);
-  if (gzdirect(file)) {  // uncompressed: the file size decides
+  const NiftiType* type = FindNiftiType(layout.datatype);
+  if (type == nullptr) return DataProblem::kNone;  // ITK refuses or reads what it knows
+  const uint64_t data_bytes = layout.voxels * static_cast<uint64_t>(type->bits / 8);
+  const uint64_t expected = layout.data_start + data_bytes;
+  const int float_bytes = layout.datatype == 16 ? 4 : layout.datatype == 64 ? 8 : 0;
+  NonFiniteScan scan(layout.data_start, data_bytes, exact ? 0 : float_bytes, layout.swap);
+  const auto ends_early = [&](uint64_t total) {
+    *reason = DataEndsEarly("data",
+                            total > layout.data_start ? total - layout.data_start : 0,
+                            data_bytes);
+    return DataProblem::kData;
+  };
+  const auto too_long = [&](uint64_t total) {
+    *reason = "data holds " + std::to_string(total - layout.data_start) + " bytes, expected " +
+              std::to_string(data_bytes);
+    return DataProblem::kData;
+  };
+  if (gzdirect(file) && !scan.active()) {  // uncompressed, nothing to scan: the size decides
     std::error_code ec;
     const uint64_t size = std::filesystem::file_size(path, ec);
-    if (!ec && size < expected) {
-      *reason =
-          DataEndsEarly("data", size > data_start ? size - data_start : 0, expected - data_start);
-      return false;
+    if (ec) {
+      *reason = ec.message();
+      return DataProblem::kData;
     }
-    return true;
+    if (size < expected) return ends_early(size);
+    if (exact && size != expected) return too_long(size);
+    return DataProblem::kNone;
   }
-  uint64_t total = static_cast<uint64_t>(header_size);
+  uint64_t total = static_cast<uint64_t>(layout.header_size);
   std::unique_ptr<unsigned char[]> chunk(new unsigned char[kChunkBytes]);
   for (;;) {
     const int got = gzread(file, chunk.get(), static_cast<unsigned>(kChunkBytes));
     if (got <= 0) break;
+    scan.Feed(chunk.get(), static_cast<size_t>(got), total);
     total += static_cast<uint64_t>(got);
   }
   int status = Z_OK;
   const char* message = gzerror(file, &status);
   if (status != Z_OK) {
-    *reason = status == Z_BUF_ERROR
-                  ? DataEndsEarly(
-                        "data", total > data_start ? total - data_start : 0, expected - data_start)
-                  : Corrupt("data", GzipMessage(path, message));
-    return false;
+    if (status == Z_BUF_ERROR) return ends_early(total);
+    *reason = Corrupt("data", GzipMessage(path, message));
+    return DataProblem::kData;
   }
-  if (total < expected) {
-    *reason =
-        DataEndsEarly("data", total > data_start ? total - data_start : 0, expected - data_start);
-    return false;
+  if (total < expected) return ends_early(total);
+  if (exact && total != expected) return too_long(total);
+  if (scan.found()) {
+    const int64_t v = scan.first_index();
+    const int64_t nx = layout.size[0];
+    const int64_t nxy = nx * layout.size[1];
+    *reason = "voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) + "," +
+              std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
+    return DataProblem::kVoxel;
   }
-  return true;
+  return DataProblem::kNone;
 }
 
 // ITK's NIfTI reader turns the header's orientation into a matrix and runs an SVD that
@@ -436,13 +602,18 @@ bool CheckNiftiOrientation(const std::string& path, std::string* reason) {
 }
 
 // Inflates the zlib (or gzip) stream that starts at `offset` of `path`; it must end
-// cleanly and produce at least `expected` bytes.
+// cleanly and produce at least `expected` bytes (exactly `expected` if `exact`).
 bool CheckCompressedStream(const std::string& path,
                            uint64_t offset,
                            uint64_t expected,
+                           bool exact,
                            const std::string& what,
                            std::string* reason) {
   std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    *reason = what + " cannot be opened (" + std::strerror(errno) + ")";
+    return false;
+  }
   in.seekg(static_cast<std::streamoff>(offset));
   z_stream stream{};
   if (inflateInit2(&stream, 15 + 32) != Z_OK) {  // 15 + 32: zlib or gzip header
@@ -480,6 +651,37 @@ bool CheckCompressedStream(const std::string& path,
     *reason = DataEndsEarly(what, total, expected);
     return false;
   }
+  if (exact && total != expected) {
+    *reason = what + " decompresses to " + std::to_string(total) + " bytes, expected " +
+              std::to_string(expected);
+    return false;
+  }
+  return true;
+}
+
+// The size of `file` from `offset` on must be at least `bytes` (exactly `bytes` if `exact`).
+bool CheckPlainData(const std::string& file,
+                    uint64_t offset,
+                    uint64_t bytes,
+                    bool exact,
+                    const std::string& what,
+                    std::string* reason) {
+  std::error_code ec;
+  const uint64_t size = std::filesystem::file_size(file, ec);
+  if (ec) {
+    *reason = what + " cannot be read (" + ec.message() + ")";
+    return false;
+  }
+  const uint64_t available = size > offset ? size - offset : 0;
+  if (available < bytes) {
+    *reason = DataEndsEarly(what, available, bytes);
+    return false;
+  }
+  if (exact && available != bytes) {
+    *reason = what + " holds " + std::to_string(available) + " bytes, expected " +
+              std::to_string(bytes);
+    return false;
+  }
   return true;
 }
 
@@ -493,6 +695,323 @@ std::string Trim(const std::string& text) {
   return text.substr(begin, text.find_last_not_of(" \t\r") - begin + 1);
 }
 
+std::vector<std::string> Words(const std::string& text) {
+  std::vector<std::string> words;
+  std::istringstream in(text);
+  for (std::string word; in >> word;) words.push_back(word);
+  return words;
+}
+
+// A data file named in a detached header, as MetaIO and teem open it: an absolute name as
+// is, a relative one after the header's folder, textually (the path stays as the user gave
+// it: "d/in.mhd" names "d/in.raw").
+std::string BesideHeader(const std::string& header, const std::string& name) {
+  if (!name.empty() && name[0] == '/') return name;
+  const size_t slash = header.rfind('/');
+  return slash == std::string::npos ? name : header.substr(0, slash + 1) + name;
+}
+
+bool IsRegularFile(const std::string& path) {
+  std::error_code ec;
+  return std::filesystem::is_regular_file(path, ec);
+}
+
+// Most header bytes read before giving up on finding the end of a text header.
+constexpr size_t kMaxHeaderBytes = size_t{1} << 20;
+// Most data files a LIST or pattern may name (one per slice of a 3D image in practice).
+constexpr uint64_t kMaxDataFiles = 100000;
+
+// Where the voxels of a MetaImage (.mha/.mhd) are, parsed the way MetaIO 5.2 parses them
+// (metaImage.cxx, ReadStream): "LOCAL" (also "Local", "local") after the header; "LIST
+// [nD]" one file per n-D slice, named on the lines after the header; a name containing
+// "%" a file pattern; anything else one data file, where MetaIO falls back to "<name>.gz"
+// and "<name>.Z" (then compressed) when <name> does not exist.
+struct MetaImageLayout {
+  enum class Kind { kLocal, kFile, kList };
+  Kind kind = Kind::kLocal;
+  bool compressed = false;
+  int64_t header_size = 0;      // HeaderSize: bytes skipped in each data file, -1 = data at the end
+  std::vector<int64_t> dims;    // DimSize
+  uint64_t local_offset = 0;    // kLocal: where the data starts in the header file
+  std::vector<std::string> files;  // kFile: the data file; kList: one per slice, in order
+};
+
+// False with `reason` when the header names its data in a way that cannot be followed
+// (or, with `found_data_file` false, has no ElementDataFile line at all).
+bool ParseMetaImageLayout(const std::string& path,
+                          MetaImageLayout* layout,
+                          bool* found_data_file,
+                          std::string* reason) {
+  *found_data_file = false;
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    *reason = std::string("cannot open the header (") + std::strerror(errno) + ")";
+    return false;
+  }
+  std::string line;
+  std::string value;
+  size_t read = 0;
+  while (read < kMaxHeaderBytes && std::getline(in, line)) {
+    read += line.size() + 1;
+    const size_t equals = line.find('=');
+    if (equals == std::string::npos) continue;
+    const std::string key = Trim(line.substr(0, equals));
+    const std::string text = Trim(line.substr(equals + 1));
+    if (key == "CompressedData") layout->compressed = IsTrue(text);
+    if (key == "HeaderSize") layout->header_size = std::atoll(text.c_str());
+    if (key == "DimSize") {
+      layout->dims.clear();
+      for (const std::string& word : Words(text)) layout->dims.push_back(std::atoll(word.c_str()));
+    }
+    if (key == "ElementDataFile") {
+      value = text;
+      *found_data_file = true;
+      break;
+    }
+  }
+  if (!*found_data_file) {
+    *reason = "the MetaImage header has no ElementDataFile line";
+    return false;
+  }
+  if (value == "LOCAL" || value == "Local" || value == "local") {
+    layout->kind = MetaImageLayout::Kind::kLocal;
+    layout->local_offset = static_cast<uint64_t>(in.tellg());
+    return true;
+  }
+  if (value.compare(0, 4, "LIST") == 0) {
+    layout->kind = MetaImageLayout::Kind::kList;
+    const int ndims = static_cast<int>(layout->dims.size());
+    const std::vector<std::string> words = Words(value);
+    // MetaIO: "LIST 2D" -> 2; 0 (none given) or more than NDims -> NDims - 1.
+    int file_dims = words.size() > 1 ? static_cast<int>(std::atof(words[1].c_str())) : 0;
+    if (file_dims == 0 || file_dims > ndims) file_dims = ndims - 1;
+    // MetaIO indexes its sizes with this number unchecked: a negative one or NDims itself
+    // reads outside them, so only 1..NDims-1 is followed.
+    if (file_dims < 1 || file_dims >= ndims) {
+      *reason = "ElementDataFile = " + value + ": each LIST file must hold 1 to " +
+                std::to_string(ndims - 1) + " dimensions";
+      return false;
+    }
+    uint64_t count = 1;
+    for (int d = file_dims; d < ndims; ++d) {
+      count *= static_cast<uint64_t>(std::max<int64_t>(layout->dims[d], 1));
+      if (count > kMaxDataFiles) {
+        *reason = "ElementDataFile = " + value + " needs more than " +
+                  std::to_string(kMaxDataFiles) + " slice files";
+        return false;
+      }
+    }
+    while (layout->files.size() < count && std::getline(in, line)) {
+      // MetaIO skips a last name that is not followed by a line end (it stops at eof), so
+      // that slice would be left unread.
+      if (in.eof()) break;
+      // MetaIO strips trailing blanks and unprintable characters but keeps the first one,
+      // and an empty line makes it index before the start of the name.
+      size_t end = line.size();
+      while (end > 1 && (std::isspace(static_cast<unsigned char>(line[end - 1])) ||
+                         !std::isprint(static_cast<unsigned char>(line[end - 1])))) {
+        --end;
+      }
+      if (end == 0) {
+        *reason = "ElementDataFile = LIST: slice file name " +
+                  std::to_string(layout->files.size() + 1) + " is empty";
+        return false;
+      }
+      layout->files.push_back(BesideHeader(path, line.substr(0, end)));
+    }
+    if (layout->files.size() < count) {
+      *reason = "ElementDataFile = " + value + " names " + std::to_string(layout->files.size()) +
+                " of the " + std::to_string(count) + " slice files (each on a line of its own)";
+      return false;
+    }
+    return true;
+  }
+  if (value.find('%') != std::string::npos) {
+    // A printf pattern that MetaIO passes to snprintf unchecked (found by fuzzing: "%s"
+    // crashes). Frames are single volumes: LOCAL, one data file, or LIST.
+    *reason = "MetaImage ElementDataFile patterns (with %) are not supported";
+    return false;
+  }
+  layout->kind = MetaImageLayout::Kind::kFile;
+  std::string file = BesideHeader(path, value);
+  if (!IsRegularFile(file)) {
+    for (const char* suffix : {".gz", ".Z"}) {
+      if (IsRegularFile(file + suffix)) {
+        file += suffix;
+        layout->compressed = true;
+        break;
+      }
+    }
+  }
+  layout->files.push_back(file);
+  return true;
+}
+
+// MetaImage: `bytes` of voxel data must follow the header (LOCAL), be in the data file, or
+// be spread over the LIST slice files, compressed or not; exactly so if `exact`.
+bool CheckMetaImageData(const std::string& path, uint64_t bytes, bool exact, std::string* reason) {
+  MetaImageLayout layout;
+  bool found_data_file = false;
+  if (!ParseMetaImageLayout(path, &layout, &found_data_file, reason)) {
+    return !found_data_file && !exact;  // ITK parsed a header this check does not follow
+  }
+  if (layout.kind == MetaImageLayout::Kind::kLocal) {
+    if (layout.compressed) {
+      return CheckCompressedStream(path, layout.local_offset, bytes, exact, "data", reason);
+    }
+    return CheckPlainData(path, layout.local_offset, bytes, exact, "data", reason);
+  }
+  if (layout.kind == MetaImageLayout::Kind::kList && layout.compressed) {
+    // MetaIO inflates each slice with the whole image's CompressedDataSize: not followed.
+    *reason = "compressed LIST slice files are not supported";
+    return false;
+  }
+  const uint64_t file_bytes = bytes / layout.files.size();
+  for (const std::string& file : layout.files) {
+    const std::string what =
+        layout.kind == MetaImageLayout::Kind::kList
+            ? "slice file " + file
+            : "data file " + std::filesystem::path(file).filename().string();
+    if (!IsRegularFile(file)) {
+      *reason = (layout.kind == MetaImageLayout::Kind::kList ? "slice file " : "data file ") +
+                file + " does not exist";
+      return false;
+    }
+    if (layout.compressed) {
+      if (!CheckCompressedStream(file, 0, file_bytes, exact, what, reason)) return false;
+      continue;
+    }
+    // HeaderSize > 0 skips that many bytes; -1 means "the data is at the end".
+    const uint64_t offset = layout.header_size > 0 ? static_cast<uint64_t>(layout.header_size) : 0;
+    if (!CheckPlainData(file, offset, file_bytes, exact && layout.header_size >= 0, what, reason)) {
+      return false;
+    }
+  }
+  return true;
+}
+
+// Where the voxels of a NRRD (.nrrd/.nhdr) are, as teem reads them: after the header's
+// first empty line, or in the file(s) named by "data file:" (one name, "LIST [subdim]"
+// with the names on the remaining lines, or "<printf format> <min> <max> <step>
+// [subdim]"), relative to the header's folder.
+struct NrrdLayout {
+  std::string encoding = "raw";
+  uint64_t data_offset = 0;        // attached data: where it starts in the header file
+  std::vector<std::string> files;  // detached data files, in order
+};
+
+// Expands a teem file pattern: `format` must hold exactly one integer conversion
+// ("%d", "%03d", ...), anything else could make snprintf read arguments that are not there.
+bool ExpandNrrdPattern(const std::string& header,
+                       const std::vector<std::string>& words,
+                       std::vector<std::string>* files,
+                       std::string* reason) {
+  static const std::regex kOneInteger(R"(([^%]|%%)*%[-+ 0#]?[0-9]{0,3}[diu]([^%]|%%)*)");
+  static const std::regex kInteger(R"([-+]?[0-9]{1,9})");
+  const std::string& format = words[0];
+  if (!std::regex_match(format, kOneInteger) || !std::regex_match(words[1], kInteger) ||
+      !std::regex_match(words[2], kInteger) || !std::regex_match(words[3], kInteger)) {
+    *reason = "data file pattern '" + format + " " + words[1] + " " + words[2] + " " + words[3] +
+              "' is not '<format with one %d> <min> <max> <step>'";
+    return false;
+  }
+  const int64_t first = std::stoll(words[1]);
+  const int64_t last = std::stoll(words[2]);
+  const int64_t step = std::stoll(words[3]);
+  if (step == 0 || (last - first) / step < 0 ||
+      static_cast<uint64_t>((last - first) / step) >= kMaxDataFiles) {
+    *reason = "data file pattern '" + format + "' has an unusable range " + words[1] + ".." +
+              words[2] + " step " + words[3];
+    return false;
+  }
+  for (int64_t i = first; step > 0 ? i <= last : i >= last; i += step) {
+    char name[4096];
+    std::snprintf(name, sizeof(name), format.c_str(), static_cast<int>(i));
+    files->push_back(BesideHeader(header, name));
+  }
+  return true;
+}
+
+bool ParseNrrdLayout(const std::string& path, NrrdLayout* layout, std::string* reason) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) {
+    *reason = std::string("cannot open the header (") + std::strerror(errno) + ")";
+    return false;
+  }
+  std::string line;
+  if (!std::getline(in, line) || line.compare(0, 4, "NRRD") != 0) {
+    *reason = "not a NRRD header (the first line is not NRRD000x)";
+    return false;
+  }
+  size_t read = line.size() + 1;
+  bool list = false;
+  while (read < kMaxHeaderBytes && std::getline(in, line)) {
+    read += line.size() + 1;
+    if (list) {  // the rest of the header file names the data files
+      const std::string name = Trim(line);
+      if (!name.empty()) layout->files.push_back(BesideHeader(path, name));
+      continue;
+    }
+    if (Trim(line).empty()) break;  // the header ends at its first empty line
+    if (line[0] == '#' || line.find(":=") != std::string::npos) continue;  // comment, key/value
+    const size_t colon = line.find(':');
+    if (colon == std::string::npos) continue;
+    const std::string field = Trim(line.substr(0, colon));
+    const std::string value = Trim(line.substr(colon + 1));
+    if (field == "encoding") layout->encoding = value;
+    if (field == "data file" || field == "datafile") {
+      const std::vector<std::string> words = Words(value);
+      if (!words.empty() && words[0] == "LIST") {
+        list = true;
+      } else if ((words.size() == 4 || words.size() == 5) &&
+                 words[0].find('%') != std::string::npos) {
+        if (!ExpandNrrdPattern(path, words, &layout->files, reason)) return false;
+      } else {
+        layout->files.push_back(BesideHeader(path, value));
+      }
+    }
+  }
+  layout->data_offset = in ? static_cast<uint64_t>(in.tellg()) : 0;
+  return true;
+}
+
+// NRRD just written (raw or gzip encoding): `bytes` of voxels, exactly, after the header
+// or in its data file. Reading leaves this to teem, which checks sizes itself.
+bool CheckWrittenNrrdData(const std::string& path, uint64_t bytes, std::string* reason) {
+  NrrdLayout layout;
+  if (!ParseNrrdLayout(path, &layout, reason)) return false;
+  const bool gzip = layout.encoding == "gzip" || layout.encoding == "gz";
+  if (!gzip && layout.encoding != "raw") {
+    *reason = "unexpected NRRD encoding " + layout.encoding;
+    return false;
+  }
+  if (layout.files.size() > 1) {
+    *reason = "NRRD data split over " + std::to_string(layout.files.size()) + " files";
+    return false;
+  }
+  const std::string file = layout.files.empty() ? path : layout.files[0];
+  const uint64_t offset = layout.files.empty() ? layout.data_offset : 0;
+  const std::string what =
+      layout.files.empty() ? "data" : "data file " + std::filesystem::path(file).filename().string();
+  if (gzip) return CheckCompressedStream(file, offset, bytes, true, what, reason);
+  return CheckPlainData(file, offset, bytes, true, what, reason);
+}
+
+// Checks the data block of the formats whose ITK readers do not (see the file comment);
+// with `exact`, of a file just written, for every format.
+DataProblem CheckDataBlock(const itk::ImageIOBase& io,
+                           const std::string& path,
+                           bool exact,
+                           std::string* reason) {
+  const std::string name = io.GetNameOfClass();
+  const uint64_t bytes = static_cast<uint64_t>(io.GetImageSizeInBytes());
+  bool ok = true;
+  if (name == "NiftiImageIO") return CheckNiftiData(path, exact, reason);
+  if (name == "MetaImageIO") ok = CheckMetaImageData(path, bytes, exact, reason);
+  if (name == "NrrdImageIO" && exact) ok = CheckWrittenNrrdData(path, bytes, reason);
+  return ok ? DataProblem::kNone : DataProblem::kData;
+}
+
 // ITK's MetaIO copies each header key into a fixed 255-byte buffer with strcpy: a longer
 // key (a line without "=" counts whole) overflows it and the process aborts; control
 // characters in a value make it read past a buffer (both found by fuzzing). Checks the
@@ -501,7 +1020,6 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
   std::ifstream in(path, std::ios::binary);
   if (!in) return true;  // later stages report unreadable files
   constexpr size_t kMaxKey = 250;
-  constexpr size_t kMaxHeaderBytes = 1 << 20;
   std::string line;
   size_t read = 0;
   for (int number = 1; std::getline(in, line) && read < kMaxHeaderBytes; ++number) {
@@ -558,65 +1076,13 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
   return true;
 }
 
-// MetaImage (.mha with LOCAL data, .mhd with a data file): `bytes` of voxel data must
-// follow the header (LOCAL) or be in the data file, compressed or not. Multi-file data
-// (LIST, file patterns) is left to ITK.
-bool CheckMetaImageData(const std::string& path, uint64_t bytes, std::string* reason) {
-  std::ifstream in(path, std::ios::binary);
-  std::string line;
-  std::string data_file;
-  bool compressed = false;
-  int64_t header_size = 0;
-  while (data_file.empty() && std::getline(in, line)) {
-    const size_t equals = line.find('=');
-    if (equals == std::string::npos) continue;
-    const std::string key = Trim(line.substr(0, equals));
-    const std::string value = Trim(line.substr(equals + 1));
-    if (key == "CompressedData") compressed = IsTrue(value);
-    if (key == "HeaderSize") header_size = std::atoll(value.c_str());
-    if (key == "ElementDataFile") data_file = value;
+// Checks that must run before ITK parses a header: ITK would abort on it (see the
+// functions) or read it by rules that disagree with the file's size.
+bool CheckHeaderBeforeItk(const std::string& io_name, const std::string& path, std::string* reason) {
+  if (io_name == "NiftiImageIO") {
+    return CheckNiftiOrientation(path, reason) && CheckNiftiBitpix(path, reason);
   }
-  if (data_file.empty()) return true;  // ITK parsed a header this check does not follow
-  std::string lower = data_file;
-  std::transform(
-      lower.begin(), lower.end(), lower.begin(), [](unsigned char c) { return std::tolower(c); });
-  std::string file = path;
-  uint64_t offset = 0;
-  if (lower == "local") {
-    offset = static_cast<uint64_t>(in.tellg());
-  } else if (lower.rfind("list", 0) == 0 || data_file.find('%') != std::string::npos) {
-    return true;
-  } else {
-    const std::filesystem::path data_path(data_file);
-    file = (data_path.is_absolute() ? data_path
-                                    : std::filesystem::path(path).parent_path() / data_path)
-               .string();
-    if (!std::filesystem::exists(file)) {
-      *reason = "data file " + file + " does not exist";
-      return false;
-    }
-    offset = header_size > 0 ? static_cast<uint64_t>(header_size) : 0;
-  }
-  const std::string what =
-      file == path ? "data" : "data file " + std::filesystem::path(file).filename().string();
-  if (compressed) return CheckCompressedStream(file, offset, bytes, what, reason);
-  std::error_code ec;
-  const uint64_t size = std::filesystem::file_size(file, ec);
-  const uint64_t available = !ec && size > offset ? size - offset : 0;
-  if (available < bytes) {
-    *reason = DataEndsEarly(what, available, bytes);
-    return false;
-  }
-  return true;
-}
-
-// Checks the data block of the formats whose ITK readers do not (see the file comment).
-bool CheckDataBlock(const itk::ImageIOBase& io, const std::string& path, std::string* reason) {
-  const std::string name = io.GetNameOfClass();
-  if (name == "NiftiImageIO") return CheckNiftiData(path, reason);
-  if (name == "MetaImageIO") {
-    return CheckMetaImageData(path, static_cast<uint64_t>(io.GetImageSizeInBytes()), reason);
-  }
+  if (io_name == "MetaImageIO") return CheckMetaImageKeys(path, reason);
   return true;
 }
 
@@ -653,10 +1119,8 @@ bool Read(const std::string& path,
     }
     io->SetFileName(path);
     {
-      const std::string io_name = io->GetNameOfClass();
       std::string reason;
-      if ((io_name == "NiftiImageIO" && !CheckNiftiOrientation(path, &reason)) ||
-          (io_name == "MetaImageIO" && !CheckMetaImageKeys(path, &reason))) {
+      if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) {
         *error = path + ": " + reason;
         return false;
       }
@@ -668,8 +1132,10 @@ bool Read(const std::string& path,
 
     stage = "cannot read the voxels";
     std::string reason;
-    if (!CheckDataBlock(*io, path, &reason)) {
-      *error = path + ": " + stage + " (" + reason + ")";
+    const DataProblem problem = CheckDataBlock(*io, path, /*exact=*/false, &reason);
+    if (problem != DataProblem::kNone) {
+      *error = problem == DataProblem::kVoxel ? path + ": " + reason
+                                              : path + ": " + stage + " (" + reason + ")";
       return false;
     }
     const unsigned dims = io->GetNumberOfDimensions();
@@ -736,7 +1202,9 @@ bool Write(const RawVolume& volume,
     } else {
       WriteAs<float>(volume, path, compress);
     }
-    return true;
+    // ITK 5.2's NIfTI and MetaImage writers ignore failed writes (niftilib only prints
+    // "NWAD: wrote only 0 of N bytes"), so success is decided by reading the result back.
+    return VerifyWritten(volume, path, pixel_type, error);
   } catch (const itk::ExceptionObject& e) {
     *error = path + ": cannot write (" + Describe(e) + ")";
   } catch (const std::bad_alloc&) {
@@ -745,6 +1213,95 @@ bool Write(const RawVolume& volume,
     *error = path + ": cannot write (" + OneLine(e.what()) + ")";
   }
   return false;
+}
+
+bool VerifyWritten(const RawVolume& volume,
+                   const std::string& path,
+                   PixelType pixel_type,
+                   std::string* error) {
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  const auto fail = [&](const std::string& reason) {
+    *error = path + ": write failed (disk full or file-size limit?): " + reason;
+    return false;
+  };
+  try {
+    itk::ImageIOBase::Pointer io =
+        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+    if (!io) return fail("the written header cannot be read back");
+    io->SetFileName(path);
+    std::string reason;
+    if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) return fail(reason);
+    io->ReadImageInformation();
+    const itk::IOComponentEnum component =
+        pixel_type == PixelType::kUint8 ? itk::IOComponentEnum::UCHAR : itk::IOComponentEnum::FLOAT;
+    bool same = io->GetNumberOfDimensions() >= 3 && io->GetNumberOfComponents() == 1 &&
+                io->GetComponentType() == component;
+    for (unsigned d = 0; same && d < io->GetNumberOfDimensions(); ++d) {
+      same = io->GetDimensions(d) == (d < 3 ? static_cast<itk::SizeValueType>(volume.size[d]) : 1);
+    }
+    if (!same) return fail("the written header does not describe the image");
+    if (CheckDataBlock(*io, path, /*exact=*/true, &reason) != DataProblem::kNone) {
+      return fail(reason);
+    }
+    return true;
+  } catch (const itk::ExceptionObject& e) {
+    return fail("the written header cannot be read back (" + Describe(e) + ")");
+  } catch (const std::bad_alloc&) {
+    return fail("out of memory while reading it back");
+  } catch (const std::exception& e) {
+    return fail(OneLine(e.what()));
+  }
+}
+
+bool DataFiles(const std::string& path, std::vector<std::string>* files, std::string* error) {
+  std::error_code ec;
+  const std::filesystem::file_status status = std::filesystem::status(path, ec);
+  if (!std::filesystem::exists(status)) {
+    *error = path + ": no such file";
+    return false;
+  }
+  if (!std::filesystem::is_regular_file(status)) {
+    *error = path + ": not a regular file";
+    return false;
+  }
+  std::string lower = path;
+  std::transform(lower.begin(), lower.end(), lower.begin(), [](unsigned char c) {
+    return static_cast<char>(std::tolower(c));
+  });
+  std::vector<std::string> out = {path};
+  std::string reason;
+  if (EndsWith(lower, ".mha") || EndsWith(lower, ".mhd")) {
+    MetaImageLayout layout;
+    bool found_data_file = false;
+    if (!ParseMetaImageLayout(path, &layout, &found_data_file, &reason)) {
+      *error = path + ": cannot read the header (" + reason + ")";
+      return false;
+    }
+    out.insert(out.end(), layout.files.begin(), layout.files.end());
+  } else if (EndsWith(lower, ".nrrd") || EndsWith(lower, ".nhdr")) {
+    NrrdLayout layout;
+    if (!ParseNrrdLayout(path, &layout, &reason)) {
+      *error = path + ": cannot read the header (" + reason + ")";
+      return false;
+    }
+    out.insert(out.end(), layout.files.begin(), layout.files.end());
+  } else if (EndsWith(lower, ".hdr") || EndsWith(lower, ".hdr.gz")) {
+    // Analyze / NIfTI pair: niftilib opens "<stem>.img", else "<stem>.img.gz" (matching the
+    // header's case).
+    const size_t dot = lower.rfind(".hdr");
+    const bool upper = path.compare(dot, 4, ".HDR") == 0;
+    const std::string stem = path.substr(0, dot) + (upper ? ".IMG" : ".img");
+    const std::string gz = stem + (upper ? ".GZ" : ".gz");
+    out.push_back(!IsRegularFile(stem) && IsRegularFile(gz) ? gz : stem);
+  }
+  // A header may name itself as its data file (HeaderSize skips the text).
+  std::vector<std::string> unique;
+  for (const std::string& file : out) {
+    if (std::find(unique.begin(), unique.end(), file) == unique.end()) unique.push_back(file);
+  }
+  *files = std::move(unique);
+  return true;
 }
 
 }  // namespace itk_io

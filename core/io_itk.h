@@ -37,13 +37,28 @@ bool Read(const std::string& path,
 
 enum class PixelType { kFloat, kUint8 };
 
-// Writes `volume` to `path` (format from the extension) with voxels cast to `pixel_type`.
-// Not atomic by itself: callers write to a temporary path. Errors are one line naming `path`.
+// Writes `volume` to `path` (format from the extension) with voxels cast to `pixel_type`,
+// then checks the result with VerifyWritten. Not atomic by itself: callers write to a
+// temporary path and publish it only on success. Errors are one line naming `path`.
 bool Write(const RawVolume& volume,
            const std::string& path,
            PixelType pixel_type,
            bool compress,
            std::string* error);
+
+// Reads back what Write put at `path` and checks that it is complete: the header parses and
+// describes `volume` (size, `pixel_type`), and the voxel data has exactly the size it must
+// have: header + voxels x bytes per voxel for uncompressed data (in the data file for
+// .mhd/.nhdr), a full decompression that ends cleanly with exactly that many bytes for
+// compressed data. Failed writes (disk full, file-size limit) show up here even where the
+// ITK writer reports success. The error names `path` and says "write failed".
+bool VerifyWritten(const RawVolume& volume,
+                   const std::string& path,
+                   PixelType pixel_type,
+                   std::string* error);
+
+// `path` followed by the data files its header names (see io_image.h, ImageDataFiles).
+bool DataFiles(const std::string& path, std::vector<std::string>* files, std::string* error);
 
 // ITK transform files (.tfm, .txt; .h5 where ITK has HDF5): a 3D affine transform
 // x_moving = A x_fixed + b, `matrix` = row-major [A | b] (12 numbers), written as ITK's
