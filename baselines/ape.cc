@@ -1,4 +1,4 @@
-// APE: accumulated pairwise estimates (DESIGN.md section 5), streamed like DSR.
+// APE: accumulated pairwise estimates (docs/design.md section 5), streamed like DSR.
 #include <cmath>
 #include <cstring>
 

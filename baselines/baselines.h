@@ -1,4 +1,4 @@
-// The paper's four baselines (DESIGN.md section 5), over the same observation model,
+// The paper's four baselines (docs/design.md section 5), over the same observation model,
 // sampler, panorama grid rule, masks, initial poses and stopping rule as DSR:
 //
 //   pairwise           consecutive pairs (k-1, k) registered by SSD over their overlap,
@@ -53,7 +53,7 @@ struct BaselineOptions {
 // counts the pair differences, k_j (k_j - 1) / 2 per voxel. Deterministic for any threads.
 // The Gauss-Newton matrix is summed pair by pair, as APE evaluates its objective;
 // `batched_hessian` instead adds it in DSR's batched form, H_ab = (k delta_ab - 1) J_a^T J_b
-// per voxel (the same matrix: DESIGN.md section 5), for measurements only (bench/): it
+// per voxel (the same matrix: docs/design.md section 5), for measurements only (bench/): it
 // shows how much of APE's cost is its pair-by-pair Gauss-Newton matrix.
 void AccumulateApeSystem(const std::vector<Frame>& frames,
                          const CandidateSet& candidates,
@@ -154,7 +154,7 @@ struct RelativePose {
 };
 
 // Global poses (frame 0 fixed at `initial[0]`) minimising sum over the measurements of
-// ||Log(Z_ki^-1 T_k T_i^-1)||^2 (tangent [rho; phi], DESIGN.md section 1), on the SE(3)
+// ||Log(Z_ki^-1 T_k T_i^-1)||^2 (tangent [rho; phi], docs/design.md section 1), on the SE(3)
 // manifold with Ceres, from `initial`. Each residual is scaled by its sqrt_information;
 // with cauchy_scale > 0 the squared norms pass through Ceres's CauchyLoss of that scale
 // (a robust graph: a wrong measurement pulls with a bounded force).

@@ -1,5 +1,5 @@
 // The pair-based baselines: pair registration, pairwise chaining, Lie normalisation and
-// sequential registration to the growing panorama (DESIGN.md section 5).
+// sequential registration to the growing panorama (docs/design.md section 5).
 #include <algorithm>
 #include <numeric>
 #include <sstream>

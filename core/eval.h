@@ -1,4 +1,4 @@
-// Accuracy against ground truth (DESIGN.md section 6): frame-0-relative pose errors.
+// Accuracy against ground truth (docs/design.md section 6): frame-0-relative pose errors.
 //
 // Both pose sets are re-expressed relative to frame 0 (T_i <- T_i T_0^-1) first, so any
 // world convention of the ground truth works. Per frame i >= 1:

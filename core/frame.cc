@@ -1,5 +1,5 @@
 // Trilinear sampling of intensity and central-difference gradient volumes with the
-// field-of-view validity rule (DESIGN.md section 2). See frame.h for the gradient rule
+// field-of-view validity rule (docs/design.md section 2). See frame.h for the gradient rule
 // and the layout.
 #include "core/frame.h"
 

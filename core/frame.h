@@ -1,4 +1,4 @@
-// A frame prepared for sampling (DESIGN.md section 2).
+// A frame prepared for sampling (docs/design.md section 2).
 //
 // Sampling at a physical point x (mm, frame coordinates): u = (D S)^-1 (x - o); the value
 // I(u) by trilinear interpolation of the voxels, and the gradient by trilinear

@@ -1,5 +1,5 @@
 // Drawing text and lines on a Picture and writing it as PNG, through OpenCV (core/io_* are
-// the only users of OpenCV and ITK, STYLE.md section 1).
+// the only users of OpenCV and ITK).
 #ifndef DSR_CORE_IO_PICTURE_H_
 #define DSR_CORE_IO_PICTURE_H_
 

@@ -1,4 +1,4 @@
-// Poses JSON (DESIGN.md section 1, format in io_poses.h) with nlohmann::json: strict
+// Poses JSON (docs/design.md section 1, format in io_poses.h) with nlohmann::json: strict
 // validation on read (shape, finiteness, rigidity, count) with one-line errors naming the
 // file, the frame and the rule; shortest round-trip number printing on write, so a
 // write/read cycle returns the same doubles bit for bit.

@@ -1,4 +1,4 @@
-// Poses file IO (DESIGN.md section 1):
+// Poses file IO (docs/design.md section 1):
 //   {"frames": [{"image": "frame_00.nii.gz", "T": [[r00,r01,r02,tx],[..],[..],[0,0,0,1]]}, ...]}
 // T is frame_from_world (world -> frame physical mm, LPS), row-major 4x4. Extra keys are
 // allowed and ignored on read (e.g. "world", "method"), so other tools can annotate the file.

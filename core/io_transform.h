@@ -3,7 +3,7 @@
 // ITK resamples a moving image onto a fixed grid by mapping each fixed (output) physical
 // point through the transform to the moving image: the file holds fixed -> moving. For
 // frame i resampled onto the panorama (world = frame 0's physical space, LPS, mm) that is
-// world -> frame i, i.e. T_i = frame_from_world itself (DESIGN.md section 1). Written as
+// world -> frame i, i.e. T_i = frame_from_world itself (docs/design.md section 1). Written as
 // AffineTransform_double_3_3 (a rigid matrix, centre 0), which every ITK-based tool reads.
 #ifndef DSR_CORE_IO_TRANSFORM_H_
 #define DSR_CORE_IO_TRANSFORM_H_

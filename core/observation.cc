@@ -1,4 +1,4 @@
-// Candidate observations and overlap connectivity (DESIGN.md section 2).
+// Candidate observations and overlap connectivity (docs/design.md section 2).
 #include "core/observation.h"
 
 #include "core/parallel.h"

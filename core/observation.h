@@ -1,12 +1,14 @@
-// The observation model shared by every solver mode (DESIGN.md section 2).
+// The observation model shared by every solver mode (docs/design.md section 2).
 //
-// Code names -> DESIGN.md symbols:
+// Code names -> docs/design.md symbols:
 //   voxel_center_in_world   p_j       panorama voxel centre (world = frame 0 physical, mm)
 //   frame_from_world[i]     T_i       pose of frame i (world -> frame i physical)
 //   sample_in_frame         p_ij      = T_i p_j
 //   intensity               I_i(p_ij) trilinear value
 //   jacobian                J_ij      = grad I_i(p_ij)^T [I_3, -[p_ij]x]   (1x6, [rho; phi])
-//   observed                sigma_ij  all 8 trilinear neighbours inside frame i's mask
+//   observed                sigma_ij  p_ij in a valid cell of frame i: its 8 corners are
+//                                     voxels that, with their 6 neighbours, lie inside
+//                                     frame i's mask (core/frame.h, docs/design.md 2.3)
 //
 // The candidate rule (the one rule every mode uses, so all modes minimise the same
 // function): at the poses a solve starts from, frame i is a candidate observer of voxel j

@@ -1,4 +1,4 @@
-// The panorama grid and the closed-form panorama (DESIGN.md section 2; paper eq. 10).
+// The panorama grid and the closed-form panorama (docs/design.md section 2; paper eq. 10).
 //
 // Grid: axis-aligned in world (identity direction), spacing = frame 0 spacing times
 // `spacing_factor`, extent = the bounding box of every frame's valid field of view mapped

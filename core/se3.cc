@@ -1,4 +1,4 @@
-// SE(3) exponential/logarithm and the left-perturbation pose manifold (DESIGN.md section 1).
+// SE(3) exponential/logarithm and the left-perturbation pose manifold (docs/design.md section 1).
 //
 // With theta = |phi|, K = [phi]x:  A = sin(theta)/theta, B = (1 - cos(theta))/theta^2,
 // C = (theta - sin(theta))/theta^3;  R = I + A K + B K^2,  V = I + B K + C K^2,

@@ -1,6 +1,6 @@
-// SE(3) for the pose blocks (DESIGN.md section 1).
+// SE(3) for the pose blocks (docs/design.md section 1).
 //
-// A pose `frame_from_world` (T_i in DESIGN.md) maps a world point to frame i's physical
+// A pose `frame_from_world` (T_i in docs/design.md) maps a world point to frame i's physical
 // coordinates (mm): sample_in_frame = frame_from_world * voxel_center_in_world (p_ij = T_i p_j).
 //
 // Tangent vector delta = [rho; phi] (translation first, as in the paper's code). Exp is

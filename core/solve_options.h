@@ -1,5 +1,5 @@
 // Options and reports shared by every solver mode, mapped onto ceres::Solver::Options.
-// Libraries take these structs; only tools/ parse flags into them (STYLE.md section 1).
+// Libraries take these structs; only tools/ parse flags into them.
 #ifndef DSR_CORE_SOLVE_OPTIONS_H_
 #define DSR_CORE_SOLVE_OPTIONS_H_
 
@@ -26,8 +26,8 @@ struct SolveOptions {
   // Prepended to the mode's name on progress lines (e.g. "level 2 " -> "level 2 dsr iter").
   std::string progress_prefix;
   // Ceres accepts a step only when the cost drops by at least this fraction of the model's
-  // prediction. Tests that study Gauss-Newton fixed points lower it (see DESIGN.md
-  // section 4); users keep Ceres's default.
+  // prediction. Tests that study Gauss-Newton fixed points lower it (see
+  // docs/design.md section 4.4); users keep Ceres's default.
   double min_relative_decrease = 1e-3;
   // The pose stopping rule of core/convergence.h: stop when an accepted step moves no
   // field of view by more than this many voxels (0 = off), or after this many rejected

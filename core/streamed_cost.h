@@ -1,5 +1,5 @@
 // A Ceres residual block over every free pose whose normal equations are streamed, not
-// stored (DESIGN.md section 4, "fast path"): shared by DSR's chunk cost and APE's.
+// stored (docs/design.md section 4.6, the fast path): shared by DSR's chunk cost and APE's.
 //
 // Evaluate() asks the subclass for the normal equations (H, g, f) of its voxels at the
 // current poses (core/voxel_stream.h) and returns a compressed residual r' with Jacobian R

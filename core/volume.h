@@ -1,4 +1,4 @@
-// A 3D scalar volume on a physical grid (DESIGN.md section 1).
+// A 3D scalar volume on a physical grid (docs/design.md section 1).
 //
 // Geometry: size (voxels along index axes i, j, k = ITK index[0..2]), origin o (mm),
 // spacing S (mm, diagonal) and direction D (3x3, columns = index axes in physical space).

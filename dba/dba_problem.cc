@@ -1,4 +1,4 @@
-// Direct bundle adjustment in Ceres (DESIGN.md section 3).
+// Direct bundle adjustment in Ceres (docs/design.md section 3).
 #include "dba/dba_problem.h"
 
 #include <cmath>

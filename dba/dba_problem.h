@@ -1,4 +1,4 @@
-// DBA: full direct bundle adjustment (DESIGN.md section 3, paper eq. 2).
+// DBA: full direct bundle adjustment (docs/design.md section 3, paper eq. 2).
 //
 //   min over T_1..T_{m-1}, M_1..M_n of  sum_j sum_i sigma_ij (M_j - I_i(p_ij))^2
 //

@@ -1,4 +1,4 @@
-// DSR solve: Ceres over the 6(m-1) free pose parameters only (DESIGN.md section 4).
+// DSR solve: Ceres over the 6(m-1) free pose parameters only (docs/design.md section 4).
 #ifndef DSR_DSR_REDUCED_DSR_SOLVER_H_
 #define DSR_DSR_REDUCED_DSR_SOLVER_H_
 

@@ -1,4 +1,4 @@
-// Reduced DSR cost: per-voxel reference and streaming chunk cost (DESIGN.md section 4).
+// Reduced DSR cost: per-voxel reference and streaming chunk cost (docs/design.md section 4).
 #include "dsr_reduced/reduced_cost.h"
 
 #include <algorithm>

@@ -1,4 +1,4 @@
-// DSR: the reduced problem with the panorama intensities eliminated (DESIGN.md section 4).
+// DSR: the reduced problem with the panorama intensities eliminated (docs/design.md section 4).
 //
 // For fixed poses the optimal panorama is mu_j = (1/k_j) sum_i sigma_ij I_i(p_ij) (paper
 // eq. 10); substituting it gives

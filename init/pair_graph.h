@@ -1,5 +1,5 @@
-// Global initial poses from a pair graph (docs/design.md, "Global initialisation"), for
-// frames in any order and with no starting poses:
+// Global initial poses from a pair graph (docs/design.md section 9, "Global
+// initialisation"), for frames in any order and with no starting poses:
 //
 //   1. pairs (i, k) are searched globally (init/placement_search.h): the best placement
 //      Z_ki = frame_k_from_frame_i and its score, the masked NCC of the pair's overlap;

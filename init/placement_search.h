@@ -1,6 +1,6 @@
 // Global search for the rigid placement of one volume (the moving frame) relative to
-// another (a frame or a panorama), independent of any starting pose (DESIGN notes in
-// docs/design.md, "Global initialisation").
+// another (a frame or a panorama), independent of any starting pose (docs/design.md
+// section 9, "Global initialisation").
 //
 //   for each rotation R within max_rotation of a centre (init/rotation_grid.h):
 //     resample the moving field of view rotated by R^T about its centre onto a grid with

@@ -1,4 +1,5 @@
-// Recovery of frames that a solve left in a wrong minimum (docs/design.md, "Recovery").
+// Recovery of frames that a solve left in a wrong minimum (docs/design.md section 10,
+// "Recovery").
 //
 // The pipeline's checks (pipeline/divergence_guard.h) name the frames that do not agree
 // with the others after a solve: a misfit far above the frames' lower quartile, or a

@@ -1,4 +1,4 @@
-// Built-in procedural heart-like phantom, so demos and tests need no files (DESIGN.md
+// Built-in procedural heart-like phantom, so demos and tests need no files (docs/design.md
 // section 6 cuts its frames from "a real 3D scan"; this stands in for it).
 //
 // Content, on a background of tissue (~70-110, slowly varying, scale ~12 voxels):

@@ -1,4 +1,4 @@
-// The paper's simulation protocol (DESIGN.md section 6); conventions in simulate.h.
+// The paper's simulation protocol (docs/design.md section 6); conventions in simulate.h.
 #include "sim/simulate.h"
 
 #include <algorithm>

@@ -1,4 +1,4 @@
-// The paper's simulation protocol (DESIGN.md section 6): frames cut from a source volume
+// The paper's simulation protocol (docs/design.md section 6): frames cut from a source volume
 // with a TEE-like pyramidal field of view at random rigid poses, intensities 0..255,
 // additive Gaussian noise inside the field of view, zero outside.
 //
@@ -17,7 +17,7 @@
 // box is R = Rz(gamma) Ry(beta) Rx(alpha) with each Euler angle in
 // [-max_rotation_deg, +max_rotation_deg] and t in [-max_translation_voxels,
 // +max_translation_voxels] * s per world axis. Consumers re-express poses relative to
-// frame 0 (DESIGN.md section 1: world = frame 0). Every draw below is u, uniform in [-1, 1),
+// frame 0 (docs/design.md section 1: world = frame 0). Every draw below is u, uniform in [-1, 1),
 // from one std::mt19937_64(seed); after all poses come the noise draws of frame 0, 1, ...
 // in voxel order.
 //

@@ -1,4 +1,4 @@
-// The paper's baselines (baselines/, DESIGN.md section 5):
+// The paper's baselines (baselines/, docs/design.md section 5):
 //  1. APE's per-voxel identity with DSR: cost, gradient and Gauss-Newton matrix of a voxel
 //     seen k_j times are k_j times DSR's;
 //  2. APE's streamed normal equations equal its per-pair reference cost through Ceres;

@@ -1,4 +1,4 @@
-// DBA (DESIGN.md section 3): analytic Jacobians, elimination ordering, ground-truth
+// DBA (docs/design.md section 3): analytic Jacobians, elimination ordering, ground-truth
 // recovery, the closed-form panorama at convergence, linear solvers, memory guard.
 #include "dba/dba_problem.h"
 

@@ -1,4 +1,4 @@
-// The paper's theorem (DESIGN.md section 4), checked on several small problems:
+// The paper's theorem (docs/design.md section 4), checked on several small problems:
 //  1. DBA's undamped Gauss-Newton pose step after Schur elimination of the intensities
 //     equals the DSR step, whatever the current intensities;
 //  2. the fast chunked cost and the per-voxel reference give the same cost, gradient and
@@ -184,7 +184,7 @@ ModePoses SolveAllModes(const testing_problems::TestSequence& s,
 }
 
 // Full solves need problems whose minimum is sharp: with trilinear interpolation the cost is
-// only piecewise smooth and the Jacobians come from gradient volumes (DESIGN.md section 2),
+// only piecewise smooth and the Jacobians come from gradient volumes (docs/design.md section 2),
 // so on a generic problem a monotone trust-region method stops, in either mode, at
 // whichever shallow dip next to the Gauss-Newton fixed point its path meets (the two modes
 // take different damped paths; the dips differ by ~1e-5 rad). Lattice-aligned frames make
@@ -227,7 +227,8 @@ TEST(Theorem, DampedIteratesDifferButTheFixedPointIsShared) {
   const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 62);
   const CandidateSet cand = InteriorCandidates(s, init, 1.5);
   // After one Levenberg-Marquardt step the modes disagree: DBA's damping also acts on the
-  // intensity blocks, so its eliminated system is not DSR's damped system (DESIGN.md 4).
+  // intensity blocks, so its eliminated system is not DSR's damped system
+  // (docs/design.md section 4.4).
   const ModePoses first = SolveAllModes(s, cand, init, 1);
   const auto [rotation_1, translation_1] = MaxPoseDifference(first.dba, first.dsr_fast);
   EXPECT_GT(std::max(rotation_1, translation_1), 1e-6)

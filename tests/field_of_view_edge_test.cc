@@ -1,6 +1,6 @@
 // DSR at field-of-view edges that cut through structure (frames 0 outside a ball, masks
 // equal to that ball: test_problems.h `ball_field_of_view`), where the gradient rule of
-// core/frame.h matters (DESIGN.md section 2, Correction): the gradient g and Gauss-Newton
+// core/frame.h matters (docs/design.md section 2.3): the gradient g and Gauss-Newton
 // matrix H the solver uses are the derivatives of the cost it evaluates, and a noise-free
 // solve reaches the ground truth. Both tests fail under the former rule (sigma_ij from the
 // 8 corners alone, so central differences at the edge read the zero background): see the

@@ -1,4 +1,4 @@
-// Sampler (DESIGN.md section 2): on a volume whose intensity is linear in physical space,
+// Sampler (docs/design.md section 2): on a volume whose intensity is linear in physical space,
 // trilinear interpolation and central differences are exact, so values and physical
 // gradients must be reproduced up to float storage rounding, wherever the sample is valid,
 // whatever the image holds outside the mask (the gradient rule of core/frame.h).

@@ -1,4 +1,4 @@
-// Panorama grid, candidate rule and closed-form panorama (DESIGN.md section 2).
+// Panorama grid, candidate rule and closed-form panorama (docs/design.md section 2).
 #include "core/observation.h"
 
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// SE(3) exponential/logarithm and the left-perturbation PoseManifold (DESIGN.md section 1).
+// SE(3) exponential/logarithm and the left-perturbation PoseManifold (docs/design.md section 1).
 #include "core/se3.h"
 
 #include <random>

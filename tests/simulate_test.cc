@@ -1,4 +1,4 @@
-// Simulator (DESIGN.md section 6, sim/simulate.h): frames agree with each other under the
+// Simulator (docs/design.md section 6, sim/simulate.h): frames agree with each other under the
 // ground-truth poses, determinism, the protocol's pose ranges (random and walk), which
 // motions fit the default phantom, noise statistics, the field of view and its mask,
 // option validation.
