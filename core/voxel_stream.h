@@ -55,6 +55,9 @@ struct NormalEquations {
   // Intensity differences the objective evaluated (e.g. sum of k_j for DSR, sum of
   // k_j (k_j - 1) / 2 for APE), over voxels with k_j >= 2.
   int64_t observations = 0;
+  // Voxels with k_j >= 2 (the panorama intensities DSR eliminates: one degree of freedom
+  // each, for the noise estimate of pipeline/uncertainty.h).
+  int64_t voxels = 0;
   // Per frame (m entries), for terms that split their cost by frame (DSR: frame i's sum
   // of squared residuals and its number of residuals); zero otherwise.
   std::vector<double> frame_cost;
@@ -152,6 +155,7 @@ struct VoxelAccumulator {
   std::vector<double> hessian, gradient;
   double cost = 0.0;
   int64_t observations = 0;
+  int64_t voxels = 0;
   double frame_cost[kMaxFrames] = {};
   int64_t frame_observations[kMaxFrames] = {};
 };
@@ -203,6 +207,7 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
   }
   for (int64_t v = b0; v < b1;) {
     v = SampleVoxelBatch(posed, candidates, v, b1, with_jacobian, batch);
+    acc->voxels += batch->num_voxels;
     for (int t = 0; t < batch->num_voxels; ++t) {
       VoxelObservations obs;
       const int first = batch->begin[t];
@@ -279,6 +284,7 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
   for (const VoxelAccumulator& acc : partial) {  // fixed order: deterministic
     out->cost += acc.cost;
     out->observations += acc.observations;
+    out->voxels += acc.voxels;
     for (int i = 0; i < m; ++i) {
       out->frame_cost[i] += acc.frame_cost[i];
       out->frame_observations[i] += acc.frame_observations[i];

@@ -502,6 +502,13 @@ bool SolveLevels(const std::vector<Image>& images,
                          options.max_pair_mismatch_ratio, &flagged, &why)) {
       return diverged(0, why, flagged);
     }
+    if (options.estimate_uncertainty && (options.mode == "dsr" || options.mode == "dba")) {
+      if (!EstimatePoseUncertainty(frames, final_candidates, poses, masks,
+                                   options.solve.num_threads, &result->uncertainty,
+                                   &result->uncertainty_note)) {
+        result->uncertainty = PoseUncertainty();
+      }
+    }
   }
   result->frame_from_world = poses;
   return true;
@@ -648,6 +655,7 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
   }
   for (double& misfit : result->frame_misfits) misfit = std::ldexp(misfit, -exponent);
   for (float& v : result->dba_intensities.voxels) v = std::ldexp(v, -exponent);
+  result->uncertainty.noise_sigma = std::ldexp(result->uncertainty.noise_sigma, -exponent);
 }
 
 }  // namespace

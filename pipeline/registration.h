@@ -28,6 +28,7 @@
 #include "core/volume.h"
 #include "init/placement_search.h"
 #include "init/recovery.h"
+#include "pipeline/uncertainty.h"
 
 namespace dsr {
 
@@ -93,6 +94,11 @@ struct RegistrationOptions {
   // off.
   double max_pair_mismatch_ratio = 5.0;
 
+  // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
+  // and dba, whose estimate it is): one more pass with Jacobians over the finest level and
+  // one with the reference sampler. Off by default: not yet calibrated (see there).
+  bool estimate_uncertainty = false;
+
   // Mode-specific.
   int dsr_num_chunks = 1;
   bool dsr_reference_cost = false;
@@ -139,6 +145,10 @@ struct RegistrationResult {
     double seconds = 0.0;  // the search (the solves that follow are counted above)
   };
   std::vector<Recovery> recoveries;
+  // The final poses' uncertainty (estimate_uncertainty, a usable dsr or dba result);
+  // covariance is empty when not estimated, with the reason in uncertainty_note.
+  PoseUncertainty uncertainty;
+  std::string uncertainty_note;
   // The last solve's panorama grid and, for --mode=dba, its optimised intensities on that
   // grid (0 at voxels that are not candidates); empty for other modes.
   ImageGeometry grid;

@@ -1,0 +1,190 @@
+#include "pipeline/uncertainty.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <sstream>
+
+#include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+
+#include "core/parallel.h"
+#include "dsr_reduced/reduced_cost.h"
+
+namespace dsr {
+namespace {
+
+// Edge of the cubes the gradient's covariance is estimated over (panorama voxels).
+constexpr int kClusterVoxels = 8;
+// At most this many field-of-view points per frame, and draws of the pose error.
+constexpr int64_t kMaxTrePoints = 4096;
+constexpr int kTreDraws = 256;
+
+std::vector<Eigen::Vector3d> FieldOfViewPoints(const Mask& mask) {
+  const ImageGeometry& g = mask.geometry;
+  const int64_t inside = CountInside(mask);
+  // The same stride along every axis, so that the points spread evenly.
+  int stride = 1;
+  while (inside / (int64_t{stride} * stride * stride) > kMaxTrePoints) ++stride;
+  std::vector<Eigen::Vector3d> points;
+  for (int k = 0; k < g.size[2]; k += stride) {
+    for (int j = 0; j < g.size[1]; j += stride) {
+      for (int i = 0; i < g.size[0]; i += stride) {
+        if (mask.at(i, j, k)) points.push_back(g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
+      }
+    }
+  }
+  return points;
+}
+
+// Cov(g) of the DSR gradient g = sum_j sum_a J_aj^T r_aj (6m, all frames), estimated from
+// the residuals themselves, cluster by cluster: the panorama is cut into cubes of
+// kClusterVoxels voxels, g_B is the gradient's share of cube B, and Cov(g) ~ sum_B g_B g_B^T.
+// This holds when residuals in different cubes are independent, whatever their
+// correlation inside one cube (trilinear resampling spreads one frame voxel's noise over
+// the 8 panorama voxels around it) and whatever their variance (which resampling lowers
+// below the frames' own noise, so that s^2 from the cost would be too small).
+Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
+                                            const CandidateSet& candidates,
+                                            const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                            int num_threads,
+                                            int64_t* num_clusters) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 6 * m;
+  const ImageGeometry& grid = candidates.grid;
+  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
+  const int64_t cx = (grid.size[0] + kClusterVoxels - 1) / kClusterVoxels;
+  const int64_t cy = (grid.size[1] + kClusterVoxels - 1) / kClusterVoxels;
+  const int64_t slabs = (grid.size[2] + kClusterVoxels - 1) / kClusterVoxels;
+  // Candidates are sorted by linear index, so each slab of cubes (kClusterVoxels planes)
+  // is a contiguous range: slabs run in parallel, each summing its own cubes.
+  std::vector<int64_t> slab_begin(slabs + 1, candidates.num_voxels());
+  for (int64_t v = candidates.num_voxels() - 1; v >= 0; --v) {
+    slab_begin[candidates.voxel[v] / nxy / kClusterVoxels] = v;
+  }
+  for (int64_t s = slabs - 1; s >= 0; --s) slab_begin[s] = std::min(slab_begin[s], slab_begin[s + 1]);
+  std::vector<Eigen::MatrixXd> slab_covariance(slabs);
+  std::vector<int64_t> slab_clusters(slabs, 0);
+  ParallelFor(0, slabs, num_threads, [&](int64_t s) {
+    Eigen::MatrixXd shares = Eigen::MatrixXd::Zero(n, cx * cy);
+    std::vector<double> value(m);
+    std::vector<RowVector6d> jacobian(m);
+    std::vector<int> frame(m);
+    for (int64_t v = slab_begin[s]; v < slab_begin[s + 1]; ++v) {
+      const Eigen::Vector3d centre = candidates.VoxelCenter(v);
+      int k = 0;
+      double sum = 0.0;
+      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
+        const int f = __builtin_ctz(bits);
+        if (ObserveSample(frames[f], frame_from_world[f], centre, &value[k], &jacobian[k])) {
+          frame[k] = f;
+          sum += value[k];
+          ++k;
+        }
+      }
+      if (k < 2) continue;
+      const double mean = sum / k;
+      const int64_t l = candidates.voxel[v];
+      const int64_t j = (l % nxy) / nx, i = l % nx;
+      const int64_t cluster = (j / kClusterVoxels) * cx + i / kClusterVoxels;
+      for (int a = 0; a < k; ++a) {
+        shares.block<6, 1>(6 * frame[a], cluster) += jacobian[a].transpose() * (value[a] - mean);
+      }
+    }
+    for (int64_t c = 0; c < shares.cols(); ++c) {
+      if (!shares.col(c).isZero(0.0)) ++slab_clusters[s];
+    }
+    slab_covariance[s] = shares * shares.transpose();
+  });
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(n, n);
+  *num_clusters = 0;
+  for (int64_t s = 0; s < slabs; ++s) {  // fixed order: deterministic
+    covariance += slab_covariance[s];
+    *num_clusters += slab_clusters[s];
+  }
+  return covariance;
+}
+
+}  // namespace
+
+double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame) {
+  if (points_in_frame.empty()) return 0.0;
+  // A square root of the covariance (it is positive semi-definite).
+  const Eigen::SelfAdjointEigenSolver<Matrix6d> eigen(covariance);
+  const Matrix6d root = eigen.eigenvectors() *
+                        eigen.eigenvalues().cwiseMax(0.0).cwiseSqrt().asDiagonal();
+  std::mt19937_64 rng(20261124);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  double sum = 0.0;
+  for (int d = 0; d < kTreDraws; ++d) {
+    Vector6d z;
+    for (int c = 0; c < 6; ++c) z[c] = normal(rng);
+    const Vector6d delta = root * z;
+    const Eigen::Vector3d rho = delta.head<3>(), phi = delta.tail<3>();
+    double mean = 0.0;
+    for (const Eigen::Vector3d& x : points_in_frame) mean += (rho + phi.cross(x)).norm();
+    sum += mean / static_cast<double>(points_in_frame.size());
+  }
+  return sum / kTreDraws;
+}
+
+double NormalisedSquaredError(const Eigen::Isometry3d& estimated_frame_from_world,
+                              const Eigen::Isometry3d& true_frame_from_world,
+                              const Matrix6d& covariance) {
+  const Vector6d e = LogSE3(estimated_frame_from_world * true_frame_from_world.inverse());
+  return e.dot(covariance.ldlt().solve(e));
+}
+
+bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const std::vector<Mask>& masks,
+                             int num_threads,
+                             PoseUncertainty* uncertainty,
+                             std::string* why) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 6 * (m - 1);
+  ReducedSystem system;
+  AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
+                          /*with_jacobian=*/true, num_threads, &system);
+  const int64_t dof = system.observations - system.voxels - n;
+  if (dof < n) {
+    *why = "too few observations (" + std::to_string(system.observations) +
+           ") for a noise estimate";
+    return false;
+  }
+  const Eigen::MatrixXd h = system.hessian.bottomRightCorner(n, n);
+  const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(h, Eigen::EigenvaluesOnly);
+  if (ldlt.info() != Eigen::Success || !(eigen.eigenvalues().minCoeff() > 0.0)) {
+    *why = "the Gauss-Newton matrix of the poses is not positive definite";
+    return false;
+  }
+  const double variance = system.cost / static_cast<double>(dof);
+  // The sandwich H^-1 Cov(g) H^-1 over the free poses (frame 0's rows dropped: the gauge).
+  int64_t clusters = 0;
+  const Eigen::MatrixXd gradient_covariance =
+      ClusteredGradientCovariance(frames, candidates, frame_from_world, num_threads, &clusters)
+          .bottomRightCorner(n, n);
+  if (clusters < 2 * n) {
+    *why = "too few independent parts of the overlap (" + std::to_string(clusters) +
+           " cubes of " + std::to_string(kClusterVoxels) + " voxels) for a covariance";
+    return false;
+  }
+  const Eigen::MatrixXd h_inverse = ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  const Eigen::MatrixXd covariance = h_inverse * gradient_covariance * h_inverse;
+  *uncertainty = PoseUncertainty();
+  uncertainty->noise_sigma = std::sqrt(variance);
+  uncertainty->degrees_of_freedom = dof;
+  uncertainty->covariance.assign(m, Matrix6d::Zero());
+  uncertainty->predicted_tre_mm.assign(m, 0.0);
+  for (int i = 1; i < m; ++i) {
+    Matrix6d c = covariance.block<6, 6>(6 * (i - 1), 6 * (i - 1));
+    c = 0.5 * (c + c.transpose()).eval();
+    uncertainty->covariance[i] = c;
+    uncertainty->predicted_tre_mm[i] = PredictedTre(c, FieldOfViewPoints(masks[i]));
+  }
+  return true;
+}
+
+}  // namespace dsr

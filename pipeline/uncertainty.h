@@ -1,0 +1,75 @@
+// Pose uncertainty of a registration (docs/design.md section 8.6): an estimate, not yet
+// calibrated (see below), so RegistrationOptions::estimate_uncertainty is off by default.
+//
+// DSR minimises f(T) = sum_j sum_i sigma_ij (I_i(p_ij) - mu_j)^2 with the panorama
+// intensities mu_j eliminated; its Gauss-Newton matrix H (dsr_reduced/reduced_cost.h) is
+// the Schur complement of the full DBA information matrix onto the poses. With residuals
+// that were independent with variance s^2, Cov(delta) = s^2 H_ff^-1 (frames 1..m-1; frame 0
+// is the gauge). They are not: trilinear resampling spreads one frame voxel's noise over
+// the 8 panorama voxels around it (and lowers the residuals' variance below the frames'
+// noise). So the covariance is the sandwich
+//     Cov(delta) = H_ff^-1 C_g H_ff^-1,
+// with C_g the covariance of the gradient g = sum_j sum_a J_aj^T r_aj estimated from the
+// residuals cube by cube (cubes of 8 panorama voxels: g_B its share of cube B, C_g =
+// sum_B g_B g_B^T), robust to any correlation inside a cube. delta is the tangent [rho; phi]
+// of a left perturbation T_est = Exp(delta) T_true (mm and rad).
+//
+// A frame's predicted TRE is the expected mean, over the centres x of its field-of-view
+// voxels (frame mm), of the displacement |rho + phi x x| = |[I, -[x]x] delta| that a pose
+// error delta ~ N(0, Cov_i) causes (the TRE of core/eval.h to first order), estimated from
+// a fixed set of draws.
+//
+// Measured (MNI152 and phantom, paper protocol, noise sigma 25, exact-field-of-view masks):
+// the measured TRE is 2-4x the predicted one, because the cost's minimiser itself is off
+// the truth by 0.009-0.014 mm without any noise (the frames are resampled from the source
+// volume and again by the registration: an interpolation bias no noise model predicts).
+// What it cannot cover either: a wrong local minimum, and intensities that do not follow
+// the model (a gain or offset between frames).
+#ifndef DSR_PIPELINE_UNCERTAINTY_H_
+#define DSR_PIPELINE_UNCERTAINTY_H_
+
+#include <string>
+#include <vector>
+
+#include "core/frame.h"
+#include "core/observation.h"
+#include "core/se3.h"
+#include "core/volume.h"
+
+namespace dsr {
+
+struct PoseUncertainty {
+  std::vector<Matrix6d> covariance;      // per frame; frame 0's is zero (the gauge)
+  std::vector<double> predicted_tre_mm;  // per frame; frame 0's is 0
+  double noise_sigma = 0.0;              // s, in the frames' intensity units
+  int64_t degrees_of_freedom = 0;
+};
+
+// The estimate above at `frame_from_world` (frame 0 first, the gauge) over `candidates`, on
+// the frames of the finest level; `masks` (the frames' input masks) give the field-of-view
+// points of the predicted TRE. noise_sigma is the residuals' RMS over the degrees of
+// freedom (observations - voxels - 6 (m - 1)). False, with `why`, when the poses are not
+// determined (H_ff not positive definite), too few observations are left, or the overlap
+// has fewer than 2 cubes per free pose parameter.
+bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const std::vector<Mask>& masks,
+                             int num_threads,
+                             PoseUncertainty* uncertainty,
+                             std::string* why);
+
+// The expected mean displacement over `points_in_frame` (mm) of a pose error with
+// covariance `covariance` (see above); deterministic.
+double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame);
+
+// The normalised squared error e^T Cov^-1 e of a pose estimate against the truth, with
+// e = Log(T_est T_true^-1) (both relative to frame 0): about 6 on average when the
+// covariance is calibrated.
+double NormalisedSquaredError(const Eigen::Isometry3d& estimated_frame_from_world,
+                              const Eigen::Isometry3d& true_frame_from_world,
+                              const Matrix6d& covariance);
+
+}  // namespace dsr
+
+#endif  // DSR_PIPELINE_UNCERTAINTY_H_

@@ -1,0 +1,111 @@
+// Pose uncertainty (pipeline/uncertainty.h): the predicted TRE and the normalised squared
+// error against closed forms, and the estimate on simulated frames (positive definite,
+// gauge frame zero, growing with the noise).
+#include <cmath>
+
+#include <Eigen/Eigenvalues>
+#include <gtest/gtest.h>
+
+#include "core/se3.h"
+#include "pipeline/registration.h"
+#include "pipeline/uncertainty.h"
+#include "sim/phantom.h"
+#include "sim/simulate.h"
+
+namespace dsr {
+namespace {
+
+TEST(PredictedTre, MatchesClosedFormsOfGaussianErrors) {
+  // Translation only, isotropic: the mean norm of a 3-D Gaussian is sigma sqrt(8 / pi).
+  Matrix6d c = Matrix6d::Zero();
+  c.topLeftCorner<3, 3>() = 0.01 * Eigen::Matrix3d::Identity();
+  const std::vector<Eigen::Vector3d> points = {Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(-4, 0, 2)};
+  EXPECT_NEAR(PredictedTre(c, points), 0.1 * std::sqrt(8.0 / M_PI), 0.05 * 0.1 * std::sqrt(8.0 / M_PI));
+  // Rotation about z only, points on a circle of radius 20 mm in the xy plane: each moves
+  // by |phi_z| 20, a half-normal of mean sigma 20 sqrt(2 / pi).
+  c.setZero();
+  c(5, 5) = 1e-6;
+  std::vector<Eigen::Vector3d> ring;
+  for (int a = 0; a < 16; ++a) ring.emplace_back(20.0 * std::cos(a * M_PI / 8), 20.0 * std::sin(a * M_PI / 8), 0.0);
+  const double expected = 1e-3 * 20.0 * std::sqrt(2.0 / M_PI);
+  EXPECT_NEAR(PredictedTre(c, ring), expected, 0.06 * expected);
+  EXPECT_EQ(PredictedTre(c, {}), 0.0);
+}
+
+TEST(NormalisedSquaredError, IsTheMahalanobisNormOfTheTangentError) {
+  Vector6d e;
+  e << 0.2, -0.1, 0.05, 0.001, 0.002, -0.003;
+  Vector6d variances;
+  variances << 0.04, 0.01, 0.01, 1e-6, 4e-6, 1e-6;
+  const Matrix6d c = variances.asDiagonal();
+  Eigen::Isometry3d truth = Eigen::Isometry3d::Identity();
+  truth.linear() = ExpSO3(Eigen::Vector3d(0.1, 0.2, -0.3));
+  truth.translation() = Eigen::Vector3d(5, -3, 2);
+  const double expected = e.cwiseProduct(e).cwiseQuotient(variances).sum();
+  EXPECT_NEAR(NormalisedSquaredError(ExpSE3(e) * truth, truth, c), expected, 1e-9 * expected);
+}
+
+SimulatedSequence Sequence(double noise_sigma) {
+  PhantomOptions phantom;
+  phantom.size = 96;
+  SimulationOptions o;
+  o.num_frames = 4;
+  o.frame_size = Eigen::Vector3i(40, 40, 32);
+  o.noise_sigma = noise_sigma;
+  o.max_translation_voxels = 4.0;
+  o.max_rotation_deg = 6.0;
+  o.min_depth_voxels = 2.0;
+  o.mask_erosion_voxels = 0;
+  o.seed = 8;
+  SimulatedSequence s;
+  std::string error;
+  EXPECT_TRUE(Simulate(MakePhantom(phantom), o, &s, &error)) << error;
+  return s;
+}
+
+RegistrationResult RegisterWithUncertainty(const SimulatedSequence& s) {
+  RegistrationOptions o;
+  o.solve.log_progress = false;
+  o.solve.num_threads = 2;
+  o.pyramid_levels = 2;
+  o.pyramid_min_size = 8;
+  o.estimate_uncertainty = true;
+  RegistrationResult result;
+  std::string error;
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  EXPECT_TRUE(Register(s.frames, s.masks, identity, o, &result, &error)) << error;
+  EXPECT_TRUE(result.usable) << result.failure;
+  return result;
+}
+
+TEST(PoseUncertainty, IsPositiveDefiniteAndGrowsWithTheNoise) {
+  const RegistrationResult low = RegisterWithUncertainty(Sequence(10.0));
+  const RegistrationResult high = RegisterWithUncertainty(Sequence(40.0));
+  for (const RegistrationResult* r : {&low, &high}) {
+    ASSERT_EQ(r->uncertainty.covariance.size(), 4u) << r->uncertainty_note;
+    EXPECT_TRUE(r->uncertainty.covariance[0].isZero(0.0));
+    EXPECT_EQ(r->uncertainty.predicted_tre_mm[0], 0.0);
+    EXPECT_GT(r->uncertainty.noise_sigma, 0.0);
+    for (int i = 1; i < 4; ++i) {
+      const Matrix6d& c = r->uncertainty.covariance[i];
+      EXPECT_TRUE(c.isApprox(c.transpose(), 1e-12));
+      EXPECT_GT(Eigen::SelfAdjointEigenSolver<Matrix6d>(c).eigenvalues().minCoeff(), 0.0);
+      EXPECT_GT(r->uncertainty.predicted_tre_mm[i], 1e-4);
+      EXPECT_LT(r->uncertainty.predicted_tre_mm[i], 1.0);
+    }
+  }
+  // Four times the noise: a larger predicted error, though less than four times (measured
+  // 1.7-1.8x): the gradient volumes come from the noisy frames, so H grows with the noise
+  // too, one of the reasons the estimate is not yet calibrated (pipeline/uncertainty.h).
+  for (int i = 1; i < 4; ++i) {
+    const double ratio = high.uncertainty.predicted_tre_mm[i] / low.uncertainty.predicted_tre_mm[i];
+    EXPECT_GT(ratio, 1.4) << "frame " << i;
+    EXPECT_LT(ratio, 6.0) << "frame " << i;
+  }
+  // Off by default: nothing estimated.
+  RegistrationOptions o;
+  EXPECT_FALSE(o.estimate_uncertainty);
+}
+
+}  // namespace
+}  // namespace dsr
