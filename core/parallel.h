@@ -10,7 +10,9 @@
 #include <algorithm>
 #include <atomic>
 #include <cstdint>
+#include <exception>
 #include <functional>
+#include <mutex>
 #include <thread>
 #include <vector>
 
@@ -33,15 +35,34 @@ void ParallelFor(int64_t begin, int64_t end, int num_threads, const Fn& fn) {
     for (int64_t i = begin; i < end; ++i) fn(i);
     return;
   }
+  // An exception (std::bad_alloc) in any thread, or a thread that cannot be started, stops
+  // handing out indices; every started thread is joined and the first exception is
+  // rethrown in the caller's thread. (Escaping a std::thread, or unwinding past joinable
+  // threads, would std::terminate the process.)
   std::atomic<int64_t> next{begin};
+  std::mutex failure_mutex;
+  std::exception_ptr failure;
   auto worker = [&]() {
-    for (int64_t i = next.fetch_add(1); i < end; i = next.fetch_add(1)) fn(i);
+    try {
+      for (int64_t i = next.fetch_add(1); i < end; i = next.fetch_add(1)) fn(i);
+    } catch (...) {
+      next = end;
+      std::lock_guard<std::mutex> lock(failure_mutex);
+      if (!failure) failure = std::current_exception();
+    }
   };
   std::vector<std::thread> pool;
-  pool.reserve(threads - 1);
-  for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  try {
+    pool.reserve(threads - 1);
+    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
+  } catch (...) {
+    next = end;
+    std::lock_guard<std::mutex> lock(failure_mutex);
+    if (!failure) failure = std::current_exception();
+  }
   worker();
   for (auto& t : pool) t.join();
+  if (failure) std::rethrow_exception(failure);
 }
 
 }  // namespace dsr

@@ -265,6 +265,18 @@ Picture RenderConvergence(const std::vector<LevelSolve>& solves) {
   return out;
 }
 
+std::vector<std::string> ReportFiles(int num_frames, int pair_a, int pair_b) {
+  char name[64];
+  std::snprintf(name, sizeof(name), "pair_%02d_%02d.png", pair_a, pair_b);
+  std::vector<std::string> files = {"panorama_slices.png", name, "convergence.png", "poses.json"};
+  for (int i = 0; i < num_frames; ++i) {
+    std::snprintf(name, sizeof(name), "transforms/frame_%02d.tfm", i);
+    files.push_back(name);
+  }
+  files.push_back("index.md");
+  return files;
+}
+
 bool WriteReport(const std::string& dir,
                  const ReportInputs& in,
                  std::string* index_path,
@@ -283,11 +295,10 @@ bool WriteReport(const std::string& dir,
                 file("panorama_slices.png"), error)) {
     return false;
   }
-  char pair_name[64];
-  std::snprintf(pair_name, sizeof(pair_name), "pair_%02d_%02d.png", in.pair_a, in.pair_b);
+  const std::vector<std::string> names = ReportFiles(m, in.pair_a, in.pair_b);
   if (!WritePng(RenderPairComparison(in.frames, in.pair_a, in.pair_b, in.initial,
                                      r.frame_from_world, r.grid),
-                file(pair_name), error) ||
+                file(names[1]), error) ||
       !WritePng(RenderConvergence(r.solves), file("convergence.png"), error)) {
     return false;
   }
@@ -296,9 +307,7 @@ bool WriteReport(const std::string& dir,
   poses.frame_from_world = r.frame_from_world;
   if (!WritePoses(poses, file("poses.json"), error)) return false;
   for (int i = 0; i < m; ++i) {
-    char name[64];
-    std::snprintf(name, sizeof(name), "transforms/frame_%02d.tfm", i);
-    if (!WriteItkTransform(r.frame_from_world[i], file(name), error)) return false;
+    if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
   }
   std::ostringstream md;
   md << "# Registration report\n\n"
@@ -307,7 +316,7 @@ bool WriteReport(const std::string& dir,
      << "## Panorama with fields of view\n\n![panorama slices](panorama_slices.png)\n\n"
      << "Outlined: the field of view of each listed frame, in its colour.\n\n"
      << "## Frames " << in.pair_a << " and " << in.pair_b << ", before and after\n\n![pair]("
-     << pair_name << ")\n\n"
+     << names[1] << ")\n\n"
      << "## Convergence\n\n![convergence](convergence.png)\n\n"
      << "## Poses\n\n`poses.json` (T maps world = frame 0 to each frame) and ITK transforms "
         "`transforms/frame_XX.tfm` (world -> frame, LPS: resampling frame XX with its file "

@@ -58,6 +58,11 @@ struct ReportInputs {
   std::string mode;
 };
 
+// The files WriteReport writes, relative to its folder, in the order it writes them (the
+// tools plan their outputs with it): panorama_slices.png, pair_AA_BB.png, convergence.png,
+// poses.json, transforms/frame_XX.tfm for each of `num_frames` frames, index.md.
+std::vector<std::string> ReportFiles(int num_frames, int pair_a, int pair_b);
+
 // Writes the report folder (created if missing); every file atomically. Returns the path
 // of index.md in `index_path`.
 bool WriteReport(const std::string& dir,

@@ -105,6 +105,12 @@ class BadInputCatalogue : public ::testing::Test {
     o = MhaOptions();
     o.matrix = "1 0 0 1 0 0 0 0 1";
     WriteMha(In("singular_direction.mha"), o);
+    // A header in nanometres and one in kilometres (frames share frame 0's millimetres).
+    o = MhaOptions();
+    o.spacing = "1e-9 1e-9 1e-9";
+    WriteMha(In("nanometre_spacing.mha"), o);
+    o.spacing = "1e9 1e9 1e9";
+    WriteMha(In("huge_spacing.mha"), o);
     o = MhaOptions();
     o.use_special = true;
     o.special = std::numeric_limits<float>::quiet_NaN();
@@ -136,6 +142,8 @@ class BadInputCatalogue : public ::testing::Test {
     apart.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
     apart.frame_from_world[2].translation() = Eigen::Vector3d(300.0, 0.0, 0.0);
     ASSERT_TRUE(WritePoses(apart, In("apart.json"), &error)) << error;
+    apart.frame_from_world[2].translation() = Eigen::Vector3d(1e300, 0.0, 0.0);
+    ASSERT_TRUE(WritePoses(apart, In("astronomical.json"), &error)) << error;
     // Two frames whose content is a linear ramp: their overlap cannot fix 6 degrees of freedom.
     Image ramp(frame0.geometry);
     for (int k = 0; k < ramp.geometry.size[2]; ++k)
@@ -222,6 +230,13 @@ TEST_F(BadInputCatalogue, FrameSets) {
            "frame 2 does not overlap");
   Register("--images=" + In("ramp_a.nii.gz") + "," + In("ramp_b.nii.gz") + " --mask_erosion=1",
            "6 degrees of freedom of frame 1");
+  // Errors that name what is wrong rather than what fails later (the frame's file, --init).
+  Register("--images=" + In("good.mha") + "," + In("nanometre_spacing.mha"),
+           "nanometre_spacing.mha: frame 1 has a voxel spacing");
+  Register("--images=" + In("good.mha") + "," + In("huge_spacing.mha"),
+           "huge_spacing.mha: frame 1 has a voxel spacing");
+  Register("--images=" + Frames() + " --masks=" + Masks() + " --init=" + In("astronomical.json"),
+           "(--init) place frame 2");
 }
 
 TEST_F(BadInputCatalogue, PosesFiles) {
@@ -257,6 +272,8 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --search_rotation_deg=200", "--search_rotation_deg=200:");
   Register(base + " --search_max_axis=4", "--search_max_axis");
   Register(base + " --init=no_such_start", "no_such_start");
+  Register(base + " --smoothing=1e6", "--smoothing");
+  Register(base + " --panorama_spacing=1e300", "--panorama_spacing");
 }
 
 TEST_F(BadInputCatalogue, OutputPaths) {

@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <set>
+#include <sstream>
 
 #include <gflags/gflags.h>
 #include <glog/logging.h>
@@ -18,6 +19,7 @@
 #include "pipeline/registration.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
+#include "tools/output_plan.h"
 #include "tools/tool_util.h"
 
 DEFINE_string(methods, "dsr,ape,sequential,lie_normalization,pairwise",
@@ -30,8 +32,8 @@ DEFINE_int32(num_sequences, 5, "Sequences to simulate when --sequences is empty,
 DEFINE_uint64(seed, 1, "Seed of the first simulated sequence.");
 DEFINE_int32(num_frames, 11, "Frames per simulated sequence, in [2, 32].");
 DEFINE_string(frame_size, "96,96,80", "Simulated frame size 'nx,ny,nz', each in [8, 512].");
-DEFINE_double(frame_spacing, 0.0, "Simulated isotropic frame spacing in mm, >= 0 (0 = the "
-              "phantom's 1 mm).");
+DEFINE_double(frame_spacing, 0.0, "Simulated isotropic frame spacing in mm, 0 or in [1e-6, "
+              "1e6] (0 = the phantom's 1 mm).");
 DEFINE_double(sigma, 25.0, "Simulated noise standard deviation, >= 0.");
 DEFINE_double(max_rotation_deg, 12.0, "Simulated rotations: each Euler angle within +/- this.");
 DEFINE_double(max_translation_voxels, 15.0, "Simulated translations: each world-axis "
@@ -65,50 +67,95 @@ namespace {
 
 using dsr::Fail;
 
-bool LoadSequence(const std::string& folder, dsr::ExperimentSequence* out, std::string* error) {
+// The files of one --sequences folder (written by dsr_simulate).
+struct SequenceFiles {
+  std::string folder;
+  std::string name;  // the folder's name: names its rows and poses files
+  std::vector<std::string> frames, masks;  // sorted; masks empty with --sequence_masks=false
+  std::string gt_poses;
+  dsr::PosesFile ground_truth;
+};
+
+// The folder's own name ("a/seq/" and "a/./seq" -> "seq"; "." -> the working folder's).
+std::string SequenceName(const std::string& folder) {
   namespace fs = std::filesystem;
-  std::vector<std::string> frames, masks;
+  const fs::path normal = fs::path(folder).lexically_normal();
+  std::string name = normal.filename().string();
+  if (name.empty()) name = normal.parent_path().filename().string();
+  if (name.empty() || name == "." || name == "..") {
+    name = fs::path(dsr::CanonicalPath(folder)).filename().string();
+  }
+  return name;
+}
+
+// Lists a sequence folder and checks all but the voxels: at least 2 frame_XX images, one
+// mask_XX per frame (with --sequence_masks), and a readable gt_poses.json with one pose per
+// frame.
+bool ListSequence(const std::string& folder, SequenceFiles* out, std::string* error) {
+  namespace fs = std::filesystem;
+  SequenceFiles files;
+  files.folder = folder;
+  files.name = SequenceName(folder);
   std::error_code ec;
   for (const auto& entry : fs::directory_iterator(folder, ec)) {
     const std::string name = entry.path().filename().string();
-    if (name.rfind("frame_", 0) == 0 && dsr::HasSupportedImageExtension(name)) frames.push_back(entry.path().string());
-    if (name.rfind("mask_", 0) == 0 && dsr::HasSupportedImageExtension(name)) masks.push_back(entry.path().string());
+    if (!dsr::HasSupportedImageExtension(name)) continue;
+    if (name.rfind("frame_", 0) == 0) files.frames.push_back(entry.path().string());
+    if (name.rfind("mask_", 0) == 0 && FLAGS_sequence_masks) {
+      files.masks.push_back(entry.path().string());
+    }
   }
   if (ec) {
     *error = "--sequences: " + folder + ": cannot list the folder (" + ec.message() + ")";
     return false;
   }
-  std::sort(frames.begin(), frames.end());
-  std::sort(masks.begin(), masks.end());
-  if (frames.size() < 2 || masks.size() != frames.size()) {
-    *error = "--sequences: " + folder + ": expected frame_XX and mask_XX images of the same "
-             "number (at least 2), found " + std::to_string(frames.size()) + " and " +
-             std::to_string(masks.size());
+  std::sort(files.frames.begin(), files.frames.end());
+  std::sort(files.masks.begin(), files.masks.end());
+  if (files.frames.size() < 2) {
+    *error = "--sequences: " + folder + ": expected at least 2 frame_XX images, found " +
+             std::to_string(files.frames.size());
     return false;
   }
-  out->name = fs::path(folder).lexically_normal().filename().string();
-  if (out->name.empty()) out->name = fs::path(folder).lexically_normal().parent_path().filename().string();
-  out->frames.resize(frames.size());
-  out->masks.resize(frames.size());
-  for (size_t i = 0; i < frames.size(); ++i) {
-    if (!dsr::ReadImage(frames[i], &out->frames[i], error) ||
-        !dsr::ReadMask(masks[i], out->frames[i].geometry, &out->masks[i], error)) {
-      return false;
-    }
-    if (!FLAGS_sequence_masks) out->masks[i] = dsr::MaskFromNonZero(out->frames[i], 1);
-  }
-  dsr::PosesFile gt;
-  if (!dsr::ReadPoses((fs::path(folder) / "gt_poses.json").string(),
-                      static_cast<int>(frames.size()), &gt, error)) {
+  if (FLAGS_sequence_masks && files.masks.size() != files.frames.size()) {
+    *error = "--sequences: " + folder + ": expected one mask_XX image per frame_XX image, found " +
+             std::to_string(files.frames.size()) + " frames and " +
+             std::to_string(files.masks.size()) + " masks (--sequence_masks=false registers "
+             "without them)";
     return false;
   }
-  out->ground_truth = gt.frame_from_world;
+  files.gt_poses = (fs::path(folder) / "gt_poses.json").string();
+  if (!fs::is_regular_file(files.gt_poses, ec)) {
+    *error = "--sequences: " + folder + ": no gt_poses.json (the ground truth to measure against)";
+    return false;
+  }
+  if (!dsr::ReadPoses(files.gt_poses, static_cast<int>(files.frames.size()), &files.ground_truth,
+                      error)) {
+    *error = "--sequences: " + *error;
+    return false;
+  }
+  *out = std::move(files);
   return true;
 }
 
-}  // namespace
+// Reads the frames and masks of a listed sequence (without --sequence_masks, each frame's
+// non-zero voxels eroded by one voxel).
+bool LoadSequence(const SequenceFiles& files, dsr::ExperimentSequence* out, std::string* error) {
+  out->name = files.name;
+  out->frames.resize(files.frames.size());
+  out->masks.resize(files.frames.size());
+  for (size_t i = 0; i < files.frames.size(); ++i) {
+    if (!dsr::ReadImage(files.frames[i], &out->frames[i], error)) return false;
+    if (!FLAGS_sequence_masks) {
+      out->masks[i] = dsr::MaskFromNonZero(out->frames[i], 1);
+    } else if (!dsr::ReadMask(files.masks[i], out->frames[i].geometry, &out->masks[i], error)) {
+      return false;
+    }
+  }
+  out->ground_truth = files.ground_truth.frame_from_world;
+  return true;
+}
 
-int main(int argc, char** argv) {
+int Main(int argc, char** argv) {
   dsr::InitTool(
       "compares registration methods on sequences with ground truth (the paper's Fig. 1).\n"
       "  dsr_compare --out_dir=DIR [--methods=dsr,ape,...] [--sequences=DIR1,DIR2 | "
@@ -121,9 +168,13 @@ int main(int argc, char** argv) {
   const std::vector<std::string> methods = dsr::SplitCommaList(FLAGS_methods);
   const std::vector<std::string> known = dsr::ModeNames();
   if (methods.empty()) return Fail("--methods: empty");
-  for (const std::string& m : methods) {
+  for (size_t i = 0; i < methods.size(); ++i) {
+    const std::string& m = methods[i];
     if (std::find(known.begin(), known.end(), m) == known.end()) {
       return Fail("--methods: unknown method '" + m + "'");
+    }
+    if (std::find(methods.begin(), methods.begin() + i, m) != methods.begin() + i) {
+      return Fail("--methods=" + FLAGS_methods + ": '" + m + "' is given twice");
     }
   }
   {
@@ -146,8 +197,12 @@ int main(int argc, char** argv) {
     return Fail("--frame_size=" + FLAGS_frame_size + ": must be three integers in [8, 512]");
   }
   if (FLAGS_num_threads < 0) return Fail("--num_threads: must be >= 0");
-  if (!(FLAGS_frame_spacing >= 0.0) || !std::isfinite(FLAGS_frame_spacing)) {
-    return Fail("--frame_spacing: must be >= 0");
+  if (FLAGS_frame_spacing != 0.0 && !(FLAGS_frame_spacing >= dsr::kMinFrameSpacingMm &&
+                                      FLAGS_frame_spacing <= dsr::kMaxFrameSpacingMm)) {
+    std::ostringstream value;
+    value << FLAGS_frame_spacing;
+    return Fail("--frame_spacing=" + value.str() +
+                ": must be 0 (the phantom's 1 mm) or in [1e-06, 1e+06] mm");
   }
 
   dsr::RegistrationOptions base;
@@ -182,21 +237,71 @@ int main(int argc, char** argv) {
   }
   namespace fs = std::filesystem;
   const std::vector<std::string> folders = dsr::SplitCommaList(FLAGS_sequences);
-  for (const std::string& folder : folders) {
+  // Every sequence folder is checked before any run: a bad one found after the first
+  // sequence ran would leave results behind with exit 2.
+  std::vector<SequenceFiles> sequence_files(folders.size());
+  for (size_t s = 0; s < folders.size(); ++s) {
     std::error_code dir_ec;
-    if (!fs::is_directory(folder, dir_ec)) return Fail("--sequences: " + folder + ": not a folder");
+    if (!fs::is_directory(folders[s], dir_ec)) {
+      return Fail("--sequences: " + folders[s] + ": not a folder");
+    }
+    for (size_t t = 0; t < s; ++t) {
+      if (dsr::CanonicalPath(folders[t]) == dsr::CanonicalPath(folders[s])) {
+        return Fail("--sequences: " + folders[s] + " is given twice");
+      }
+      if (SequenceName(folders[t]) == SequenceName(folders[s])) {
+        return Fail("--sequences: " + folders[t] + " and " + folders[s] + " have the same name '" +
+                    SequenceName(folders[s]) + "', which names their rows and poses files; "
+                    "rename one");
+      }
+    }
+    if (!ListSequence(folders[s], &sequence_files[s], &error)) return Fail(error);
   }
-  std::error_code ec;
-  fs::create_directories(fs::path(FLAGS_out_dir) / "poses", ec);
-  if (ec) return Fail("--out_dir=" + FLAGS_out_dir + ": cannot create (" + ec.message() + ")");
-  for (const char* name : {"results.csv", "results.md"}) {
-    if (!dsr::CheckOutputFile("out_dir", (fs::path(FLAGS_out_dir) / name).string(), {}, &error)) {
-      return Fail(error);
+  // Simulated sequences differ in their seed only.
+  const auto simulation_for = [&](int s) {
+    dsr::SimulationOptions sim;
+    sim.num_frames = FLAGS_num_frames;
+    sim.frame_size = frame_size;
+    sim.noise_sigma = FLAGS_sigma;
+    sim.max_rotation_deg = FLAGS_max_rotation_deg;
+    sim.max_translation_voxels = FLAGS_max_translation_voxels;
+    sim.seed = FLAGS_seed + s;
+    sim.frame_spacing_mm = FLAGS_frame_spacing;
+    return sim;
+  };
+  if (folders.empty() && !simulation_for(0).Validate(&error)) return Fail(error);
+  // Every file this run reads and writes.
+  const int num_sequences =
+      folders.empty() ? FLAGS_num_sequences : static_cast<int>(folders.size());
+  dsr::OutputPlan plan;
+  for (const SequenceFiles& files : sequence_files) {
+    for (const std::vector<std::string>* list : {&files.frames, &files.masks}) {
+      for (const std::string& file : *list) plan.AddInputImageIn("sequences", files.folder, file);
+    }
+    plan.AddInputFileIn("sequences", files.folder, files.gt_poses);
+  }
+  const std::string poses_dir = (fs::path(FLAGS_out_dir) / "poses").string();
+  plan.AddOutputFolder("out_dir", FLAGS_out_dir, FLAGS_out_dir);
+  plan.AddOutputFolder("out_dir", FLAGS_out_dir, poses_dir);
+  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "results.csv");
+  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "results.md");
+  for (int s = 0; s < num_sequences; ++s) {
+    const std::string name = folders.empty() ? "seed" + std::to_string(FLAGS_seed + s)
+                                             : sequence_files[s].name;
+    for (const std::string& m : methods) {
+      plan.AddDerivedFile("out_dir", FLAGS_out_dir, "poses/" + name + "_" + m + ".json");
     }
   }
+  if (!plan.Check(&error)) return Fail(error);
+  // The voxels last (every frame and mask is read once here and again for its run, so
+  // that only one sequence is held in memory).
+  for (const SequenceFiles& files : sequence_files) {
+    dsr::ExperimentSequence sequence;
+    if (!LoadSequence(files, &sequence, &error)) return Fail(error);
+  }
+  if (!plan.CreateFolders(&error)) return Fail(error);
 
   // Sequences: loaded (checked up front) or simulated one at a time below.
-  const int num_sequences = folders.empty() ? FLAGS_num_sequences : static_cast<int>(folders.size());
   dsr::Image phantom;
   if (folders.empty()) {
     dsr::PhantomOptions p;
@@ -207,18 +312,10 @@ int main(int argc, char** argv) {
   for (int s = 0; s < num_sequences; ++s) {
     dsr::ExperimentSequence sequence;
     if (!folders.empty()) {
-      if (!LoadSequence(folders[s], &sequence, &error)) return Fail(error);
+      // Read and checked above: a failure now is a file changed during the run.
+      if (!LoadSequence(sequence_files[s], &sequence, &error)) return Fail(error, dsr::kExitFailed);
     } else {
-      dsr::SimulationOptions sim;
-      sim.num_frames = FLAGS_num_frames;
-      sim.frame_size = frame_size;
-      sim.noise_sigma = FLAGS_sigma;
-      sim.max_rotation_deg = FLAGS_max_rotation_deg;
-      sim.max_translation_voxels = FLAGS_max_translation_voxels;
-      sim.seed = FLAGS_seed + s;
-      sim.frame_spacing_mm = FLAGS_frame_spacing;
-      std::string why;
-      if (!sim.Validate(&why)) return Fail(why);
+      const dsr::SimulationOptions sim = simulation_for(s);
       dsr::SimulatedSequence simulated;
       if (!dsr::Simulate(phantom, sim, &simulated, &error)) return Fail(error);
       sequence.name = "seed" + std::to_string(sim.seed);
@@ -261,3 +358,7 @@ int main(int argc, char** argv) {
   std::printf("dsr_compare: wrote %s/results.csv and results.md\n", FLAGS_out_dir.c_str());
   return EXIT_SUCCESS;
 }
+
+}  // namespace
+
+int main(int argc, char** argv) { return dsr::RunToolMain(argc, argv, &Main); }

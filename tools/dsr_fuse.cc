@@ -1,9 +1,12 @@
 // dsr_fuse: the panorama of registered frames (paper eq. 10, or a feathered blend) on the
 // shared panorama grid, and the field-of-view enlargement ratio the paper reports.
+#include <algorithm>
+#include <cctype>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <set>
+#include <sstream>
 
 #include <gflags/gflags.h>
 #include <glog/logging.h>
@@ -14,25 +17,118 @@
 #include "core/observation.h"
 #include "core/panorama.h"
 #include "core/parallel.h"
+#include "tools/output_plan.h"
 #include "tools/tool_util.h"
 
-DEFINE_string(images, "", "Comma-separated frame images, frame 0 first (as registered). Required.");
-DEFINE_string(masks, "", "Comma-separated field-of-view masks, one per image; empty: each "
-              "image's non-zero voxels eroded by --mask_erosion voxels.");
+DEFINE_string(images, "", "Frame images, frame 0 first (as registered), at most 32 "
+              "(kMaxFrames): comma-separated, or @LIST: the file LIST with one path per line "
+              "(for names that contain commas). Required.");
+DEFINE_string(masks, "", "Field-of-view masks, one per image, comma-separated or @LIST as "
+              "--images; empty: each image's non-zero voxels eroded by --mask_erosion voxels.");
 DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no --masks are "
              "given, in [0, 50].");
-DEFINE_string(poses, "", "Poses JSON (dsr_register --out_poses), one entry per image. Required.");
+DEFINE_string(poses, "", "Poses JSON (dsr_register --out_poses), one entry per image. Its "
+              "entries are matched to --images by their \"image\" names (the image's path as "
+              "given, its file name, or its file name without the extension) and reordered "
+              "to --images' order; a name that matches no image, or an image matched by no "
+              "entry, is an error. A file whose names are all empty is used in its order. "
+              "Required.");
 DEFINE_string(out, "", "Output panorama image (.nii, .nii.gz, .mha, .nrrd). Required.");
 DEFINE_string(blend, "mean", "mean (paper eq. 10: per-voxel mean of the observations) or "
               "feather (weights fall off towards each field-of-view edge, so seams vanish).");
 DEFINE_double(feather_voxels, 8.0, "--blend=feather: depth (frame voxels) over which a frame's "
               "weight rises from 0 at its field-of-view edge to 1, > 0.");
-DEFINE_double(panorama_spacing, 1.0, "Panorama spacing as a multiple of frame 0's spacing, > 0.");
+DEFINE_double(panorama_spacing, 1.0, "Panorama spacing as a multiple of frame 0's spacing, in "
+              "[0.001, 1000], and at most an eighth of frame 0's shortest extent; a panorama "
+              "that would not fit in memory is refused.");
 DEFINE_string(out_count, "", "Optional output image of k_j, the number of frames observing "
-              "each panorama voxel.");
+              "each panorama voxel (integer values 0..frames, stored as float voxels).");
 DEFINE_int32(num_threads, 0, "Threads, 0 = all hardware threads.");
 
-int main(int argc, char** argv) {
+namespace {
+
+// Panorama spacing factors outside this range are typos: a grid a thousand times finer or
+// coarser than the frames' is no panorama of them.
+constexpr double kMinPanoramaSpacing = 1e-3;
+constexpr double kMaxPanoramaSpacing = 1e3;
+
+std::string Number(double value) {
+  std::ostringstream s;
+  s << value;
+  return s.str();
+}
+
+// Whether a poses entry named `name` is the image `path` (see --poses).
+bool NameMatches(const std::string& name, const std::string& path) {
+  if (name.empty()) return false;
+  const std::string file = std::filesystem::path(path).filename().string();
+  if (name == path || name == file) return true;
+  std::string lower = file;
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
+  for (const std::string extension : {".nii.gz", ".nii", ".mha", ".mhd", ".nrrd", ".nhdr"}) {
+    if (lower.size() > extension.size() &&
+        lower.compare(lower.size() - extension.size(), extension.size(), extension) == 0) {
+      return name == file.substr(0, file.size() - extension.size());
+    }
+  }
+  return false;
+}
+
+// Reorders `poses` (one entry per image) to the order of `image_paths` by the entries'
+// names, as --poses documents. A pose applied to the wrong frame gives a wrong panorama
+// with no other sign, so any doubt is an error.
+bool MatchPosesToImages(const std::vector<std::string>& image_paths,
+                        dsr::PosesFile* poses,
+                        std::string* error) {
+  const std::vector<std::string>& names = poses->images;
+  const int m = static_cast<int>(image_paths.size());
+  if (std::all_of(names.begin(), names.end(), [](const std::string& n) { return n.empty(); })) {
+    return true;
+  }
+  // Entry i names image i: kept as is, also when two images share a file name.
+  bool in_order = true;
+  for (int i = 0; i < m && in_order; ++i) in_order = NameMatches(names[i], image_paths[i]);
+  if (in_order) return true;
+  const std::string prefix = "--poses=" + FLAGS_poses + ": ";
+  std::vector<int> entry_of_image(m, -1), image_of_entry(m, -1);
+  for (int i = 0; i < m; ++i) {
+    for (int e = 0; e < m; ++e) {
+      if (!NameMatches(names[e], image_paths[i])) continue;
+      if (entry_of_image[i] >= 0) {
+        *error = prefix + "entries " + std::to_string(entry_of_image[i]) + " and " +
+                 std::to_string(e) + " both name the image " + image_paths[i];
+        return false;
+      }
+      entry_of_image[i] = e;
+    }
+    if (entry_of_image[i] < 0) {
+      std::string listed;
+      for (int e = 0; e < m && e < 4; ++e) listed += (e > 0 ? ", " : "") + names[e];
+      *error = prefix + "no entry names the image " + image_paths[i] + " (image " +
+               std::to_string(i) + " of --images; the file's names: " + listed +
+               (m > 4 ? ", ..." : "") + ")";
+      return false;
+    }
+    const int e = entry_of_image[i];
+    if (image_of_entry[e] >= 0) {
+      *error = prefix + "entry " + std::to_string(e) + " (" + names[e] + ") names both " +
+               image_paths[image_of_entry[e]] + " and " + image_paths[i];
+      return false;
+    }
+    image_of_entry[e] = i;
+  }
+  dsr::PosesFile reordered;
+  for (int i = 0; i < m; ++i) {
+    reordered.images.push_back(names[entry_of_image[i]]);
+    reordered.frame_from_world.push_back(poses->frame_from_world[entry_of_image[i]]);
+  }
+  LOG(INFO) << "--poses=" << FLAGS_poses << ": entries reordered to the order of --images";
+  *poses = std::move(reordered);
+  return true;
+}
+
+int Main(int argc, char** argv) {
   dsr::InitTool(
       "fuses registered frames into one panorama and prints the field-of-view enlargement.\n"
       "  dsr_fuse --images=a.nii.gz,b.nii.gz,... --poses=poses.json --out=panorama.nii.gz\n"
@@ -47,37 +143,48 @@ int main(int argc, char** argv) {
   if (!(FLAGS_feather_voxels > 0.0) || !std::isfinite(FLAGS_feather_voxels)) {
     return Fail("--feather_voxels=" + std::to_string(FLAGS_feather_voxels) + ": must be > 0");
   }
-  if (!(FLAGS_panorama_spacing > 0.0) || !std::isfinite(FLAGS_panorama_spacing)) {
-    return Fail("--panorama_spacing=" + std::to_string(FLAGS_panorama_spacing) + ": must be > 0");
+  if (!(FLAGS_panorama_spacing >= kMinPanoramaSpacing &&
+        FLAGS_panorama_spacing <= kMaxPanoramaSpacing)) {
+    return Fail("--panorama_spacing=" + Number(FLAGS_panorama_spacing) + ": must be in [" +
+                Number(kMinPanoramaSpacing) + ", " + Number(kMaxPanoramaSpacing) +
+                "] (a multiple of frame 0's spacing)");
   }
   if (FLAGS_mask_erosion < 0 || FLAGS_mask_erosion > 50) {
     return Fail("--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ": must be in [0, 50]");
   }
   if (FLAGS_num_threads < 0) return Fail("--num_threads: must be >= 0");
-  const std::vector<std::string> image_paths = dsr::SplitCommaList(FLAGS_images);
-  const std::vector<std::string> mask_paths = dsr::SplitCommaList(FLAGS_masks);
+  std::vector<std::string> image_paths, mask_paths;
+  if (!dsr::ParseInputList("images", FLAGS_images, &image_paths, &error) ||
+      !dsr::ParseInputList("masks", FLAGS_masks, &mask_paths, &error)) {
+    return Fail(error);
+  }
   const int m = static_cast<int>(image_paths.size());
   if (m < 1) return Fail("--images: no image given");
+  if (m > dsr::kMaxFrames) {
+    return Fail("--images: at most " + std::to_string(dsr::kMaxFrames) + " frames, got " +
+                std::to_string(m));
+  }
   if (!mask_paths.empty() && static_cast<int>(mask_paths.size()) != m) {
     return Fail("--masks: " + std::to_string(mask_paths.size()) + " masks for " +
                 std::to_string(m) + " images");
   }
-  std::vector<std::string> inputs;
   std::set<std::string> unique;
   for (const std::string& p : image_paths) {
     if (!unique.insert(dsr::CanonicalPath(p)).second) return Fail("--images: " + p + " is given twice");
-    inputs.push_back(dsr::CanonicalPath(p));
   }
-  for (const std::string& p : mask_paths) inputs.push_back(dsr::CanonicalPath(p));
-  inputs.push_back(dsr::CanonicalPath(FLAGS_poses));
   for (const auto& [flag, path] : {std::pair<std::string, std::string>{"out", FLAGS_out},
                                    {"out_count", FLAGS_out_count}}) {
-    if (!dsr::CheckOutputFile(flag, path, inputs, &error)) return Fail(error);
     if (!path.empty() && !dsr::HasSupportedImageExtension(path)) {
       return Fail("--" + flag + "=" + path + ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)");
     }
   }
-  if (FLAGS_out == FLAGS_out_count) return Fail("--out_count=" + FLAGS_out_count + ": same file as --out");
+  // Every file this run reads and writes, before anything is read.
+  dsr::OutputPlan plan;
+  plan.AddFrameInputs(image_paths, mask_paths, FLAGS_images, FLAGS_masks);
+  plan.AddInputFile("poses", FLAGS_poses);
+  plan.AddOutputImage("out", FLAGS_out);
+  plan.AddOutputImage("out_count", FLAGS_out_count);
+  if (!plan.Check(&error)) return Fail(error);
   dsr::PosesFile poses;
   if (!dsr::ReadPoses(FLAGS_poses, m, &poses, &error)) return Fail("--poses: " + error);
   std::vector<dsr::Image> images;
@@ -86,6 +193,8 @@ int main(int argc, char** argv) {
                        &masks, &error)) {
     return Fail(error);
   }
+  // After the frames, so that a broken frame is reported as such first.
+  if (!MatchPosesToImages(image_paths, &poses, &error)) return Fail(error);
   std::vector<dsr::Frame> frames(m);
   dsr::ParallelFor(0, m, FLAGS_num_threads, [&](int64_t i) { frames[i] = dsr::Frame(images[i], masks[i]); });
   for (int i = 0; i < m; ++i) {
@@ -93,9 +202,30 @@ int main(int argc, char** argv) {
       return Fail(image_paths[i] + ": no valid voxel in the field of view (the mask is too small)");
     }
   }
+  // As dsr_register: a panorama voxel larger than an eighth of frame 0 resolves nothing.
+  const dsr::ImageGeometry& frame0 = images[0].geometry;
+  const double shortest_extent_mm =
+      (frame0.size.cast<double>().array() * frame0.spacing_mm.array()).minCoeff();
+  const double voxel_mm = frame0.spacing_mm.maxCoeff() * FLAGS_panorama_spacing;
+  if (voxel_mm > shortest_extent_mm / 8.0) {
+    return Fail("--panorama_spacing=" + Number(FLAGS_panorama_spacing) + ": a panorama voxel of " +
+                Number(voxel_mm) + " mm is more than an eighth of frame 0's shortest extent (" +
+                Number(shortest_extent_mm) + " mm)");
+  }
   const std::vector<Eigen::Isometry3d> frame_from_world = dsr::RelativeToFrame0(poses.frame_from_world);
   dsr::ImageGeometry grid;
   if (!dsr::BuildPanoramaGrid(frames, frame_from_world, FLAGS_panorama_spacing, &grid, &error)) {
+    return Fail(error);
+  }
+  // The mean (float) and k_j (uint8); writing adds a float copy and ITK's image of each
+  // output, one at a time, and --out_count a float image of k_j.
+  const double bytes_per_voxel = 5.0 + 8.0 + (FLAGS_out_count.empty() ? 0.0 : 4.0);
+  if (!dsr::CheckMemoryEstimate(
+          "--panorama_spacing=" + Number(FLAGS_panorama_spacing),
+          bytes_per_voxel * static_cast<double>(grid.NumVoxels()),
+          "a panorama of " + std::to_string(grid.size[0]) + "x" + std::to_string(grid.size[1]) +
+              "x" + std::to_string(grid.size[2]) + " voxels",
+          &error)) {
     return Fail(error);
   }
   const dsr::PanoramaImages fused =
@@ -103,8 +233,10 @@ int main(int argc, char** argv) {
           ? dsr::FusePanoramaFeather(frames, frame_from_world, grid, FLAGS_feather_voxels, FLAGS_num_threads)
           : dsr::FusePanoramaMean(frames, frame_from_world, grid, FLAGS_num_threads);
   if (!dsr::WriteImage(fused.mean, FLAGS_out, &error)) return Fail(error, dsr::kExitFailed);
-  if (!FLAGS_out_count.empty() && !dsr::WriteMask(fused.count, FLAGS_out_count, &error)) {
-    return Fail(error, dsr::kExitFailed);
+  if (!FLAGS_out_count.empty()) {
+    dsr::Image count(grid, 0.0f);
+    std::copy(fused.count.voxels.begin(), fused.count.voxels.end(), count.voxels.begin());
+    if (!dsr::WriteImage(count, FLAGS_out_count, &error)) return Fail(error, dsr::kExitFailed);
   }
   std::printf("dsr_fuse: %d frames, %s blend, panorama %dx%dx%d voxels of %.3gx%.3gx%.3g mm; "
               "field-of-view enlargement %.3f (%lld voxels seen / %lld in frame 0's field of view)"
@@ -115,3 +247,7 @@ int main(int argc, char** argv) {
               FLAGS_out.c_str());
   return EXIT_SUCCESS;
 }
+
+}  // namespace
+
+int main(int argc, char** argv) { return dsr::RunToolMain(argc, argv, &Main); }

@@ -1,5 +1,5 @@
 // dsr_register: registers several 3D images simultaneously (pipeline/registration.h) and
-// writes the poses (DESIGN.md section 1), optionally the panorama, and, with
+// writes the poses (docs/design.md section 1), optionally the panorama, and, with
 // --gt_poses, prints per-frame errors against ground truth (core/eval.h).
 #include <chrono>
 #include <cinttypes>
@@ -22,13 +22,16 @@
 #include "core/solve_options.h"
 #include "pipeline/registration.h"
 #include "pipeline/report.h"
+#include "tools/output_plan.h"
 #include "tools/tool_util.h"
 
-DEFINE_string(images, "", "Comma-separated frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, "
-              ".nhdr), frame 0 first (it fixes the world). Required, at least 2.");
-DEFINE_string(masks, "", "Comma-separated field-of-view masks, one per image, on the image's "
-              "grid (non-zero = inside). Empty: each image's non-zero voxels eroded by "
-              "--mask_erosion voxels.");
+DEFINE_string(images, "", "Frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr), frame 0 "
+              "first (it fixes the world): comma-separated, or @LIST: the file LIST with one "
+              "path per line (for names that contain commas). Required, at least 2 and at "
+              "most 32 (kMaxFrames).");
+DEFINE_string(masks, "", "Field-of-view masks, one per image, on the image's grid (non-zero = "
+              "inside), comma-separated or @LIST as --images. Empty: each image's non-zero "
+              "voxels eroded by --mask_erosion voxels.");
 DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no --masks are "
              "given, in [0, 50].");
 DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
@@ -124,13 +127,50 @@ namespace {
 
 using dsr::Fail;
 
+// The pipeline names frames by index; a message that starts with "frame N" also gets the
+// file, so that the line names what to fix.
+std::string WithFrameFile(const std::string& message, const std::vector<std::string>& paths) {
+  int frame = -1, consumed = 0;
+  if (std::sscanf(message.c_str(), "frame %d %n", &frame, &consumed) < 1 || consumed == 0 ||
+      frame < 0 || frame >= static_cast<int>(paths.size())) {
+    return message;
+  }
+  return paths[frame] + ": " + message;
+}
+
 double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-}  // namespace
+// The files written into --out_tfm_dir, --out_resampled_dir and --report_dir
+// (pipeline/report.h, ReportFiles).
+void PlanFolderOutputs(int m, const std::vector<int>& pair, dsr::OutputPlan* plan) {
+  char name[64];
+  if (!FLAGS_out_tfm_dir.empty()) {
+    plan->AddOutputFolder("out_tfm_dir", FLAGS_out_tfm_dir, FLAGS_out_tfm_dir);
+    for (int i = 0; i < m; ++i) {
+      std::snprintf(name, sizeof(name), "frame_%02d.tfm", i);
+      plan->AddDerivedFile("out_tfm_dir", FLAGS_out_tfm_dir, name);
+    }
+  }
+  if (!FLAGS_out_resampled_dir.empty()) {
+    plan->AddOutputFolder("out_resampled_dir", FLAGS_out_resampled_dir, FLAGS_out_resampled_dir);
+    for (int i = 0; i < m; ++i) {
+      std::snprintf(name, sizeof(name), "frame_%02d_in_panorama.nii.gz", i);
+      plan->AddDerivedImage("out_resampled_dir", FLAGS_out_resampled_dir, name);
+    }
+  }
+  if (!FLAGS_report_dir.empty()) {
+    const std::string& dir = FLAGS_report_dir;
+    plan->AddOutputFolder("report_dir", dir, dir);
+    plan->AddOutputFolder("report_dir", dir, (std::filesystem::path(dir) / "transforms").string());
+    for (const std::string& file : dsr::ReportFiles(m, pair[0], pair[1])) {
+      plan->AddDerivedFile("report_dir", dir, file);
+    }
+  }
+}
 
-int main(int argc, char** argv) {
+int Main(int argc, char** argv) {
   dsr::InitTool(
       "registers several 3D images simultaneously (DSR: direct simultaneous registration).\n"
       "  dsr_register --images=a.nii.gz,b.nii.gz,... --out_poses=poses.json [--masks=...]\n"
@@ -193,10 +233,17 @@ int main(int argc, char** argv) {
     return Fail("--feather_voxels=" + std::to_string(FLAGS_feather_voxels) + ": must be > 0");
   }
 
-  const std::vector<std::string> image_paths = dsr::SplitCommaList(FLAGS_images);
-  const std::vector<std::string> mask_paths = dsr::SplitCommaList(FLAGS_masks);
+  std::vector<std::string> image_paths, mask_paths;
+  if (!dsr::ParseInputList("images", FLAGS_images, &image_paths, &error) ||
+      !dsr::ParseInputList("masks", FLAGS_masks, &mask_paths, &error)) {
+    return Fail(error);
+  }
   const int m = static_cast<int>(image_paths.size());
   if (m < 2) return Fail("--images: need at least 2 images, got " + std::to_string(m));
+  if (m > dsr::kMaxFrames) {
+    return Fail("--images: at most " + std::to_string(dsr::kMaxFrames) + " frames, got " +
+                std::to_string(m));
+  }
   // Report frames and pair: indices into --images.
   std::vector<int> outlined, pair;
   for (const auto& [flag, text, list] :
@@ -221,42 +268,24 @@ int main(int argc, char** argv) {
                 std::to_string(m) + " images");
   }
   std::set<std::string> unique_images;
-  std::vector<std::string> inputs;
   for (const std::string& p : image_paths) {
     if (!unique_images.insert(dsr::CanonicalPath(p)).second) {
       return Fail("--images: " + p + " is given twice");
     }
-    inputs.push_back(dsr::CanonicalPath(p));
-  }
-  for (const std::string& p : mask_paths) inputs.push_back(dsr::CanonicalPath(p));
-  for (const std::string& p : {init_from_file ? FLAGS_init : std::string(), FLAGS_gt_poses}) {
-    inputs.push_back(dsr::CanonicalPath(p));
-  }
-  for (const auto& [flag, path] : {std::pair<std::string, std::string>{"out_poses", FLAGS_out_poses},
-                                   {"out_panorama", FLAGS_out_panorama}}) {
-    if (!dsr::CheckOutputFile(flag, path, inputs, &error)) return Fail(error);
-  }
-  for (const auto& [flag, folder] : {std::pair<std::string, std::string>{"out_tfm_dir", FLAGS_out_tfm_dir},
-                                     {"out_resampled_dir", FLAGS_out_resampled_dir},
-                                     {"report_dir", FLAGS_report_dir}}) {
-    if (folder.empty()) continue;
-    std::error_code ec;
-    std::filesystem::create_directories(folder, ec);
-    if (ec || !std::filesystem::is_directory(folder)) {
-      return Fail("--" + flag + "=" + folder + ": cannot create the folder" +
-                  (ec ? " (" + ec.message() + ")" : ""));
-    }
-    if (!dsr::CheckOutputFile(flag, (std::filesystem::path(folder) / "probe").string(), inputs, &error)) {
-      return Fail(error);
-    }
-  }
-  if (FLAGS_out_poses == FLAGS_out_panorama) {
-    return Fail("--out_panorama=" + FLAGS_out_panorama + ": same file as --out_poses");
   }
   if (!FLAGS_out_panorama.empty() && !dsr::HasSupportedImageExtension(FLAGS_out_panorama)) {
     return Fail("--out_panorama=" + FLAGS_out_panorama +
                 ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)");
   }
+  // Every file this run reads and writes, before anything is read or created.
+  dsr::OutputPlan plan;
+  plan.AddFrameInputs(image_paths, mask_paths, FLAGS_images, FLAGS_masks);
+  if (init_from_file) plan.AddInputFile("init", FLAGS_init);
+  plan.AddInputFile("gt_poses", FLAGS_gt_poses);
+  plan.AddOutputFile("out_poses", FLAGS_out_poses);
+  plan.AddOutputImage("out_panorama", FLAGS_out_panorama);
+  PlanFolderOutputs(m, pair, &plan);
+  if (!plan.Check(&error)) return Fail(error);
 
   std::vector<dsr::Image> images;
   std::vector<dsr::Mask> masks;
@@ -277,7 +306,9 @@ int main(int argc, char** argv) {
   const double load_seconds = SecondsSince(start);
 
   dsr::RegistrationResult result;
-  if (!dsr::Register(images, masks, initial, options, &result, &error)) return Fail(error);
+  if (!dsr::Register(images, masks, initial, options, &result, &error)) {
+    return Fail(WithFrameFile(error, image_paths));
+  }
   for (const dsr::RegistrationResult::Recovery& r : result.recoveries) {
     std::string frames;
     for (const dsr::FrameReplacement& f : r.frames) {
@@ -299,12 +330,10 @@ int main(int argc, char** argv) {
   }
   if (!result.usable) return Fail(result.failure, dsr::kExitFailed);
 
-  dsr::PosesFile out;
-  out.frame_from_world = result.frame_from_world;
-  for (const std::string& p : image_paths) {
-    out.images.push_back(std::filesystem::path(p).filename().string());
-  }
-  if (!dsr::WritePoses(out, FLAGS_out_poses, &error)) return Fail(error, dsr::kExitFailed);
+  // Note: the poses file is written last, so that a run whose panorama, transforms,
+  // resampled frames or report could not be written leaves the previous poses file as it
+  // was (exit 1, no new result).
+  if (!plan.CreateFolders(&error)) return Fail(error, dsr::kExitFailed);
   const bool need_frames = !FLAGS_out_panorama.empty() || !FLAGS_out_resampled_dir.empty() ||
                           !FLAGS_report_dir.empty();
   std::vector<dsr::Frame> frames;
@@ -368,6 +397,12 @@ int main(int argc, char** argv) {
       return Fail(error, dsr::kExitFailed);
     }
   }
+  dsr::PosesFile out;
+  out.frame_from_world = result.frame_from_world;
+  for (const std::string& p : image_paths) {
+    out.images.push_back(std::filesystem::path(p).filename().string());
+  }
+  if (!dsr::WritePoses(out, FLAGS_out_poses, &error)) return Fail(error, dsr::kExitFailed);
 
   const dsr::LevelSolve& last = result.solves.back();
   std::printf("dsr_register: %s, %d frames, %zu solves over %d pyramid levels, %d iterations, "
@@ -391,3 +426,7 @@ int main(int argc, char** argv) {
   if (!report_index.empty()) std::printf("dsr_register: report in %s\n", report_index.c_str());
   return EXIT_SUCCESS;
 }
+
+}  // namespace
+
+int main(int argc, char** argv) { return dsr::RunToolMain(argc, argv, &Main); }

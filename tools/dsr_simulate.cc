@@ -1,4 +1,4 @@
-// dsr_simulate: a sequence following the paper's protocol (DESIGN.md section 6, sim/simulate.h)
+// dsr_simulate: a sequence following the paper's protocol (docs/design.md section 6, sim/simulate.h)
 // cut from the built-in phantom (sim/phantom.h) or from any readable volume.
 // Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz and DIR/gt_poses.json, whose T are
 // frame_from_world with world = the source's physical space (not yet frame 0's: consumers
@@ -17,6 +17,7 @@
 #include "core/io_poses.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
+#include "tools/output_plan.h"
 #include "tools/tool_util.h"
 
 DEFINE_string(out_dir,
@@ -67,7 +68,8 @@ DEFINE_string(frame_size,
               "runs along z from the apex at the centre of the z = 0 face.");
 DEFINE_double(frame_spacing,
               0.0,
-              "Isotropic frame voxel spacing in mm, >= 0; 0 = the source's spacing along x.");
+              "Isotropic frame voxel spacing in mm, 0 or in [1e-6, 1e6]; 0 = the source's "
+              "spacing along x.");
 DEFINE_double(azimuth_deg,
               75.0,
               "Full lateral (x) opening angle of the pyramidal field of view, in (0, 180).");
@@ -126,6 +128,12 @@ bool ValidateFrameSize(const char* flag, const std::string& v) {
 bool ValidatePhantomSize(const char* flag, int32_t v) {
   return dsr::CheckFlag(v >= 16 && v <= 512, flag, v, "must be in [16, 512]");
 }
+bool ValidateFrameSpacing(const char* flag, double v) {
+  return dsr::CheckFlag(v == 0.0 || (v >= dsr::kMinFrameSpacingMm && v <= dsr::kMaxFrameSpacingMm),
+                        flag,
+                        v,
+                        "must be 0 (the source's spacing) or in [1e-06, 1e+06] mm");
+}
 bool ValidateSource(const char* flag, const std::string& v) {
   return dsr::CheckInputFileFlag(flag, v);
 }
@@ -141,7 +149,7 @@ DEFINE_validator(step_rotation_deg, &ValidateRotation);
 DEFINE_validator(step_translation_voxels, &ValidateNonNegative);
 DEFINE_validator(mask_erosion, &ValidateMaskErosion);
 DEFINE_validator(frame_size, &ValidateFrameSize);
-DEFINE_validator(frame_spacing, &ValidateNonNegative);
+DEFINE_validator(frame_spacing, &ValidateFrameSpacing);
 DEFINE_validator(azimuth_deg, &ValidateOpeningAngle);
 DEFINE_validator(elevation_deg, &ValidateOpeningAngle);
 DEFINE_validator(min_depth_voxels, &ValidateNonNegative);
@@ -154,9 +162,7 @@ double SecondsSince(std::chrono::steady_clock::time_point start) {
   return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
+int Main(int argc, char** argv) {
   dsr::InitTool(
       "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
       "field of view, Gaussian noise) from the built-in phantom or --source.\n"
@@ -185,6 +191,36 @@ int main(int argc, char** argv) {
   options.min_depth_voxels = FLAGS_min_depth_voxels;
   std::string error;
   if (!options.Validate(&error)) return dsr::Fail(error);
+  // Clear cases of too little memory are refused before any work: the frames (float) and
+  // masks (uint8), the field of view and one frame's copies while it is written, and the
+  // source (checked again once a --source is read).
+  const double frame_voxels = options.frame_size.cast<double>().prod();
+  const auto check_memory = [&](double source_voxels) {
+    const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + 4.0 * source_voxels;
+    return dsr::CheckMemoryEstimate(
+        "--frame_size=" + FLAGS_frame_size + " --num_frames=" + std::to_string(options.num_frames),
+        bytes,
+        std::to_string(options.num_frames) + " frames and masks and the source",
+        &error);
+  };
+  const double phantom_voxels = std::pow(static_cast<double>(FLAGS_phantom_size), 3);
+  if (!check_memory(FLAGS_source.empty() ? phantom_voxels : 0.0)) {
+    return dsr::Fail(error);
+  }
+  // Every file this run reads and writes, before the source is read or the folder created.
+  dsr::OutputPlan plan;
+  plan.AddInputImage("source", FLAGS_source);
+  plan.AddOutputFolder("out_dir", FLAGS_out_dir, FLAGS_out_dir);
+  for (int f = 0; f < options.num_frames; ++f) {
+    char frame_name[32], mask_name[32];
+    std::snprintf(frame_name, sizeof(frame_name), "frame_%02d.nii.gz", f);
+    std::snprintf(mask_name, sizeof(mask_name), "mask_%02d.nii.gz", f);
+    plan.AddDerivedImage("out_dir", FLAGS_out_dir, frame_name);
+    plan.AddDerivedImage("out_dir", FLAGS_out_dir, mask_name);
+  }
+  if (FLAGS_write_source) plan.AddDerivedImage("out_dir", FLAGS_out_dir, "source.nii.gz");
+  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "gt_poses.json");
+  if (!plan.Check(&error)) return dsr::Fail(error);
 
   auto start = std::chrono::steady_clock::now();
   dsr::Image source;
@@ -197,22 +233,19 @@ int main(int argc, char** argv) {
   } else if (!dsr::ReadImage(FLAGS_source, &source, &error)) {
     return dsr::Fail("--source: " + error);
   }
+  if (!FLAGS_source.empty() && !check_memory(static_cast<double>(source.voxels.size()))) {
+    return dsr::Fail(error);
+  }
   const double source_seconds = SecondsSince(start);
   LOG(INFO) << (FLAGS_source.empty() ? "phantom " : "read ") << source.geometry.DebugString()
             << " in " << source_seconds << " s";
-
-  std::error_code ec;
-  std::filesystem::create_directories(FLAGS_out_dir, ec);
-  if (!std::filesystem::is_directory(FLAGS_out_dir)) {
-    return dsr::Fail("--out_dir=" + FLAGS_out_dir + ": cannot create the folder" +
-                     (ec ? " (" + ec.message() + ")" : std::string()));
-  }
 
   start = std::chrono::steady_clock::now();
   dsr::SimulatedSequence sequence;
   if (!dsr::Simulate(source, options, &sequence, &error)) return dsr::Fail(error);
   const double simulate_seconds = SecondsSince(start);
   LOG(INFO) << "simulated " << options.num_frames << " frames in " << simulate_seconds << " s";
+  if (!plan.CreateFolders(&error)) return dsr::Fail(error, dsr::kExitFailed);
 
   start = std::chrono::steady_clock::now();
   const std::filesystem::path dir(FLAGS_out_dir);
@@ -257,3 +290,7 @@ int main(int argc, char** argv) {
               write_seconds);
   return EXIT_SUCCESS;
 }
+
+}  // namespace
+
+int main(int argc, char** argv) { return dsr::RunToolMain(argc, argv, &Main); }

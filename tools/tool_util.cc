@@ -4,12 +4,20 @@
 
 #include "core/io_image.h"
 
+#include <algorithm>
+#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
+#include <exception>
 #include <filesystem>
 #include <fstream>
+#include <new>
+#include <system_error>
 
+#include <sys/resource.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <gflags/gflags.h>
@@ -33,24 +41,319 @@ void ExitWithBadInput(int) { std::exit(kExitBadInput); }
 void ExitAfterHelp(int) { std::exit(EXIT_SUCCESS); }
 
 std::string Trim(const std::string& text) {
-  const size_t begin = text.find_first_not_of(" \t");
+  const size_t begin = text.find_first_not_of(" \t\r");
   if (begin == std::string::npos) return "";
-  const size_t end = text.find_last_not_of(" \t");
+  const size_t end = text.find_last_not_of(" \t\r");
   return text.substr(begin, end - begin + 1);
 }
 
+// Reads a small text file (a flagfile or a list file) after checking that it is a regular,
+// readable file of at most kMaxFlagfileBytes. Errors start with `prefix` ("--flag=path: ").
+bool ReadSmallTextFile(const std::string& path,
+                       const std::string& prefix,
+                       std::string* text,
+                       std::string* error) {
+  struct stat st;
+  if (stat(path.c_str(), &st) != 0) {
+    *error = prefix + (errno == ENOENT ? std::string("no such file") : std::strerror(errno));
+    return false;
+  }
+  if (S_ISDIR(st.st_mode)) {
+    *error = prefix + "is a folder, not a file";
+    return false;
+  }
+  if (!S_ISREG(st.st_mode)) {
+    *error = prefix + "not a regular file";
+    return false;
+  }
+  if (st.st_size > kMaxFlagfileBytes) {
+    *error = prefix + std::to_string(st.st_size) + " bytes, more than the limit of " +
+             std::to_string(kMaxFlagfileBytes) + " for a file of flags or paths";
+    return false;
+  }
+  std::ifstream in(path, std::ios::binary);
+  if (!in.is_open()) {
+    *error = prefix + "cannot open for reading (" + std::strerror(errno) + ")";
+    return false;
+  }
+  text->assign(static_cast<size_t>(kMaxFlagfileBytes) + 1, '\0');
+  in.read(&(*text)[0], static_cast<std::streamsize>(text->size()));
+  text->resize(static_cast<size_t>(in.gcount()));
+  if (in.bad() || static_cast<int64_t>(text->size()) > kMaxFlagfileBytes) {
+    *error = prefix + (in.bad() ? "read error" : "grew beyond the limit while being read");
+    return false;
+  }
+  return true;
+}
+
+std::vector<std::string> Lines(const std::string& text) {
+  std::vector<std::string> lines;
+  size_t begin = 0;
+  while (begin < text.size()) {
+    size_t end = text.find('\n', begin);
+    if (end == std::string::npos) end = text.size();
+    lines.push_back(text.substr(begin, end - begin));
+    begin = end + 1;
+  }
+  return lines;
+}
+
+// "--name=value", "-name=value", "--name", "-name" -> name, value and whether "=" was given.
+// False for anything that does not start with "-" and a name character.
+bool SplitFlagArgument(const std::string& arg,
+                       std::string* name,
+                       std::string* value,
+                       bool* has_value) {
+  const size_t start = arg.compare(0, 2, "--") == 0 ? 2 : (arg.compare(0, 1, "-") == 0 ? 1 : 0);
+  if (start == 0 || arg.size() == start || arg[start] == '=') return false;
+  const size_t equals = arg.find('=', start);
+  *has_value = equals != std::string::npos;
+  *name = arg.substr(start, *has_value ? equals - start : std::string::npos);
+  *value = *has_value ? arg.substr(equals + 1) : std::string();
+  return true;
+}
+
+// gflags' --fromenv/--tryfromenv=flagfile would read a flagfile behind this check's back.
+bool ReadsFlagfileFromEnvironment(const std::string& name, const std::string& value) {
+  if (name != "fromenv" && name != "tryfromenv") return false;
+  for (const std::string& item : SplitCommaList(value)) {
+    if (item == "flagfile") return true;
+  }
+  return false;
+}
+
+// Expands --flagfile arguments in place (InitTool step 2).
+class FlagfileExpander {
+ public:
+  bool ExpandCommandLine(int argc, char** argv, std::vector<std::string>* out, std::string* error) {
+    out->push_back(argv[0]);
+    for (int a = 1; a < argc; ++a) {
+      const std::string arg = argv[a];
+      if (arg == "--") {  // gflags: the end of the flags; the rest is positional
+        for (; a < argc; ++a) out->push_back(argv[a]);
+        break;
+      }
+      std::string name, value;
+      bool has_value = false;
+      if (!SplitFlagArgument(arg, &name, &value, &has_value) || name != "flagfile") {
+        if (SplitFlagArgument(arg, &name, &value, &has_value) &&
+            ReadsFlagfileFromEnvironment(name, value)) {
+          *error = arg + ": a flagfile cannot be read from the environment; use --flagfile=FILE";
+          return false;
+        }
+        out->push_back(arg);
+        continue;
+      }
+      if (!has_value) {
+        if (a + 1 == argc) {  // gflags reports the missing value
+          out->push_back(arg);
+          continue;
+        }
+        value = argv[++a];
+      }
+      if (!ExpandFile(value, out, error)) return false;
+    }
+    return true;
+  }
+
+ private:
+  static constexpr int kMaxDepth = 64;
+
+  bool ExpandFile(const std::string& path, std::vector<std::string>* out, std::string* error) {
+    if (path.empty()) return true;  // gflags: no flagfile
+    const std::string prefix = "--flagfile=" + path + ": ";
+    std::string text;
+    if (!ReadSmallTextFile(path, prefix, &text, error)) return false;
+    const std::string canonical = CanonicalPath(path);
+    for (size_t f = 0; f < open_.size(); ++f) {
+      if (open_[f] != canonical) continue;
+      std::string chain;
+      for (size_t g = f; g < open_.size(); ++g) chain += spelled_[g] + " -> ";
+      *error = prefix + "includes itself (" + chain + path + ")";
+      return false;
+    }
+    if (static_cast<int>(open_.size()) >= kMaxDepth) {
+      *error = prefix + "flagfiles nested more than " + std::to_string(kMaxDepth) + " deep";
+      return false;
+    }
+    open_.push_back(canonical);
+    spelled_.push_back(path);
+    const std::vector<std::string> lines = Lines(text);
+    for (size_t l = 0; l < lines.size(); ++l) {
+      const std::string line = Trim(lines[l]);
+      if (line.empty() || line[0] == '#') continue;
+      const std::string where = prefix + "line " + std::to_string(l + 1) + ": ";
+      std::string name, value;
+      bool has_value = false;
+      if (!SplitFlagArgument(line, &name, &value, &has_value) ||
+          name.find_first_of(" \t") != std::string::npos) {
+        *error = where + "'" + line.substr(0, 80) +
+                 "' is not --flag=value (every line is one --flag=value, a '#' comment or "
+                 "blank)";
+        return false;
+      }
+      if (name == "flagfile") {
+        if (!has_value) {
+          *error = where + "--flagfile needs a value (--flagfile=FILE)";
+          return false;
+        }
+        if (!ExpandFile(value, out, error)) return false;
+        continue;
+      }
+      if (ReadsFlagfileFromEnvironment(name, value)) {
+        *error = where + "a flagfile cannot be read from the environment";
+        return false;
+      }
+      gflags::CommandLineFlagInfo info;
+      const bool known = gflags::GetCommandLineFlagInfo(name.c_str(), &info);
+      gflags::CommandLineFlagInfo negated;
+      const bool negated_bool = !known && !has_value && name.compare(0, 2, "no") == 0 &&
+                                gflags::GetCommandLineFlagInfo(name.substr(2).c_str(), &negated) &&
+                                negated.type == "bool";
+      if (!known && !negated_bool) {
+        *error = where + "unknown flag --" + name + " (see --helpshort)";
+        return false;
+      }
+      if (known && !has_value && info.type != "bool") {
+        *error = where + "--" + name + " needs a value (--" + name + "=VALUE on one line)";
+        return false;
+      }
+      out->push_back(line);
+      if (static_cast<int>(out->size()) > kMaxExpandedArguments) {
+        *error = prefix + "the flagfiles expand to more than " +
+                 std::to_string(kMaxExpandedArguments) + " arguments";
+        return false;
+      }
+    }
+    open_.pop_back();
+    spelled_.pop_back();
+    return true;
+  }
+
+  std::vector<std::string> open_;     // canonical paths of the flagfiles being expanded
+  std::vector<std::string> spelled_;  // the same, as written
+};
+
+// The address-space limit for the out-of-memory message (0 = none), taken at start-up.
+double& LimitAtStart() {
+  static double bytes = 0.0;
+  return bytes;
+}
+
+std::string GiB(double bytes) {
+  char text[32];
+  std::snprintf(text, sizeof(text), "%.1f GiB", bytes / (1024.0 * 1024.0 * 1024.0));
+  return text;
+}
+
+double PhysicalMemoryBytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES);
+  const long page_size = sysconf(_SC_PAGESIZE);
+  return pages > 0 && page_size > 0 ? static_cast<double>(pages) * page_size : 0.0;
+}
+
+// RLIMIT_AS in bytes, or 0 when unlimited.
+double AddressSpaceLimitBytes() {
+  struct rlimit limit;
+  if (getrlimit(RLIMIT_AS, &limit) != 0 || limit.rlim_cur == RLIM_INFINITY) return 0.0;
+  return static_cast<double>(limit.rlim_cur);
+}
+
+std::string OutOfMemoryMessage(const std::string& detail) {
+  std::string message = "out of memory (" + detail;
+  if (LimitAtStart() > 0.0) message += "; address-space limit " + GiB(LimitAtStart());
+  return message + "): free memory, raise the limit (ulimit -v) or give a smaller problem";
+}
+
+[[noreturn]] void ExitOnException(std::exception_ptr exception) {
+  std::string message = "internal error: std::terminate without an exception";
+  try {
+    if (exception) std::rethrow_exception(exception);
+  } catch (const std::bad_alloc& e) {
+    message = OutOfMemoryMessage(e.what());
+  } catch (const std::system_error& e) {
+    // Starting a thread fails with EAGAIN when its stack cannot be mapped.
+    message = e.code() == std::errc::resource_unavailable_try_again
+                  ? OutOfMemoryMessage(std::string("cannot start a thread: ") + e.what())
+                  : std::string("internal error: ") + e.what();
+  } catch (const std::exception& e) {
+    message = std::string("internal error: uncaught exception: ") + e.what();
+  } catch (...) {
+    message = "internal error: uncaught exception of unknown type";
+  }
+  Fail(message);
+  std::_Exit(kExitFailed);
+}
+
+// Exceptions that leave a worker thread (ParallelFor) end in std::terminate.
+[[noreturn]] void OnTerminate() { ExitOnException(std::current_exception()); }
+
+void SetToolName(const char* argv0) {
+  std::string name = argv0 != nullptr ? argv0 : "dsr";
+  const size_t slash = name.rfind('/');
+  if (slash != std::string::npos) name = name.substr(slash + 1);
+  ToolName() = name;
+}
+
 }  // namespace
+
+int RunToolMain(int argc, char** argv, int (*body)(int, char**)) {
+  SetToolName(argc > 0 ? argv[0] : nullptr);
+  LimitAtStart() = AddressSpaceLimitBytes();
+  std::set_terminate(&OnTerminate);
+  try {
+    return body(argc, argv);
+  } catch (...) {
+    std::fflush(stdout);  // what the run printed before (not in OnTerminate: a thread may hold it)
+    ExitOnException(std::current_exception());
+  }
+}
+
+double AvailableMemoryBytes() {
+  double available = PhysicalMemoryBytes();
+  const double limit = AddressSpaceLimitBytes();
+  if (limit > 0.0) {
+    double mapped = 0.0;
+    long pages = 0;
+    std::ifstream statm("/proc/self/statm");
+    if (statm >> pages) mapped = static_cast<double>(pages) * sysconf(_SC_PAGESIZE);
+    const double left = std::max(0.0, limit - mapped);
+    available = available > 0.0 ? std::min(available, left) : left;
+  }
+  return available;
+}
+
+bool CheckMemoryEstimate(const std::string& what_flags,
+                         double bytes,
+                         const std::string& what,
+                         std::string* error) {
+  const double available = AvailableMemoryBytes();
+  if (available <= 0.0 || bytes <= available) return true;
+  const double limit = AddressSpaceLimitBytes();
+  *error = what_flags + ": needs about " + GiB(bytes) + " for " + what + ", more than the " +
+           GiB(available) + " available (physical RAM " + GiB(PhysicalMemoryBytes()) +
+           (limit > 0.0 ? ", address-space limit " + GiB(limit) : std::string()) + ")";
+  return false;
+}
 
 void InitTool(const char* usage,
               const std::vector<std::string>& required_flags,
               int* argc,
               char*** argv) {
-  std::string name = (*argv)[0];
-  const size_t slash = name.rfind('/');
-  if (slash != std::string::npos) name = name.substr(slash + 1);
-  ToolName() = name;
+  SetToolName((*argv)[0]);
   FLAGS_logtostderr = true;
   gflags::SetUsageMessage(usage);
+
+  // gflags permutes and keeps pointers into the expanded arguments: they live as long as
+  // the process.
+  static std::vector<std::string>* const expanded = new std::vector<std::string>();
+  static std::vector<char*>* const expanded_argv = new std::vector<char*>();
+  std::string error;
+  if (!FlagfileExpander().ExpandCommandLine(*argc, *argv, expanded, &error)) std::exit(Fail(error));
+  for (std::string& arg : *expanded) expanded_argv->push_back(&arg[0]);
+  expanded_argv->push_back(nullptr);
+  *argc = static_cast<int>(expanded->size());
+  *argv = expanded_argv->data();
 
   void (*const previous_exit)(int) = GFLAGS_NAMESPACE::gflags_exitfunc;
   GFLAGS_NAMESPACE::gflags_exitfunc = &ExitWithBadInput;
@@ -93,40 +396,15 @@ bool CheckInputFileFlag(const char* flag, const std::string& path) {
 }
 
 std::string CanonicalPath(const std::string& path) {
+  if (path.empty()) return path;
+  // Absolute first: weakly_canonical leaves a relative path relative when its first
+  // component does not exist yet ("new/./x" -> "new/x", while "/abs/new/x" stays absolute).
+  // The existing prefix has its symlinks, "." and ".." resolved; the rest is normalised.
   std::error_code ec;
-  const std::filesystem::path p = std::filesystem::weakly_canonical(path, ec);
-  return ec ? path : p.string();
-}
-
-bool CheckOutputFile(const std::string& flag,
-                     const std::string& path,
-                     const std::vector<std::string>& canonical_inputs,
-                     std::string* error) {
-  if (path.empty()) return true;
-  const std::string prefix = "--" + flag + "=" + path + ": ";
-  const std::string canonical = CanonicalPath(path);
-  for (const std::string& input : canonical_inputs) {
-    if (input == canonical) {
-      *error = prefix + "is one of the inputs; inputs are never overwritten";
-      return false;
-    }
-  }
-  std::error_code ec;
-  if (std::filesystem::is_directory(path, ec)) {
-    *error = prefix + "is a folder, not a file name";
-    return false;
-  }
-  std::filesystem::path folder = std::filesystem::path(path).parent_path();
-  if (folder.empty()) folder = ".";
-  if (!std::filesystem::is_directory(folder, ec)) {
-    *error = prefix + "folder " + folder.string() + " does not exist";
-    return false;
-  }
-  if (access(folder.c_str(), W_OK) != 0) {
-    *error = prefix + "folder " + folder.string() + " is not writable";
-    return false;
-  }
-  return true;
+  const std::filesystem::path absolute = std::filesystem::absolute(path, ec);
+  if (ec) return std::filesystem::path(path).lexically_normal().string();
+  const std::filesystem::path p = std::filesystem::weakly_canonical(absolute, ec);
+  return ec ? absolute.lexically_normal().string() : p.string();
 }
 
 std::vector<std::string> SplitCommaList(const std::string& text) {
@@ -140,6 +418,36 @@ std::vector<std::string> SplitCommaList(const std::string& text) {
     begin = end + 1;
   }
   return items;
+}
+
+bool ParseInputList(const std::string& flag,
+                    const std::string& text,
+                    std::vector<std::string>* paths,
+                    std::string* error) {
+  std::vector<std::string> items;
+  const bool from_list = !text.empty() && text[0] == '@';
+  const std::string list = from_list ? text.substr(1) : std::string();
+  if (from_list) {
+    std::string content;
+    if (!ReadSmallTextFile(list, "--" + flag + "=" + text + ": ", &content, error)) return false;
+    for (const std::string& line : Lines(content)) {
+      const std::string item = Trim(line);
+      if (!item.empty() && item[0] != '#') items.push_back(item);
+    }
+  } else {
+    items = SplitCommaList(text);
+  }
+  for (const std::string& item : items) {
+    std::error_code ec;
+    if (std::filesystem::exists(item, ec) || ec) continue;  // other errors: the reader's
+    *error = from_list ? "--" + flag + "=" + text + ": " + item + ": no such file"
+                       : "--" + flag + ": " + item + ": no such file (--" + flag +
+                             " is split at commas; a name that contains a comma can be given "
+                             "in a list file, --" + flag + "=@LIST, one path per line)";
+    return false;
+  }
+  *paths = std::move(items);
+  return true;
 }
 
 bool ParseSize3(const std::string& text, Eigen::Vector3i* size, int min_value, int max_value) {

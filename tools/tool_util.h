@@ -6,6 +6,7 @@
 #ifndef DSR_TOOLS_TOOL_UTIL_H_
 #define DSR_TOOLS_TOOL_UTIL_H_
 
+#include <cstdint>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -19,19 +20,59 @@ namespace dsr {
 constexpr int kExitBadInput = 2;
 constexpr int kExitFailed = 1;
 
+// Range of a voxel spacing given by a flag (mm): beyond it, geometry (inverses, file headers
+// in float32) breaks down long before the value could be meant.
+constexpr double kMinFrameSpacingMm = 1e-6;
+constexpr double kMaxFrameSpacingMm = 1e6;
+
+// Largest flagfile read (a flagfile is a few lines; this refuses /dev/zero and data files).
+constexpr int64_t kMaxFlagfileBytes = int64_t{1} << 20;
+// Most arguments all flagfiles together may expand to (a flagfile included twice by each of
+// a chain of flagfiles doubles at each link).
+constexpr int kMaxExpandedArguments = 100000;
+
 // Tool start-up, in this order:
 //  1. FLAGS_logtostderr defaults to true (glog to stderr; --logtostderr=false overrides).
-//  2. Parses flags. gflags reports unknown flags, malformed values and failed validators
+//  2. Expands every --flagfile=FILE (also "--flagfile FILE", and inside flagfiles) in place,
+//     so that flags after it override it, as gflags does; but first refuses, with one line
+//     naming the flagfile and exit kExitBadInput: a missing or unreadable file, a folder or
+//     other non-regular file, one over kMaxFlagfileBytes, a flagfile that includes itself
+//     (directly or through others), and any line that is not blank, a '#' comment, or
+//     --flag=value (--flag / --noflag for booleans) naming a flag this tool defines.
+//     (gflags itself recurses forever on cycles, ignores unknown flags in flagfiles and
+//     reads a line without "--" as a program-name filter.) Relative paths, in flagfiles
+//     too, are relative to the working folder.
+//  3. Parses flags. gflags reports unknown flags, malformed values and failed validators
 //     with its own one-line messages; this makes it exit with kExitBadInput instead of 1.
-//  3. Handles --help, --helpshort (this tool's flags only), --version: print and exit 0.
-//  4. Rejects positional arguments and empty `required_flags` (names without "--") with
+//  4. Handles --help, --helpshort (this tool's flags only), --version: print and exit 0.
+//  5. Rejects positional arguments and empty `required_flags` (names without "--") with
 //     one line on stderr and kExitBadInput.
-//  5. Initialises glog and logs gflags::CommandlineFlagsIntoString() at --v=1.
+//  6. Initialises glog and logs gflags::CommandlineFlagsIntoString() at --v=1.
 // Note: call first in main, before any other use of flags.
 void InitTool(const char* usage,
               const std::vector<std::string>& required_flags,
               int* argc,
               char*** argv);
+
+// Runs a tool's main function `body` (which calls InitTool first) so that it never ends in
+// an uncaught exception: std::bad_alloc, from any thread, ends the run with one line
+// "<tool>: error: out of memory (...)" and kExitFailed; any other exception (a last resort:
+// none is expected) with one line naming it and kExitFailed. Use as
+//   int main(int argc, char** argv) { return dsr::RunToolMain(argc, argv, &Main); }
+int RunToolMain(int argc, char** argv, int (*body)(int, char**));
+
+// Bytes this process can still allocate, as far as it can tell up front: the physical RAM,
+// and under an address-space limit (RLIMIT_AS, `ulimit -v`) what the limit leaves beyond
+// what is mapped already.
+double AvailableMemoryBytes();
+
+// For clear cases, before any work: true when `bytes` (an estimate) fits in
+// AvailableMemoryBytes(); otherwise `error` reads "<what_flags>: needs about X GiB for
+// <what>, more than the Y GiB available (...)".
+bool CheckMemoryEstimate(const std::string& what_flags,
+                         double bytes,
+                         const std::string& what,
+                         std::string* error);
 
 // Prints "<tool>: error: <message>" as one line on stderr and returns `code`, so that
 // main can `return Fail(...)`.
@@ -63,17 +104,18 @@ bool CheckInputFileFlag(const char* flag, const std::string& path);
 // spellings of one file compare equal.
 std::string CanonicalPath(const std::string& path);
 
-// Checks an output-file flag before any work is done: "" is accepted (no output); else the
-// file must not be one of `canonical_inputs` (CanonicalPath of every input), must not be a
-// folder, and its folder must exist and be writable. On failure `error` reads
-// "--<flag>=<path>: <rule>".
-bool CheckOutputFile(const std::string& flag,
-                     const std::string& path,
-                     const std::vector<std::string>& canonical_inputs,
-                     std::string* error);
-
 // "a,b,,c" -> {"a", "b", "c"}: items trimmed of spaces, empty items dropped.
 std::vector<std::string> SplitCommaList(const std::string& text);
+
+// The files of a list-valued input flag (--images, --masks): "a,b,c" as SplitCommaList, or
+// "@LIST": the lines of the file LIST (at most kMaxFlagfileBytes), one path per line as
+// written (a name may contain commas), blank lines and lines starting with '#' skipped.
+// Then every file must exist. False with `error` naming --<flag> (and LIST), e.g. for a
+// missing item that names are split at commas and that @LIST takes any name.
+bool ParseInputList(const std::string& flag,
+                    const std::string& text,
+                    std::vector<std::string>* paths,
+                    std::string* error);
 
 // "96,96,80" -> (96, 96, 80). False unless exactly three integers (no trailing junk) in
 // [min_value, max_value].

@@ -1,0 +1,406 @@
+// The front of every tool (tools/tool_util.h, issue 24): flagfiles are expanded and checked
+// before gflags sees them, memory is estimated before any work, std::bad_alloc ends in one
+// line and exit 1, and dsr_fuse matches --poses to --images by name and writes k_j with
+// --out_count. Each case runs a built tool binary (paths set by CMake) and checks the exit
+// code, the single error line (it names the flag or file) and that nothing was written.
+#include <unistd.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+#include <gtest/gtest.h>
+
+#include "cli_run.h"
+#include "core/io_image.h"
+#include "core/io_poses.h"
+#include "core/observation.h"
+
+namespace dsr {
+namespace {
+
+namespace fs = std::filesystem;
+using testing_cli::RunTool;
+using testing_cli::ToolRun;
+
+// Address-space limit (KiB, `ulimit -v`) of the out-of-memory cases, as in the issue's
+// reproductions: enough for the tools' libraries, far from enough for the runs refused.
+constexpr int kAddressSpaceKiB = 3000000;
+
+std::string Join(const std::vector<std::string>& items) {
+  std::string joined;
+  for (const std::string& item : items) joined += (joined.empty() ? "" : ",") + item;
+  return joined;
+}
+
+class ToolFront : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    root_ = new fs::path(fs::temp_directory_path() /
+                         ("dsr_tool_front_test_" + std::to_string(getpid())));
+    fs::remove_all(*root_);
+    fs::create_directories(*root_ / "in");
+    const ToolRun sim = RunTool(DSR_SIMULATE_BIN,
+                                "--out_dir=" + In("") +
+                                    " --phantom_size=48 --frame_size=20,20,16 --num_frames=3 "
+                                    "--max_rotation_deg=4 --max_translation_voxels=1 "
+                                    "--min_depth_voxels=2 --sigma=5",
+                                *root_);
+    ASSERT_EQ(sim.exit_code, 0) << sim.err;
+  }
+  static void TearDownTestSuite() {
+    fs::remove_all(*root_);
+    delete root_;
+  }
+
+  void SetUp() override {
+    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    out_ = *root_ / ("out_" + std::string(info->name()));
+    fs::create_directories(out_);
+  }
+
+  static std::string In(const std::string& name) { return (*root_ / "in" / name).string(); }
+  std::string Out(const std::string& name) const { return (out_ / name).string(); }
+  static std::vector<std::string> FramePaths() {
+    return {In("frame_00.nii.gz"), In("frame_01.nii.gz"), In("frame_02.nii.gz")};
+  }
+  static std::string Frames() { return Join(FramePaths()); }
+  static std::string Masks() {
+    return Join({In("mask_00.nii.gz"), In("mask_01.nii.gz"), In("mask_02.nii.gz")});
+  }
+  std::string Write(const std::string& name, const std::string& text) const {
+    std::ofstream(Out(name), std::ios::binary) << text;
+    return Out(name);
+  }
+  // dsr_fuse of the test sequence with `args` (poses, outputs).
+  ToolRun Fuse(const std::string& args, const std::string& prefix = "") const {
+    return RunTool(prefix + DSR_FUSE_BIN,
+                   "--images=" + Frames() + " --masks=" + Masks() + " " + args,
+                   *root_);
+  }
+  // Files in the output folder that are not `kept` (inputs the test wrote there).
+  std::vector<std::string> Written(const std::vector<std::string>& kept = {}) const {
+    std::vector<std::string> names;
+    for (const auto& entry : fs::directory_iterator(out_)) {
+      const std::string name = entry.path().filename().string();
+      if (std::find(kept.begin(), kept.end(), name) == kept.end()) names.push_back(name);
+    }
+    return names;
+  }
+
+  // Exit code `code`, exactly one error line "<tool>: error: ..." naming every `must_name`.
+  static void ExpectOneError(const ToolRun& run,
+                             int code,
+                             const std::vector<std::string>& must_name) {
+    EXPECT_EQ(run.exit_code, code) << run.err;
+    ASSERT_EQ(run.error_lines.size(), 1u) << run.err;
+    EXPECT_NE(run.error_lines[0].find(": error: "), std::string::npos) << run.error_lines[0];
+    for (const std::string& name : must_name) {
+      EXPECT_NE(run.error_lines[0].find(name), std::string::npos)
+          << "the error line should name '" << name << "': " << run.error_lines[0];
+    }
+  }
+
+  static fs::path* root_;
+  fs::path out_;
+};
+
+fs::path* ToolFront::root_ = nullptr;
+
+const std::vector<std::string>& AllTools() {
+  static const std::vector<std::string> tools = {DSR_REGISTER_BIN, DSR_FUSE_BIN, DSR_SIMULATE_BIN,
+                                                 DSR_COMPARE_BIN};
+  return tools;
+}
+
+// F02: gflags recursed until the stack overflowed (a segfault in all four tools).
+TEST_F(ToolFront, FlagfileThatIncludesItselfIsRefused) {
+  const std::string self = Write("self.flags", "--flagfile=" + Out("self.flags") + "\n");
+  Write("a.flags", "# a\n--flagfile=" + Out("b.flags") + "\n");
+  const std::string a = Out("a.flags");
+  Write("b.flags", "--flagfile=" + a + "\n");
+  for (const std::string& tool : AllTools()) {
+    SCOPED_TRACE(tool);
+    ExpectOneError(RunTool(tool, "--flagfile=" + self, *root_), 2,
+                   {"self.flags", "includes itself"});
+    ExpectOneError(RunTool(tool, "--flagfile " + a, *root_), 2, {"a.flags -> ", "b.flags -> "});
+  }
+  EXPECT_EQ(Written({"self.flags", "a.flags", "b.flags"}).size(), 0u);
+}
+
+// F01: an unknown flag in a flagfile was ignored, while on the command line it is refused.
+TEST_F(ToolFront, UnknownFlagInFlagfileIsRefusedLikeOnTheCommandLine) {
+  const std::string typo = Write("typo.flags", "--mode=ape\n\n# a comment\n--pyramid_level=1\n");
+  const std::string args = "--images=" + Frames() + " --out_poses=" + Out("poses.json");
+  ExpectOneError(RunTool(DSR_REGISTER_BIN, args + " --flagfile=" + typo, *root_), 2,
+                 {"typo.flags", "line 4", "--pyramid_level"});
+  const ToolRun command_line = RunTool(DSR_REGISTER_BIN, args + " --pyramid_level=1", *root_);
+  EXPECT_EQ(command_line.exit_code, 2);
+  EXPECT_NE(command_line.err.find("pyramid_level"), std::string::npos) << command_line.err;
+  // A string flag without a value would take the next line as its value.
+  const std::string no_value = Write("no_value.flags", "--out_poses\n--mode=ape\n");
+  ExpectOneError(
+      RunTool(DSR_REGISTER_BIN, "--images=" + Frames() + " --flagfile=" + no_value, *root_), 2,
+      {"no_value.flags", "line 1", "--out_poses"});
+  EXPECT_EQ(Written({"typo.flags", "no_value.flags"}).size(), 0u);
+}
+
+// F01: gflags reads a first line without "--" as a program-name filter.
+TEST_F(ToolFront, FlagfileLineThatIsNoFlagIsRefused) {
+  const std::string junk = Write("junk.flags", "dsr_simulate\n--num_frames=2\n");
+  ExpectOneError(
+      RunTool(DSR_SIMULATE_BIN, "--out_dir=" + Out("sim") + " --flagfile=" + junk, *root_), 2,
+      {"junk.flags", "line 1", "dsr_simulate"});
+  EXPECT_FALSE(fs::exists(Out("sim")));
+}
+
+// F03, F19, F20: missing, a folder, /dev/zero (bad_alloc before), over the size limit.
+TEST_F(ToolFront, FlagfileThatIsNoSmallRegularFileIsRefused) {
+  fs::create_directories(Out("folder.flags"));
+  std::string big(2 * 1024 * 1024, '#');
+  big[1000] = '\n';
+  const std::string huge = Write("huge.flags", big);
+  const std::string limited =
+      "ulimit -v " + std::to_string(kAddressSpaceKiB) + "; exec " + std::string(DSR_REGISTER_BIN);
+  for (const auto& [flagfile, rule] :
+       std::vector<std::pair<std::string, std::string>>{{Out("nope.flags"), "no such file"},
+                                                        {Out("folder.flags"), "is a folder"},
+                                                        {"/dev/zero", "not a regular file"},
+                                                        {huge, "bytes"}}) {
+    SCOPED_TRACE(flagfile);
+    const ToolRun run =
+        RunTool(limited, "--out_poses=" + Out("p.json") + " --flagfile=" + flagfile, *root_);
+    ExpectOneError(run, 2, {"--flagfile=" + flagfile, rule});
+    EXPECT_EQ(run.error_lines[0].rfind("dsr_register: error: --flagfile=", 0), 0u)
+        << run.error_lines[0];
+  }
+  EXPECT_EQ(Written({"folder.flags", "huge.flags"}).size(), 0u);
+}
+
+// Flagfiles keep gflags' documented behaviour: comments, blank lines, booleans, nesting
+// (one file included twice is no cycle), and flags after --flagfile override it.
+TEST_F(ToolFront, FlagfileStillWorksAsDocumented) {
+  const std::string common = Write("common.flags", "--phantom_size=48\n--min_depth_voxels=2\n");
+  const std::string sim = Write(
+      "sim.flags",
+      "# a sequence\n\n--flagfile=" + common + "\n  --frame_size=20,20,16  \r\n--num_frames=3\n"
+      "--nowrite_source\n--flagfile=" + common + "\n--max_rotation_deg=4\n"
+      "--max_translation_voxels=1\n");
+  const ToolRun run = RunTool(
+      DSR_SIMULATE_BIN,
+      "--num_frames=4 --flagfile=" + sim + " --num_frames=2 --out_dir=" + Out("seq"),
+      *root_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_TRUE(fs::exists(Out("seq/frame_01.nii.gz")));
+  EXPECT_FALSE(fs::exists(Out("seq/frame_02.nii.gz"))) << "--num_frames=2 after the flagfile wins";
+  EXPECT_FALSE(fs::exists(Out("seq/source.nii.gz")));
+}
+
+// U08/S10: refused up front with the estimate, naming the flags; no folder created.
+TEST_F(ToolFront, SimulateRefusesFramesThatCannotFitInMemory) {
+  const ToolRun run = RunTool(
+      "ulimit -v " + std::to_string(kAddressSpaceKiB) + "; exec " + std::string(DSR_SIMULATE_BIN),
+      "--out_dir=" + Out("s10") + " --frame_size=2048,2048,2048 --num_frames=2 --phantom_size=16",
+      *root_);
+  ExpectOneError(run, 2, {"--frame_size=2048,2048,2048", "needs about", "GiB"});
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// U08/R01: a fine --panorama_spacing is refused before the panorama is allocated.
+TEST_F(ToolFront, FuseRefusesPanoramaThatCannotFitInMemory) {
+  const ToolRun run = Fuse("--poses=" + In("gt_poses.json") + " --panorama_spacing=0.015 --out=" +
+                               Out("p.nii.gz"),
+                           "ulimit -v " + std::to_string(kAddressSpaceKiB) + "; exec ");
+  ExpectOneError(run, 2, {"--panorama_spacing=0.015"});
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// U08: an allocation that fails during the run (here the registration's panorama, far too
+// fine for the address-space limit) ends with one line and exit 1, or is refused (2). A
+// tighter limit than kAddressSpaceKiB, so that it fails within seconds.
+TEST_F(ToolFront, RegisterOutOfMemoryIsOneLineNotAnAbort) {
+  const ToolRun run = RunTool(
+      "ulimit -v 1500000; exec " + std::string(DSR_REGISTER_BIN),
+      "--images=" + Frames() + " --masks=" + Masks() + " --out_poses=" + Out("p.json") +
+          " --panorama_spacing=0.02 --pyramid_levels=1 --progress=false",
+      *root_);
+  ASSERT_TRUE(run.exit_code == 1 || run.exit_code == 2) << run.exit_code << "\n" << run.err;
+  ASSERT_EQ(run.error_lines.size(), 1u) << run.err;
+  if (run.exit_code == 1) {
+    EXPECT_NE(run.error_lines[0].find("out of memory"), std::string::npos) << run.error_lines[0];
+  }
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// A worker thread that cannot be started (its stack does not fit under the limit) is out
+// of memory too: exit 1 and one line, not std::terminate.
+TEST_F(ToolFront, ThreadThatCannotStartIsOneLineNotAnAbort) {
+  const ToolRun run =
+      Fuse("--poses=" + In("gt_poses.json") + " --num_threads=2 --out=" + Out("p.nii.gz"),
+           "ulimit -s 4000000; ulimit -v " + std::to_string(kAddressSpaceKiB) + "; exec ");
+  ExpectOneError(run, 1, {"out of memory"});
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// U01: entries are matched to --images by name; frames swapped in the file give the same
+// panorama as in order. Names that match no image are refused; a file without names is
+// used in its order.
+TEST_F(ToolFront, FuseMatchesPosesToImagesByName) {
+  PosesFile gt;
+  std::string error;
+  ASSERT_TRUE(ReadPoses(In("gt_poses.json"), 3, &gt, &error)) << error;
+  ASSERT_EQ(gt.images[1], "frame_01.nii.gz");
+  PosesFile swapped = gt;
+  std::swap(swapped.images[1], swapped.images[2]);
+  std::swap(swapped.frame_from_world[1], swapped.frame_from_world[2]);
+  swapped.images[0] = "frame_00";  // the file name without its extension also matches
+  ASSERT_TRUE(WritePoses(swapped, Out("swapped.json"), &error)) << error;
+  PosesFile wrong = gt;
+  wrong.images[2] = "other.nii.gz";
+  ASSERT_TRUE(WritePoses(wrong, Out("wrong.json"), &error)) << error;
+  PosesFile unnamed = swapped;
+  unnamed.images.clear();
+  ASSERT_TRUE(WritePoses(unnamed, Out("unnamed.json"), &error)) << error;
+
+  ASSERT_EQ(Fuse("--poses=" + In("gt_poses.json") + " --out=" + Out("in_order.nii.gz")).exit_code,
+            0);
+  const ToolRun run = Fuse("--poses=" + Out("swapped.json") + " --out=" + Out("swapped.nii.gz"));
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  Image in_order, reordered, as_given;
+  ASSERT_TRUE(ReadImage(Out("in_order.nii.gz"), &in_order, &error)) << error;
+  ASSERT_TRUE(ReadImage(Out("swapped.nii.gz"), &reordered, &error)) << error;
+  EXPECT_EQ(in_order.voxels, reordered.voxels);
+
+  ExpectOneError(Fuse("--poses=" + Out("wrong.json") + " --out=" + Out("wrong.nii.gz")), 2,
+                 {"--poses=" + Out("wrong.json"), "frame_02.nii.gz"});
+  EXPECT_FALSE(fs::exists(Out("wrong.nii.gz")));
+
+  ASSERT_EQ(Fuse("--poses=" + Out("unnamed.json") + " --out=" + Out("unnamed.nii.gz")).exit_code,
+            0);
+  ASSERT_TRUE(ReadImage(Out("unnamed.nii.gz"), &as_given, &error)) << error;
+  EXPECT_NE(as_given.voxels, in_order.voxels) << "without names the file's order is used";
+}
+
+// U09: --out_count is k_j (0..frames), not a 0/1 mask.
+TEST_F(ToolFront, FuseOutCountIsTheNumberOfObservingFrames) {
+  const ToolRun run = Fuse("--poses=" + In("gt_poses.json") + " --out=" + Out("p.nii.gz") +
+                           " --out_count=" + Out("k.nii.gz"));
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  Image count;
+  std::string error;
+  ASSERT_TRUE(ReadImage(Out("k.nii.gz"), &count, &error)) << error;
+  std::vector<int> histogram(4, 0);
+  for (float k : count.voxels) {
+    ASSERT_EQ(k, static_cast<float>(static_cast<int>(k))) << "k_j is an integer";
+    ASSERT_TRUE(k >= 0.0f && k <= 3.0f) << k;
+    ++histogram[static_cast<int>(k)];
+  }
+  EXPECT_GT(histogram[0], 0);
+  EXPECT_GT(histogram[1], 0);
+  EXPECT_GT(histogram[3], 0) << "the three frames overlap";
+}
+
+// U11: a spacing whose panorama is no image (infinite spacing written) is refused up front.
+TEST_F(ToolFront, FuseRefusesPanoramaSpacingOutOfRange) {
+  for (const char* spacing : {"1e300", "0", "nan", "1e-9", "40"}) {
+    SCOPED_TRACE(spacing);
+    ExpectOneError(Fuse("--poses=" + In("gt_poses.json") + " --panorama_spacing=" + spacing +
+                        " --out=" + Out("p.nii.gz")),
+                   2, {"--panorama_spacing="});
+  }
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// M01: the frame limit names --images and is documented in --help.
+TEST_F(ToolFront, FrameLimitNamesImagesAndIsDocumented) {
+  std::vector<std::string> images;
+  for (int i = 0; i <= kMaxFrames; ++i) {
+    images.push_back(Out("m_" + std::to_string(i) + ".nii.gz"));
+    fs::copy_file(In("frame_00.nii.gz"), images.back());
+  }
+  const std::string limit = "at most " + std::to_string(kMaxFrames);
+  const std::string got = "got " + std::to_string(kMaxFrames + 1);
+  ExpectOneError(
+      RunTool(DSR_REGISTER_BIN,
+              "--images=" + Join(images) + " --out_poses=" + Out("p.json"),
+              *root_),
+      2, {"--images", limit, got});
+  const std::string poses = Write("poses.json", R"({"frames":[]})");
+  ExpectOneError(RunTool(DSR_FUSE_BIN,
+                         "--images=" + Join(images) + " --poses=" + poses + " --out=" +
+                             Out("p.nii.gz"),
+                         *root_),
+                 2, {"--images", limit, got});
+  for (const char* tool : {DSR_REGISTER_BIN, DSR_FUSE_BIN}) {
+    const ToolRun help = RunTool(tool, "--helpshort", *root_);
+    EXPECT_EQ(help.exit_code, 0);
+    EXPECT_NE(help.out.find("most 32"), std::string::npos) << help.out;
+  }
+  EXPECT_FALSE(fs::exists(Out("p.json")));
+  EXPECT_FALSE(fs::exists(Out("p.nii.gz")));
+}
+
+// P03: a name with a comma is split; the error says so, and @LIST takes any name.
+TEST_F(ToolFront, CommaInFileNameIsExplainedAndListFileTakesIt) {
+  const std::string comma = Out("a,b.nii.gz");
+  fs::copy_file(In("frame_01.nii.gz"), comma);
+  const std::string args = " --poses=" + In("gt_poses.json") + " --out=" + Out("p.nii.gz");
+  ExpectOneError(
+      RunTool(DSR_FUSE_BIN, "--images=" + In("frame_00.nii.gz") + "," + comma + args, *root_), 2,
+      {"--images", "split at commas", "@LIST"});
+  const std::string list = Write("list.txt", "# frames\n" + In("frame_00.nii.gz") + "\n" + comma +
+                                                 "\n\n" + In("frame_02.nii.gz") + "\n");
+  PosesFile unnamed;
+  std::string error;
+  ASSERT_TRUE(ReadPoses(In("gt_poses.json"), 3, &unnamed, &error)) << error;
+  unnamed.images.clear();
+  ASSERT_TRUE(WritePoses(unnamed, Out("unnamed.json"), &error)) << error;
+  const ToolRun run = RunTool(
+      DSR_FUSE_BIN,
+      "--images=@" + list + " --poses=" + Out("unnamed.json") + " --out=" + Out("p.nii.gz"),
+      *root_);
+  EXPECT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.out.find("3 frames"), std::string::npos) << run.out;
+  ExpectOneError(RunTool(DSR_FUSE_BIN, "--images=@" + Out("nolist.txt") + args, *root_), 2,
+                 {"--images=@" + Out("nolist.txt"), "no such file"});
+}
+
+// S04: --frame_spacing=1e-300 failed at writing with "Singular matrix".
+TEST_F(ToolFront, FrameSpacingIsValidatedUpFront) {
+  for (const std::string spacing : {"1e-300", "1e+07", "-1"}) {
+    SCOPED_TRACE(spacing);
+    ExpectOneError(RunTool(DSR_SIMULATE_BIN,
+                           "--out_dir=" + Out("s4") + " --frame_size=24,24,20 --num_frames=2 "
+                           "--phantom_size=64 --frame_spacing=" + spacing,
+                           *root_),
+                   2, {"--frame_spacing=" + spacing});
+    ExpectOneError(
+        RunTool(DSR_COMPARE_BIN, "--out_dir=" + Out("c4") + " --frame_spacing=" + spacing, *root_),
+        2, {"--frame_spacing=" + spacing});
+  }
+  EXPECT_EQ(Written().size(), 0u);
+}
+
+// O08: a bad input leaves no output folder behind.
+TEST_F(ToolFront, BadInputCreatesNoOutputFolder) {
+  const ToolRun run = RunTool(
+      DSR_REGISTER_BIN,
+      "--images=" + In("frame_00.nii.gz") + "," + In("missing.nii.gz") + " --out_poses=" +
+          Out("p.json") + " --out_tfm_dir=" + Out("tfm") + " --report_dir=" + Out("report") +
+          " --out_resampled_dir=" + Out("resampled"),
+      *root_);
+  ExpectOneError(run, 2, {"--images", "missing.nii.gz"});
+  const ToolRun corrupt = RunTool(
+      DSR_REGISTER_BIN,
+      "--images=" + In("frame_00.nii.gz") + "," + Write("corrupt.nii.gz", "not an image") +
+          " --out_poses=" + Out("p.json") + " --out_tfm_dir=" + Out("tfm") + " --report_dir=" +
+          Out("report"),
+      *root_);
+  ExpectOneError(corrupt, 2, {"corrupt.nii.gz"});
+  EXPECT_EQ(Written({"corrupt.nii.gz"}).size(), 0u);
+}
+
+}  // namespace
+}  // namespace dsr
