@@ -32,8 +32,11 @@
 
 namespace dsr {
 
-// Pairs whose overlap is below this fraction of both fields of view are not judged.
-constexpr double kPairCheckMinOverlap = 0.1;
+// Pairs whose overlap is below this fraction of both fields of view are not judged: a thin
+// overlap lies along field-of-view edges, where the coarse level's smoothing differs
+// between frames (with 0.1, a correct coarse-level result on a wide-protocol sequence was
+// failed by a pair overlapping by 12%).
+constexpr double kPairCheckMinOverlap = 0.25;
 // Floor of the reference mismatch (1 - NCC of 0.998).
 constexpr double kMinReferenceMismatch = 0.002;
 
