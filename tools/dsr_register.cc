@@ -304,6 +304,35 @@ int Main(int argc, char** argv) {
     return Fail("--gt_poses: " + error);
   }
   const double load_seconds = SecondsSince(start);
+  // Memory, before any work (the finest level's panorama voxels at --panorama_spacing): the
+  // candidate set holds about 12 bytes for each panorama voxel of frame 0's field of view
+  // (an index and the observer bits, for the voxels other frames overlap), and
+  // --out_panorama a mean and a count for each voxel of the frames' bounding box.
+  {
+    const dsr::ImageGeometry& g0 = images[0].geometry;
+    const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(FLAGS_panorama_spacing, 3);
+    double bytes = 12.0 * static_cast<double>(dsr::CountInside(masks[0])) * g0.spacing_mm.prod() /
+                   voxel_mm3;
+    if (!FLAGS_out_panorama.empty()) {
+      Eigen::AlignedBox3d box;
+      const std::vector<Eigen::Isometry3d> frame_from_world = dsr::RelativeToFrame0(initial);
+      for (int i = 0; i < m; ++i) {
+        const dsr::ImageGeometry& g = images[i].geometry;
+        const Eigen::Isometry3d world_from_frame = frame_from_world[i].inverse();
+        for (int c = 0; c < 8; ++c) {
+          const Eigen::Vector3d corner((c & 1) ? g.size[0] - 1 : 0, (c & 2) ? g.size[1] - 1 : 0,
+                                       (c & 4) ? g.size[2] - 1 : 0);
+          box.extend(world_from_frame * g.IndexToPhysical(corner));
+        }
+      }
+      bytes += 8.0 * box.volume() / voxel_mm3;
+    }
+    char spacing[32];
+    std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", FLAGS_panorama_spacing);
+    if (!dsr::CheckMemoryEstimate(spacing, bytes, "the panorama at the finest level", &error)) {
+      return Fail(error);
+    }
+  }
 
   dsr::RegistrationResult result;
   if (!dsr::Register(images, masks, initial, options, &result, &error)) {
