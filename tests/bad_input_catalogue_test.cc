@@ -137,13 +137,16 @@ class BadInputCatalogue : public ::testing::Test {
     two.images = {"a", "b"};
     two.frame_from_world.assign(2, Eigen::Isometry3d::Identity());
     ASSERT_TRUE(WritePoses(two, In("two_frames.json"), &error)) << error;
-    PosesFile apart;
-    apart.images = {"a", "b", "c"};
+    PosesFile apart;  // without image names: taken in --images order
     apart.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
     apart.frame_from_world[2].translation() = Eigen::Vector3d(300.0, 0.0, 0.0);
     ASSERT_TRUE(WritePoses(apart, In("apart.json"), &error)) << error;
     apart.frame_from_world[2].translation() = Eigen::Vector3d(1e300, 0.0, 0.0);
     ASSERT_TRUE(WritePoses(apart, In("astronomical.json"), &error)) << error;
+    PosesFile strangers;  // names that are none of the frames
+    strangers.images = {"x.nii.gz", "y.nii.gz", "z.nii.gz"};
+    strangers.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
+    ASSERT_TRUE(WritePoses(strangers, In("strangers.json"), &error)) << error;
     // Two frames whose content is a linear ramp: their overlap cannot fix 6 degrees of freedom.
     Image ramp(frame0.geometry);
     for (int k = 0; k < ramp.geometry.size[2]; ++k)
@@ -246,6 +249,9 @@ TEST_F(BadInputCatalogue, PosesFiles) {
   Register(base + " --init=" + In("non_rigid.json"), "non_rigid.json");
   Register(base + " --init=" + In("two_frames.json"), "two_frames.json");
   Register(base + " --gt_poses=" + In("two_frames.json"), "--gt_poses");
+  // Poses are matched to the images by name: names of other images are refused.
+  Register(base + " --init=" + In("strangers.json"), "--init=" + In("strangers.json") + ": no entry names");
+  Register(base + " --gt_poses=" + In("strangers.json"), "--gt_poses=");
 }
 
 TEST_F(BadInputCatalogue, FlagValues) {

@@ -20,6 +20,7 @@
 #include "core/panorama.h"
 #include "core/parallel.h"
 #include "core/solve_options.h"
+#include "pipeline/input_checks.h"
 #include "pipeline/registration.h"
 #include "pipeline/report.h"
 #include "tools/output_plan.h"
@@ -44,7 +45,8 @@ DEFINE_string(init, "auto", "Initial poses: 'auto' (identity; frames the checks 
               "identity: the paper's initialisation; no recovery), 'global' (every pair "
               "searched globally, frames placed along the most confident pairs, then "
               "recovery as auto) or a poses JSON file (docs/design.md) with one entry per "
-              "image (then recovery as auto).");
+              "image, matched to --images by its image names as dsr_fuse --poses does (then "
+              "recovery as auto).");
 DEFINE_int32(max_recoveries, dsr::kDefaultMaxRecoveries, "--init=auto, global or FILE: how "
              "many times flagged frames may be re-placed, in [0, 10] (0 = a flagged frame is "
              "a failure, exit 1).");
@@ -65,7 +67,8 @@ DEFINE_string(out_panorama, "", "Optional output image of the panorama on the fi
               "the per-voxel mean of the observations (paper eq. 10); with --mode=dba the "
               "optimised intensities.");
 DEFINE_string(gt_poses, "", "Optional ground-truth poses JSON (e.g. dsr_simulate's "
-              "gt_poses.json): prints per-frame errors and the mean absolute errors.");
+              "gt_poses.json): prints per-frame errors and the mean absolute errors; "
+              "matched to --images by its image names as --init.");
 DEFINE_string(linear_solver, "", "Ceres linear solver. dba: DENSE_SCHUR (default), "
               "SPARSE_SCHUR, ITERATIVE_SCHUR, DENSE_QR, SPARSE_NORMAL_CHOLESKY. dsr: DENSE_QR "
               "(default), DENSE_NORMAL_CHOLESKY.");
@@ -297,13 +300,21 @@ int Main(int argc, char** argv) {
   if (init_from_file) {
     dsr::PosesFile init;
     if (!dsr::ReadPoses(FLAGS_init, m, &init, &error)) return Fail("--init: " + error);
+    if (!dsr::MatchPosesToImages("init", FLAGS_init, image_paths, &init, &error)) return Fail(error);
     initial = init.frame_from_world;
   }
   dsr::PosesFile gt;
-  if (!FLAGS_gt_poses.empty() && !dsr::ReadPoses(FLAGS_gt_poses, m, &gt, &error)) {
-    return Fail("--gt_poses: " + error);
+  if (!FLAGS_gt_poses.empty() &&
+      (!dsr::ReadPoses(FLAGS_gt_poses, m, &gt, &error) ||
+       !dsr::MatchPosesToImages("gt_poses", FLAGS_gt_poses, image_paths, &gt, &error))) {
+    return Fail(error.rfind("--gt_poses", 0) == 0 ? error : "--gt_poses: " + error);
   }
   const double load_seconds = SecondsSince(start);
+  // The pipeline's own checks of the frames first (Register repeats them), so that a
+  // broken header or pose is named as such, not as a panorama too large for memory.
+  if (!dsr::CheckRegistrationInputs(images, initial, options, &error)) {
+    return Fail(WithFrameFile(error, image_paths));
+  }
   // Memory, before any work (the finest level's panorama voxels at --panorama_spacing): the
   // candidate set holds about 12 bytes for each panorama voxel of frame 0's field of view
   // (an index and the observer bits, for the voxels other frames overlap), and

@@ -407,6 +407,79 @@ std::string CanonicalPath(const std::string& path) {
   return ec ? absolute.lexically_normal().string() : p.string();
 }
 
+namespace {
+
+// Whether a poses entry named `name` is the image `path` (see MatchPosesToImages).
+bool PoseNameMatches(const std::string& name, const std::string& path) {
+  if (name.empty()) return false;
+  const std::string file = std::filesystem::path(path).filename().string();
+  if (name == path || name == file) return true;
+  std::string lower = file;
+  std::transform(lower.begin(), lower.end(), lower.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
+  for (const std::string extension : {".nii.gz", ".nii", ".mha", ".mhd", ".nrrd", ".nhdr"}) {
+    if (lower.size() > extension.size() &&
+        lower.compare(lower.size() - extension.size(), extension.size(), extension) == 0) {
+      return name == file.substr(0, file.size() - extension.size());
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
+bool MatchPosesToImages(const std::string& flag,
+                        const std::string& path,
+                        const std::vector<std::string>& image_paths,
+                        PosesFile* poses,
+                        std::string* error) {
+  const std::vector<std::string>& names = poses->images;
+  const int m = static_cast<int>(image_paths.size());
+  if (std::all_of(names.begin(), names.end(), [](const std::string& n) { return n.empty(); })) {
+    return true;
+  }
+  // Entry i names image i: kept as is, also when two images share a file name.
+  bool in_order = true;
+  for (int i = 0; i < m && in_order; ++i) in_order = PoseNameMatches(names[i], image_paths[i]);
+  if (in_order) return true;
+  const std::string prefix = "--" + flag + "=" + path + ": ";
+  std::vector<int> entry_of_image(m, -1), image_of_entry(m, -1);
+  for (int i = 0; i < m; ++i) {
+    for (int e = 0; e < m; ++e) {
+      if (!PoseNameMatches(names[e], image_paths[i])) continue;
+      if (entry_of_image[i] >= 0) {
+        *error = prefix + "entries " + std::to_string(entry_of_image[i]) + " and " +
+                 std::to_string(e) + " both name the image " + image_paths[i];
+        return false;
+      }
+      entry_of_image[i] = e;
+    }
+    if (entry_of_image[i] < 0) {
+      std::string listed;
+      for (int e = 0; e < m && e < 4; ++e) listed += (e > 0 ? ", " : "") + names[e];
+      *error = prefix + "no entry names the image " + image_paths[i] + " (image " +
+               std::to_string(i) + " of --images; the file's names: " + listed +
+               (m > 4 ? ", ..." : "") + ")";
+      return false;
+    }
+    const int e = entry_of_image[i];
+    if (image_of_entry[e] >= 0) {
+      *error = prefix + "entry " + std::to_string(e) + " (" + names[e] + ") names both " +
+               image_paths[image_of_entry[e]] + " and " + image_paths[i];
+      return false;
+    }
+    image_of_entry[e] = i;
+  }
+  PosesFile reordered;
+  for (int i = 0; i < m; ++i) {
+    reordered.images.push_back(names[entry_of_image[i]]);
+    reordered.frame_from_world.push_back(poses->frame_from_world[entry_of_image[i]]);
+  }
+  LOG(INFO) << "--" << flag << "=" << path << ": entries reordered to the order of --images";
+  *poses = std::move(reordered);
+  return true;
+}
+
 std::vector<std::string> SplitCommaList(const std::string& text) {
   std::vector<std::string> items;
   size_t begin = 0;

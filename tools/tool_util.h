@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include "core/io_poses.h"
 #include "core/volume.h"
 
 namespace dsr {
@@ -103,6 +104,18 @@ bool CheckInputFileFlag(const char* flag, const std::string& path);
 // The absolute, normalised form of a path (symlinks resolved where they exist), so that two
 // spellings of one file compare equal.
 std::string CanonicalPath(const std::string& path);
+
+// Reorders `poses` (read from --<flag>=<path>, one entry per image) to the order of
+// `image_paths` by the entries' "image" names: an entry names an image by its path as
+// given, its file name, or its file name without the extension. A file whose names are all
+// empty is kept in its order. An image that no entry names, or an entry naming two images,
+// is an error naming --<flag>: a pose applied to the wrong frame gives a wrong result with
+// no other sign, so any doubt is an error.
+bool MatchPosesToImages(const std::string& flag,
+                        const std::string& path,
+                        const std::vector<std::string>& image_paths,
+                        PosesFile* poses,
+                        std::string* error);
 
 // "a,b,,c" -> {"a", "b", "c"}: items trimmed of spaces, empty items dropped.
 std::vector<std::string> SplitCommaList(const std::string& text);
