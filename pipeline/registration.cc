@@ -608,6 +608,8 @@ bool RegisterScaled(const std::vector<Image>& images,
     recovery.after_level = result->solves.empty() ? 0 : result->solves.back().level;
     recovery.why = result->failure;
     const bool most_passed = 3 * static_cast<int>(result->flagged_frames.size()) <= m;
+    // Both remedies already used: the failure stands (no empty recovery record).
+    if (!(most_passed && !replaced_frames) && global_used) break;
     bool moved = false;
     std::vector<Eigen::Isometry3d> next;
     // Frames are re-placed against the others once; if the registration still fails, the

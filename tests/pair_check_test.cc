@@ -121,5 +121,28 @@ TEST(PairMismatches, CatchesTwoGroupsOnSimulatedFrames) {
   for (size_t k = 0; k < one.size(); ++k) EXPECT_EQ(one[k].mismatch, two[k].mismatch);
 }
 
+// The checks guard the baselines too (issue 24, W01): the pairwise baseline on a 4-frame
+// sequence of the paper's protocol chains into a wrong minimum (39 voxels off before the
+// checks guarded every mode); the registration is refused, not returned.
+TEST(Checks, RefuseTheWrongMinimumOfThePairwiseBaseline) {
+  SimulationOptions o;  // the paper's protocol, as dsr_simulate's defaults
+  o.num_frames = 4;
+  o.frame_size = Eigen::Vector3i(48, 48, 40);
+  o.seed = 2;
+  SimulatedSequence s;
+  std::string error;
+  ASSERT_TRUE(Simulate(MakePhantom(PhantomOptions()), o, &s, &error)) << error;
+  RegistrationOptions r;
+  r.mode = "pairwise";
+  r.solve.log_progress = false;
+  r.solve.num_threads = 2;
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  RegistrationResult result;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, r, &result, &error)) << error;
+  EXPECT_FALSE(result.usable);
+  EXPECT_FALSE(result.flagged_frames.empty());  // here the overlap guard: frame 2 slid
+  EXPECT_NE(result.failure.find("not usable"), std::string::npos) << result.failure;
+}
+
 }  // namespace
 }  // namespace dsr
