@@ -1,7 +1,7 @@
 // Google Benchmark programs for the global initialisation (init/): one masked NCC over
 // every shift (the FFTs), the search of one frame against another over the sampled
-// rotations, and the search of one frame against the panorama of ten others (what one
-// recovery costs), all at the search level of the paper's 96x96x80 frames (24x24x20 voxels
+// rotations, the search of one frame against the panorama of ten others (what one
+// recovery costs) and the pipeline's pair check of all frames, all at the search level of the paper's 96x96x80 frames (24x24x20 voxels
 // of 4 mm). bench/accuracy.sh measures what the search buys.
 #include <benchmark/benchmark.h>
 
@@ -11,13 +11,20 @@
 #include "core/pyramid.h"
 #include "init/masked_ncc.h"
 #include "init/placement_search.h"
+#include "pipeline/pair_check.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
 
 namespace dsr {
 namespace {
 
-// The paper's sequence (seed 1) at the search level: two halvings of 96x96x80.
+// The paper's sequence (seed 1) at the search level: two halvings of 96x96x80, and its
+// ground-truth poses.
+std::vector<Eigen::Isometry3d>& TruePoses() {
+  static std::vector<Eigen::Isometry3d> poses;
+  return poses;
+}
+
 const std::vector<Frame>& SearchLevelFrames() {
   static const std::vector<Frame> frames = [] {
     PhantomOptions p;
@@ -29,6 +36,7 @@ const std::vector<Frame>& SearchLevelFrames() {
       std::fprintf(stderr, "%s\n", error.c_str());
       std::abort();
     }
+    TruePoses() = s.frame_from_world;
     std::vector<Frame> out;
     for (size_t i = 0; i < s.frames.size(); ++i) {
       ImageLevel level{s.frames[i], s.masks[i]};
@@ -97,6 +105,17 @@ void BM_SearchPlacementPanorama(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_SearchPlacementPanorama)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The pipeline's pair check (pipeline/pair_check.h) of the 11 frames at their true poses:
+// what it adds after each level and at the final poses.
+void BM_PairCheck(benchmark::State& state) {
+  const std::vector<Frame>& frames = SearchLevelFrames();
+  const int threads = static_cast<int>(state.range(0));
+  for (auto _ : state) {
+    benchmark::DoNotOptimize(PairMismatches(frames, TruePoses(), threads));
+  }
+}
+BENCHMARK(BM_PairCheck)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 }  // namespace
 }  // namespace dsr
