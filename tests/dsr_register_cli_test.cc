@@ -164,13 +164,17 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   EXPECT_EQ(same.exit_code, 2) << same.err;
   EXPECT_TRUE(fs::exists(Seq("frame_02.nii.gz")));
   // No overlap at the initial poses: frame 2 far away; the message names the frame.
+  // (Without image names the entries are taken in --images order; names of other images
+  // are refused, naming --init.)
   PosesFile apart;
-  apart.images = {"a", "b", "c"};
   apart.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
   apart.frame_from_world[2].translation() = Eigen::Vector3d(400.0, 0.0, 0.0);
   std::string error;
   ASSERT_TRUE(WritePoses(apart, Out("apart.json"), &error)) << error;
-  ExpectBadInput(images + " --init=" + Out("apart.json"), "2");
+  ExpectBadInput(images + " --init=" + Out("apart.json"), "frame 2 does not overlap");
+  apart.images = {"a", "b", "c"};
+  ASSERT_TRUE(WritePoses(apart, Out("strangers.json"), &error)) << error;
+  ExpectBadInput(images + " --init=" + Out("strangers.json"), "no entry names the image");
   // Wrong frame count in --init.
   apart.images.pop_back();
   apart.frame_from_world.pop_back();
