@@ -11,6 +11,20 @@
 
 namespace dsr {
 
+bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error) {
+  const double shortest_extent = frame0.size.cast<double>().cwiseProduct(frame0.spacing_mm).minCoeff();
+  const double voxel = frame0.spacing_mm.minCoeff() * spacing_factor;
+  if (voxel <= shortest_extent / 8.0) return true;
+  std::ostringstream s;
+  s.precision(3);
+  s << "--panorama_spacing=" << spacing_factor << ": panorama voxels of " << voxel
+    << " mm leave fewer than 8 across frame 0's field of view (" << shortest_extent
+    << " mm along its shortest axis); must be at most "
+    << shortest_extent / 8.0 / frame0.spacing_mm.minCoeff();
+  *error = s.str();
+  return false;
+}
+
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
                        double spacing_factor,

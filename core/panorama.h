@@ -20,6 +20,11 @@ namespace dsr {
 // Panoramas above this many voxels are refused (a wrong pose or spacing, not a real case).
 constexpr int64_t kMaxPanoramaVoxels = int64_t{1} << 31;
 
+// The coarsest panorama spacing that still resolves frame 0: a panorama voxel (frame 0's
+// smallest spacing times `spacing_factor`) of at most an eighth of frame 0's shortest
+// extent. False with `error` naming --panorama_spacing and the largest factor allowed.
+bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error);
+
 // Builds the grid. Fails when a frame has no valid cell or the grid would exceed
 // kMaxPanoramaVoxels (error names the spacing and the extent).
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <sstream>
 
+#include "core/panorama.h"
 #include "pipeline/registration.h"
 
 namespace dsr {
@@ -52,15 +53,7 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
              Format(0.25 * shortest_axis);
     return false;
   }
-  const double shortest_extent = Extent(first).minCoeff();
-  const double panorama_voxel = first.spacing_mm.minCoeff() * options.panorama_spacing;
-  if (panorama_voxel > shortest_extent / 8.0) {
-    *error = "--panorama_spacing=" + Format(options.panorama_spacing) + ": panorama voxels of " +
-             Format(panorama_voxel) + " mm leave fewer than 8 across frame 0's field of view (" +
-             Format(shortest_extent) + " mm along its shortest axis); must be at most " +
-             Format(shortest_extent / 8.0 / first.spacing_mm.minCoeff());
-    return false;
-  }
+  if (!CheckPanoramaSpacing(first, options.panorama_spacing, error)) return false;
   // Frame centres in world at the initial poses.
   double largest_extent = 0.0;
   for (const Image& image : images) {

@@ -132,15 +132,9 @@ int Main(int argc, char** argv) {
       return Fail(image_paths[i] + ": no valid voxel in the field of view (the mask is too small)");
     }
   }
-  // As dsr_register: a panorama voxel larger than an eighth of frame 0 resolves nothing.
-  const dsr::ImageGeometry& frame0 = images[0].geometry;
-  const double shortest_extent_mm =
-      (frame0.size.cast<double>().array() * frame0.spacing_mm.array()).minCoeff();
-  const double voxel_mm = frame0.spacing_mm.maxCoeff() * FLAGS_panorama_spacing;
-  if (voxel_mm > shortest_extent_mm / 8.0) {
-    return Fail("--panorama_spacing=" + Number(FLAGS_panorama_spacing) + ": a panorama voxel of " +
-                Number(voxel_mm) + " mm is more than an eighth of frame 0's shortest extent (" +
-                Number(shortest_extent_mm) + " mm)");
+  // The rule dsr_register applies too: a panorama voxel must resolve frame 0.
+  if (!dsr::CheckPanoramaSpacing(images[0].geometry, FLAGS_panorama_spacing, &error)) {
+    return Fail(error);
   }
   const std::vector<Eigen::Isometry3d> frame_from_world = dsr::RelativeToFrame0(poses.frame_from_world);
   dsr::ImageGeometry grid;
