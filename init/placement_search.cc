@@ -245,10 +245,10 @@ std::vector<Placement> SearchPlacement(const Frame& fixed,
     }
     if (distinct) starts.push_back(p);
   }
-  for (const Eigen::Isometry3d& extra : extra_starts) {
+  for (size_t e = 0; e < extra_starts.size(); ++e) {
     Placement p;
-    p.moving_from_fixed = extra;
-    p.from_search = false;
+    p.moving_from_fixed = extra_starts[e];
+    p.extra_start = static_cast<int>(e);
     starts.push_back(p);
   }
   BaselineOptions pair;
@@ -264,7 +264,7 @@ std::vector<Placement> SearchPlacement(const Frame& fixed,
     // small to solve on is scored as it is.
     RegisterPair(fixed, Eigen::Isometry3d::Identity(), moving, pair, &pose, &report, &why);
     Placement scored = ScorePlacement(fixed, moving, pose, ScoreMinOverlap(options));
-    scored.from_search = start.from_search;
+    scored.extra_start = start.extra_start;
     VLOG(1) << "placement candidate: search NCC " << start.ncc << " -> refined NCC "
             << scored.ncc << " (overlap " << scored.overlap_fraction << ")";
     if (std::isfinite(scored.ncc)) refined.push_back(scored);

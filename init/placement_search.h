@@ -64,7 +64,7 @@ struct Placement {
   double ncc = -std::numeric_limits<double>::infinity();
   int64_t overlap = 0;       // moving valid voxels that land in the fixed field of view
   double overlap_fraction = 0.0;  // of the moving field of view
-  bool from_search = true;   // false: one of the caller's extra starts
+  int extra_start = -1;  // refined from the caller's extra_starts[extra_start]; -1: a peak
 };
 
 // The overlap fraction below which ScorePlacement gives -inf in the search (see

@@ -65,6 +65,7 @@ double ReferenceNcc(const std::vector<Frame>& passed,
 
 bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   const std::vector<Eigen::Isometry3d>& start_frame_from_world,
                    const std::vector<int>& flagged,
                    const PlacementSearchOptions& options,
                    std::vector<Eigen::Isometry3d>* replaced,
@@ -72,6 +73,7 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
                    std::string* error) {
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(frame_from_world.size(), frames.size());
+  CHECK_EQ(start_frame_from_world.size(), frames.size());
   std::vector<bool> is_flagged(m, false);
   for (int f : flagged) {
     CHECK(f >= 0 && f < m) << f;
@@ -113,21 +115,24 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
       continue;
     }
     record.searched = true;
-    const std::vector<Placement> candidates = SearchPlacement(
-        panorama, frames[f], Eigen::Matrix3d::Identity(), {current}, options);
-    if (!candidates.empty() && candidates.front().from_search) {
-      const Eigen::Isometry3d& chosen = candidates.front().moving_from_fixed;
+    const std::vector<Placement> candidates =
+        SearchPlacement(panorama, frames[f], Eigen::Matrix3d::Identity(),
+                        {current, start_frame_from_world[f]}, options);
+    // Best NCC first; extra start 0 (the current pose, refined) first means kept.
+    const Placement* best = candidates.empty() ? nullptr : &candidates.front();
+    if (best != nullptr && best->extra_start != 0) {
+      const Eigen::Isometry3d& chosen = best->moving_from_fixed;
       const Eigen::Vector3d centre_in_frame =
           frames[f].geometry().IndexToPhysical(frames[f].ValidIndexBox().center());
       record.moved = true;
-      record.ncc_after = candidates.front().ncc;
+      record.ncc_after = best->ncc;
       record.rotation_change_deg =
           RotationAngleBetween(current.linear(), chosen.linear()) * 180.0 / M_PI;
       record.translation_change_mm =
           (current.inverse() * centre_in_frame - chosen.inverse() * centre_in_frame).norm();
       (*replaced)[f] = chosen;
-    } else if (!candidates.empty()) {
-      record.ncc_after = candidates.front().ncc;
+    } else if (best != nullptr) {
+      record.ncc_after = best->ncc;
     }
     VLOG(1) << "recovery: frame " << f << " NCC " << record.ncc_before << " -> "
             << record.ncc_after << " (passed frames " << reference << ")"

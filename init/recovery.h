@@ -40,8 +40,14 @@ struct FrameReplacement {
 // kKeepNccMargin of theirs: the median over a few passed frames of each one's NCC against
 // the panorama of the other passed frames) is kept without a search: one wrong frame raises
 // the misfits of the frames it overlaps, which are then flagged with it.
+//
+// A searched frame's candidates are the search's peaks, its current pose and its pose in
+// `start_frame_from_world` (where the solve that flagged it began: a frame that slid away
+// during a solve was often started in the right basin), each refined against the panorama
+// and ranked by NCC.
 bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   const std::vector<Eigen::Isometry3d>& start_frame_from_world,
                    const std::vector<int>& flagged,
                    const PlacementSearchOptions& options,
                    std::vector<Eigen::Isometry3d>* replaced,

@@ -617,7 +617,7 @@ bool RegisterScaled(const std::vector<Image>& images,
     if (most_passed && !replaced_frames) {
       replaced_frames = true;
       std::string why;
-      if (ReplaceFrames(search_frames, result->frame_from_world, result->flagged_frames,
+      if (ReplaceFrames(search_frames, result->frame_from_world, poses, result->flagged_frames,
                         options.search, &next, &recovery.frames, &why)) {
         moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
                             [](const FrameReplacement& f) { return f.moved; });
