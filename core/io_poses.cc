@@ -214,14 +214,29 @@ std::string PosesToJson(const PosesFile& poses) {
   CHECK(poses.images.empty() || poses.images.size() == poses.frame_from_world.size())
       << "PosesFile has " << poses.images.size() << " image names for "
       << poses.frame_from_world.size() << " poses";
+  const size_t m = poses.frame_from_world.size();
+  CHECK(poses.covariance.empty() || poses.covariance.size() == m);
+  CHECK(poses.predicted_tre_mm.empty() || poses.predicted_tre_mm.size() == m);
   Json frames = Json::array();
-  for (size_t f = 0; f < poses.frame_from_world.size(); ++f) {
-    const Eigen::Matrix4d m = poses.frame_from_world[f].matrix();
+  for (size_t f = 0; f < m; ++f) {
+    const Eigen::Matrix4d t_matrix = poses.frame_from_world[f].matrix();
     Json t = Json::array();
-    for (int r = 0; r < 4; ++r) t.push_back({m(r, 0), m(r, 1), m(r, 2), m(r, 3)});
+    for (int r = 0; r < 4; ++r) {
+      t.push_back({t_matrix(r, 0), t_matrix(r, 1), t_matrix(r, 2), t_matrix(r, 3)});
+    }
     Json frame = Json::object();
     frame["image"] = poses.images.empty() ? std::string() : poses.images[f];
     frame["T"] = std::move(t);
+    if (!poses.covariance.empty()) {
+      Json c = Json::array();
+      for (int r = 0; r < 6; ++r) {
+        Json row = Json::array();
+        for (int k = 0; k < 6; ++k) row.push_back(poses.covariance[f](r, k));
+        c.push_back(std::move(row));
+      }
+      frame["covariance"] = std::move(c);
+    }
+    if (!poses.predicted_tre_mm.empty()) frame["predicted_tre_mm"] = poses.predicted_tre_mm[f];
     frames.push_back(std::move(frame));
   }
   Json doc = Json::object();
@@ -234,8 +249,14 @@ std::string PosesToJson(const PosesFile& poses) {
 
 bool WritePoses(const PosesFile& poses, const std::string& path, std::string* error) {
   for (size_t f = 0; f < poses.frame_from_world.size(); ++f) {
+    const std::string where = path + ": frame " + std::to_string(f) + ": ";
     if (!poses.frame_from_world[f].matrix().allFinite()) {
-      *error = path + ": frame " + std::to_string(f) + ": T has a non-finite entry; not written";
+      *error = where + "T has a non-finite entry; not written";
+      return false;
+    }
+    if ((!poses.covariance.empty() && !poses.covariance[f].allFinite()) ||
+        (!poses.predicted_tre_mm.empty() && !std::isfinite(poses.predicted_tre_mm[f]))) {
+      *error = where + "the covariance or predicted_tre_mm has a non-finite entry; not written";
       return false;
     }
   }

@@ -2,6 +2,11 @@
 //   {"frames": [{"image": "frame_00.nii.gz", "T": [[r00,r01,r02,tx],[..],[..],[0,0,0,1]]}, ...]}
 // T is frame_from_world (world -> frame physical mm, LPS), row-major 4x4. Extra keys are
 // allowed and ignored on read (e.g. "world", "method"), so other tools can annotate the file.
+// Optional per-frame fields written with a pose uncertainty (pipeline/uncertainty.h,
+// docs/design.md section 8.6): "covariance", 6x6 row-major, of the tangent [rho (mm);
+// phi (rad)] of T_est = Exp(delta) T (frame 0, the gauge, all zero), and
+// "predicted_tre_mm", the expected mean TRE over the frame's field of view. Read ignores
+// them.
 #ifndef DSR_CORE_IO_POSES_H_
 #define DSR_CORE_IO_POSES_H_
 
@@ -15,6 +20,9 @@ namespace dsr {
 struct PosesFile {
   std::vector<std::string> images;                     // as written in the file
   std::vector<Eigen::Isometry3d> frame_from_world;     // one per frame
+  // Written when not empty (then one per frame); not filled by ReadPoses.
+  std::vector<Eigen::Matrix<double, 6, 6>> covariance;
+  std::vector<double> predicted_tre_mm;
 };
 
 // Tolerance on |R^T R - I| and |det R - 1| and on the last row [0 0 0 1].

@@ -18,6 +18,15 @@
 namespace dsr {
 namespace {
 
+// A double for the pipe: "nan" for NaN (which operator>> cannot read back).
+std::string Number(double value) {
+  if (std::isnan(value)) return "nan";
+  std::ostringstream s;
+  s.precision(17);
+  s << value;
+  return s.str();
+}
+
 // The child's answer on the pipe: the row's numbers and poses, whitespace-separated.
 std::string Serialize(const ComparisonRow& row) {
   std::ostringstream s;
@@ -26,6 +35,7 @@ std::string Serialize(const ComparisonRow& row) {
     << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
     << row.iterations << ' ' << row.seconds_per_iteration << ' '
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
+    << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << row.frame_from_world.size();
   for (const Eigen::Isometry3d& t : row.frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -41,8 +51,12 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
       row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
       row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
-      row->added_memory_mb >> poses;
+      row->added_memory_mb;
+  std::string predicted, nees;
+  s >> predicted >> nees >> poses;
   if (!s || poses > 1000) return false;
+  row->predicted_tre_mm = predicted == "nan" ? std::nan("") : std::stod(predicted);
+  row->nees = nees == "nan" ? std::nan("") : std::stod(nees);
   row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
   for (Eigen::Isometry3d& t : row->frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -95,6 +109,19 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   row.seconds_per_iteration = finest_seconds / std::max(1, finest_iterations);
   row.differences_per_iteration = finest_differences / std::max(1, finest_solves);
   row.frame_from_world = result.frame_from_world;
+  const PoseUncertainty& u = result.uncertainty;
+  if (!u.covariance.empty()) {
+    const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(sequence.ground_truth);
+    const std::vector<Eigen::Isometry3d> estimate = RelativeToFrame0(result.frame_from_world);
+    double predicted = 0.0, nees = 0.0;
+    const int m = static_cast<int>(truth.size());
+    for (int i = 1; i < m; ++i) {
+      predicted += u.predicted_tre_mm[i];
+      nees += NormalisedSquaredError(estimate[i], truth[i], u.covariance[i]);
+    }
+    row.predicted_tre_mm = predicted / (m - 1);
+    row.nees = nees / (m - 1);
+  }
   return row;
 }
 
@@ -176,13 +203,18 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
   s.precision(9);
   s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
        "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
-       "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,failure\n";
+       "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
+       "predicted_tre_mm,nees,failure\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
       << ',' << r.tre_mean_mm << ',' << r.tre_max_mm << ',' << r.iterations << ','
       << r.seconds_per_iteration << ',' << r.differences_per_iteration << ',' << r.seconds
-      << ',' << r.peak_memory_mb << ',' << r.added_memory_mb << ',' << CsvField(r.failure) << '\n';
+      << ',' << r.peak_memory_mb << ',' << r.added_memory_mb << ',';
+    if (!std::isnan(r.predicted_tre_mm)) s << r.predicted_tre_mm;
+    s << ',';
+    if (!std::isnan(r.nees)) s << r.nees;
+    s << ',' << CsvField(r.failure) << '\n';
   }
   return s.str();
 }

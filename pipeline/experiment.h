@@ -5,6 +5,7 @@
 #ifndef DSR_PIPELINE_EXPERIMENT_H_
 #define DSR_PIPELINE_EXPERIMENT_H_
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -38,6 +39,11 @@ struct ComparisonRow {
   // and whatever the comparison itself holds, e.g. the phantom): peak minus resident at
   // the start of the run. The method's own memory.
   double added_memory_mb = 0.0;
+  // With RegistrationOptions::estimate_uncertainty (modes dsr and dba; NaN otherwise), over
+  // frames 1..m-1: the mean predicted TRE and the mean normalised squared pose error
+  // e^T C^-1 e against the ground truth (pipeline/uncertainty.h; 6 when calibrated).
+  double predicted_tre_mm = std::numeric_limits<double>::quiet_NaN();
+  double nees = std::numeric_limits<double>::quiet_NaN();
   std::vector<Eigen::Isometry3d> frame_from_world;
 };
 

@@ -10,6 +10,7 @@
 #include "core/io_picture.h"
 #include "core/io_poses.h"
 #include "core/io_transform.h"
+#include "pipeline/uncertainty.h"
 
 namespace dsr {
 namespace {
@@ -305,6 +306,11 @@ bool WriteReport(const std::string& dir,
   PosesFile poses;
   poses.images = in.image_names;
   poses.frame_from_world = r.frame_from_world;
+  const bool uncertainty = !r.uncertainty.covariance.empty();
+  if (uncertainty) {
+    poses.covariance = r.uncertainty.covariance;
+    poses.predicted_tre_mm = r.uncertainty.predicted_tre_mm;
+  }
   if (!WritePoses(poses, file("poses.json"), error)) return false;
   for (int i = 0; i < m; ++i) {
     if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
@@ -321,15 +327,24 @@ bool WriteReport(const std::string& dir,
      << "## Poses\n\n`poses.json` (T maps world = frame 0 to each frame) and ITK transforms "
         "`transforms/frame_XX.tfm` (world -> frame, LPS: resampling frame XX with its file "
         "puts it on the panorama in 3D Slicer, ITK/SimpleITK, ANTs or elastix).\n\n"
-     << "| frame | image | translation (mm) | rotation angle (deg) |\n|---|---|---|---|\n";
+     << "| frame | image | translation (mm) | rotation angle (deg) |"
+     << (uncertainty ? " predicted TRE (mm) |\n|---|---|---|---|---|\n" : "\n|---|---|---|---|\n");
   for (int i = 0; i < m; ++i) {
     const Eigen::Isometry3d& t = r.frame_from_world[i];
     const double angle = Eigen::AngleAxisd(t.linear()).angle() * 180.0 / M_PI;
     char row[256];
-    std::snprintf(row, sizeof(row), "| %d | %s | %.3f, %.3f, %.3f | %.3f |\n", i,
+    std::snprintf(row, sizeof(row), "| %d | %s | %.3f, %.3f, %.3f | %.3f |", i,
                   i < static_cast<int>(in.image_names.size()) ? in.image_names[i].c_str() : "",
                   t.translation().x(), t.translation().y(), t.translation().z(), angle);
     md << row;
+    if (uncertainty) {
+      std::snprintf(row, sizeof(row), " %.4f |", r.uncertainty.predicted_tre_mm[i]);
+      md << row;
+    }
+    md << '\n';
+  }
+  if (uncertainty || !r.uncertainty_note.empty()) {
+    md << "\n" << UncertaintySummary(r.uncertainty, r.uncertainty_note) << ".\n";
   }
   if (in.errors != nullptr) {
     md << "\n## Errors against ground truth (frame-0-relative)\n\n```\n" << in.errors->Table()

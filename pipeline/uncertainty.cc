@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <random>
 #include <sstream>
 
@@ -185,6 +186,28 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
     uncertainty->predicted_tre_mm[i] = PredictedTre(c, FieldOfViewPoints(masks[i]));
   }
   return true;
+}
+
+std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::string& note) {
+  const int m = static_cast<int>(uncertainty.predicted_tre_mm.size());
+  if (uncertainty.covariance.empty() || m < 2) {
+    return "pose uncertainty not estimated: " + (note.empty() ? std::string("no result") : note);
+  }
+  std::vector<double> tre(uncertainty.predicted_tre_mm.begin() + 1,
+                          uncertainty.predicted_tre_mm.end());
+  const int worst = 1 + static_cast<int>(std::max_element(tre.begin(), tre.end()) - tre.begin());
+  std::sort(tre.begin(), tre.end());
+  const double median = tre.size() % 2 == 1
+                            ? tre[tre.size() / 2]
+                            : 0.5 * (tre[tre.size() / 2 - 1] + tre[tre.size() / 2]);
+  char line[320];
+  std::snprintf(line, sizeof(line),
+                "pose uncertainty (not yet calibrated, docs/design.md section 8.6): predicted "
+                "TRE median %.4f mm, max %.4f mm (frame %d); residual sigma %.4g over %lld "
+                "degrees of freedom",
+                median, uncertainty.predicted_tre_mm[worst], worst, uncertainty.noise_sigma,
+                static_cast<long long>(uncertainty.degrees_of_freedom));
+  return line;
 }
 
 }  // namespace dsr

@@ -59,6 +59,11 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              PoseUncertainty* uncertainty,
                              std::string* why);
 
+// One line for the tools' summaries: the predicted TRE over frames 1..m-1 (median and
+// largest, with its frame), the residual sigma and the degrees of freedom; or, when the
+// covariance is empty, "not estimated: " and `note`.
+std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::string& note);
+
 // The expected mean displacement over `points_in_frame` (mm) of a pose error with
 // covariance `covariance` (see above); deterministic.
 double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame);

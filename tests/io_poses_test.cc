@@ -214,5 +214,54 @@ TEST(PosesIo, WriteErrors) {
   EXPECT_TRUE(dir.Entries().empty());
 }
 
+// The optional uncertainty fields: written per frame (covariance 6x6 row-major, exact
+// doubles), ignored by ReadPoses (the poses read back bit for bit), refused when not finite.
+TEST(PosesIo, UncertaintyFieldsAreWrittenAndIgnoredOnRead) {
+  ScopedTempDir dir;
+  PosesFile poses = RandomPoses(3, 5);
+  std::mt19937 rng(3);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  for (int f = 0; f < 3; ++f) {
+    Eigen::Matrix<double, 6, 6> a;
+    for (int i = 0; i < 36; ++i) a(i / 6, i % 6) = normal(rng) * 1e-3;
+    poses.covariance.push_back(f == 0 ? Eigen::Matrix<double, 6, 6>::Zero().eval()
+                                      : (a * a.transpose()).eval());
+    poses.predicted_tre_mm.push_back(f == 0 ? 0.0 : 0.01 * f + 1e-17);
+  }
+  std::string error;
+  ASSERT_TRUE(WritePoses(poses, dir.File("p.json"), &error)) << error;
+  std::ifstream in(dir.File("p.json"));
+  const nlohmann::json doc = nlohmann::json::parse(in);
+  for (int f = 0; f < 3; ++f) {
+    const nlohmann::json& frame = doc["frames"][f];
+    ASSERT_EQ(frame["covariance"].size(), 6u);
+    for (int r = 0; r < 6; ++r) {
+      ASSERT_EQ(frame["covariance"][r].size(), 6u);
+      for (int c = 0; c < 6; ++c) {
+        EXPECT_EQ(frame["covariance"][r][c].get<double>(), poses.covariance[f](r, c));
+      }
+    }
+    EXPECT_EQ(frame["predicted_tre_mm"].get<double>(), poses.predicted_tre_mm[f]);
+  }
+  PosesFile read;
+  ASSERT_TRUE(ReadPoses(dir.File("p.json"), 3, &read, &error)) << error;
+  EXPECT_TRUE(read.covariance.empty());
+  for (int f = 0; f < 3; ++f) {
+    EXPECT_TRUE(read.frame_from_world[f].matrix() == poses.frame_from_world[f].matrix());
+  }
+  // Without them, no such keys.
+  PosesFile plain = RandomPoses(2, 1);
+  ASSERT_TRUE(WritePoses(plain, dir.File("plain.json"), &error)) << error;
+  std::ifstream plain_in(dir.File("plain.json"));
+  const nlohmann::json plain_doc = nlohmann::json::parse(plain_in);
+  EXPECT_FALSE(plain_doc["frames"][1].contains("covariance"));
+  EXPECT_FALSE(plain_doc["frames"][1].contains("predicted_tre_mm"));
+  poses.covariance[2](4, 1) = std::nan("");
+  EXPECT_FALSE(WritePoses(poses, dir.File("nan.json"), &error));
+  EXPECT_EQ(error, dir.File("nan.json") +
+                       ": frame 2: the covariance or predicted_tre_mm has a non-finite entry; "
+                       "not written");
+}
+
 }  // namespace
 }  // namespace dsr

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include "cli_run.h"
 #include "core/io_image.h"
@@ -22,6 +23,7 @@ namespace dsr {
 namespace {
 
 namespace fs = std::filesystem;
+using testing_cli::ReadText;
 using testing_cli::RunTool;
 using testing_cli::ToolRun;
 
@@ -418,6 +420,63 @@ TEST_F(ToolFront, BadInputCreatesNoOutputFolder) {
       *root_);
   ExpectOneError(corrupt, 2, {"corrupt.nii.gz"});
   EXPECT_EQ(Written({"corrupt.nii.gz"}).size(), 0u);
+}
+
+// --uncertainty (docs/design.md section 8.6): refused for modes without the estimate; with
+// dsr, the poses file gets per-frame "covariance" (6x6, symmetric, frame 0 the zero gauge)
+// and "predicted_tre_mm", the summary and the report say it, and dsr_fuse reads the file.
+TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
+  ExpectOneError(RunTool(DSR_REGISTER_BIN,
+                         "--images=" + Frames() + " --out_poses=" + Out("ape.json") +
+                             " --mode=ape --uncertainty",
+                         *root_),
+                 2, {"--uncertainty", "--mode=ape"});
+  EXPECT_FALSE(fs::exists(Out("ape.json")));
+  // A sequence with enough overlap for the estimate (2 cubes of 8^3 per free parameter).
+  const std::string seq = Out("seq");
+  ASSERT_EQ(RunTool(DSR_SIMULATE_BIN,
+                    "--out_dir=" + seq + " --phantom_size=96 --frame_size=40,40,32 "
+                    "--num_frames=3 --max_rotation_deg=3 --max_translation_voxels=2 --sigma=5",
+                    *root_)
+                .exit_code,
+            0);
+  const std::string frames = Join({seq + "/frame_00.nii.gz", seq + "/frame_01.nii.gz",
+                                   seq + "/frame_02.nii.gz"});
+  const ToolRun run = RunTool(DSR_REGISTER_BIN,
+                              "--images=" + frames + " --out_poses=" + Out("p.json") +
+                                  " --uncertainty --progress=false --report_dir=" + Out("report"),
+                              *root_);
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_NE(run.out.find("dsr_register: pose uncertainty (not yet calibrated"), std::string::npos)
+      << run.out;
+  std::ifstream in(Out("p.json"));
+  const nlohmann::json doc = nlohmann::json::parse(in);
+  ASSERT_EQ(doc["frames"].size(), 3u);
+  for (int f = 0; f < 3; ++f) {
+    const nlohmann::json& frame = doc["frames"][f];
+    ASSERT_TRUE(frame.contains("covariance")) << f;
+    ASSERT_EQ(frame["covariance"].size(), 6u);
+    for (int r = 0; r < 6; ++r) {
+      for (int c = 0; c < 6; ++c) {
+        const double v = frame["covariance"][r][c].get<double>();
+        EXPECT_EQ(v, frame["covariance"][c][r].get<double>());
+        if (f == 0) EXPECT_EQ(v, 0.0);
+        if (f > 0 && r == c) EXPECT_GT(v, 0.0);
+      }
+    }
+    const double tre = frame["predicted_tre_mm"].get<double>();
+    if (f == 0) EXPECT_EQ(tre, 0.0);
+    if (f > 0) {
+      EXPECT_GT(tre, 0.0);
+      EXPECT_LT(tre, 1.0);
+    }
+  }
+  EXPECT_NE(ReadText(Out("report/index.md")).find("predicted TRE (mm)"), std::string::npos);
+  const ToolRun fuse = RunTool(DSR_FUSE_BIN,
+                               "--images=" + frames + " --poses=" + Out("p.json") + " --out=" +
+                                   Out("fused.nii.gz"),
+                               *root_);
+  EXPECT_EQ(fuse.exit_code, 0) << fuse.err;
 }
 
 }  // namespace

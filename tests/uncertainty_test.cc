@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include "core/se3.h"
+#include "pipeline/experiment.h"
 #include "pipeline/registration.h"
 #include "pipeline/uncertainty.h"
 #include "sim/phantom.h"
@@ -105,6 +106,38 @@ TEST(PoseUncertainty, IsPositiveDefiniteAndGrowsWithTheNoise) {
   // Off by default: nothing estimated.
   RegistrationOptions o;
   EXPECT_FALSE(o.estimate_uncertainty);
+}
+
+// dsr_compare's row (pipeline/experiment.h) carries the mean predicted TRE and the mean
+// normalised squared error for dsr, NaN for a method without the estimate; the CSV has
+// both columns, empty for the latter.
+TEST(PoseUncertainty, ComparisonRowsCarryIt) {
+  const SimulatedSequence s = Sequence(10.0);
+  ExperimentSequence sequence{"seq", s.frames, s.masks, s.frame_from_world};
+  RegistrationOptions o;
+  o.solve.log_progress = false;
+  o.solve.num_threads = 2;
+  o.pyramid_levels = 2;
+  o.pyramid_min_size = 8;
+  o.estimate_uncertainty = true;
+  ComparisonRow dsr = RunMethod(sequence, o);
+  o.mode = "ape";
+  ComparisonRow ape = RunMethod(sequence, o);
+  ASSERT_TRUE(dsr.ok) << dsr.failure;
+  ASSERT_TRUE(ape.ok) << ape.failure;
+  const RegistrationResult direct = RegisterWithUncertainty(s);
+  double predicted = 0.0;
+  for (int i = 1; i < 4; ++i) predicted += direct.uncertainty.predicted_tre_mm[i] / 3.0;
+  EXPECT_NEAR(dsr.predicted_tre_mm, predicted, 1e-12);
+  EXPECT_GT(dsr.nees, 0.0);
+  EXPECT_TRUE(std::isfinite(dsr.nees));
+  EXPECT_TRUE(std::isnan(ape.predicted_tre_mm));
+  EXPECT_TRUE(std::isnan(ape.nees));
+  dsr.method = "dsr";
+  ape.method = "ape";
+  const std::string csv = ComparisonCsv({dsr, ape});
+  EXPECT_NE(csv.find(",predicted_tre_mm,nees,failure\n"), std::string::npos) << csv;
+  EXPECT_NE(csv.find(",,,\n"), std::string::npos) << "ape: empty predicted_tre_mm, nees, failure";
 }
 
 }  // namespace

@@ -59,6 +59,9 @@ DEFINE_double(max_misfit_ratio, 0.0, "Misfit check of dsr_register (a frame that
 DEFINE_double(max_pair_mismatch_ratio, 0.0, "Pair check of dsr_register (two overlapping "
               "frames that do not match each other fail the run); off by default here. 0 or > 1.");
 DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
+DEFINE_bool(uncertainty, false, "dsr and dba: estimate the pose covariance (docs/design.md "
+            "section 8.6) and add the mean predicted TRE and the mean normalised squared pose "
+            "error (6 when calibrated) to results.csv (predicted_tre_mm, nees).");
 DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
             "false: with each frame's non-zero voxels eroded by one voxel, as dsr_register "
             "does without --masks.");
@@ -209,6 +212,7 @@ int Main(int argc, char** argv) {
   base.solve.num_threads = FLAGS_num_threads;
   base.solve.max_iterations = FLAGS_max_iterations;
   base.solve.log_progress = FLAGS_progress;
+  base.estimate_uncertainty = FLAGS_uncertainty;
   base.pyramid_levels = FLAGS_pyramid_levels;
   base.panorama_spacing = FLAGS_panorama_spacing;
   base.min_kept_overlap = FLAGS_min_kept_overlap;
