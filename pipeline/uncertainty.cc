@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include <Eigen/Cholesky>
+#include <Eigen/LU>
 #include <Eigen/Eigenvalues>
 
 #include "core/parallel.h"
@@ -106,7 +107,95 @@ Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
   return covariance;
 }
 
+// Central-difference step of GradientJacobian: this fraction of a frame voxel (and the
+// rotation that moves the field of view's RMS radius as far).
+constexpr double kCurvatureStepVoxels = 0.05;
+// Fixed number of voxel blocks of GradientJacobian's pass: results do not depend on threads.
+constexpr int64_t kCurvatureBlocks = 64;
+
 }  // namespace
+
+Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const std::vector<double>& step_mm,
+                                 const std::vector<double>& step_rad,
+                                 int num_threads) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 6 * m;
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK_EQ(static_cast<int>(step_mm.size()), m);
+  CHECK_EQ(static_cast<int>(step_rad.size()), m);
+  // perturbed[6 f + c]: frame f's pose moved by its step along tangent axis c.
+  std::vector<Eigen::Isometry3d> perturbed(6 * m);
+  std::vector<double> step(6 * m);
+  for (int f = 0; f < m; ++f) {
+    for (int c = 0; c < 6; ++c) {
+      step[6 * f + c] = c < 3 ? step_mm[f] : step_rad[f];
+      Vector6d delta = Vector6d::Zero();
+      delta[c] = step[6 * f + c];
+      perturbed[6 * f + c] = ExpSE3(delta) * frame_from_world[f];
+    }
+  }
+  const int64_t count = candidates.num_voxels();
+  const int64_t num_blocks = std::max<int64_t>(1, std::min(kCurvatureBlocks, count));
+  const int64_t block_size = (count + num_blocks - 1) / num_blocks;
+  std::vector<Eigen::MatrixXd> block_jacobians(num_blocks);
+  ParallelFor(0, num_blocks, num_threads, [&](int64_t b) {
+    Eigen::MatrixXd a_block = Eigen::MatrixXd::Zero(n, n);
+    double value[kMaxFrames];
+    int frame[kMaxFrames];
+    RowVector6d jacobian[kMaxFrames];
+    RowVector6d value_derivative[kMaxFrames];  // d value / d delta, by differences
+    for (int64_t v = b * block_size; v < std::min(count, (b + 1) * block_size); ++v) {
+      const Eigen::Vector3d centre = candidates.VoxelCenter(v);
+      int k = 0;
+      double sum = 0.0;
+      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
+        const int f = __builtin_ctz(bits);
+        if (ObserveSample(frames[f], frame_from_world[f], centre, &value[k], &jacobian[k])) {
+          frame[k] = f;
+          sum += value[k];
+          ++k;
+        }
+      }
+      if (k < 2) continue;
+      const double mean = sum / k;
+      for (int a = 0; a < k; ++a) {
+        const int f = frame[a];
+        const Vector6d at = jacobian[a].transpose() * (value[a] - mean);
+        for (int c = 0; c < 6; ++c) {
+          double moved = 0.0;
+          RowVector6d moved_jacobian;
+          value_derivative[a][c] = 0.0;
+          // A sample that leaves the field of view at the step is left out, so that the
+          // difference measures the slope, not the observation count.
+          if (!ObserveSample(frames[f], perturbed[6 * f + c], centre, &moved, &moved_jacobian)) {
+            continue;
+          }
+          const double h = step[6 * f + c];
+          value_derivative[a][c] = (moved - value[a]) / h;
+          // Own block: frame f's gradient share with its sample moved and the mean following.
+          const double moved_mean = mean + (moved - value[a]) / k;
+          a_block.block<6, 1>(6 * f, 6 * f + c) +=
+              (moved_jacobian.transpose() * (moved - moved_mean) - at) / h;
+        }
+      }
+      // Other frames' blocks: moving frame fb's sample moves the mean by its change / k.
+      for (int a = 0; a < k; ++a) {
+        for (int c = 0; c < k; ++c) {
+          if (c == a) continue;
+          a_block.block<6, 6>(6 * frame[a], 6 * frame[c]).noalias() -=
+              jacobian[a].transpose() * (value_derivative[c] / k);
+        }
+      }
+    }
+    block_jacobians[b] = std::move(a_block);
+  });
+  Eigen::MatrixXd jacobian = Eigen::MatrixXd::Zero(n, n);
+  for (const Eigen::MatrixXd& block : block_jacobians) jacobian += block;  // fixed order
+  return jacobian;
+}
 
 double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame) {
   if (points_in_frame.empty()) return 0.0;
@@ -154,11 +243,26 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
            ") for a noise estimate";
     return false;
   }
-  const Eigen::MatrixXd h = system.hessian.bottomRightCorner(n, n);
-  const Eigen::LDLT<Eigen::MatrixXd> ldlt(h);
-  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(h, Eigen::EigenvaluesOnly);
-  if (ldlt.info() != Eigen::Success || !(eigen.eigenvalues().minCoeff() > 0.0)) {
-    *why = "the Gauss-Newton matrix of the poses is not positive definite";
+  // The derivative of the gradient over the free poses (GradientJacobian; the Gauss-Newton
+  // matrix would overstate it, see above).
+  std::vector<std::vector<Eigen::Vector3d>> points(m);
+  std::vector<double> step_mm(m), step_rad(m);
+  for (int i = 0; i < m; ++i) {
+    points[i] = FieldOfViewPoints(masks[i]);
+    double radius2 = 0.0;
+    for (const Eigen::Vector3d& x : points[i]) radius2 += x.squaredNorm();
+    const double radius = std::sqrt(radius2 / std::max<size_t>(1, points[i].size()));
+    step_mm[i] = kCurvatureStepVoxels * frames[i].geometry().spacing_mm.minCoeff();
+    step_rad[i] = step_mm[i] / std::max(radius, frames[i].geometry().spacing_mm.maxCoeff());
+  }
+  const Eigen::MatrixXd a =
+      GradientJacobian(frames, candidates, frame_from_world, step_mm, step_rad, num_threads)
+          .bottomRightCorner(n, n);
+  const Eigen::PartialPivLU<Eigen::MatrixXd> lu(a);
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (a + a.transpose()),
+                                                             Eigen::EigenvaluesOnly);
+  if (!(eigen.eigenvalues().minCoeff() > 0.0)) {
+    *why = "the cost's curvature at the final poses is not positive definite";
     return false;
   }
   const double variance = system.cost / static_cast<double>(dof);
@@ -172,8 +276,8 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
            " cubes of " + std::to_string(kClusterVoxels) + " voxels) for a covariance";
     return false;
   }
-  const Eigen::MatrixXd h_inverse = ldlt.solve(Eigen::MatrixXd::Identity(n, n));
-  const Eigen::MatrixXd covariance = h_inverse * gradient_covariance * h_inverse;
+  const Eigen::MatrixXd a_inverse = lu.inverse();
+  const Eigen::MatrixXd covariance = a_inverse * gradient_covariance * a_inverse.transpose();
   *uncertainty = PoseUncertainty();
   uncertainty->noise_sigma = std::sqrt(variance);
   uncertainty->degrees_of_freedom = dof;
@@ -183,7 +287,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
     Matrix6d c = covariance.block<6, 6>(6 * (i - 1), 6 * (i - 1));
     c = 0.5 * (c + c.transpose()).eval();
     uncertainty->covariance[i] = c;
-    uncertainty->predicted_tre_mm[i] = PredictedTre(c, FieldOfViewPoints(masks[i]));
+    uncertainty->predicted_tre_mm[i] = PredictedTre(c, points[i]);
   }
   return true;
 }

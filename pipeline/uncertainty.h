@@ -64,6 +64,26 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
 // covariance is empty, "not estimated: " and `note`.
 std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::string& note);
 
+// A = dg/d delta (6m x 6m, all frames), the derivative of the reduced gradient
+// g_f = sum_j J_fj^T (I_f(p_fj) - mu_j) with respect to the poses, by forward differences
+// of the samples: frame f's samples are moved by step_mm[f] along each translation axis and
+// step_rad[f] about each rotation axis, mu_j follows, the other frames' samples stay (the
+// samples are trilinear, linear along each axis inside a cell, so a small forward step is
+// as good as a central one and costs half).
+//   own block  (f, f): Gauss-Newton's J^T J (1 - 1/k) plus sum_j r_fj dJ_fj / d delta_f,
+//   other block (f, b): -sum_j J_fj^T (d I_b(p_bj) / d delta_b) / k_j.
+// Not the Gauss-Newton matrix: J is the interpolated gradient volume, not the derivative of
+// the interpolated intensity, and with noisy frames the residual term is not small. The
+// registration stops where g = 0, so A (not J^T J) maps the noise of g to the poses. A
+// sample that leaves the field of view at the step is left out of that difference.
+// Deterministic for any thread count.
+Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const std::vector<double>& step_mm,
+                                 const std::vector<double>& step_rad,
+                                 int num_threads);
+
 // The expected mean displacement over `points_in_frame` (mm) of a pose error with
 // covariance `covariance` (see above); deterministic.
 double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame);
