@@ -120,7 +120,70 @@ std::vector<Eigen::Isometry3d> DrawPoses(const ImageGeometry& source,
   return poses;
 }
 
+// Keys' cubic convolution weights (a = -0.5) of the taps at offsets -1, 0, 1, 2 from
+// floor(x), for t = x - floor(x) in [0, 1) (simulate.h).
+void KeysWeights(double t, double w[4]) {
+  const double t2 = t * t, t3 = t2 * t;
+  w[0] = 0.5 * (-t3 + 2.0 * t2 - t);
+  w[1] = 0.5 * (3.0 * t3 - 5.0 * t2 + 2.0);
+  w[2] = 0.5 * (-3.0 * t3 + 4.0 * t2 + t);
+  w[3] = 0.5 * (t3 - t2);
+}
+
 }  // namespace
+
+const char* SourceInterpolationToString(SourceInterpolation interpolation) {
+  switch (interpolation) {
+    case SourceInterpolation::kLinear:
+      return "linear";
+    case SourceInterpolation::kCubic:
+      return "cubic";
+  }
+  return "";
+}
+
+bool StringToSourceInterpolation(const std::string& text, SourceInterpolation* interpolation) {
+  CHECK(interpolation != nullptr);
+  for (SourceInterpolation m : {SourceInterpolation::kLinear, SourceInterpolation::kCubic}) {
+    if (text == SourceInterpolationToString(m)) {
+      *interpolation = m;
+      return true;
+    }
+  }
+  return false;
+}
+
+double CubicInterpolateValue(const Image& image, const Eigen::Vector3d& ijk) {
+  CHECK(ijk.allFinite()) << ijk.transpose();
+  CHECK(!image.empty());
+  const Eigen::Vector3i& n = image.geometry.size;
+  // Per axis: the 4 clamped tap indices and their weights.
+  int index[3][4];
+  double weight[3][4];
+  for (int a = 0; a < 3; ++a) {
+    // Clamping x first keeps the int conversion defined; it moves no tap of an x inside
+    // the grid.
+    const double x = std::clamp(ijk[a], -1.0, static_cast<double>(n[a]));
+    const double lower = std::floor(x);
+    KeysWeights(x - lower, weight[a]);
+    for (int tap = 0; tap < 4; ++tap) {
+      index[a][tap] = std::clamp(static_cast<int>(lower) - 1 + tap, 0, n[a] - 1);
+    }
+  }
+  double value = 0.0;
+  for (int tk = 0; tk < 4; ++tk) {
+    double plane = 0.0;
+    for (int tj = 0; tj < 4; ++tj) {
+      double row = 0.0;
+      for (int ti = 0; ti < 4; ++ti) {
+        row += weight[0][ti] * image.at(index[0][ti], index[1][tj], index[2][tk]);
+      }
+      plane += weight[1][tj] * row;
+    }
+    value += weight[2][tk] * plane;
+  }
+  return value;
+}
 
 const char* PoseModelToString(PoseModel model) {
   switch (model) {
@@ -177,6 +240,8 @@ bool SimulationOptions::Validate(std::string* error) const {
   } else if (mask_erosion_voxels < 0 || mask_erosion_voxels > kMaxMaskErosion) {
     s << "--mask_erosion=" << mask_erosion_voxels << ": must be in [0, " << kMaxMaskErosion
       << "]";
+  } else if (*SourceInterpolationToString(interpolation) == '\0') {
+    s << "--interpolation=" << static_cast<int>(interpolation) << ": must be linear or cubic";
   } else {
     return true;
   }
@@ -293,7 +358,10 @@ bool Simulate(const Image& source,
             if (first_miss[k] < 0) first_miss[k] = l;
             continue;
           }
-          frame.voxels[l] = static_cast<float>(source_frame.InterpolateValue(ijk_source));
+          frame.voxels[l] = static_cast<float>(
+              options.interpolation == SourceInterpolation::kCubic
+                  ? CubicInterpolateValue(source, ijk_source)
+                  : source_frame.InterpolateValue(ijk_source));
         }
       }
     });

@@ -42,9 +42,15 @@
 // the largest angle that keeps it inside. The step bounds therefore always hold, the box
 // bounds the whole sequence, and a frame stuck at a box face simply moves less.
 //
-// Intensities: the source's trilinear value at world_from_frame * x (Frame::InterpolateValue
-// on an all-ones mask), plus N(0, noise_sigma), clamped to 0..255, for field-of-view
-// voxels; 0 outside. Simulate fails if a field-of-view voxel maps outside the source grid.
+// Intensities: the source's value at world_from_frame * x, plus N(0, noise_sigma), clamped
+// to 0..255, for field-of-view voxels; 0 outside. The value is, by `interpolation`:
+// kLinear (default) the trilinear value (Frame::InterpolateValue on an all-ones mask);
+// kCubic Keys' cubic convolution (CubicInterpolateValue below). Simulate fails if a
+// field-of-view voxel maps outside the source grid (the same test for both: the cubic
+// stencil clamps its indices to the grid, see CubicInterpolateValue).
+// Either way a noise-free frame holds exact point samples (up to float rounding) of one
+// continuous function of the world: the source's trilinear or cubic interpolant clamped to
+// 0..255 (the clamp only bites on kCubic's overshoot next to strong edges).
 //
 // Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
@@ -74,6 +80,26 @@ const char* PoseModelToString(PoseModel model);
 // The inverse of PoseModelToString; false (and *model untouched) for any other text.
 bool StringToPoseModel(const std::string& text, PoseModel* model);
 
+// How a frame samples the source (see the header comment). dsr_simulate's --interpolation.
+enum class SourceInterpolation { kLinear, kCubic };
+
+// "linear" / "cubic"; "" for a value outside the enum.
+const char* SourceInterpolationToString(SourceInterpolation interpolation);
+// The inverse of SourceInterpolationToString; false (and *interpolation untouched) for any
+// other text.
+bool StringToSourceInterpolation(const std::string& text, SourceInterpolation* interpolation);
+
+// Keys' cubic convolution (a = -0.5, no prefilter) of `image` at the continuous index
+// `ijk`: the separable sum over the 4x4x4 voxels floor(ijk) - 1 .. floor(ijk) + 2 with
+// per-axis weights, for t = ijk[a] - floor(ijk[a]) in [0, 1),
+//   w_-1 = (-t^3 + 2t^2 - t)/2,  w_0 = (3t^3 - 5t^2 + 2)/2,
+//   w_+1 = (-3t^3 + 4t^2 + t)/2, w_+2 = (t^3 - t^2)/2.
+// It interpolates (the voxel's value at integer ijk) and reproduces every polynomial of
+// degree <= 2 exactly where the stencil lies inside the grid. Stencil indices outside the
+// grid are clamped to its border (the border voxel repeated), so any ijk in
+// [0, size - 1] per axis is defined. ijk must be finite; image must be non-empty.
+double CubicInterpolateValue(const Image& image, const Eigen::Vector3d& ijk);
+
 struct SimulationOptions {
   int num_frames = 11;                   // >= 2 (the paper: 11)
   PoseModel pose_model = PoseModel::kRandom;
@@ -89,6 +115,7 @@ struct SimulationOptions {
   double elevation_deg = 75.0;
   double min_depth_voxels = 4.0;  // near-field cut, in [0, frame_size[2] - 3]
   int mask_erosion_voxels = 1;    // erosion of the written masks, in [0, 50]; 0 = the FOV
+  SourceInterpolation interpolation = SourceInterpolation::kLinear;  // how frames sample
 
   // Checks ranges and cross-field rules. The message names the dsr_simulate flag
   // (e.g. "--num_frames=1: must be in [2, 1000]").

@@ -135,6 +135,37 @@ TEST_F(DsrSimulateCli, WalkAndMaskErosionReachTheSimulator) {
   }
 }
 
+TEST_F(DsrSimulateCli, InterpolationReachesTheSimulator) {
+  // The cubic run's frames are the library's cubic frames of the written source, and differ
+  // from the default (linear) run's.
+  const fs::path linear = dir_ / "linear", cubic = dir_ / "cubic";
+  const std::string common = " " + Tiny() + " --sigma=0 --write_source";
+  ASSERT_EQ(Simulate("--out_dir=" + linear.string() + common).exit_code, 0);
+  const ToolRun run = Simulate("--out_dir=" + cubic.string() + common + " --interpolation=cubic");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  std::string error;
+  Image source;
+  ASSERT_TRUE(ReadImage((cubic / "source.nii.gz").string(), &source, &error)) << error;
+  SimulationOptions o;  // Tiny()
+  o.frame_size = Eigen::Vector3i(20, 20, 16);
+  o.num_frames = 3;
+  o.max_rotation_deg = 5.0;
+  o.max_translation_voxels = 2.0;
+  o.min_depth_voxels = 2.0;
+  o.noise_sigma = 0.0;
+  o.interpolation = SourceInterpolation::kCubic;
+  SimulatedSequence expected;
+  ASSERT_TRUE(dsr::Simulate(source, o, &expected, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    const std::string name = "frame_0" + std::to_string(f) + ".nii.gz";
+    Image from_linear, from_cubic;
+    ASSERT_TRUE(ReadImage((linear / name).string(), &from_linear, &error)) << error;
+    ASSERT_TRUE(ReadImage((cubic / name).string(), &from_cubic, &error)) << error;
+    EXPECT_EQ(from_cubic.voxels, expected.frames[f].voxels) << name;
+    EXPECT_NE(from_cubic.voxels, from_linear.voxels) << name;
+  }
+}
+
 TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
   const std::string out = " --out_dir=" + (dir_ / "bad").string();
   struct Case {
@@ -150,6 +181,8 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
       {"--phantom_size=8" + out, "--phantom_size=8: must be in [16, 512]"},
       {"--pose_model=spiral" + out, "--pose_model=spiral: must be random or walk"},
       {"--pose_model=" + out, "--pose_model=: must be random or walk"},
+      {"--interpolation=bspline" + out, "--interpolation=bspline: must be linear or cubic"},
+      {"--interpolation=" + out, "--interpolation=: must be linear or cubic"},
       {"--step_rotation_deg=181" + out, "--step_rotation_deg=181: must be in [0, 180]"},
       {"--step_translation_voxels=-2" + out,
        "--step_translation_voxels=-2: must be finite and >= 0"},
@@ -220,6 +253,7 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "phantom_size",
                              "phantom_seed",
                              "mask_erosion",
+                             "interpolation",
                              "write_source"}) {
       EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)
           << help << " lacks --" << flag;

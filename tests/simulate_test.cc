@@ -1,9 +1,14 @@
 // Simulator (docs/design.md section 6, sim/simulate.h): frames agree with each other under the
 // ground-truth poses, determinism, the protocol's pose ranges (random and walk), which
 // motions fit the default phantom, noise statistics, the field of view and its mask,
-// option validation.
+// option validation; the cubic source interpolation (CubicInterpolateValue) and the
+// default linear frames staying bit-identical.
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -614,6 +619,253 @@ TEST(Simulate, MaskErosionCountsVoxelsAndZeroIsTheFieldOfView) {
   EXPECT_NE(error.find("--mask_erosion"), std::string::npos) << error;
 }
 
+// FNV-1a (64 bit) over the frames' float bit patterns, in frame and voxel order.
+uint64_t FramesChecksum(const SimulatedSequence& s) {
+  uint64_t hash = 14695981039346656037ull;
+  for (const Image& frame : s.frames) {
+    for (float v : frame.voxels) {
+      uint32_t bits = 0;
+      std::memcpy(&bits, &v, sizeof(bits));
+      for (int b = 0; b < 4; ++b) {
+        hash ^= (bits >> (8 * b)) & 0xffu;
+        hash *= 1099511628211ull;
+      }
+    }
+  }
+  return hash;
+}
+
+// Checksums of the frames of SmallOptions() on SmallSource(spacing), recorded before
+// SimulationOptions::interpolation was added: the default (kLinear) frames must stay
+// bit-identical. They depend on the phantom, std::normal_distribution and the trilinear
+// arithmetic being bit-reproducible, which holds for one compiler and standard library
+// (the development machine's); 4 combinations so a failure says which path changed.
+TEST(Simulate, DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption) {
+  struct Recorded {
+    double sigma;
+    Eigen::Vector3d spacing;
+    uint64_t checksum;
+  };
+  const Recorded recorded[] = {
+      {0.0, Eigen::Vector3d(1.0, 1.0, 1.0), 0xc8565d1bf8defe19ull},
+      {0.0, Eigen::Vector3d(1.0, 1.25, 0.8), 0xff31152f0ff99833ull},
+      {25.0, Eigen::Vector3d(1.0, 1.0, 1.0), 0x24d5d7dc47e47602ull},
+      {25.0, Eigen::Vector3d(1.0, 1.25, 0.8), 0xc663be377d28d6daull},
+  };
+  for (const Recorded& r : recorded) {
+    SimulationOptions o = SmallOptions();
+    ASSERT_EQ(o.interpolation, SourceInterpolation::kLinear);  // the default
+    o.noise_sigma = r.sigma;
+    SimulatedSequence s;
+    std::string error;
+    ASSERT_TRUE(Simulate(SmallSource(r.spacing), o, &s, &error)) << error;
+    EXPECT_EQ(FramesChecksum(s), r.checksum)
+        << "sigma " << r.sigma << ", spacing " << r.spacing.transpose();
+  }
+}
+
+// A random 9x8x7 image with float-exact values, for the interpolator's tests.
+Image RandomImage(uint64_t seed) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(9, 8, 7);
+  Image image(g);
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> value(0, 1020);
+  for (float& v : image.voxels) v = 0.25f * static_cast<float>(value(rng));
+  return image;
+}
+
+TEST(CubicInterpolateValue, ReproducesVoxelsAtIntegerIndices) {
+  const Image image = RandomImage(3);
+  const Eigen::Vector3i& n = image.geometry.size;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        // Exact: the weights at t = 0 are (0, 1, 0, 0); border voxels included.
+        ASSERT_EQ(CubicInterpolateValue(image, Eigen::Vector3d(i, j, k)), image.at(i, j, k))
+            << i << " " << j << " " << k;
+      }
+    }
+  }
+}
+
+TEST(CubicInterpolateValue, ReproducesQuadraticsInTheInteriorAndConstantsEverywhere) {
+  // q has every monomial of degree <= 2; its values at integer indices are multiples of
+  // 1/4 below 2^11, exact in float, so the only error is double rounding in the sum.
+  constexpr double kDoubleRoundingTolerance = 1e-9;
+  const auto q = [](const Eigen::Vector3d& x) {
+    return 7.0 + 1.5 * x[0] - 2.0 * x[1] + 0.75 * x[2] + 0.25 * x[0] * x[0] -
+           0.5 * x[1] * x[1] + 1.25 * x[2] * x[2] + 0.5 * x[0] * x[1] - 0.75 * x[1] * x[2] +
+           x[0] * x[2];
+  };
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(9, 8, 7);
+  Image quadratic(g), constant(g, 42.5f);
+  for (int k = 0; k < g.size[2]; ++k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        quadratic.at(i, j, k) = static_cast<float>(q(Eigen::Vector3d(i, j, k)));
+        ASSERT_EQ(static_cast<double>(quadratic.at(i, j, k)), q(Eigen::Vector3d(i, j, k)));
+      }
+    }
+  }
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const Eigen::Vector3d upper = g.size.cast<double>() - Eigen::Vector3d::Ones();
+  for (int trial = 0; trial < 2000; ++trial) {
+    // Interior: the 4x4x4 stencil inside the grid, i.e. ijk in [1, size - 2) per axis.
+    Eigen::Vector3d interior, anywhere;
+    for (int a = 0; a < 3; ++a) {
+      interior[a] = 1.0 + (upper[a] - 2.0) * u(rng);
+      anywhere[a] = upper[a] * u(rng);
+    }
+    ASSERT_NEAR(CubicInterpolateValue(quadratic, interior), q(interior), kDoubleRoundingTolerance)
+        << interior.transpose();
+    ASSERT_NEAR(CubicInterpolateValue(constant, anywhere), 42.5, kDoubleRoundingTolerance)
+        << anywhere.transpose();
+  }
+  // Not a trilinear interpolant in disguise: a cubic term is not reproduced.
+  Image cubic(g);
+  for (int k = 0; k < g.size[2]; ++k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) cubic.at(i, j, k) = static_cast<float>(i * i * i);
+    }
+  }
+  // Keys' error for x^3 is -t(2t - 1)(t - 1) (derived from the weights): at t = 1/4, -3/32.
+  EXPECT_NEAR(CubicInterpolateValue(cubic, Eigen::Vector3d(3.25, 3.0, 3.0)),
+              3.25 * 3.25 * 3.25 + 3.0 / 32.0,
+              kDoubleRoundingTolerance);
+}
+
+// A smooth analytic source f(x) = 128 + A sin(k . x + phase), x in world mm, and the bound
+// on Keys' error it implies. Keys reproduces quadratics, so along one axis (index units)
+// the error at x is -sum_i w_i R_i with R_i the third-order Taylor remainder of f at the
+// tap offset d_i: |R_i| <= M3 |d_i|^3 / 6, and max_t sum_i |w_i| |d_i|^3 = 9/16 (at
+// t = 1/2), so e_a <= 3/32 M3_a, with M3_a = A |k_a h_a|^3 the third derivative's bound
+// along index axis a. The 3-D interpolant is P = Pz Py Px (x innermost), and
+// f - Pf = (f - Pz f) + Pz (f - Py f) + Pz Py (f - Px f), with each P's weights summing
+// in absolute value to at most 5/4 (at t = 1/2), so |f - Pf| <= e_z + 5/4 e_y + 25/16 e_x.
+// Float storage adds at most (5/4)^3 half-ulps of the source (values < 256: 2^-16 each)
+// plus one half-ulp of the frame: below 1e-4.
+struct SmoothSource {
+  double amplitude = 100.0;
+  Eigen::Vector3d wave_per_mm = Eigen::Vector3d(0.25, -0.2, 0.3);  // wavelengths 21-31 mm
+  double phase = 0.7;
+
+  double operator()(const Eigen::Vector3d& x_mm) const {
+    return 128.0 + amplitude * std::sin(wave_per_mm.dot(x_mm) + phase);
+  }
+  double CubicErrorBound(const Eigen::Vector3d& spacing_mm) const {
+    constexpr double kFloatSlack = 1e-4;
+    Eigen::Vector3d e;
+    for (int a = 0; a < 3; ++a) {
+      e[a] = 3.0 / 32.0 * amplitude * std::pow(std::abs(wave_per_mm[a] * spacing_mm[a]), 3);
+    }
+    return e[2] + 1.25 * e[1] + 1.5625 * e[0] + kFloatSlack;
+  }
+};
+
+TEST(Simulate, CubicFramesSampleASmoothSourceWithinTheDerivedBound) {
+  const SmoothSource f;
+  for (const Eigen::Vector3d& spacing :
+       {Eigen::Vector3d(1.0, 1.0, 1.0), Eigen::Vector3d(1.0, 1.25, 0.8)}) {
+    ImageGeometry g;
+    g.size = Eigen::Vector3i(80, 80, 80);
+    g.spacing_mm = spacing;
+    g.origin_mm = -0.5 * Eigen::Vector3d::Constant(79.0).cwiseProduct(spacing);
+    Image source(g);
+    for (int k = 0; k < 80; ++k) {
+      for (int j = 0; j < 80; ++j) {
+        for (int i = 0; i < 80; ++i) {
+          source.at(i, j, k) = static_cast<float>(f(g.IndexToPhysical(Eigen::Vector3d(i, j, k))));
+        }
+      }
+    }
+    const double bound = f.CubicErrorBound(spacing);
+    double max_error[2] = {0.0, 0.0};  // linear, cubic
+    for (SourceInterpolation interpolation :
+         {SourceInterpolation::kLinear, SourceInterpolation::kCubic}) {
+      SimulationOptions o = SmallOptions();
+      o.interpolation = interpolation;
+      o.mask_erosion_voxels = 0;
+      SimulatedSequence s;
+      std::string error;
+      ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
+      const ImageGeometry& fg = s.frames[0].geometry;
+      int64_t count = 0;
+      for (int frame = 0; frame < o.num_frames; ++frame) {
+        const Eigen::Isometry3d world_from_frame = s.frame_from_world[frame].inverse();
+        for (int k = 0; k < fg.size[2]; ++k) {
+          for (int y = 0; y < fg.size[1]; ++y) {
+            for (int x = 0; x < fg.size[0]; ++x) {
+              if (!s.masks[frame].at(x, y, k)) continue;
+              const Eigen::Vector3d x_in_world =
+                  world_from_frame * fg.IndexToPhysical(Eigen::Vector3d(x, y, k));
+              // The bound holds where the stencil is inside the source (no clamping).
+              const Eigen::Vector3d ijk = g.PhysicalToIndex(x_in_world);
+              ASSERT_TRUE((ijk.array() >= 1.0).all() && (ijk.array() < 78.0).all())
+                  << ijk.transpose();
+              const double e = std::abs(s.frames[frame].at(x, y, k) - f(x_in_world));
+              double& m = max_error[interpolation == SourceInterpolation::kCubic];
+              m = std::max(m, e);
+              ++count;
+            }
+          }
+        }
+      }
+      ASSERT_GT(count, 10000);
+    }
+    EXPECT_LE(max_error[1], bound) << "spacing " << spacing.transpose();
+    // The control: trilinear sampling (error up to (1/8) A sum_a (k_a h_a)^2) breaks the
+    // cubic bound, so the test tells the two apart.
+    EXPECT_GT(max_error[0], 2.0 * bound) << "spacing " << spacing.transpose();
+    std::printf("spacing %s: bound %.4f, max |frame - f|: linear %.4f, cubic %.4f\n",
+                spacing[1] == 1.0 ? "1,1,1" : "1,1.25,0.8",
+                bound,
+                max_error[0],
+                max_error[1]);
+  }
+}
+
+TEST(Simulate, CubicIsDeterministicAndDiffersFromLinearOnlyByInterpolation) {
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  SimulationOptions o = SmallOptions();
+  o.noise_sigma = 25.0;
+  SimulatedSequence linear, a, b;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, o, &linear, &error)) << error;
+  o.interpolation = SourceInterpolation::kCubic;
+  ASSERT_TRUE(Simulate(source, o, &a, &error)) << error;
+  ASSERT_TRUE(Simulate(source, o, &b, &error)) << error;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_EQ(a.frames[f].voxels, b.frames[f].voxels) << "frame " << f;
+    EXPECT_NE(a.frames[f].voxels, linear.frames[f].voxels) << "frame " << f;
+    EXPECT_EQ(a.masks[f].voxels, linear.masks[f].voxels) << "frame " << f;
+    EXPECT_TRUE(a.frame_from_world[f].matrix() == linear.frame_from_world[f].matrix());
+  }
+  // Noise-free cubic frames agree under the ground-truth poses as linear ones do.
+  o.noise_sigma = 0.0;
+  SimulatedSequence quiet;
+  ASSERT_TRUE(Simulate(source, o, &quiet, &error)) << error;
+  for (int j = 1; j < o.num_frames; ++j) {
+    EXPECT_LT(Compare(quiet, 0, j).mean_abs_difference, kResampleMeanAbsTolerance) << j;
+  }
+}
+
+TEST(Simulate, InterpolationNames) {
+  SourceInterpolation interpolation = SourceInterpolation::kCubic;
+  EXPECT_TRUE(StringToSourceInterpolation("linear", &interpolation));
+  EXPECT_EQ(interpolation, SourceInterpolation::kLinear);
+  EXPECT_TRUE(StringToSourceInterpolation("cubic", &interpolation));
+  EXPECT_EQ(interpolation, SourceInterpolation::kCubic);
+  for (const char* bad : {"", "Cubic", "linear ", "bspline", "nearest"}) {
+    EXPECT_FALSE(StringToSourceInterpolation(bad, &interpolation)) << bad;
+    EXPECT_EQ(interpolation, SourceInterpolation::kCubic) << "untouched on failure";
+  }
+  EXPECT_STREQ(SourceInterpolationToString(SourceInterpolation::kLinear), "linear");
+  EXPECT_STREQ(SourceInterpolationToString(SourceInterpolation::kCubic), "cubic");
+}
+
 TEST(Simulate, PoseModelNames) {
   PoseModel model = PoseModel::kWalk;
   EXPECT_TRUE(StringToPoseModel("random", &model));
@@ -653,6 +905,8 @@ TEST(Simulate, ValidateRejectsNonsense) {
        "--step_translation_voxels=-1"},
       {[](SimulationOptions* o) { o->mask_erosion_voxels = -1; }, "--mask_erosion=-1"},
       {[](SimulationOptions* o) { o->mask_erosion_voxels = 51; }, "--mask_erosion=51"},
+      {[](SimulationOptions* o) { o->interpolation = static_cast<SourceInterpolation>(7); },
+       "--interpolation=7: must be linear or cubic"},
   };
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (const Case& c : cases) {
@@ -672,9 +926,14 @@ TEST(Simulate, FailsClearlyWhenTheSourceIsTooSmall) {
   g.size = Eigen::Vector3i(40, 40, 40);
   SimulatedSequence s;
   std::string error;
-  EXPECT_FALSE(Simulate(Image(g, 1.0f), SimulationOptions(), &s, &error));
-  EXPECT_NE(error.find("outside the source grid"), std::string::npos) << error;
-  EXPECT_NE(error.find("40x40x40"), std::string::npos) << error;
+  for (SourceInterpolation interpolation :
+       {SourceInterpolation::kLinear, SourceInterpolation::kCubic}) {
+    SimulationOptions o;
+    o.interpolation = interpolation;
+    EXPECT_FALSE(Simulate(Image(g, 1.0f), o, &s, &error));
+    EXPECT_NE(error.find("outside the source grid"), std::string::npos) << error;
+    EXPECT_NE(error.find("40x40x40"), std::string::npos) << error;
+  }
   EXPECT_TRUE(s.frames.empty());
   EXPECT_FALSE(Simulate(Image(), SimulationOptions(), &s, &error));
   EXPECT_NE(error.find("empty"), std::string::npos) << error;

@@ -95,6 +95,12 @@ DEFINE_int32(mask_erosion,
              "Erosion of the written masks mask_XX.nii.gz, in voxels (6-neighbourhood per "
              "voxel), in [0, 50]; 0 writes the exact field of view (the registration's "
              "gradients never read outside a mask, so no erosion is needed for them).");
+DEFINE_string(interpolation,
+              "linear",
+              "How a frame voxel samples the source at its world point: linear (trilinear, "
+              "the default) or cubic (Keys' cubic convolution, a = -0.5, over 4x4x4 voxels, "
+              "indices clamped at the source's border). Either way the frames are exact "
+              "samples of one continuous interpolant of the source.");
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
@@ -111,6 +117,13 @@ bool ValidateRotation(const char* flag, double v) {
 bool ValidatePoseModel(const char* flag, const std::string& v) {
   dsr::PoseModel model;
   return dsr::CheckFlag(dsr::StringToPoseModel(v, &model), flag, v, "must be random or walk");
+}
+bool ValidateInterpolation(const char* flag, const std::string& v) {
+  dsr::SourceInterpolation interpolation;
+  return dsr::CheckFlag(dsr::StringToSourceInterpolation(v, &interpolation),
+                        flag,
+                        v,
+                        "must be linear or cubic");
 }
 bool ValidateMaskErosion(const char* flag, int32_t v) {
   return dsr::CheckFlag(v >= 0 && v <= 50, flag, v, "must be in [0, 50]");
@@ -148,6 +161,7 @@ DEFINE_validator(pose_model, &ValidatePoseModel);
 DEFINE_validator(step_rotation_deg, &ValidateRotation);
 DEFINE_validator(step_translation_voxels, &ValidateNonNegative);
 DEFINE_validator(mask_erosion, &ValidateMaskErosion);
+DEFINE_validator(interpolation, &ValidateInterpolation);
 DEFINE_validator(frame_size, &ValidateFrameSize);
 DEFINE_validator(frame_spacing, &ValidateFrameSpacing);
 DEFINE_validator(azimuth_deg, &ValidateOpeningAngle);
@@ -167,7 +181,7 @@ int Main(int argc, char** argv) {
       "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
       "field of view, Gaussian noise) from the built-in phantom or --source.\n"
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
-      "[--pose_model=random|walk] ...\n"
+      "[--pose_model=random|walk] [--interpolation=linear|cubic] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       {"out_dir"},
@@ -182,6 +196,8 @@ int Main(int argc, char** argv) {
   options.step_rotation_deg = FLAGS_step_rotation_deg;
   options.step_translation_voxels = FLAGS_step_translation_voxels;
   options.mask_erosion_voxels = FLAGS_mask_erosion;
+  // Validated by its validator.
+  CHECK(dsr::StringToSourceInterpolation(FLAGS_interpolation, &options.interpolation));
   options.noise_sigma = FLAGS_sigma;
   options.seed = FLAGS_seed;
   CHECK(dsr::ParseSize3(FLAGS_frame_size, &options.frame_size));  // validated by its validator
