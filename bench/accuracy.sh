@@ -5,7 +5,7 @@
 #
 #   bash bench/accuracy.sh [--seeds=20] [--sources=phantom,mni] [--protocols=paper,wide,walk]
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
-#                          [--out=bench/results/accuracy]
+#                          [--uncertainty] [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
 # real anatomical volume the project did not make). Protocols (11 frames of 96x96x80,
@@ -13,11 +13,14 @@
 # (each frame within 6 deg / 6 voxels of the previous one). Masks: fov = the exact field of
 # view (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one
 # voxel (what dsr_register uses without --masks). Sequences are cached under OUT/sequences.
+# --uncertainty: also the pose covariance (dsr_compare --uncertainty) and a table of the
+# predicted against the measured error (runs go to OUT/runs/INIT-uncertainty).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
+uncertainty=""
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -28,6 +31,7 @@ for arg in "$@"; do
     --init=*) init=${arg#*=} ;;
     --methods=*) methods=${arg#*=} ;;
     --out=*) out=${arg#*=} ;;
+    --uncertainty) uncertainty=--uncertainty ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
@@ -74,16 +78,17 @@ for source in "${source_list[@]}"; do
     for mask in "${mask_list[@]}"; do
       case "$mask" in fov) use=true ;; none) use=false ;;
         *) echo "accuracy.sh: unknown mask kind '$mask' (fov, none)" >&2; exit 2 ;; esac
-      run="$out/runs/$init/$source-$protocol-$mask"
+      run="$out/runs/$init${uncertainty:+-uncertainty}/$source-$protocol-$mask"
       mkdir -p "$run"
       echo "accuracy.sh: $source $protocol masks=$mask init=$init ($seeds sequences)" >&2
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
-        --sequence_masks="$use" --init="$init" 2>"$run.log" >/dev/null || {
+        --sequence_masks="$use" --init="$init" $uncertainty 2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
       csvs+=("$source,$protocol,$mask,$run/results.csv")
     done
   done
 done
-python3 bench/accuracy_summary.py --init="$init" "${csvs[@]}" > "$out/accuracy_$init.md"
-cat "$out/accuracy_$init.md"
-echo "accuracy.sh: wrote $out/accuracy_$init.md" >&2
+summary="$out/accuracy_$init${uncertainty:+_uncertainty}.md"
+python3 bench/accuracy_summary.py --init="$init" "${csvs[@]}" > "$summary"
+cat "$summary"
+echo "accuracy.sh: wrote $summary" >&2

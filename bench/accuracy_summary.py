@@ -4,6 +4,10 @@
 Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv [...]
 A run succeeds when dsr_compare reports it ok and its mean TRE is below 0.1 mm; TRE and
 time medians are over the successful runs, the max TRE over every run that returned poses.
+With dsr_compare --uncertainty (bench/accuracy.sh --uncertainty) a second table compares the
+predicted with the measured error over the successful runs: the mean predicted and measured
+TRE, their ratio, and the mean normalised squared pose error e^T C^-1 e over 6 (1 when the
+covariance is calibrated; docs/design.md section 8.6).
 """
 import csv
 import statistics
@@ -25,6 +29,7 @@ def main(argv):
     print("| method | source | protocol | masks | success | median TRE (mm) | max TRE (mm) "
           "| median time (s) | failures |")
     print("|---|---|---|---|---|---|---|---|---|")
+    calibration = []
     for source, protocol, masks, path in groups:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
@@ -42,6 +47,22 @@ def main(argv):
                   f"{max(tre_all) if tre_all else float('nan'):.3g} | "
                   f"{statistics.median(times) if times else float('nan'):.2f} | "
                   f"{' '.join(failed) if failed else '-'} |")
+            predicted = [float(r["predicted_tre_mm"]) for r in ok if r.get("predicted_tre_mm")]
+            nees = [float(r["nees"]) for r in ok if r.get("nees")]
+            if predicted and len(predicted) == len(ok):
+                measured = statistics.mean(tre_ok)
+                calibration.append(
+                    f"| {method} | {source} | {protocol} | {masks} | {len(ok)} | "
+                    f"{statistics.mean(predicted):.4f} | {measured:.4f} | "
+                    f"{measured / statistics.mean(predicted):.2f} | "
+                    f"{statistics.mean(nees) / 6.0:.2f} |")
+    if calibration:
+        print("\nPredicted against measured error (calibrated: both ratios within [0.7, 1.5]).\n")
+        print("| method | source | protocol | masks | runs | predicted TRE (mm) | measured TRE (mm) "
+              "| measured / predicted | mean e^T C^-1 e / 6 |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for line in calibration:
+            print(line)
 
 
 if __name__ == "__main__":

@@ -306,8 +306,8 @@ std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::st
                             : 0.5 * (tre[tre.size() / 2 - 1] + tre[tre.size() / 2]);
   char line[320];
   std::snprintf(line, sizeof(line),
-                "pose uncertainty (not yet calibrated, docs/design.md section 8.6): predicted "
-                "TRE median %.4f mm, max %.4f mm (frame %d); residual sigma %.4g over %lld "
+                "pose uncertainty (noise only, docs/design.md section 8.6): predicted TRE "
+                "median %.4f mm, max %.4f mm (frame %d); residual sigma %.4g over %lld "
                 "degrees of freedom",
                 median, uncertainty.predicted_tre_mm[worst], worst, uncertainty.noise_sigma,
                 static_cast<long long>(uncertainty.degrees_of_freedom));

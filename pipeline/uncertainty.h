@@ -1,30 +1,29 @@
-// Pose uncertainty of a registration (docs/design.md section 8.6): an estimate, not yet
-// calibrated (see below), so RegistrationOptions::estimate_uncertainty is off by default.
+// Pose uncertainty of a registration (docs/design.md section 8.6), off by default
+// (RegistrationOptions::estimate_uncertainty, dsr_register --uncertainty): it costs a pass
+// of 6 extra samples per observation.
 //
-// DSR minimises f(T) = sum_j sum_i sigma_ij (I_i(p_ij) - mu_j)^2 with the panorama
-// intensities mu_j eliminated; its Gauss-Newton matrix H (dsr_reduced/reduced_cost.h) is
-// the Schur complement of the full DBA information matrix onto the poses. With residuals
-// that were independent with variance s^2, Cov(delta) = s^2 H_ff^-1 (frames 1..m-1; frame 0
-// is the gauge). They are not: trilinear resampling spreads one frame voxel's noise over
-// the 8 panorama voxels around it (and lowers the residuals' variance below the frames'
-// noise). So the covariance is the sandwich
-//     Cov(delta) = H_ff^-1 C_g H_ff^-1,
-// with C_g the covariance of the gradient g = sum_j sum_a J_aj^T r_aj estimated from the
-// residuals cube by cube (cubes of 8 panorama voxels: g_B its share of cube B, C_g =
-// sum_B g_B g_B^T), robust to any correlation inside a cube. delta is the tangent [rho; phi]
-// of a left perturbation T_est = Exp(delta) T_true (mm and rad).
+// DSR stops where its gradient g = sum_j sum_a J_aj^T r_aj vanishes (r_aj = I_a(p_aj) -
+// mu_j, the panorama intensities eliminated). Linearised about the true poses, the pose
+// error is delta = -A^-1 g(T_true) with A = dg/d delta, so
+//     Cov(delta) = A_ff^-1 C_g A_ff^-T   (frames 1..m-1; frame 0 is the gauge),
+// with C_g the covariance of the gradient estimated from the residuals cube by cube (cubes
+// of 8 panorama voxels: g_B its share of cube B, C_g = sum_B g_B g_B^T), robust to the
+// correlation trilinear resampling puts between neighbouring residuals. A is not the
+// Gauss-Newton matrix H = sum J^T J, which is the Schur complement of DBA's information
+// matrix (the theorem) and would give s^2 H^-1: with noisy frames the gradient volumes
+// are noisy, J^T J overstates the curvature (1.5-2x on the paper's frames at sigma 25) and
+// the covariance came out 2-4x too small in TRE. A is measured by GradientJacobian below.
+// delta is the tangent [rho; phi] of a left perturbation T_est = Exp(delta) T_true (mm, rad).
 //
 // A frame's predicted TRE is the expected mean, over the centres x of its field-of-view
 // voxels (frame mm), of the displacement |rho + phi x x| = |[I, -[x]x] delta| that a pose
 // error delta ~ N(0, Cov_i) causes (the TRE of core/eval.h to first order), estimated from
 // a fixed set of draws.
 //
-// Measured (MNI152 and phantom, paper protocol, noise sigma 25, exact-field-of-view masks):
-// the measured TRE is 2-4x the predicted one, because the cost's minimiser itself is off
-// the truth by 0.009-0.014 mm without any noise (the frames are resampled from the source
-// volume and again by the registration: an interpolation bias no noise model predicts).
-// What it cannot cover either: a wrong local minimum, and intensities that do not follow
-// the model (a gain or offset between frames).
+// What it does not cover: a wrong local minimum, intensities that do not follow the model
+// (a gain or offset between frames), and the interpolation bias of resampled frames (about
+// 0.01 mm on the simulated sequences without noise; docs/design.md 8.6 has the measured
+// calibration).
 #ifndef DSR_PIPELINE_UNCERTAINTY_H_
 #define DSR_PIPELINE_UNCERTAINTY_H_
 

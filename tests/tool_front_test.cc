@@ -447,7 +447,7 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
                                   " --uncertainty --progress=false --report_dir=" + Out("report"),
                               *root_);
   ASSERT_EQ(run.exit_code, 0) << run.err;
-  EXPECT_NE(run.out.find("dsr_register: pose uncertainty (not yet calibrated"), std::string::npos)
+  EXPECT_NE(run.out.find("dsr_register: pose uncertainty (noise only"), std::string::npos)
       << run.out;
   std::ifstream in(Out("p.json"));
   const nlohmann::json doc = nlohmann::json::parse(in);

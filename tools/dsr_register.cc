@@ -111,8 +111,8 @@ DEFINE_double(memory_budget_mb, 0.0, "dba: refuse problems estimated above this 
 DEFINE_bool(progress, true, "Print one line per iteration on stderr.");
 DEFINE_bool(uncertainty, false, "Estimate each frame's pose covariance and predicted TRE "
             "(--mode=dsr or dba; docs/design.md section 8.6) and write them into --out_poses "
-            "(\"covariance\", \"predicted_tre_mm\"), the summary and the report. Not yet "
-            "calibrated: the measured TRE is 2-4x the predicted one on simulated sequences.");
+            "(\"covariance\", \"predicted_tre_mm\"), the summary and the report. Noise only: "
+            "not a wrong minimum, brightness changes or interpolation bias.");
 DEFINE_string(blend, "mean", "Panorama blending for --out_panorama and the report: mean (paper "
               "eq. 10) or feather (weights fall off towards each field-of-view edge).");
 DEFINE_double(feather_voxels, 8.0, "--blend=feather: depth (frame voxels) over which a frame's "
