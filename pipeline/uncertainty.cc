@@ -107,7 +107,7 @@ Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
   return covariance;
 }
 
-// Central-difference step of GradientJacobian: this fraction of a frame voxel (and the
+// Forward-difference step of GradientJacobian: this fraction of a frame voxel (and the
 // rotation that moves the field of view's RMS radius as far).
 constexpr double kCurvatureStepVoxels = 0.05;
 // Fixed number of voxel blocks of GradientJacobian's pass: results do not depend on threads.
