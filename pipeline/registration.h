@@ -95,9 +95,9 @@ struct RegistrationOptions {
   double max_pair_mismatch_ratio = 5.0;
 
   // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
-  // and dba, whose estimate it is): one more pass with Jacobians over the finest level, one
-  // for the gradient's covariance and one of 6 extra samples per observation for its
-  // derivative. Off by default (its cost).
+  // and dba, whose estimate it is): one cost pass over the finest level, one for the
+  // gradient's covariance and one of 6 extra samples per observation for its derivative.
+  // Off by default (its cost).
   bool estimate_uncertainty = false;
 
   // Mode-specific.

@@ -39,6 +39,31 @@ std::vector<Eigen::Vector3d> FieldOfViewPoints(const Mask& mask) {
   return points;
 }
 
+// The observers of candidate voxel v that sample it at their poses: k of them, frame[a]
+// with value[a] and Jacobian jacobian[a] (arrays of at least kMaxFrames), and their mean.
+int ObserveVoxel(const std::vector<Frame>& frames,
+                 const CandidateSet& candidates,
+                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                 int64_t v,
+                 double* value,
+                 RowVector6d* jacobian,
+                 int* frame,
+                 double* mean) {
+  const Eigen::Vector3d centre = candidates.VoxelCenter(v);
+  int k = 0;
+  double sum = 0.0;
+  for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
+    const int f = __builtin_ctz(bits);
+    if (ObserveSample(frames[f], frame_from_world[f], centre, &value[k], &jacobian[k])) {
+      frame[k] = f;
+      sum += value[k];
+      ++k;
+    }
+  }
+  *mean = k > 0 ? sum / k : 0.0;
+  return k;
+}
+
 // Cov(g) of the DSR gradient g = sum_j sum_a J_aj^T r_aj (6m, all frames), estimated from
 // the residuals themselves, cluster by cluster: the panorama is cut into cubes of
 // kClusterVoxels voxels, g_B is the gradient's share of cube B, and Cov(g) ~ sum_B g_B g_B^T.
@@ -69,23 +94,14 @@ Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
   std::vector<int64_t> slab_clusters(slabs, 0);
   ParallelFor(0, slabs, num_threads, [&](int64_t s) {
     Eigen::MatrixXd shares = Eigen::MatrixXd::Zero(n, cx * cy);
-    std::vector<double> value(m);
-    std::vector<RowVector6d> jacobian(m);
-    std::vector<int> frame(m);
+    std::vector<double> value(kMaxFrames);
+    std::vector<RowVector6d> jacobian(kMaxFrames);
+    std::vector<int> frame(kMaxFrames);
     for (int64_t v = slab_begin[s]; v < slab_begin[s + 1]; ++v) {
-      const Eigen::Vector3d centre = candidates.VoxelCenter(v);
-      int k = 0;
-      double sum = 0.0;
-      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
-        const int f = __builtin_ctz(bits);
-        if (ObserveSample(frames[f], frame_from_world[f], centre, &value[k], &jacobian[k])) {
-          frame[k] = f;
-          sum += value[k];
-          ++k;
-        }
-      }
+      double mean = 0.0;
+      const int k = ObserveVoxel(frames, candidates, frame_from_world, v, value.data(),
+                                 jacobian.data(), frame.data(), &mean);
       if (k < 2) continue;
-      const double mean = sum / k;
       const int64_t l = candidates.voxel[v];
       const int64_t j = (l % nxy) / nx, i = l % nx;
       const int64_t cluster = (j / kClusterVoxels) * cx + i / kClusterVoxels;
@@ -149,18 +165,10 @@ Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
     RowVector6d value_derivative[kMaxFrames];  // d value / d delta, by differences
     for (int64_t v = b * block_size; v < std::min(count, (b + 1) * block_size); ++v) {
       const Eigen::Vector3d centre = candidates.VoxelCenter(v);
-      int k = 0;
-      double sum = 0.0;
-      for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
-        const int f = __builtin_ctz(bits);
-        if (ObserveSample(frames[f], frame_from_world[f], centre, &value[k], &jacobian[k])) {
-          frame[k] = f;
-          sum += value[k];
-          ++k;
-        }
-      }
+      double mean = 0.0;
+      const int k = ObserveVoxel(frames, candidates, frame_from_world, v, value, jacobian, frame,
+                                 &mean);
       if (k < 2) continue;
-      const double mean = sum / k;
       for (int a = 0; a < k; ++a) {
         const int f = frame[a];
         const Vector6d at = jacobian[a].transpose() * (value[a] - mean);
@@ -235,8 +243,9 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
   const int m = static_cast<int>(frames.size());
   const int n = 6 * (m - 1);
   ReducedSystem system;
+  // Cost, observations and voxels only: the covariance uses GradientJacobian, not H.
   AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
-                          /*with_jacobian=*/true, num_threads, &system);
+                          /*with_jacobian=*/false, num_threads, &system);
   const int64_t dof = system.observations - system.voxels - n;
   if (dof < n) {
     *why = "too few observations (" + std::to_string(system.observations) +
