@@ -49,9 +49,26 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
   g.spacing_mm = frames[0].geometry().spacing_mm * spacing_factor;
   g.direction.setIdentity();
   g.origin_mm = box.min();
+  // Where frame 0's voxel lattice is axis-aligned in world (its axes are world axes, up to
+  // sign), the origin moves down to half a voxel off that lattice. Frame 0 is sampled at
+  // one constant offset per axis; only 0 and 1/2 make trilinear interpolation a symmetric
+  // filter, any other offset shifts frame 0's content and every frame-0-relative pose with
+  // it; 0 would leave frame 0 uninterpolated, sharper and noisier than the other frames
+  // (docs/design.md section 2.5).
+  const ImageGeometry& g0 = frames[0].geometry();
+  const Eigen::Isometry3d world_from_frame0 = frame_from_world[0].inverse();
+  const Eigen::Matrix3d axes0 = world_from_frame0.linear() * g0.direction;
+  if ((axes0.cwiseAbs() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-9) {
+    const Eigen::Vector3d anchor = world_from_frame0 * g0.IndexToPhysical(Eigen::Vector3d::Zero());
+    for (int a = 0; a < 3; ++a) {
+      const double step = g0.spacing_mm[a];
+      g.origin_mm[a] =
+          anchor[a] + step * (std::floor((box.min()[a] - anchor[a]) / step - 0.5 + 1e-9) + 0.5);
+    }
+  }
   double num_voxels = 1.0;
   for (int a = 0; a < 3; ++a) {
-    const double n = std::ceil((box.max()[a] - box.min()[a]) / g.spacing_mm[a] - 1e-9) + 1.0;
+    const double n = std::ceil((box.max()[a] - g.origin_mm[a]) / g.spacing_mm[a] - 1e-9) + 1.0;
     num_voxels *= n;
     g.size[a] = static_cast<int>(std::min(n, 2e9));
   }

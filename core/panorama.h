@@ -2,7 +2,9 @@
 //
 // Grid: axis-aligned in world (identity direction), spacing = frame 0 spacing times
 // `spacing_factor`, extent = the bounding box of every frame's valid field of view mapped
-// to world by the given poses. Voxel centres are p_j = origin + spacing .* ijk.
+// to world by the given poses; the origin sits half a voxel off frame 0's lattice on every
+// axis when frame 0's axes are world axes (docs/design.md section 2.5). Voxel centres are
+// p_j = origin + spacing .* ijk.
 #ifndef DSR_CORE_PANORAMA_H_
 #define DSR_CORE_PANORAMA_H_
 

@@ -203,7 +203,9 @@ TEST(Theorem, FullSolvesOfBothModesConvergeToTheSamePoses) {
     const auto init = Perturbed(s.ground_truth, 0.02, 0.5, seed++);
     const CandidateSet cand = InteriorCandidates(s, init, 1.5);
     ASSERT_GT(cand.num_voxels(), 200);
-    const ModePoses converged = SolveAllModes(s, cand, init, 200);
+    // DSR needs up to ~600 iterations here (DBA took 571 on the second case): the Gauss-Newton
+    // model of interpolated central differences converges only linearly on the exact cost.
+    const ModePoses converged = SolveAllModes(s, cand, init, 1000);
     // Frames are 1 mm voxels: 1e-6 voxel = 1e-6 mm.
     for (const auto* other : {&converged.dsr_fast, &converged.dsr_reference}) {
       const auto [rotation, translation] = MaxPoseDifference(converged.dba, *other);

@@ -53,11 +53,61 @@ TEST(BuildPanoramaGrid, CoversEveryFieldOfView) {
   ImageGeometry grid;
   std::string error;
   ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error)) << error;
-  EXPECT_EQ(grid.size, Eigen::Vector3i(15, 10, 10));
-  EXPECT_LT(grid.origin_mm.norm(), 1e-12);
+  // The valid fields of view span world [0, 14] x [0, 9] x [0, 9]; the origin is half a
+  // frame-0 voxel below that box's minimum (frame 0's voxels sit at whole mm).
+  EXPECT_EQ(grid.size, Eigen::Vector3i(16, 11, 11));
+  EXPECT_LT((grid.origin_mm - Eigen::Vector3d::Constant(-0.5)).norm(), 1e-12);
   EXPECT_TRUE(grid.direction.isIdentity());
   ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 2.0, &grid, &error)) << error;
-  EXPECT_EQ(grid.size, Eigen::Vector3i(8, 6, 6));  // 14/2 + 1, 9/2 rounded up + 1
+  EXPECT_LT((grid.origin_mm - Eigen::Vector3d::Constant(-0.5)).norm(), 1e-12);
+  EXPECT_EQ(grid.size, Eigen::Vector3i(9, 6, 6));  // 14.5/2 and 9.5/2 rounded up, + 1
+}
+
+// Frame 0 (the world) is sampled half a voxel off its own lattice on every axis, wherever
+// the box starts: a constant offset other than 0 or 1/2 makes trilinear interpolation
+// shift frame 0's content, which every frame-0-relative pose would inherit.
+TEST(BuildPanoramaGrid, SamplesFrame0HalfwayBetweenItsVoxels) {
+  for (const Eigen::Vector3d& shift :
+       {Eigen::Vector3d(-5.3, 0.2, 7.9), Eigen::Vector3d(3.0, -2.75, 0.4)}) {
+    TwoFrames t = MakeTwoFrames(1, 2);
+    t.poses[1] = Translation(shift.x(), shift.y(), shift.z());
+    for (double factor : {1.0, 2.0, 0.7}) {
+      ImageGeometry grid;
+      std::string error;
+      ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, factor, &grid, &error)) << error;
+      const Eigen::Vector3d u = t.frames[0].geometry().PhysicalToIndex(grid.origin_mm);
+      for (int a = 0; a < 3; ++a) {
+        EXPECT_NEAR(u[a] - std::floor(u[a]), 0.5, 1e-9) << "axis " << a << " factor " << factor;
+        // Still the smallest such origin that covers every field of view.
+        const double box_min = std::min(0.0, -shift[a]);
+        EXPECT_LE(grid.origin_mm[a], box_min + 1e-12);
+        EXPECT_GT(grid.origin_mm[a], box_min - 1.0);
+        const double box_max = std::max(9.0, 9.0 - shift[a]);
+        EXPECT_GE(grid.origin_mm[a] + (grid.size[a] - 1) * grid.spacing_mm[a], box_max - 1e-9);
+      }
+    }
+  }
+}
+
+// A frame 0 whose axes are not world axes has no lattice to align to: the origin is the
+// box's minimum, as for any other placement.
+TEST(BuildPanoramaGrid, RotatedFrame0KeepsTheBoxMinimum) {
+  TwoFrames t = MakeTwoFrames(1, 2);
+  const Eigen::Isometry3d rotation(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()));
+  t.poses = {rotation, rotation * t.poses[1]};
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error)) << error;
+  Eigen::AlignedBox3d box;
+  for (int i = 0; i < 2; ++i) {
+    for (int c = 0; c < 8; ++c) {
+      const Eigen::Vector3d corner =
+          Eigen::AlignedBox3d(Eigen::Vector3d::Zero(), Eigen::Vector3d::Constant(9.0))
+              .corner(static_cast<Eigen::AlignedBox3d::CornerType>(c));
+      box.extend(t.poses[i].inverse() * corner);
+    }
+  }
+  EXPECT_LT((grid.origin_mm - box.min()).norm(), 1e-9);
 }
 
 TEST(BuildPanoramaGrid, RefusesAbsurdSizes) {
@@ -79,11 +129,12 @@ TEST(BuildCandidates, KeepsVoxelsWithTwoCandidateObservers) {
   EXPECT_EQ(c0.num_voxels(), 4 * 9 * 9);
   EXPECT_EQ(c0.NumObservations(), 2 * 4 * 9 * 9);
   for (uint32_t bits : c0.observers) EXPECT_EQ(bits, 3u);
-  const Eigen::Vector3d first = c0.VoxelCenter(0);
-  EXPECT_LT((first - Eigen::Vector3d(5, 0, 0)).norm(), 1e-12);
-  // A margin of 1 cell adds one layer on each side of each frame's valid region.
+  const Eigen::Vector3d first = c0.VoxelCenter(0);  // voxels at half-integer mm
+  EXPECT_LT((first - Eigen::Vector3d(5.5, 0.5, 0.5)).norm(), 1e-12);
+  // A margin of 1 cell adds one layer on each side of each frame's valid region: world
+  // x in [4, 10] (6 voxel centres), y and z in [-1, 10] (11).
   const CandidateSet c1 = BuildCandidates(t.frames, t.poses, grid, 1);
-  EXPECT_EQ(c1.num_voxels(), 6 * 10 * 10);
+  EXPECT_EQ(c1.num_voxels(), 6 * 11 * 11);
 }
 
 TEST(CheckConnected, NamesFramesWithoutOverlap) {
@@ -116,8 +167,8 @@ TEST(FusePanoramaMean, AveragesTheObservingFrames) {
     EXPECT_FLOAT_EQ(p.mean.at(6, 1, 1), 15.0f);
     EXPECT_EQ(p.count.at(6, 1, 1), 2);
     EXPECT_FLOAT_EQ(p.mean.at(12, 1, 1), 20.0f);
-    EXPECT_EQ(p.count.at(14, 9, 9), 0);
-    EXPECT_FLOAT_EQ(p.mean.at(14, 9, 9), 0.0f);
+    EXPECT_EQ(p.count.at(15, 10, 10), 0);  // world (14.5, 9.5, 9.5): outside both
+    EXPECT_FLOAT_EQ(p.mean.at(15, 10, 10), 0.0f);
   }
 }
 
