@@ -7,7 +7,11 @@ time medians are over the successful runs, the max TRE over every run that retur
 With dsr_compare --uncertainty (bench/accuracy.sh --uncertainty) a second table compares the
 predicted with the measured error over the successful runs: the mean predicted and measured
 TRE, their ratio, and the mean normalised squared pose error e^T C^-1 e over 6 (1 when the
-covariance is calibrated; docs/design.md section 8.6).
+covariance is calibrated; docs/design.md section 8.6), and the spread of the per-sequence
+ratio measured / predicted TRE (its range, and how many sequences exceed 1.2).
+With several methods on the same sequences a head-to-head table compares the first method
+with each other one on the sequences where both succeed: on how many the first is more
+accurate, and the median and largest per-sequence TRE ratio first / other.
 """
 import csv
 import statistics
@@ -30,6 +34,7 @@ def main(argv):
           "| median time (s) | failures |")
     print("|---|---|---|---|---|---|---|---|---|")
     calibration = []
+    head_to_head = []
     for source, protocol, masks, path in groups:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
@@ -51,17 +56,43 @@ def main(argv):
             nees = [float(r["nees"]) for r in ok if r.get("nees")]
             if predicted and len(predicted) == len(ok):
                 measured = statistics.mean(tre_ok)
+                ratios = [t / p for t, p in zip(tre_ok, predicted)]
                 calibration.append(
                     f"| {method} | {source} | {protocol} | {masks} | {len(ok)} | "
                     f"{statistics.mean(predicted):.4f} | {measured:.4f} | "
                     f"{measured / statistics.mean(predicted):.2f} | "
-                    f"{statistics.mean(nees) / 6.0:.2f} |")
+                    f"{statistics.mean(nees) / 6.0:.2f} | "
+                    f"{min(ratios):.2f}-{max(ratios):.2f} | "
+                    f"{sum(r > 1.2 for r in ratios)}/{len(ratios)} |")
+        methods = list(by_method)
+        succeeded = {m: {r["sequence"]: float(r["tre_mean_mm"]) for r in by_method[m]
+                         if r["ok"] == "1" and float(r["tre_mean_mm"]) < SUCCESS_TRE_MM}
+                     for m in methods}
+        for other in methods[1:]:
+            first = methods[0]
+            both = sorted(set(succeeded[first]) & set(succeeded[other]))
+            if not both:
+                continue
+            ratio = [succeeded[first][q] / succeeded[other][q] for q in both]
+            wins = sum(r < 1.0 for r in ratio)
+            head_to_head.append(
+                f"| {first} vs {other} | {source} | {protocol} | {masks} | {wins}/{len(both)} | "
+                f"{statistics.median(ratio):.2f} | {max(ratio):.2f} |")
     if calibration:
         print("\nPredicted against measured error (calibrated: both ratios within [0.7, 1.5]).\n")
         print("| method | source | protocol | masks | runs | predicted TRE (mm) | measured TRE (mm) "
-              "| measured / predicted | mean e^T C^-1 e / 6 |")
-        print("|---|---|---|---|---|---|---|---|---|")
+              "| measured / predicted | mean e^T C^-1 e / 6 | per-sequence ratio "
+              "| sequences above 1.2 |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
         for line in calibration:
+            print(line)
+    if head_to_head:
+        print("\nHead to head on the sequences where both succeed (TRE ratio < 1: the first "
+              "method is more accurate).\n")
+        print("| methods | source | protocol | masks | first more accurate | median TRE ratio "
+              "| max TRE ratio |")
+        print("|---|---|---|---|---|---|---|")
+        for line in head_to_head:
             print(line)
 
 

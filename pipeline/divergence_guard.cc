@@ -76,11 +76,12 @@ double LowerQuartile(const std::vector<double>& values) {
   return sorted[(sorted.size() - 1) / 4];
 }
 
-bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why) {
-  if (!(max_ratio > 0.0) || misfits.empty()) return false;
+bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why,
+                   const std::vector<bool>* exempt) {
+  const std::vector<int> outliers = MisfitOutliers(misfits, max_ratio, exempt);
+  if (outliers.empty()) return false;
   const double reference = LowerQuartile(misfits);
-  const size_t worst = std::max_element(misfits.begin(), misfits.end()) - misfits.begin();
-  if (!(misfits[worst] > max_ratio * reference)) return false;
+  const int worst = outliers.front();
   std::ostringstream s;
   s.precision(3);
   s << "frame " << worst << " does not match the others at the final poses: its RMS "
@@ -91,11 +92,13 @@ bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::st
   return true;
 }
 
-std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio) {
+std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio,
+                                const std::vector<bool>* exempt) {
   std::vector<int> outliers;
   if (!(max_ratio > 0.0) || misfits.empty()) return outliers;
   const double reference = LowerQuartile(misfits);
   for (size_t i = 0; i < misfits.size(); ++i) {
+    if (exempt != nullptr && (*exempt)[i]) continue;
     if (misfits[i] > max_ratio * reference) outliers.push_back(static_cast<int>(i));
   }
   std::stable_sort(outliers.begin(), outliers.end(),

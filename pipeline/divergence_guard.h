@@ -57,10 +57,15 @@ double LowerQuartile(const std::vector<double>& values);
 // being off): that frame does not agree with the others, typically
 // a wrong local minimum that still overlaps them (which the overlap guard below cannot
 // see). max_ratio 0 never reports.
-bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why);
+// Frames marked in `exempt` (when given; one entry per frame) are never the outlier; the
+// lower quartile is still over every frame.
+bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::string* why,
+                   const std::vector<bool>* exempt = nullptr);
 // Every frame whose misfit exceeds max_ratio times the lower quartile, worst first (empty
-// when max_ratio is 0): the frames recovery re-places (init/recovery.h).
-std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio);
+// when max_ratio is 0), except those marked in `exempt`: the frames recovery re-places
+// (init/recovery.h).
+std::vector<int> MisfitOutliers(const std::vector<double>& misfits, double max_ratio,
+                                const std::vector<bool>* exempt = nullptr);
 
 class DivergenceGuard {
  public:

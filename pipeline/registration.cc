@@ -289,14 +289,16 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
 
 // The coarse-to-fine solves from `start_poses`: every level's solves with candidate
 // rebuilds, the divergence guard at each rebuild and the checks of the final poses; with
-// `check_every_level`, the misfit check also after each coarse level. Returns false for
-// bad input or set-up problems; a registration that is not usable returns true with
-// result->usable = false, result->failure and result->flagged_frames.
+// `check_every_level`, the misfit check also after each coarse level; frames marked in
+// `misfit_exempt` are never the misfit check's outlier. Returns false for bad input or
+// set-up problems; a registration that is not usable returns true with result->usable =
+// false, result->failure and result->flagged_frames.
 bool SolveLevels(const std::vector<Image>& images,
                  const std::vector<Mask>& masks,
                  const std::vector<Eigen::Isometry3d>& start_poses,
                  const RegistrationOptions& options,
                  bool check_every_level,
+                 const std::vector<bool>& misfit_exempt,
                  const std::vector<Frame>& search_frames,
                  Pyramids* pyramids,
                  RegistrationResult* result,
@@ -305,6 +307,7 @@ bool SolveLevels(const std::vector<Image>& images,
   std::vector<Eigen::Isometry3d> poses = start_poses;
   result->usable = true;
   result->flagged_frames.clear();
+  result->flagged_by_misfit = false;
   result->failure.clear();
   bool determined_checked = false;
   DivergenceGuard guard(options.min_kept_overlap);
@@ -450,8 +453,10 @@ bool SolveLevels(const std::vector<Image>& images,
         const std::vector<double> misfits =
             FrameMisfits(frames, last_candidates, poses, options.solve.num_threads);
         std::string why;
-        if (MisfitOutlier(misfits, options.max_misfit_ratio, &why)) {
-          return diverged(level, why, MisfitOutliers(misfits, options.max_misfit_ratio));
+        if (MisfitOutlier(misfits, options.max_misfit_ratio, &why, &misfit_exempt)) {
+          result->flagged_by_misfit = true;
+          return diverged(level, why,
+                          MisfitOutliers(misfits, options.max_misfit_ratio, &misfit_exempt));
         }
         std::vector<int> flagged;
         if (PairDisagreement(PairMismatches(search_frames, poses, options.solve.num_threads), m,
@@ -494,8 +499,10 @@ bool SolveLevels(const std::vector<Image>& images,
       result->frame_misfits =
           FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
     }
-    if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why)) {
-      return diverged(0, why, MisfitOutliers(result->frame_misfits, options.max_misfit_ratio));
+    if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why, &misfit_exempt)) {
+      result->flagged_by_misfit = true;
+      return diverged(0, why, MisfitOutliers(result->frame_misfits, options.max_misfit_ratio,
+                                             &misfit_exempt));
     }
     std::vector<int> flagged;
     if (PairDisagreement(PairMismatches(search_frames, poses, options.solve.num_threads), m,
@@ -591,9 +598,10 @@ bool RegisterScaled(const std::vector<Image>& images,
     result->init_frame_from_world = start_poses;
   }
   std::vector<Eigen::Isometry3d> poses = start_poses;
+  std::vector<bool> misfit_exempt(m, false);
   for (int round = 0;; ++round) {
-    if (!SolveLevels(images, masks, poses, options, options.max_recoveries > 0, search_frames,
-                     &pyramids, result, error)) {
+    if (!SolveLevels(images, masks, poses, options, options.max_recoveries > 0, misfit_exempt,
+                     search_frames, &pyramids, result, error)) {
       return false;
     }
     if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty()) {
@@ -621,11 +629,18 @@ bool RegisterScaled(const std::vector<Image>& images,
                         options.search, &next, &recovery.frames, &why)) {
         moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
                             [](const FrameReplacement& f) { return f.moved; });
+        // Every frame the misfit check named is where the search would put it: its misfit
+        // comes from its content (contrast, noise, what its field of view cuts), not from a
+        // wrong minimum. Go on from the same poses without checking those frames' misfit.
+        if (!moved && result->flagged_by_misfit) {
+          for (int f : result->flagged_frames) misfit_exempt[f] = true;
+          recovery.misfit_accepted = true;
+        }
       } else {
         LOG(INFO) << why;
       }
     }
-    if (!moved && !global_used) {
+    if (!moved && !recovery.misfit_accepted && !global_used) {
       global_used = true;
       recovery.global = true;
       if (!global_poses(&next)) {
@@ -637,7 +652,7 @@ bool RegisterScaled(const std::vector<Image>& images,
     }
     recovery.seconds = Seconds(recovery_start);
     result->recoveries.push_back(recovery);
-    if (!moved) break;  // nothing better was found: the failure stands
+    if (!moved && !recovery.misfit_accepted) break;  // nothing better: the failure stands
     poses = RelativeToFrame0(next);
   }
   result->seconds = Seconds(start);

@@ -129,8 +129,10 @@ struct RegistrationResult {
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
   int total_iterations = 0;
-  // Frames the checks named when not usable (a wrong minimum, or slid out of the overlap).
+  // Frames the checks named when not usable (a wrong minimum, or slid out of the overlap),
+  // and whether the misfit check named them.
   std::vector<int> flagged_frames;
+  bool flagged_by_misfit = false;
   // The initialiser's run (InitialPoses other than kGiven), not counted above.
   double init_seconds = 0.0;
   int init_iterations = 0;
@@ -143,6 +145,11 @@ struct RegistrationResult {
     // than a third were flagged), and whether every frame was then placed by the pair graph.
     std::vector<FrameReplacement> frames;
     bool global = false;
+    // Every frame the misfit check flagged was kept (it matches the panorama of the others
+    // as well as a re-placed frame would): a frame whose content gives it a high misfit,
+    // not a wrong minimum. Those frames are exempt from the misfit check from here on, and
+    // the registration goes on from the same poses.
+    bool misfit_accepted = false;
     double seconds = 0.0;  // the search (the solves that follow are counted above)
   };
   std::vector<Recovery> recoveries;

@@ -140,5 +140,22 @@ TEST(MisfitOutlier, ComparesTheWorstFrameWithTheMedian) {
   EXPECT_FALSE(MisfitOutlier({5.0, 5.0}, 2.0, &why));
 }
 
+// Exempt frames are never the outlier, but still count towards the lower quartile.
+TEST(MisfitOutlier, SkipsExemptFrames) {
+  std::string why;
+  const std::vector<double> misfits = {10.0, 11.0, 40.0, 12.0, 30.0};
+  const std::vector<bool> exempt_2 = {false, false, true, false, false};
+  EXPECT_TRUE(MisfitOutlier(misfits, 2.0, &why, &exempt_2));
+  EXPECT_NE(why.find("frame 4 does not match"), std::string::npos) << why;
+  EXPECT_EQ(MisfitOutliers(misfits, 2.0, &exempt_2), std::vector<int>({4}));
+  EXPECT_EQ(MisfitOutliers(misfits, 2.0), std::vector<int>({2, 4}));
+  const std::vector<bool> exempt_2_4 = {false, false, true, false, true};
+  EXPECT_FALSE(MisfitOutlier(misfits, 2.0, &why, &exempt_2_4));
+  EXPECT_TRUE(MisfitOutliers(misfits, 2.0, &exempt_2_4).empty());
+  // Exempting the low frames leaves the reference where it was: frame 3 (12) passes.
+  const std::vector<bool> exempt_low = {true, true, false, false, false};
+  EXPECT_EQ(MisfitOutliers(misfits, 2.0, &exempt_low), std::vector<int>({2, 4}));
+}
+
 }  // namespace
 }  // namespace dsr

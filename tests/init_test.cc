@@ -283,6 +283,43 @@ TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
   EXPECT_LT(LogSO3(error_pose.linear()).norm(), 2.0 * kDegree);
 }
 
+// A frame at its right pose whose misfit is high for another reason (here three times the
+// others' noise) is flagged by the misfit check; recovery finds no better placement for it,
+// accepts its misfit and goes on, instead of failing after the pair graph gives the same
+// poses again.
+TEST(Recovery, AcceptsTheMisfitOfAFrameTheSearchKeeps) {
+  SimulatedSequence s = SmallSequence(3);
+  const int noisy = 2;
+  std::mt19937 rng(7);
+  std::normal_distribution<double> noise(0.0, 30.0);
+  for (size_t l = 0; l < s.frames[noisy].voxels.size(); ++l) {
+    if (s.masks[noisy].voxels[l] != 0) {
+      s.frames[noisy].voxels[l] = static_cast<float>(s.frames[noisy].voxels[l] + noise(rng));
+    }
+  }
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  RegistrationOptions o = SmallOptions();
+  RegistrationResult refused;
+  std::string error;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &refused, &error)) << error;
+  ASSERT_FALSE(refused.usable);
+  EXPECT_TRUE(refused.flagged_by_misfit);
+  EXPECT_EQ(refused.flagged_frames, std::vector<int>({noisy})) << refused.failure;
+
+  o.max_recoveries = 2;
+  RegistrationResult accepted;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &accepted, &error)) << error;
+  ASSERT_TRUE(accepted.usable) << accepted.failure;
+  ASSERT_EQ(accepted.recoveries.size(), 1u);
+  const RegistrationResult::Recovery& r = accepted.recoveries.front();
+  EXPECT_TRUE(r.misfit_accepted);
+  EXPECT_FALSE(r.global);
+  ASSERT_EQ(r.frames.size(), 1u);
+  EXPECT_EQ(r.frames[0].frame, noisy);
+  EXPECT_FALSE(r.frames[0].moved);
+  EXPECT_LT(ComparePoses(accepted.frame_from_world, s.frame_from_world, s.masks).tre_mean_mm, 0.1);
+}
+
 // Recovery changes nothing where nothing is flagged: the same poses, bit for bit.
 TEST(Recovery, LeavesAGoodRegistrationAlone) {
   const SimulatedSequence s = SmallSequence(3);

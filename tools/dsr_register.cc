@@ -373,6 +373,10 @@ int Main(int argc, char** argv) {
       frames += line;
     }
     if (r.global) frames += std::string(frames.empty() ? "" : "; ") + "every frame placed by the pair graph";
+    if (r.misfit_accepted) {
+      frames += std::string(frames.empty() ? "" : "; ") +
+                "misfit of the kept frames accepted, the registration goes on";
+    }
     std::printf("dsr_register: recovery after pyramid level %d (%.2f s): %s; because %s\n",
                 r.after_level, r.seconds, frames.c_str(), r.why.c_str());
   }
