@@ -629,10 +629,16 @@ bool RegisterScaled(const std::vector<Image>& images,
                         options.search, &next, &recovery.frames, &why)) {
         moved = std::any_of(recovery.frames.begin(), recovery.frames.end(),
                             [](const FrameReplacement& f) { return f.moved; });
-        // Every frame the misfit check named is where the search would put it: its misfit
-        // comes from its content (contrast, noise, what its field of view cuts), not from a
-        // wrong minimum. Go on from the same poses without checking those frames' misfit.
-        if (!moved && result->flagged_by_misfit) {
+        // Every frame the misfit check named matches the panorama of the others as well as
+        // they match each other (kept without a search): its misfit comes from its content
+        // (contrast, noise, what its field of view cuts), not from a wrong minimum. Go on
+        // from the same poses without checking those frames' misfit. A frame kept after a
+        // search found nothing better is no such evidence (its NCC is below the others';
+        // the panorama may be what misleads the search): the pair graph follows.
+        const bool all_match = std::none_of(
+            recovery.frames.begin(), recovery.frames.end(),
+            [](const FrameReplacement& f) { return f.moved || f.searched; });
+        if (all_match && result->flagged_by_misfit) {
           for (int f : result->flagged_frames) misfit_exempt[f] = true;
           recovery.misfit_accepted = true;
         }

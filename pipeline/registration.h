@@ -145,10 +145,10 @@ struct RegistrationResult {
     // than a third were flagged), and whether every frame was then placed by the pair graph.
     std::vector<FrameReplacement> frames;
     bool global = false;
-    // Every frame the misfit check flagged was kept (it matches the panorama of the others
-    // as well as a re-placed frame would): a frame whose content gives it a high misfit,
-    // not a wrong minimum. Those frames are exempt from the misfit check from here on, and
-    // the registration goes on from the same poses.
+    // Every frame the misfit check flagged was kept without a search (it matches the
+    // panorama of the others as well as they match each other): a frame whose content gives
+    // it a high misfit, not a wrong minimum. Those frames are exempt from the misfit check
+    // from here on, and the registration goes on from the same poses.
     bool misfit_accepted = false;
     double seconds = 0.0;  // the search (the solves that follow are counted above)
   };
