@@ -68,6 +68,7 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& start_frame_from_world,
                    const std::vector<int>& flagged,
                    const PlacementSearchOptions& options,
+                   int max_searches,
                    std::vector<Eigen::Isometry3d>* replaced,
                    std::vector<FrameReplacement>* records,
                    std::string* error) {
@@ -97,15 +98,26 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
   }
   const double reference = ReferenceNcc(passed, passed_poses, options);
 
+  // World = the panorama's physical space, so moving_from_fixed is frame_from_world.
+  std::vector<double> ncc_before(m, 0.0);
+  int searches = 0;
+  for (int f : flagged) {
+    ncc_before[f] = ScorePlacement(panorama, frames[f], frame_from_world[f],
+                                   ScoreMinOverlap(options)).ncc;
+    if (!(std::isfinite(reference) && ncc_before[f] >= reference - kKeepNccMargin)) ++searches;
+  }
+  if (max_searches >= 0 && searches > max_searches) {
+    *error = "recovery: " + std::to_string(searches) + " flagged frames need a search (more "
+             "than " + std::to_string(max_searches) + ")";
+    return false;
+  }
   *replaced = frame_from_world;
   records->clear();
   for (int f : flagged) {
-    // World = the panorama's physical space, so moving_from_fixed is frame_from_world.
     const Eigen::Isometry3d current = frame_from_world[f];
     FrameReplacement record;
     record.frame = f;
-    record.ncc_before =
-        ScorePlacement(panorama, frames[f], current, ScoreMinOverlap(options)).ncc;
+    record.ncc_before = ncc_before[f];
     record.ncc_after = record.ncc_before;
     record.reference_ncc = reference;
     if (std::isfinite(reference) && record.ncc_before >= reference - kKeepNccMargin) {

@@ -45,11 +45,16 @@ struct FrameReplacement {
 // `start_frame_from_world` (where the solve that flagged it began: a frame that slid away
 // during a solve was often started in the right basin), each refined against the panorama
 // and ranked by NCC.
+//
+// When more than `max_searches` frames (>= 0; -1: no limit) would need a search, nothing is
+// searched and the result is false with `error` saying so: the caller's other remedy (the
+// pair graph) is then the cheaper one.
 bool ReplaceFrames(const std::vector<Frame>& frames,
                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                    const std::vector<Eigen::Isometry3d>& start_frame_from_world,
                    const std::vector<int>& flagged,
                    const PlacementSearchOptions& options,
+                   int max_searches,
                    std::vector<Eigen::Isometry3d>* replaced,
                    std::vector<FrameReplacement>* records,
                    std::string* error);

@@ -269,7 +269,13 @@ TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
   std::vector<FrameReplacement> records;
   std::string error;
   // The solve "started" at the wrong poses too: the search alone has to find frame 3.
-  ASSERT_TRUE(ReplaceFrames(frames, poses, poses, {off, 1}, search, &replaced, &records, &error))
+  // Frame 3 needs a search: with none allowed, nothing is searched.
+  EXPECT_FALSE(ReplaceFrames(frames, poses, poses, {off, 1}, search, 0, &replaced, &records,
+                             &error));
+  EXPECT_NE(error.find("1 flagged frames need a search (more than 0)"), std::string::npos)
+      << error;
+  ASSERT_TRUE(ReplaceFrames(frames, poses, poses, {off, 1}, search, 1, &replaced, &records,
+                            &error))
       << error;
   ASSERT_EQ(records.size(), 2u);
   EXPECT_TRUE(records[0].moved);
