@@ -138,6 +138,40 @@ bool CheckRigid(const Eigen::Matrix4d& m, const std::string& where, std::string*
   return true;
 }
 
+// Reads the optional number `key` ("gain" or "offset") of frame f into `values`, which
+// must end up with one value per frame or none; finite, and > 0 when `positive` (a gain).
+// `where` is "<path>: frame <f>: ".
+bool ReadOptionalNumber(const Json& frame,
+                        const char* key,
+                        bool positive,
+                        size_t f,
+                        const std::string& where,
+                        std::vector<double>* values,
+                        std::string* error) {
+  const auto it = frame.find(key);
+  const bool present = it != frame.end();
+  const std::string quoted = std::string("\"") + key + "\"";
+  if (f > 0 && present != (values->size() == f)) {
+    *error = where + (present ? "has " + quoted + " but frame 0 has none"
+                              : "missing " + quoted + ", which frame 0 has") +
+             " (give it on every frame or on none)";
+    return false;
+  }
+  if (!present) return true;
+  if (!it->is_number()) {
+    *error = where + quoted + " must be a number, got " + it->type_name();
+    return false;
+  }
+  const double value = it->get<double>();
+  if (!std::isfinite(value) || (positive && !(value > 0.0))) {
+    *error = where + quoted + " must be " + (positive ? "finite and > 0" : "finite") + " (got " +
+             Number(value) + ")";
+    return false;
+  }
+  values->push_back(value);
+  return true;
+}
+
 }  // namespace
 
 bool ReadPoses(const std::string& path, int expected_frames, PosesFile* poses, std::string* error) {
@@ -203,6 +237,10 @@ bool ReadPoses(const std::string& path, int expected_frames, PosesFile* poses, s
         kOrthonormalAsIs) {
       frame_from_world = Orthonormalized(frame_from_world);
     }
+    if (!ReadOptionalNumber(frame, "gain", /*positive=*/true, f, where, &out.gain, error) ||
+        !ReadOptionalNumber(frame, "offset", /*positive=*/false, f, where, &out.offset, error)) {
+      return false;
+    }
     out.images.push_back(image);
     out.frame_from_world.push_back(frame_from_world);
   }
@@ -217,6 +255,8 @@ std::string PosesToJson(const PosesFile& poses) {
   const size_t m = poses.frame_from_world.size();
   CHECK(poses.covariance.empty() || poses.covariance.size() == m);
   CHECK(poses.predicted_tre_mm.empty() || poses.predicted_tre_mm.size() == m);
+  CHECK(poses.gain.empty() || poses.gain.size() == m);
+  CHECK(poses.offset.empty() || poses.offset.size() == m);
   Json frames = Json::array();
   for (size_t f = 0; f < m; ++f) {
     const Eigen::Matrix4d t_matrix = poses.frame_from_world[f].matrix();
@@ -237,6 +277,8 @@ std::string PosesToJson(const PosesFile& poses) {
       frame["covariance"] = std::move(c);
     }
     if (!poses.predicted_tre_mm.empty()) frame["predicted_tre_mm"] = poses.predicted_tre_mm[f];
+    if (!poses.gain.empty()) frame["gain"] = poses.gain[f];
+    if (!poses.offset.empty()) frame["offset"] = poses.offset[f];
     frames.push_back(std::move(frame));
   }
   Json doc = Json::object();
@@ -248,6 +290,11 @@ std::string PosesToJson(const PosesFile& poses) {
 }
 
 bool WritePoses(const PosesFile& poses, const std::string& path, std::string* error) {
+  const size_t m = poses.frame_from_world.size();
+  CHECK(poses.covariance.empty() || poses.covariance.size() == m);
+  CHECK(poses.predicted_tre_mm.empty() || poses.predicted_tre_mm.size() == m);
+  CHECK(poses.gain.empty() || poses.gain.size() == m);
+  CHECK(poses.offset.empty() || poses.offset.size() == m);
   for (size_t f = 0; f < poses.frame_from_world.size(); ++f) {
     const std::string where = path + ": frame " + std::to_string(f) + ": ";
     if (!poses.frame_from_world[f].matrix().allFinite()) {
@@ -257,6 +304,11 @@ bool WritePoses(const PosesFile& poses, const std::string& path, std::string* er
     if ((!poses.covariance.empty() && !poses.covariance[f].allFinite()) ||
         (!poses.predicted_tre_mm.empty() && !std::isfinite(poses.predicted_tre_mm[f]))) {
       *error = where + "the covariance or predicted_tre_mm has a non-finite entry; not written";
+      return false;
+    }
+    if ((!poses.gain.empty() && !(std::isfinite(poses.gain[f]) && poses.gain[f] > 0.0)) ||
+        (!poses.offset.empty() && !std::isfinite(poses.offset[f]))) {
+      *error = where + "the gain is not finite and > 0 or the offset is not finite; not written";
       return false;
     }
   }

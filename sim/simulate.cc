@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <limits>
 #include <random>
 #include <sstream>
@@ -26,6 +27,43 @@ constexpr int kClampBisections = 50;
 // Rounding slack of the Euler-angle box test: angles recomputed from a rotation matrix that
 // was built from in-box angles may exceed the bound by a few ulps.
 constexpr double kEulerSlack = 1e-12;
+
+// Ranges of the ultrasound-like effects (simulate.h).
+constexpr double kMaxGainRange = 0.9;  // keeps every gain >= 0.1
+constexpr double kMaxOffsetRange = 100.0;
+constexpr int kMaxSpeckleLooks = 64;
+constexpr double kMaxSpeckleCorrelation = 4.0;
+constexpr double kMaxAttenuationDbPerCm = 10.0;
+
+// The speckle kernel is cut at this many standard deviations. The cut weights would carry
+// < 1e-4 of the kernel's squared sum; the kept ones are rescaled to a unit squared sum, so
+// the speckle's mean stays exactly 1 and the cut only trims the far tail of its
+// correlation.
+constexpr double kSpeckleKernelSigmas = 3.0;
+
+// Tags of the effects' random streams (ASCII "gain_off", "speckle_"). Fixed for good: they
+// decide every seed's gains, offsets and speckle.
+constexpr uint64_t kGainOffsetStream = 0x6761696e5f6f6666ull;
+constexpr uint64_t kSpeckleStream = 0x737065636b6c655full;
+
+// SplitMix64's output function: a bijection of 64-bit words in which every input bit
+// changes about half the output bits, so that neighbouring seeds and indices give unrelated
+// generator seeds.
+uint64_t Mix64(uint64_t x) {
+  x += 0x9e3779b97f4a7c15ull;
+  x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
+  x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
+  return x ^ (x >> 31);
+}
+
+// The seed of one effect's generator: the run's seed, the effect's tag and the indices
+// (frame, look, slice, ...) folded in one after the other. Independent of the
+// poses-and-noise generator, which is seeded with `seed` itself.
+uint64_t StreamSeed(uint64_t seed, uint64_t tag, std::initializer_list<uint64_t> indices) {
+  uint64_t h = Mix64(seed ^ Mix64(tag));
+  for (uint64_t index : indices) h = Mix64(h ^ Mix64(index));
+  return h;
+}
 
 // Translate(c_f) * R * Translate(t - c_s).
 Eigen::Isometry3d FrameFromWorld(const Eigen::Matrix3d& rotation,
@@ -242,6 +280,19 @@ bool SimulationOptions::Validate(std::string* error) const {
       << "]";
   } else if (*SourceInterpolationToString(interpolation) == '\0') {
     s << "--interpolation=" << static_cast<int>(interpolation) << ": must be linear or cubic";
+  } else if (!range(gain_range, 0.0, kMaxGainRange)) {
+    s << "--gain_range=" << gain_range << ": must be in [0, " << kMaxGainRange << "]";
+  } else if (!range(offset_range, 0.0, kMaxOffsetRange)) {
+    s << "--offset_range=" << offset_range << ": must be in [0, " << kMaxOffsetRange << "]";
+  } else if (speckle_looks < 0 || speckle_looks > kMaxSpeckleLooks) {
+    s << "--speckle_looks=" << speckle_looks << ": must be 0 (no speckle) or in [1, "
+      << kMaxSpeckleLooks << "]";
+  } else if (!range(speckle_correlation_voxels, 0.0, kMaxSpeckleCorrelation)) {
+    s << "--speckle_correlation_voxels=" << speckle_correlation_voxels << ": must be in [0, "
+      << kMaxSpeckleCorrelation << "]";
+  } else if (!range(attenuation_db_per_cm, 0.0, kMaxAttenuationDbPerCm)) {
+    s << "--attenuation_db_per_cm=" << attenuation_db_per_cm << ": must be in [0, "
+      << kMaxAttenuationDbPerCm << "]";
   } else {
     return true;
   }
@@ -307,6 +358,125 @@ std::vector<Eigen::Isometry3d> SimulatedPoses(const ImageGeometry& source,
   return DrawPoses(source, SimulatedFrameGeometry(source, options), options, &rng);
 }
 
+void Frame0IntensityCorrections(const std::vector<double>& gain,
+                                const std::vector<double>& offset,
+                                std::vector<double>* corrected_gain,
+                                std::vector<double>* corrected_offset) {
+  CHECK(corrected_gain != nullptr);
+  CHECK(corrected_offset != nullptr);
+  CHECK_EQ(gain.size(), offset.size());
+  CHECK(!gain.empty());
+  corrected_gain->assign(gain.size(), 1.0);
+  corrected_offset->assign(gain.size(), 0.0);
+  // Frame 0 is set, not computed: o_0 - g_0 o_0 / g_0 need not round to 0.
+  for (size_t i = 1; i < gain.size(); ++i) {
+    CHECK_GT(gain[i], 0.0) << "frame " << i;
+    (*corrected_gain)[i] = gain[0] / gain[i];
+    (*corrected_offset)[i] = offset[0] - gain[0] * offset[i] / gain[i];
+  }
+}
+
+Image SpeckleField(const ImageGeometry& g,
+                   const SimulationOptions& options,
+                   int frame_index,
+                   int num_threads) {
+  std::string error;
+  CHECK(options.Validate(&error)) << error;
+  CHECK_GE(options.speckle_looks, 1);
+  CHECK_GE(frame_index, 0);
+  const double c = options.speckle_correlation_voxels;
+  const int radius = static_cast<int>(std::ceil(kSpeckleKernelSigmas * c));
+  const int taps = 2 * radius + 1;
+  // 1-D weights exp(-d^2 / (2 c^2)), |d| <= radius, scaled to sum w_d^2 = 1: the 3-D kernel
+  // (their product) then has a unit squared sum, so a smoothed unit-variance white field
+  // keeps its variance, E|z|^2 = 1 (c = 0: the single weight 1, no smoothing).
+  std::vector<double> w(taps, 1.0);
+  if (radius > 0) {
+    double squares = 0.0;
+    for (int t = 0; t < taps; ++t) {
+      const double d = t - radius;
+      w[t] = std::exp(-d * d / (2.0 * c * c));
+      squares += w[t] * w[t];
+    }
+    for (double& weight : w) weight /= std::sqrt(squares);
+  }
+  // The white fields live on the frame grid padded by the radius on every side, so that
+  // every frame voxel sees the whole kernel (no border effects); the three separable
+  // passes each drop the padding of one axis. Complex values are stored interleaved
+  // [re, im], x fastest.
+  const Eigen::Vector3i& n = g.size;
+  const Eigen::Vector3i p = n + Eigen::Vector3i::Constant(2 * radius);
+  const int64_t p_slice = int64_t{p[0]} * p[1];
+  std::vector<double> white(2 * p_slice * p[2]);
+  std::vector<double> along_x(2 * int64_t{n[0]} * p[1] * p[2]);
+  std::vector<double> along_y(2 * int64_t{n[0]} * n[1] * p[2]);
+  std::vector<double> sum(g.NumVoxels(), 0.0);
+  for (int look = 0; look < options.speckle_looks; ++look) {
+    // One generator per padded slice (its re and im draws in voxel order), so the draws do
+    // not depend on which thread takes the slice.
+    ParallelFor(0, p[2], num_threads, [&](int64_t k) {
+      std::mt19937_64 rng(StreamSeed(options.seed,
+                                     kSpeckleStream,
+                                     {static_cast<uint64_t>(frame_index),
+                                      static_cast<uint64_t>(look),
+                                      static_cast<uint64_t>(k)}));
+      // Each component N(0, 1): |z|^2 / 2 then has mean 1 after the unit-norm kernel.
+      std::normal_distribution<double> normal(0.0, 1.0);
+      double* slice = white.data() + 2 * k * p_slice;
+      for (int64_t v = 0; v < 2 * p_slice; ++v) slice[v] = normal(rng);
+    });
+    ParallelFor(0, p[2], num_threads, [&](int64_t k) {
+      for (int j = 0; j < p[1]; ++j) {
+        const double* in = white.data() + 2 * (k * p_slice + int64_t{j} * p[0]);
+        double* out = along_x.data() + 2 * ((k * p[1] + j) * int64_t{n[0]});
+        for (int i = 0; i < n[0]; ++i) {
+          double re = 0.0, im = 0.0;
+          for (int t = 0; t < taps; ++t) {
+            re += w[t] * in[2 * (i + t)];
+            im += w[t] * in[2 * (i + t) + 1];
+          }
+          out[2 * i] = re;
+          out[2 * i + 1] = im;
+        }
+      }
+    });
+    ParallelFor(0, p[2], num_threads, [&](int64_t k) {
+      for (int j = 0; j < n[1]; ++j) {
+        double* out = along_y.data() + 2 * ((k * n[1] + j) * int64_t{n[0]});
+        for (int i = 0; i < n[0]; ++i) {
+          double re = 0.0, im = 0.0;
+          for (int t = 0; t < taps; ++t) {
+            const int64_t in = 2 * ((k * p[1] + j + t) * int64_t{n[0]} + i);
+            re += w[t] * along_x[in];
+            im += w[t] * along_x[in + 1];
+          }
+          out[2 * i] = re;
+          out[2 * i + 1] = im;
+        }
+      }
+    });
+    // Each voxel adds its looks in look order: the same sum for any thread count.
+    ParallelFor(0, n[2], num_threads, [&](int64_t k) {
+      for (int j = 0; j < n[1]; ++j) {
+        for (int i = 0; i < n[0]; ++i) {
+          double re = 0.0, im = 0.0;
+          for (int t = 0; t < taps; ++t) {
+            const int64_t in = 2 * (((k + t) * n[1] + j) * int64_t{n[0]} + i);
+            re += w[t] * along_y[in];
+            im += w[t] * along_y[in + 1];
+          }
+          sum[g.LinearIndex(i, j, static_cast<int>(k))] += 0.5 * (re * re + im * im);
+        }
+      }
+    });
+  }
+  Image speckle(g, 0.0f);
+  for (size_t l = 0; l < sum.size(); ++l) {
+    speckle.voxels[l] = static_cast<float>(sum[l] / options.speckle_looks);
+  }
+  return speckle;
+}
+
 bool Simulate(const Image& source,
               const SimulationOptions& options,
               SimulatedSequence* sequence,
@@ -332,6 +502,37 @@ bool Simulate(const Image& source,
   }
   std::mt19937_64 rng(options.seed);
   const std::vector<Eigen::Isometry3d> poses = DrawPoses(source.geometry, g, options, &rng);
+
+  // The effects' per-frame draws, from their own stream: gain first, then offset, whatever
+  // the ranges, so that each is the same whether the other is on or not.
+  std::vector<double> gains(options.num_frames), offsets(options.num_frames);
+  for (int f = 0; f < options.num_frames; ++f) {
+    std::mt19937_64 gain_offset_rng(
+        StreamSeed(options.seed, kGainOffsetStream, {static_cast<uint64_t>(f)}));
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    const double u_gain = u(gain_offset_rng);
+    const double u_offset = u(gain_offset_rng);
+    gains[f] = 1.0 + options.gain_range * u_gain;
+    offsets[f] = options.offset_range > 0.0 ? options.offset_range * u_offset : 0.0;
+  }
+  // a(r) = 10^(-A r / 20), r the distance (cm) of the voxel centre from the apex, the
+  // centre of the k = 0 face. The same for every frame; empty when off.
+  std::vector<double> attenuation;
+  if (options.attenuation_db_per_cm > 0.0) {
+    attenuation.assign(g.NumVoxels(), 0.0);
+    const Eigen::Vector3d apex_mm =
+        g.IndexToPhysical(Eigen::Vector3d(0.5 * (g.size[0] - 1), 0.5 * (g.size[1] - 1), 0.0));
+    for (int k = 0; k < g.size[2]; ++k) {
+      for (int j = 0; j < g.size[1]; ++j) {
+        for (int i = 0; i < g.size[0]; ++i) {
+          const double r_cm =
+              0.1 * (g.IndexToPhysical(Eigen::Vector3d(i, j, k)) - apex_mm).norm();
+          attenuation[g.LinearIndex(i, j, k)] =
+              std::pow(10.0, -options.attenuation_db_per_cm * r_cm / 20.0);
+        }
+      }
+    }
+  }
 
   const Frame source_frame(source, Mask(source.geometry, 1));
   const Eigen::Vector3d upper = source.geometry.size.cast<double>() - Eigen::Vector3d::Ones();
@@ -379,14 +580,25 @@ bool Simulate(const Image& source,
       *error = s.str();
       return false;
     }
+    const Image speckle =
+        options.speckle_looks > 0 ? SpeckleField(g, options, f, 0) : Image();
+    const double gain = gains[f], offset = offsets[f];
+    // Source value x attenuation x speckle, x gain + offset, + noise, clamped: each step
+    // skipped when off, so that a sequence without effects is bit for bit the former one.
     for (size_t l = 0; l < frame.voxels.size(); ++l) {
       if (!fov.voxels[l]) continue;
-      const double noisy = frame.voxels[l] + options.noise_sigma * normal(rng);
+      double value = frame.voxels[l];
+      if (!attenuation.empty()) value *= attenuation[l];
+      if (!speckle.empty()) value *= speckle.voxels[l];
+      if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
+      const double noisy = value + options.noise_sigma * normal(rng);
       frame.voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
     }
     out.frames.push_back(std::move(frame));
     out.masks.push_back(mask);
     out.frame_from_world.push_back(poses[f]);
+    out.gain.push_back(gain);
+    out.offset.push_back(offset);
   }
   *sequence = std::move(out);
   return true;

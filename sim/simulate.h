@@ -19,7 +19,7 @@
 // +max_translation_voxels] * s per world axis. Consumers re-express poses relative to
 // frame 0 (docs/design.md section 1: world = frame 0). Every draw below is u, uniform in [-1, 1),
 // from one std::mt19937_64(seed); after all poses come the noise draws of frame 0, 1, ...
-// in voxel order.
+// in voxel order (the ultrasound-like effects below draw from generators of their own).
 //
 // PoseModel::kRandom (the paper's protocol): every frame, frame 0 included, independently
 // uniform in the box: per frame alpha, beta, gamma, t_x, t_y, t_z (= max * u each).
@@ -43,7 +43,8 @@
 // bounds the whole sequence, and a frame stuck at a box face simply moves less.
 //
 // Intensities: the source's value at world_from_frame * x, plus N(0, noise_sigma), clamped
-// to 0..255, for field-of-view voxels; 0 outside. The value is, by `interpolation`:
+// to 0..255, for field-of-view voxels; 0 outside (with the optional ultrasound-like effects
+// below applied before the noise). The value is, by `interpolation`:
 // kLinear (default) the trilinear value (Frame::InterpolateValue on an all-ones mask);
 // kCubic Keys' cubic convolution (CubicInterpolateValue below). Simulate fails if a
 // field-of-view voxel maps outside the source grid (the same test for both: the cubic
@@ -51,6 +52,29 @@
 // Either way a noise-free frame holds exact point samples (up to float rounding) of one
 // continuous function of the world: the source's trilinear or cubic interpolant clamped to
 // 0..255 (the clamp only bites on kCubic's overshoot next to strong edges).
+//
+// Ultrasound-like effects (docs/design.md section 6.6), all off by default, so that a
+// sequence without them is bit for bit the one the simulator made before they existed. Per
+// field-of-view voxel of frame i, with S the interpolated source value:
+//   I = clamp(g_i (S a(r) s_i) + o_i + N(0, noise_sigma), 0, 255),
+// where
+//   a(r) = 10^(-attenuation_db_per_cm r / 20): depth attenuation, r the distance (cm) of the
+//          voxel centre from the pyramid's apex (the centre of the k = 0 face, as above);
+//   s_i  = speckle: the mean over speckle_looks looks of |z|^2 / E|z|^2, each z a white
+//          circular complex Gaussian field on the frame grid (drawn on a grid padded by the
+//          kernel radius, so every voxel sees the whole kernel) convolved with a Gaussian of
+//          speckle_correlation_voxels voxels' standard deviation (c). Mean 1, variance 1/L
+//          (a gamma distribution with L looks), intensity autocorrelation
+//          |sum_t w_t w_t+d|^2 at a lag of d voxels along an axis (w the 1-D kernel, unit
+//          squared sum), which is exp(-d^2 / (2 c^2)) to 1e-3 for c >= 1. Drawn per frame
+//          on the frame grid: it follows the probe, not the tissue;
+//   g_i  = 1 + gain_range u, o_i = offset_range u' (u, u' uniform in [-1, 1)): the frame's
+//          gain and offset (SimulatedSequence::gain/offset).
+// Outside the field of view the voxels stay 0. The effects' draws come from their own
+// generators, std::mt19937_64 seeded by a 64-bit mix of (seed, a constant per effect,
+// frame index[, look, padded slice]), never from the poses-and-noise generator, so the
+// poses and the noise draws are the same with the effects on or off, and the speckle does
+// not depend on the thread count.
 //
 // Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
@@ -116,6 +140,14 @@ struct SimulationOptions {
   double min_depth_voxels = 4.0;  // near-field cut, in [0, frame_size[2] - 3]
   int mask_erosion_voxels = 1;    // erosion of the written masks, in [0, 50]; 0 = the FOV
   SourceInterpolation interpolation = SourceInterpolation::kLinear;  // how frames sample
+  // Ultrasound-like effects (see the header comment); each default leaves them off.
+  double gain_range = 0.0;    // per-frame gain uniform in [1 - this, 1 + this], in [0, 0.9]
+  double offset_range = 0.0;  // per-frame offset uniform in [-this, this], grey levels, [0, 100]
+  int speckle_looks = 0;      // 0: no speckle; else looks L averaged, in [1, 64]
+  // Standard deviation (frame voxels) of the Gaussian that correlates each look's complex
+  // field, in [0, 4]; 0: independent voxels.
+  double speckle_correlation_voxels = 1.0;
+  double attenuation_db_per_cm = 0.0;  // depth attenuation from the apex, dB/cm, in [0, 10]
 
   // Checks ranges and cross-field rules. The message names the dsr_simulate flag
   // (e.g. "--num_frames=1: must be in [2, 1000]").
@@ -126,6 +158,11 @@ struct SimulatedSequence {
   std::vector<Image> frames;  // on the frame grid, 0..255, 0 outside the FOV
   std::vector<Mask> masks;    // the field of view eroded by mask_erosion_voxels (all equal)
   std::vector<Eigen::Isometry3d> frame_from_world;  // world = the source's physical space
+  // The frames' drawn gains g_i and offsets o_i (frame i = g_i S + o_i before noise, S the
+  // source, attenuated and speckled); 1 and 0 when gain_range and offset_range are 0. For
+  // the registration's convention see Frame0IntensityCorrections.
+  std::vector<double> gain;
+  std::vector<double> offset;
 };
 
 // The frame grid for `source` (see the header comment). options must be valid.
@@ -142,6 +179,26 @@ Mask ErodeFieldOfView(const Mask& field_of_view, int erosion_voxels);
 // generator). options must be valid.
 std::vector<Eigen::Isometry3d> SimulatedPoses(const ImageGeometry& source,
                                               const SimulationOptions& options);
+
+// The intensity corrections a registration estimates, from the drawn `gain` g_i and
+// `offset` o_i (SimulatedSequence): frame i's corrected observation
+// corrected_gain_i I_i + corrected_offset_i is on frame 0's intensity scale, so with
+// I_i = g_i S + o_i,
+//   corrected_gain_i = g_0 / g_i,  corrected_offset_i = o_0 - g_0 o_i / g_i,
+// and frame 0 (the gauge) gets exactly 1 and 0. Sizes must match, gains must be > 0.
+void Frame0IntensityCorrections(const std::vector<double>& gain,
+                                const std::vector<double>& offset,
+                                std::vector<double>* corrected_gain,
+                                std::vector<double>* corrected_offset);
+
+// Frame `frame_index`'s multiplicative speckle on `frame` (the frame grid, see the header
+// comment): mean 1, variance 1 / speckle_looks, correlated over about
+// speckle_correlation_voxels. Bit-identical for every num_threads (<= 0: all hardware
+// threads). options must be valid with speckle_looks >= 1.
+Image SpeckleField(const ImageGeometry& frame,
+                   const SimulationOptions& options,
+                   int frame_index,
+                   int num_threads);
 
 // Runs the protocol. Returns false with a one-line `error` when options are invalid, the
 // source is empty or has an invalid grid, the (eroded) mask is empty, or a

@@ -62,6 +62,8 @@ TEST_F(DsrSimulateCli, TinyRunWritesFramesMasksAndPoses) {
   PosesFile poses;
   std::string error;
   ASSERT_TRUE(ReadPoses((out / "gt_poses.json").string(), 3, &poses, &error)) << error;
+  EXPECT_TRUE(poses.gain.empty()) << "no gain or offset without --gain_range/--offset_range";
+  EXPECT_TRUE(poses.offset.empty());
   for (int f = 0; f < 3; ++f) {
     const std::string frame_name = "frame_0" + std::to_string(f) + ".nii.gz";
     EXPECT_EQ(poses.images[f], frame_name);
@@ -166,6 +168,72 @@ TEST_F(DsrSimulateCli, InterpolationReachesTheSimulator) {
   }
 }
 
+TEST_F(DsrSimulateCli, EffectsReachTheSimulatorAndGainsAndOffsetsGoToTheGroundTruth) {
+  // The frames are the library's frames of the written source with the same effects, and
+  // gt_poses.json holds the corrections to frame 0's scale (exact through JSON).
+  const fs::path effects = dir_ / "effects";
+  const ToolRun run = Simulate("--out_dir=" + effects.string() + " " + Tiny() +
+                               " --sigma=0 --write_source --seed=4 --gain_range=0.25 "
+                               "--offset_range=15 --speckle_looks=2 "
+                               "--speckle_correlation_voxels=0.8 --attenuation_db_per_cm=4");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  std::string error;
+  Image source;
+  ASSERT_TRUE(ReadImage((effects / "source.nii.gz").string(), &source, &error)) << error;
+  SimulationOptions o;  // Tiny()
+  o.frame_size = Eigen::Vector3i(20, 20, 16);
+  o.num_frames = 3;
+  o.max_rotation_deg = 5.0;
+  o.max_translation_voxels = 2.0;
+  o.min_depth_voxels = 2.0;
+  o.noise_sigma = 0.0;
+  o.seed = 4;
+  o.gain_range = 0.25;
+  o.offset_range = 15.0;
+  o.speckle_looks = 2;
+  o.speckle_correlation_voxels = 0.8;
+  o.attenuation_db_per_cm = 4.0;
+  SimulatedSequence expected;
+  ASSERT_TRUE(dsr::Simulate(source, o, &expected, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    const std::string name = "frame_0" + std::to_string(f) + ".nii.gz";
+    Image frame;
+    ASSERT_TRUE(ReadImage((effects / name).string(), &frame, &error)) << error;
+    EXPECT_EQ(frame.voxels, expected.frames[f].voxels) << name;
+  }
+  std::vector<double> gain, offset;
+  Frame0IntensityCorrections(expected.gain, expected.offset, &gain, &offset);
+  PosesFile poses;
+  ASSERT_TRUE(ReadPoses((effects / "gt_poses.json").string(), 3, &poses, &error)) << error;
+  EXPECT_EQ(poses.gain, gain);
+  EXPECT_EQ(poses.offset, offset);
+  EXPECT_EQ(poses.gain[0], 1.0);
+  EXPECT_EQ(poses.offset[0], 0.0);
+  EXPECT_NE(poses.gain[1], 1.0);
+
+  // Only the gain: both fields still written (offsets 0 after frame 0's gauge).
+  const fs::path gain_only = dir_ / "gain_only";
+  ASSERT_EQ(
+      Simulate("--out_dir=" + gain_only.string() + " " + Tiny() + " --gain_range=0.1").exit_code,
+      0);
+  ASSERT_TRUE(ReadPoses((gain_only / "gt_poses.json").string(), 3, &poses, &error)) << error;
+  EXPECT_EQ(poses.gain.size(), 3u);
+  EXPECT_EQ(poses.offset, std::vector<double>(3, 0.0));
+
+  // Speckle and attenuation alone change no intensity scale: no such fields.
+  const fs::path speckle_only = dir_ / "speckle_only";
+  ASSERT_EQ(Simulate("--out_dir=" + speckle_only.string() + " " + Tiny() +
+                     " --speckle_looks=1 --attenuation_db_per_cm=1")
+                .exit_code,
+            0);
+  const std::string text = ReadText(speckle_only / "gt_poses.json");
+  EXPECT_EQ(text.find("\"gain\""), std::string::npos) << text;
+  EXPECT_EQ(text.find("\"offset\""), std::string::npos) << text;
+  ASSERT_TRUE(ReadPoses((speckle_only / "gt_poses.json").string(), 3, &poses, &error)) << error;
+  EXPECT_TRUE(poses.gain.empty());
+  EXPECT_TRUE(poses.offset.empty());
+}
+
 TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
   const std::string out = " --out_dir=" + (dir_ / "bad").string();
   struct Case {
@@ -188,6 +256,15 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
        "--step_translation_voxels=-2: must be finite and >= 0"},
       {"--mask_erosion=-1" + out, "--mask_erosion=-1: must be in [0, 50]"},
       {"--mask_erosion=51" + out, "--mask_erosion=51: must be in [0, 50]"},
+      {"--gain_range=1" + out, "--gain_range=1: must be in [0, 0.9]"},
+      {"--gain_range=-0.5" + out, "--gain_range=-0.5: must be in [0, 0.9]"},
+      {"--offset_range=101" + out, "--offset_range=101: must be in [0, 100]"},
+      {"--speckle_looks=65" + out, "--speckle_looks=65: must be 0 (no speckle) or in [1, 64]"},
+      {"--speckle_looks=-1" + out, "--speckle_looks=-1: must be 0 (no speckle) or in [1, 64]"},
+      {"--speckle_correlation_voxels=5" + out,
+       "--speckle_correlation_voxels=5: must be in [0, 4]"},
+      {"--attenuation_db_per_cm=11" + out, "--attenuation_db_per_cm=11: must be in [0, 10]"},
+      {"--attenuation_db_per_cm=nan" + out, "--attenuation_db_per_cm=nan: must be in [0, 10]"},
       {"--num_frames=abc" + out, "num_frames"},
       {"--no_such_flag=1" + out, "no_such_flag"},
       {"--source=" + (dir_ / "missing.nii.gz").string() + out, "missing.nii.gz: no such file"},
@@ -254,6 +331,11 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "phantom_seed",
                              "mask_erosion",
                              "interpolation",
+                             "gain_range",
+                             "offset_range",
+                             "speckle_looks",
+                             "speckle_correlation_voxels",
+                             "attenuation_db_per_cm",
                              "write_source"}) {
       EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)
           << help << " lacks --" << flag;

@@ -1,9 +1,11 @@
-// Poses file IO (core/io_poses.h): exact round trips, the JSON layout, and a one-line error
-// naming the file, the frame and the rule for every malformed input.
+// Poses file IO (core/io_poses.h): exact round trips (the optional gain and offset too), the
+// JSON layout, and a one-line error naming the file, the frame and the rule for every
+// malformed input.
 #include "core/io_poses.h"
 
 #include <cmath>
 #include <fstream>
+#include <iterator>
 #include <random>
 #include <string>
 #include <vector>
@@ -33,6 +35,11 @@ PosesFile RandomPoses(int frames, unsigned seed) {
     poses.frame_from_world.push_back(f == 0 ? Eigen::Isometry3d::Identity() : ExpSE3(delta));
   }
   return poses;
+}
+
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
 }
 
 std::string WriteText(const ScopedTempDir& dir, const std::string& name, const std::string& text) {
@@ -261,6 +268,113 @@ TEST(PosesIo, UncertaintyFieldsAreWrittenAndIgnoredOnRead) {
   EXPECT_EQ(error, dir.File("nan.json") +
                        ": frame 2: the covariance or predicted_tre_mm has a non-finite entry; "
                        "not written");
+}
+
+// The optional intensity corrections: written per frame, read back bit for bit.
+TEST(PosesIo, GainAndOffsetRoundTripExactly) {
+  ScopedTempDir dir;
+  PosesFile poses = RandomPoses(4, 7);
+  poses.gain = {1.0, 0.8123456789012345, 1.2999999999999998, 5e-3};
+  poses.offset = {0.0, -12.25, 3.0000000000000001e-5, 99.9};
+  std::string error;
+  ASSERT_TRUE(WritePoses(poses, dir.File("p.json"), &error)) << error;
+  std::ifstream in(dir.File("p.json"));
+  const nlohmann::json doc = nlohmann::json::parse(in);
+  for (int f = 0; f < 4; ++f) {
+    EXPECT_EQ(doc["frames"][f]["gain"].get<double>(), poses.gain[f]) << f;
+    EXPECT_EQ(doc["frames"][f]["offset"].get<double>(), poses.offset[f]) << f;
+  }
+  PosesFile back;
+  ASSERT_TRUE(ReadPoses(dir.File("p.json"), 4, &back, &error)) << error;
+  EXPECT_EQ(back.gain, poses.gain);
+  EXPECT_EQ(back.offset, poses.offset);
+  EXPECT_EQ(PosesToJson(back), PosesToJson(poses));
+  for (int f = 0; f < 4; ++f) {
+    EXPECT_TRUE(back.frame_from_world[f].matrix() == poses.frame_from_world[f].matrix());
+  }
+}
+
+TEST(PosesIo, AbsentGainAndOffsetReadAsEmpty) {
+  ScopedTempDir dir;
+  std::string error;
+  ASSERT_TRUE(WritePoses(RandomPoses(3, 1), dir.File("plain.json"), &error)) << error;
+  EXPECT_EQ(ReadText(dir.File("plain.json")).find("gain"), std::string::npos);
+  PosesFile read;
+  ASSERT_TRUE(ReadPoses(dir.File("plain.json"), 3, &read, &error)) << error;
+  EXPECT_TRUE(read.gain.empty());
+  EXPECT_TRUE(read.offset.empty());
+  // Each field on its own: a gain on every frame and no offset.
+  const std::string path = WriteText(dir,
+                                     "gain_only.json",
+                                     R"({"frames": [
+      {"T": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], "gain": 1},
+      {"T": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]], "gain": 0.5}]})");
+  ASSERT_TRUE(ReadPoses(path, 2, &read, &error)) << error;
+  EXPECT_EQ(read.gain, (std::vector<double>{1.0, 0.5}));
+  EXPECT_TRUE(read.offset.empty());
+}
+
+TEST(PosesIo, BadGainOrOffsetIsAnErrorNamingTheFileAndTheFrame) {
+  // Frames whose T is the identity, with the given extra members (JSON text, "" for none).
+  const auto frames = [](std::vector<std::string> extras) {
+    std::string text = R"({"frames": [)";
+    for (size_t f = 0; f < extras.size(); ++f) {
+      text += std::string(f > 0 ? ", " : "") +
+              R"({"T": [[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]])" +
+              (extras[f].empty() ? "" : ", " + extras[f]) + "}";
+    }
+    return text + "]}";
+  };
+  struct Case {
+    const char* name;
+    std::string text;
+    const char* expected;  // the error after "<path>: "
+  };
+  const Case cases[] = {
+      {"gain_zero",
+       frames({R"("gain": 1, "offset": 0)", R"("gain": 0, "offset": 2)"}),
+       "frame 1: \"gain\" must be finite and > 0 (got 0)"},
+      {"gain_negative",
+       frames({R"("gain": -0.5)"}),
+       "frame 0: \"gain\" must be finite and > 0 (got -0.5)"},
+      {"gain_text",
+       frames({R"("gain": 1)", R"("gain": "1.2")"}),
+       "frame 1: \"gain\" must be a number, got string"},
+      {"offset_null",
+       frames({R"("offset": null)"}),
+       "frame 0: \"offset\" must be a number, got null"},
+      {"gain_overflow", frames({R"("gain": 1e999)"}), "not valid JSON (number overflow"},
+      {"gain_missing_later",
+       frames({R"("gain": 1, "offset": 0)", R"("gain": 1.1, "offset": 3)", R"("offset": 1)"}),
+       "frame 2: missing \"gain\", which frame 0 has (give it on every frame or on none)"},
+      {"offset_only_later",
+       frames({"", R"("offset": 4)"}),
+       "frame 1: has \"offset\" but frame 0 has none (give it on every frame or on none)"},
+  };
+  ScopedTempDir dir;
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const std::string path = WriteText(dir, std::string(c.name) + ".json", c.text);
+    EXPECT_THAT(ReadError(path), HasSubstr(path + ": " + c.expected));
+  }
+}
+
+TEST(PosesIo, BadGainOrOffsetIsNotWritten) {
+  ScopedTempDir dir;
+  PosesFile poses = RandomPoses(3, 4);
+  poses.gain = {1.0, 1.1, 0.0};
+  poses.offset = {0.0, 1.0, 2.0};
+  std::string error;
+  EXPECT_FALSE(WritePoses(poses, dir.File("zero.json"), &error));
+  EXPECT_EQ(error,
+            dir.File("zero.json") +
+                ": frame 2: the gain is not finite and > 0 or the offset is not finite; not "
+                "written");
+  poses.gain[2] = 0.9;
+  poses.offset[1] = std::nan("");
+  EXPECT_FALSE(WritePoses(poses, dir.File("nan.json"), &error));
+  EXPECT_NE(error.find(dir.File("nan.json") + ": frame 1: "), std::string::npos) << error;
+  EXPECT_TRUE(dir.Entries().empty());
 }
 
 }  // namespace

@@ -2,7 +2,8 @@
 // ground-truth poses, determinism, the protocol's pose ranges (random and walk), which
 // motions fit the default phantom, noise statistics, the field of view and its mask,
 // option validation; the cubic source interpolation (CubicInterpolateValue) and the
-// default linear frames staying bit-identical.
+// default linear frames staying bit-identical; the ultrasound-like effects (gain, offset,
+// speckle, attenuation) and their ground truth.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -907,6 +908,24 @@ TEST(Simulate, ValidateRejectsNonsense) {
       {[](SimulationOptions* o) { o->mask_erosion_voxels = 51; }, "--mask_erosion=51"},
       {[](SimulationOptions* o) { o->interpolation = static_cast<SourceInterpolation>(7); },
        "--interpolation=7: must be linear or cubic"},
+      {[](SimulationOptions* o) { o->gain_range = -0.1; },
+       "--gain_range=-0.1: must be in [0, 0.9]"},
+      {[](SimulationOptions* o) { o->gain_range = 0.95; }, "--gain_range=0.95"},
+      {[](SimulationOptions* o) { o->gain_range = std::nan(""); }, "--gain_range=nan"},
+      {[](SimulationOptions* o) { o->offset_range = 101.0; },
+       "--offset_range=101: must be in [0, 100]"},
+      {[](SimulationOptions* o) { o->offset_range = -1.0; }, "--offset_range=-1"},
+      {[](SimulationOptions* o) { o->speckle_looks = -1; },
+       "--speckle_looks=-1: must be 0 (no speckle) or in [1, 64]"},
+      {[](SimulationOptions* o) { o->speckle_looks = 65; }, "--speckle_looks=65"},
+      {[](SimulationOptions* o) { o->speckle_correlation_voxels = 4.5; },
+       "--speckle_correlation_voxels=4.5: must be in [0, 4]"},
+      {[](SimulationOptions* o) { o->speckle_correlation_voxels = -1.0; },
+       "--speckle_correlation_voxels=-1"},
+      {[](SimulationOptions* o) { o->attenuation_db_per_cm = 11.0; },
+       "--attenuation_db_per_cm=11: must be in [0, 10]"},
+      {[](SimulationOptions* o) { o->attenuation_db_per_cm = INFINITY; },
+       "--attenuation_db_per_cm=inf"},
   };
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (const Case& c : cases) {
@@ -918,6 +937,355 @@ TEST(Simulate, ValidateRejectsNonsense) {
     EXPECT_NE(error.find(c.flag), std::string::npos) << error;
     SimulatedSequence s;
     EXPECT_FALSE(Simulate(source, o, &s, &error)) << c.flag;
+  }
+}
+
+// --- Ultrasound-like effects (docs/design.md section 6.6) ---
+
+// Float storage of frame values below ~400 (ulp <= 3e-5) and of the speckle field.
+constexpr double kFloatValueTolerance = 1e-3;
+
+SimulationOptions WithAllEffects(SimulationOptions o) {
+  o.gain_range = 0.3;
+  o.offset_range = 20.0;
+  o.speckle_looks = 2;
+  o.attenuation_db_per_cm = 3.0;
+  return o;
+}
+
+TEST(SimulateEffects, OffByDefaultAndExplicitZerosChangeNothing) {
+  const SimulationOptions defaults;
+  EXPECT_EQ(defaults.gain_range, 0.0);
+  EXPECT_EQ(defaults.offset_range, 0.0);
+  EXPECT_EQ(defaults.speckle_looks, 0);
+  EXPECT_EQ(defaults.attenuation_db_per_cm, 0.0);
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  SimulationOptions o = SmallOptions();
+  o.noise_sigma = 25.0;
+  SimulatedSequence plain, zeros;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, o, &plain, &error)) << error;
+  o.gain_range = 0.0;
+  o.offset_range = 0.0;
+  o.speckle_looks = 0;
+  o.speckle_correlation_voxels = 2.5;  // unused without looks
+  o.attenuation_db_per_cm = 0.0;
+  ASSERT_TRUE(Simulate(source, o, &zeros, &error)) << error;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_EQ(plain.frames[f].voxels, zeros.frames[f].voxels) << "frame " << f;
+    EXPECT_EQ(plain.gain[f], 1.0);
+    EXPECT_EQ(plain.offset[f], 0.0);
+  }
+  // The bit-for-bit comparison with the simulator before the effects existed is
+  // DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption's recorded checksums.
+}
+
+TEST(SimulateEffects, GainAndOffsetMapEveryFrameAndLeaveTheNoiseDrawsAlone) {
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  SimulationOptions o = SmallOptions();  // sigma 0
+  o.num_frames = 6;
+  SimulatedSequence clean, mapped;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, o, &clean, &error)) << error;
+  SimulationOptions g = o;
+  g.gain_range = 0.3;
+  g.offset_range = 20.0;
+  ASSERT_TRUE(Simulate(source, g, &mapped, &error)) << error;
+  const Mask fov = PyramidFieldOfView(clean.frames[0].geometry, o);
+  double lowest_gain = 2.0, highest_gain = 0.0;
+  int64_t clamped = 0;
+  for (int f = 0; f < o.num_frames; ++f) {
+    const double gain = mapped.gain[f], offset = mapped.offset[f];
+    EXPECT_GE(gain, 0.7) << f;
+    EXPECT_LE(gain, 1.3) << f;
+    EXPECT_GE(offset, -20.0) << f;
+    EXPECT_LE(offset, 20.0) << f;
+    lowest_gain = std::min(lowest_gain, gain);
+    highest_gain = std::max(highest_gain, gain);
+    EXPECT_TRUE(mapped.frame_from_world[f].matrix() == clean.frame_from_world[f].matrix());
+    EXPECT_EQ(mapped.masks[f].voxels, clean.masks[f].voxels);
+    for (size_t v = 0; v < fov.voxels.size(); ++v) {
+      if (!fov.voxels[v]) {
+        ASSERT_EQ(mapped.frames[f].voxels[v], 0.0f) << "outside the field of view";
+        continue;
+      }
+      const double expected = gain * clean.frames[f].voxels[v] + offset;
+      const double clamp = std::clamp(expected, 0.0, 255.0);
+      clamped += clamp != expected;
+      ASSERT_NEAR(mapped.frames[f].voxels[v], clamp, kFloatValueTolerance)
+          << "frame " << f << " voxel " << v;
+    }
+  }
+  EXPECT_LT(lowest_gain, highest_gain);  // drawn per frame
+  EXPECT_GT(clamped, 0) << "offsets below 0 clamp the dark blood pools";
+
+  // With noise: the noise of each voxel is the same draw with and without the gain and
+  // offset (they come from their own generator).
+  o.noise_sigma = 25.0;
+  g.noise_sigma = 25.0;
+  SimulatedSequence noisy, noisy_mapped;
+  ASSERT_TRUE(Simulate(source, o, &noisy, &error)) << error;
+  ASSERT_TRUE(Simulate(source, g, &noisy_mapped, &error)) << error;
+  int64_t compared = 0;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_EQ(noisy_mapped.gain[f], mapped.gain[f]);
+    EXPECT_EQ(noisy_mapped.offset[f], mapped.offset[f]);
+    for (size_t v = 0; v < fov.voxels.size(); ++v) {
+      const double a = noisy.frames[f].voxels[v], b = noisy_mapped.frames[f].voxels[v];
+      if (!fov.voxels[v] || a <= 0.0 || a >= 255.0 || b <= 0.0 || b >= 255.0) continue;
+      const double noise = a - clean.frames[f].voxels[v];
+      const double noise_mapped =
+          b - (mapped.gain[f] * clean.frames[f].voxels[v] + mapped.offset[f]);
+      ASSERT_NEAR(noise_mapped, noise, kFloatValueTolerance) << "frame " << f << " voxel " << v;
+      ++compared;
+    }
+  }
+  EXPECT_GT(compared, 20000);
+
+  // Each effect's draws are its own: the gains and offsets do not change when the speckle
+  // and the attenuation are on, nor does the gain when the offset is off.
+  SimulatedSequence all, gain_only;
+  ASSERT_TRUE(Simulate(source, WithAllEffects(o), &all, &error)) << error;
+  SimulationOptions only = o;
+  only.gain_range = 0.3;
+  ASSERT_TRUE(Simulate(source, only, &gain_only, &error)) << error;
+  EXPECT_EQ(all.gain, noisy_mapped.gain);
+  EXPECT_EQ(all.offset, noisy_mapped.offset);
+  EXPECT_EQ(gain_only.gain, noisy_mapped.gain);
+  EXPECT_EQ(gain_only.offset, std::vector<double>(o.num_frames, 0.0));
+}
+
+TEST(SimulateEffects, CorrectionsPutEveryFrameOnFrame0sScale) {
+  // A source linear in the index, so frame 0's value at any world point is known: with
+  // sigma 0, frame i = g_i L(x) + o_i, and the corrections must map it to g_0 L(x) + o_0.
+  ImageGeometry grid;
+  grid.size = Eigen::Vector3i(80, 80, 80);
+  grid.origin_mm = Eigen::Vector3d::Constant(-39.5);
+  Image source(grid);
+  const auto linear = [](const Eigen::Vector3d& ijk) {
+    return 20.0 + 0.9 * ijk[0] + 0.5 * ijk[1] + 0.7 * ijk[2];
+  };
+  for (int k = 0; k < 80; ++k) {
+    for (int j = 0; j < 80; ++j) {
+      for (int i = 0; i < 80; ++i) source.at(i, j, k) = linear(Eigen::Vector3d(i, j, k));
+    }
+  }
+  SimulationOptions o = SmallOptions();
+  o.gain_range = 0.4;
+  o.offset_range = 30.0;
+  SimulatedSequence s;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
+  std::vector<double> gain, offset;
+  Frame0IntensityCorrections(s.gain, s.offset, &gain, &offset);
+  ASSERT_EQ(gain.size(), 4u);
+  EXPECT_EQ(gain[0], 1.0);  // the gauge, exactly
+  EXPECT_EQ(offset[0], 0.0);
+  const ImageGeometry& fg = s.frames[0].geometry;
+  for (int f = 1; f < o.num_frames; ++f) {
+    EXPECT_DOUBLE_EQ(gain[f], s.gain[0] / s.gain[f]);
+    EXPECT_DOUBLE_EQ(offset[f], s.offset[0] - s.gain[0] * s.offset[f] / s.gain[f]);
+    const Eigen::Isometry3d world_from_frame = s.frame_from_world[f].inverse();
+    int64_t count = 0;
+    for (int k = 0; k < fg.size[2]; k += 2) {
+      for (int y = 0; y < fg.size[1]; y += 2) {
+        for (int x = 0; x < fg.size[0]; x += 2) {
+          const double value = s.frames[f].at(x, y, k);
+          if (!s.masks[f].at(x, y, k) || value <= 0.0 || value >= 255.0) continue;
+          const double seen_by_frame0 =
+              s.gain[0] *
+                  linear(grid.PhysicalToIndex(world_from_frame *
+                                              fg.IndexToPhysical(Eigen::Vector3d(x, y, k)))) +
+              s.offset[0];
+          ASSERT_NEAR(gain[f] * value + offset[f], seen_by_frame0, kFloatValueTolerance)
+              << "frame " << f << " voxel " << x << " " << y << " " << k;
+          ++count;
+        }
+      }
+    }
+    EXPECT_GT(count, 500) << "frame " << f;
+  }
+}
+
+// Mean, variance and the correlation of voxels `lag` apart along `axis` of the field's
+// voxels, over the whole grid.
+struct FieldStatistics {
+  double mean = 0.0, variance = 0.0;
+};
+FieldStatistics Statistics(const Image& field) {
+  double sum = 0.0, sum2 = 0.0;
+  for (float v : field.voxels) {
+    sum += v;
+    sum2 += double{v} * v;
+  }
+  FieldStatistics st;
+  st.mean = sum / field.voxels.size();
+  st.variance = sum2 / field.voxels.size() - st.mean * st.mean;
+  return st;
+}
+double Correlation(const Image& field, int axis, int lag) {
+  const Eigen::Vector3i& n = field.geometry.size;
+  const FieldStatistics st = Statistics(field);
+  double sum = 0.0;
+  int64_t count = 0;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        Eigen::Vector3i other(i, j, k);
+        other[axis] += lag;
+        if (other[axis] >= n[axis]) continue;
+        sum += (field.at(i, j, k) - st.mean) * (field.at(other[0], other[1], other[2]) - st.mean);
+        ++count;
+      }
+    }
+  }
+  return sum / count / st.variance;
+}
+
+TEST(SimulateEffects, SpeckleHasMeanOneVarianceOneOverLooksAndItsCorrelation) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(64, 64, 64);
+  // 262144 voxels, about 16700 independent ones at a correlation of 1 voxel: standard
+  // errors about 0.8% of the mean and 2% of the variance with one look (exponential), less
+  // with more looks, and 0.01 on a correlation.
+  constexpr double kMeanTolerance = 0.03;
+  constexpr double kRelativeVarianceTolerance = 0.1;
+  constexpr double kCorrelationTolerance = 0.05;
+  for (int looks : {1, 4}) {
+    SimulationOptions o;
+    o.speckle_looks = looks;
+    const Image speckle = SpeckleField(g, o, 0, 0);
+    ASSERT_EQ(speckle.geometry.size, g.size);
+    EXPECT_GE(*std::min_element(speckle.voxels.begin(), speckle.voxels.end()), 0.0f);
+    const FieldStatistics st = Statistics(speckle);
+    EXPECT_NEAR(st.mean, 1.0, kMeanTolerance) << looks << " looks";
+    EXPECT_NEAR(st.variance * looks, 1.0, kRelativeVarianceTolerance) << looks << " looks";
+    // Correlation about exp(-d^2 / 2) at a lag of d voxels (c = 1), along every axis.
+    for (int axis = 0; axis < 3; ++axis) {
+      EXPECT_NEAR(Correlation(speckle, axis, 1), std::exp(-0.5), kCorrelationTolerance)
+          << looks << " looks, axis " << axis;
+      EXPECT_NEAR(Correlation(speckle, axis, 2), std::exp(-2.0), kCorrelationTolerance)
+          << looks << " looks, axis " << axis;
+      EXPECT_NEAR(Correlation(speckle, axis, 4), 0.0, kCorrelationTolerance)
+          << looks << " looks, axis " << axis;
+    }
+  }
+  // The correlation length follows --speckle_correlation_voxels; 0: independent voxels.
+  SimulationOptions o;
+  o.speckle_looks = 1;
+  o.speckle_correlation_voxels = 2.0;
+  EXPECT_NEAR(Correlation(SpeckleField(g, o, 0, 0), 0, 1), std::exp(-0.125), kCorrelationTolerance);
+  o.speckle_correlation_voxels = 0.0;
+  const Image white = SpeckleField(g, o, 0, 0);
+  EXPECT_NEAR(Statistics(white).mean, 1.0, kMeanTolerance);
+  EXPECT_NEAR(Statistics(white).variance, 1.0, kRelativeVarianceTolerance);
+  EXPECT_NEAR(Correlation(white, 0, 1), 0.0, kCorrelationTolerance);
+}
+
+TEST(SimulateEffects, SpeckleIsPerFrameSeededAndIndependentOfThreads) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(23, 17, 19);  // odd sizes, so slices split unevenly
+  SimulationOptions o;
+  o.speckle_looks = 3;
+  o.speckle_correlation_voxels = 1.5;
+  const Image one = SpeckleField(g, o, 2, 1);
+  for (int threads : {2, 3, 0}) {
+    EXPECT_EQ(SpeckleField(g, o, 2, threads).voxels, one.voxels) << threads << " threads";
+  }
+  EXPECT_NE(SpeckleField(g, o, 3, 1).voxels, one.voxels) << "another frame, another draw";
+  o.seed = 2;
+  EXPECT_NE(SpeckleField(g, o, 2, 1).voxels, one.voxels) << "another seed, another draw";
+}
+
+TEST(SimulateEffects, SpeckleMultipliesTheFramesInsideTheFieldOfView) {
+  // A constant source: each frame is the constant times its speckle field, clamped at 255.
+  ImageGeometry grid;
+  grid.size = Eigen::Vector3i(80, 80, 80);
+  grid.origin_mm = Eigen::Vector3d::Constant(-39.5);
+  const Image flat(grid, 60.0f);
+  SimulationOptions o = SmallOptions();
+  o.speckle_looks = 1;
+  SimulatedSequence s, plain;
+  std::string error;
+  ASSERT_TRUE(Simulate(flat, o, &s, &error)) << error;
+  const ImageGeometry& fg = s.frames[0].geometry;
+  const Mask fov = PyramidFieldOfView(fg, o);
+  int64_t clamped = 0;
+  for (int f = 0; f < o.num_frames; ++f) {
+    const Image speckle = SpeckleField(fg, o, f, 1);
+    for (size_t v = 0; v < fov.voxels.size(); ++v) {
+      const double expected = fov.voxels[v] ? std::min(60.0 * speckle.voxels[v], 255.0) : 0.0;
+      clamped += fov.voxels[v] && expected == 255.0;
+      ASSERT_NEAR(s.frames[f].voxels[v], expected, kFloatValueTolerance)
+          << "frame " << f << " voxel " << v;
+    }
+  }
+  EXPECT_GT(clamped, 0) << "one look exceeds 255 / 60 at about 1.4% of the voxels";
+  // Poses and noise draws are untouched (the noise-free frames are the plain ones times the
+  // speckle, above; the poses here).
+  o.speckle_looks = 0;
+  ASSERT_TRUE(Simulate(flat, o, &plain, &error)) << error;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_TRUE(s.frame_from_world[f].matrix() == plain.frame_from_world[f].matrix());
+  }
+}
+
+TEST(SimulateEffects, AttenuationFollowsTheDistanceFromTheApex) {
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  for (double spacing_mm : {0.0, 0.5}) {  // 0: the source's 1 mm
+    SimulationOptions o = SmallOptions();
+    o.frame_spacing_mm = spacing_mm;
+    SimulatedSequence plain, attenuated;
+    std::string error;
+    ASSERT_TRUE(Simulate(source, o, &plain, &error)) << error;
+    o.attenuation_db_per_cm = 6.0;
+    ASSERT_TRUE(Simulate(source, o, &attenuated, &error)) << error;
+    const ImageGeometry& g = plain.frames[0].geometry;
+    const double h_cm = 0.1 * g.spacing_mm[0];
+    const double cx = 0.5 * (g.size[0] - 1), cy = 0.5 * (g.size[1] - 1);
+    // A few voxels on the axis, off axis and at a corner of the far face.
+    const Eigen::Vector3i voxels[] = {{16, 16, 4}, {15, 16, 10}, {10, 20, 20}, {0, 0, 31}};
+    for (int f = 0; f < o.num_frames; ++f) {
+      for (const Eigen::Vector3i& v : voxels) {
+        const double before = plain.frames[f].at(v[0], v[1], v[2]);
+        ASSERT_GT(before, 1.0) << v.transpose();  // inside the field of view, not black
+        const double depth = v[2];
+        const double r_cm = h_cm * std::sqrt((v[0] - cx) * (v[0] - cx) +
+                                             (v[1] - cy) * (v[1] - cy) + depth * depth);
+        const double expected = std::pow(10.0, -6.0 * r_cm / 20.0);
+        EXPECT_NEAR(attenuated.frames[f].at(v[0], v[1], v[2]) / before, expected, 1e-5)
+            << "frame " << f << " voxel " << v.transpose() << ", spacing " << g.spacing_mm[0];
+      }
+    }
+  }
+}
+
+TEST(SimulateEffects, AllEffectsTogetherAreDeterministicAndInTheirOrder) {
+  // Source x attenuation x speckle, x gain + offset, then noise and the clamp.
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  SimulationOptions o = WithAllEffects(SmallOptions());
+  SimulatedSequence a, b, clean;
+  std::string error;
+  ASSERT_TRUE(Simulate(source, o, &a, &error)) << error;
+  ASSERT_TRUE(Simulate(source, o, &b, &error)) << error;
+  SimulationOptions none = SmallOptions();
+  ASSERT_TRUE(Simulate(source, none, &clean, &error)) << error;
+  const ImageGeometry& g = a.frames[0].geometry;
+  const Mask fov = PyramidFieldOfView(g, o);
+  SimulationOptions attenuation_only = none;
+  attenuation_only.attenuation_db_per_cm = o.attenuation_db_per_cm;
+  SimulatedSequence attenuated;
+  ASSERT_TRUE(Simulate(source, attenuation_only, &attenuated, &error)) << error;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_EQ(a.frames[f].voxels, b.frames[f].voxels) << "frame " << f;
+    const Image speckle = SpeckleField(g, o, f, 1);
+    for (size_t v = 0; v < fov.voxels.size(); ++v) {
+      if (!fov.voxels[v]) continue;
+      const double expected = std::clamp(
+          a.gain[f] * attenuated.frames[f].voxels[v] * speckle.voxels[v] + a.offset[f], 0.0, 255.0);
+      ASSERT_NEAR(a.frames[f].voxels[v], expected, kFloatValueTolerance)
+          << "frame " << f << " voxel " << v;
+    }
   }
 }
 

@@ -2,7 +2,9 @@
 // cut from the built-in phantom (sim/phantom.h) or from any readable volume.
 // Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz and DIR/gt_poses.json, whose T are
 // frame_from_world with world = the source's physical space (not yet frame 0's: consumers
-// re-express them relative to frame 0).
+// re-express them relative to frame 0). With --gain_range or --offset_range, each frame of
+// gt_poses.json also has "gain" and "offset": the correction gain_i * I_i + offset_i that
+// puts frame i on frame 0's intensity scale (dsr::Frame0IntensityCorrections).
 #include <chrono>
 #include <cinttypes>
 #include <cmath>
@@ -28,7 +30,10 @@ DEFINE_string(source,
               "",
               "Source volume to cut the frames from (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr). "
               "Empty: the built-in heart-like phantom (see --phantom_size, --phantom_seed).");
-DEFINE_uint64(seed, 1, "Random seed of the poses and the noise: same seed, same sequence.");
+DEFINE_uint64(seed,
+              1,
+              "Random seed of the poses, the noise and the ultrasound-like effects: same seed, "
+              "same sequence.");
 DEFINE_int32(num_frames, 11, "Number of frames m, in [2, 1000] (the paper: 11).");
 DEFINE_double(sigma,
               25.0,
@@ -101,6 +106,36 @@ DEFINE_string(interpolation,
               "the default) or cubic (Keys' cubic convolution, a = -0.5, over 4x4x4 voxels, "
               "indices clamped at the source's border). Either way the frames are exact "
               "samples of one continuous interpolant of the source.");
+DEFINE_double(gain_range,
+              0.0,
+              "Ultrasound-like effect (off at 0): each frame's intensities are multiplied by a "
+              "gain drawn uniformly in [1 - this, 1 + this], in [0, 0.9]. With --gain_range "
+              "or --offset_range, gt_poses.json gets per-frame \"gain\" and \"offset\": the "
+              "correction that puts frame i on frame 0's intensity scale, gain_i * I_i + "
+              "offset_i (frame 0: 1 and 0).");
+DEFINE_double(offset_range,
+              0.0,
+              "Ultrasound-like effect (off at 0): each frame's intensities get an offset drawn "
+              "uniformly in [-this, this] grey levels (after the gain), in [0, 100].");
+DEFINE_int32(speckle_looks,
+             0,
+             "Ultrasound-like effect (off at 0): multiplicative speckle of mean 1, drawn anew "
+             "for each frame on its own grid (it follows the probe, not the tissue): the mean "
+             "of this many looks of |z|^2, each z a complex Gaussian field smoothed over "
+             "--speckle_correlation_voxels; a gamma distribution with variance 1/looks. 0 or "
+             "in [1, 64].");
+DEFINE_double(speckle_correlation_voxels,
+              1.0,
+              "With --speckle_looks: standard deviation, in frame voxels, of the Gaussian that "
+              "smooths each look's complex field (the speckle's correlation at a lag of d "
+              "voxels is about exp(-d^2 / (2 this^2)) for this >= 1), in [0, 4]; 0: "
+              "independent voxels.");
+DEFINE_double(attenuation_db_per_cm,
+              0.0,
+              "Ultrasound-like effect (off at 0): depth attenuation; a voxel at distance r cm "
+              "from the pyramid's apex (the centre of the z = 0 face) is multiplied by "
+              "10^(-this * r / 20), in [0, 10] dB/cm. Applied, like the speckle, before the "
+              "gain, the offset and the noise.");
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
@@ -147,6 +182,21 @@ bool ValidateFrameSpacing(const char* flag, double v) {
                         v,
                         "must be 0 (the source's spacing) or in [1e-06, 1e+06] mm");
 }
+bool ValidateGainRange(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 0.9, flag, v, "must be in [0, 0.9]");
+}
+bool ValidateOffsetRange(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 100.0, flag, v, "must be in [0, 100]");
+}
+bool ValidateSpeckleLooks(const char* flag, int32_t v) {
+  return dsr::CheckFlag(v >= 0 && v <= 64, flag, v, "must be 0 (no speckle) or in [1, 64]");
+}
+bool ValidateSpeckleCorrelation(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 4.0, flag, v, "must be in [0, 4]");
+}
+bool ValidateAttenuation(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 10.0, flag, v, "must be in [0, 10]");
+}
 bool ValidateSource(const char* flag, const std::string& v) {
   return dsr::CheckInputFileFlag(flag, v);
 }
@@ -169,6 +219,11 @@ DEFINE_validator(elevation_deg, &ValidateOpeningAngle);
 DEFINE_validator(min_depth_voxels, &ValidateNonNegative);
 DEFINE_validator(phantom_size, &ValidatePhantomSize);
 DEFINE_validator(source, &ValidateSource);
+DEFINE_validator(gain_range, &ValidateGainRange);
+DEFINE_validator(offset_range, &ValidateOffsetRange);
+DEFINE_validator(speckle_looks, &ValidateSpeckleLooks);
+DEFINE_validator(speckle_correlation_voxels, &ValidateSpeckleCorrelation);
+DEFINE_validator(attenuation_db_per_cm, &ValidateAttenuation);
 
 namespace {
 
@@ -179,9 +234,11 @@ double SecondsSince(std::chrono::steady_clock::time_point start) {
 int Main(int argc, char** argv) {
   dsr::InitTool(
       "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
-      "field of view, Gaussian noise) from the built-in phantom or --source.\n"
+      "field of view, Gaussian noise) from the built-in phantom or --source, optionally with "
+      "ultrasound-like effects (per-frame gain and offset, speckle, depth attenuation).\n"
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
-      "[--pose_model=random|walk] [--interpolation=linear|cubic] ...\n"
+      "[--pose_model=random|walk] [--interpolation=linear|cubic] [--gain_range=0] "
+      "[--offset_range=0] [--speckle_looks=0] [--attenuation_db_per_cm=0] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       {"out_dir"},
@@ -205,14 +262,28 @@ int Main(int argc, char** argv) {
   options.azimuth_deg = FLAGS_azimuth_deg;
   options.elevation_deg = FLAGS_elevation_deg;
   options.min_depth_voxels = FLAGS_min_depth_voxels;
+  options.gain_range = FLAGS_gain_range;
+  options.offset_range = FLAGS_offset_range;
+  options.speckle_looks = FLAGS_speckle_looks;
+  options.speckle_correlation_voxels = FLAGS_speckle_correlation_voxels;
+  options.attenuation_db_per_cm = FLAGS_attenuation_db_per_cm;
   std::string error;
   if (!options.Validate(&error)) return dsr::Fail(error);
   // Clear cases of too little memory are refused before any work: the frames (float) and
-  // masks (uint8), the field of view and one frame's copies while it is written, and the
-  // source (checked again once a --source is read).
+  // masks (uint8), the field of view and one frame's copies while it is written, the
+  // source (checked again once a --source is read), and the effects' scratch: the
+  // attenuation (double) and the speckle's three complex double grids, padded by
+  // 3 --speckle_correlation_voxels per side, its sum (double) and its field (float).
   const double frame_voxels = options.frame_size.cast<double>().prod();
+  const double speckle_padding = 2.0 * std::ceil(3.0 * options.speckle_correlation_voxels);
+  const double padded_voxels =
+      (options.frame_size.cast<double>().array() + speckle_padding).prod();
+  const double effects_bytes =
+      (options.attenuation_db_per_cm > 0.0 ? 8.0 * frame_voxels : 0.0) +
+      (options.speckle_looks > 0 ? 48.0 * padded_voxels + 12.0 * frame_voxels : 0.0);
   const auto check_memory = [&](double source_voxels) {
-    const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + 4.0 * source_voxels;
+    const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + effects_bytes +
+                         4.0 * source_voxels;
     return dsr::CheckMemoryEstimate(
         "--frame_size=" + FLAGS_frame_size + " --num_frames=" + std::to_string(options.num_frames),
         bytes,
@@ -266,6 +337,10 @@ int Main(int argc, char** argv) {
   start = std::chrono::steady_clock::now();
   const std::filesystem::path dir(FLAGS_out_dir);
   dsr::PosesFile poses;
+  if (options.gain_range > 0.0 || options.offset_range > 0.0) {
+    // The ground truth of the intensity corrections a registration estimates.
+    dsr::Frame0IntensityCorrections(sequence.gain, sequence.offset, &poses.gain, &poses.offset);
+  }
   for (int f = 0; f < options.num_frames; ++f) {
     char frame_name[32], mask_name[32];
     std::snprintf(frame_name, sizeof(frame_name), "frame_%02d.nii.gz", f);

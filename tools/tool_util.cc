@@ -475,6 +475,18 @@ bool MatchPosesToImages(const std::string& flag,
     reordered.images.push_back(names[entry_of_image[i]]);
     reordered.frame_from_world.push_back(poses->frame_from_world[entry_of_image[i]]);
   }
+  // Gains and offsets are on the first entry's intensity scale: bring them to the scale of
+  // the entry that is now frame 0 (g_i I_i + o_i = g_n I_n + o_n becomes
+  // (g_i / g_n) I_i + (o_i - o_n) / g_n = I_n).
+  if (!poses->gain.empty()) {
+    const int first = entry_of_image[0];
+    const double g_n = poses->gain[first], o_n = poses->offset[first];
+    for (int i = 0; i < m; ++i) {
+      const int e = entry_of_image[i];
+      reordered.gain.push_back(i == 0 ? 1.0 : poses->gain[e] / g_n);
+      reordered.offset.push_back(i == 0 ? 0.0 : (poses->offset[e] - o_n) / g_n);
+    }
+  }
   LOG(INFO) << "--" << flag << "=" << path << ": entries reordered to the order of --images";
   *poses = std::move(reordered);
   return true;

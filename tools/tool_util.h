@@ -110,7 +110,9 @@ std::string CanonicalPath(const std::string& path);
 // given, its file name, or its file name without the extension. A file whose names are all
 // empty is kept in its order. An image that no entry names, or an entry naming two images,
 // is an error naming --<flag>: a pose applied to the wrong frame gives a wrong result with
-// no other sign, so any doubt is an error.
+// no other sign, so any doubt is an error. Gains and offsets, when the file has them, move
+// with their entries and are brought to the new frame 0's intensity scale; the covariance
+// and predicted TRE are dropped (they belong to the file's gauge).
 bool MatchPosesToImages(const std::string& flag,
                         const std::string& path,
                         const std::vector<std::string>& image_paths,

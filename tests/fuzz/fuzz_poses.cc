@@ -1,7 +1,8 @@
 // libFuzzer target: the poses-JSON reader (core/io_poses.h) on arbitrary bytes. The bytes
 // are written to a file in /dev/shm (or /tmp) because ReadPoses reads a path, as users call
 // it. Any outcome but a crash, a sanitizer report or a leak is fine; when the reader
-// accepts a file, its poses must be finite and rigid and survive a write/read round trip.
+// accepts a file, its poses (and optional gains and offsets) must be finite and rigid (gains
+// > 0) and survive a write/read round trip.
 #include <unistd.h>
 
 #include <cmath>
@@ -9,6 +10,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <string>
+#include <vector>
 
 #include "core/io_poses.h"
 
@@ -48,5 +50,13 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   for (size_t i = 0; i < poses.frame_from_world.size(); ++i) {
     if (!(again.frame_from_world[i].matrix() == poses.frame_from_world[i].matrix())) std::abort();
   }
+  // The optional intensity corrections: one per frame or none, and exact through the copy.
+  for (const std::vector<double>* values : {&poses.gain, &poses.offset}) {
+    if (!values->empty() && values->size() != poses.frame_from_world.size()) std::abort();
+  }
+  for (double gain : poses.gain) {
+    if (!(std::isfinite(gain) && gain > 0.0)) std::abort();
+  }
+  if (again.gain != poses.gain || again.offset != poses.offset) std::abort();
   return 0;
 }

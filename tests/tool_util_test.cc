@@ -1,0 +1,57 @@
+// Helpers shared by the tools (tools/tool_util.h).
+#include "tools/tool_util.h"
+
+#include <gtest/gtest.h>
+
+#include "core/io_poses.h"
+
+namespace dsr {
+namespace {
+
+Eigen::Isometry3d Shift(double x) {
+  Eigen::Isometry3d t = Eigen::Isometry3d::Identity();
+  t.translation().x() = x;
+  return t;
+}
+
+TEST(MatchPosesToImages, ReordersPosesAndRegaugesGainsAndOffsets) {
+  PosesFile poses;
+  poses.images = {"a.nii.gz", "b.nii.gz", "c.nii.gz"};
+  poses.frame_from_world = {Shift(0), Shift(1), Shift(2)};
+  // On a's scale: corrected = gain * I + offset.
+  poses.gain = {1.0, 2.0, 0.5};
+  poses.offset = {0.0, 10.0, -4.0};
+  std::string error;
+  ASSERT_TRUE(MatchPosesToImages("init", "p.json", {"/x/b.nii.gz", "/x/c.nii.gz", "/x/a.nii.gz"},
+                                 &poses, &error))
+      << error;
+  ASSERT_EQ(poses.images, std::vector<std::string>({"b.nii.gz", "c.nii.gz", "a.nii.gz"}));
+  EXPECT_EQ(poses.frame_from_world[0].translation().x(), 1.0);
+  EXPECT_EQ(poses.frame_from_world[2].translation().x(), 0.0);
+  ASSERT_EQ(poses.gain.size(), 3u);
+  ASSERT_EQ(poses.offset.size(), 3u);
+  // Now on b's scale: I_b = (2 I_b + 10 - 10) / 2; c: (0.5 I_c - 4 - 10) / 2; a: (I_a - 10) / 2.
+  EXPECT_DOUBLE_EQ(poses.gain[0], 1.0);
+  EXPECT_DOUBLE_EQ(poses.offset[0], 0.0);
+  EXPECT_DOUBLE_EQ(poses.gain[1], 0.25);
+  EXPECT_DOUBLE_EQ(poses.offset[1], -7.0);
+  EXPECT_DOUBLE_EQ(poses.gain[2], 0.5);
+  EXPECT_DOUBLE_EQ(poses.offset[2], -5.0);
+  // The same intensity on the old scale is the same on the new one, up to b's map.
+  const double i_c = 37.0;
+  EXPECT_DOUBLE_EQ(poses.gain[1] * i_c + poses.offset[1], ((0.5 * i_c - 4.0) - 10.0) / 2.0);
+}
+
+TEST(MatchPosesToImages, FilesWithoutGainsStayWithout) {
+  PosesFile poses;
+  poses.images = {"a", "b"};
+  poses.frame_from_world = {Shift(0), Shift(1)};
+  std::string error;
+  ASSERT_TRUE(MatchPosesToImages("init", "p.json", {"b.nii", "a.nii"}, &poses, &error)) << error;
+  EXPECT_TRUE(poses.gain.empty());
+  EXPECT_TRUE(poses.offset.empty());
+  EXPECT_EQ(poses.frame_from_world[0].translation().x(), 1.0);
+}
+
+}  // namespace
+}  // namespace dsr
