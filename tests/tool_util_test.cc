@@ -42,6 +42,19 @@ TEST(MatchPosesToImages, ReordersPosesAndRegaugesGainsAndOffsets) {
   EXPECT_DOUBLE_EQ(poses.gain[1] * i_c + poses.offset[1], ((0.5 * i_c - 4.0) - 10.0) / 2.0);
 }
 
+// A file with gains and no offsets (each field may come alone): the offsets that the new
+// gauge needs appear only where they are not 0.
+TEST(MatchPosesToImages, GainsWithoutOffsets) {
+  PosesFile poses;
+  poses.images = {"a", "b"};
+  poses.frame_from_world = {Shift(0), Shift(1)};
+  poses.gain = {1.0, 4.0};
+  std::string error;
+  ASSERT_TRUE(MatchPosesToImages("init", "p.json", {"b.nii", "a.nii"}, &poses, &error)) << error;
+  EXPECT_EQ(poses.gain, std::vector<double>({1.0, 0.25}));
+  EXPECT_TRUE(poses.offset.empty());
+}
+
 TEST(MatchPosesToImages, FilesWithoutGainsStayWithout) {
   PosesFile poses;
   poses.images = {"a", "b"};

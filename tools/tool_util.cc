@@ -478,14 +478,23 @@ bool MatchPosesToImages(const std::string& flag,
   // Gains and offsets are on the first entry's intensity scale: bring them to the scale of
   // the entry that is now frame 0 (g_i I_i + o_i = g_n I_n + o_n becomes
   // (g_i / g_n) I_i + (o_i - o_n) / g_n = I_n).
-  if (!poses->gain.empty()) {
+  // Either field may be absent (gain 1, offset 0); a field absent from the file stays so
+  // when the re-gauging leaves it at its default.
+  if (!poses->gain.empty() || !poses->offset.empty()) {
+    const auto gain = [&](int e) { return poses->gain.empty() ? 1.0 : poses->gain[e]; };
+    const auto offset = [&](int e) { return poses->offset.empty() ? 0.0 : poses->offset[e]; };
     const int first = entry_of_image[0];
-    const double g_n = poses->gain[first], o_n = poses->offset[first];
+    const double g_n = gain(first), o_n = offset(first);
     for (int i = 0; i < m; ++i) {
       const int e = entry_of_image[i];
-      reordered.gain.push_back(i == 0 ? 1.0 : poses->gain[e] / g_n);
-      reordered.offset.push_back(i == 0 ? 0.0 : (poses->offset[e] - o_n) / g_n);
+      reordered.gain.push_back(i == 0 ? 1.0 : gain(e) / g_n);
+      reordered.offset.push_back(i == 0 ? 0.0 : (offset(e) - o_n) / g_n);
     }
+    const auto all_equal = [](const std::vector<double>& v, double x) {
+      return std::all_of(v.begin(), v.end(), [x](double y) { return y == x; });
+    };
+    if (poses->gain.empty() && all_equal(reordered.gain, 1.0)) reordered.gain.clear();
+    if (poses->offset.empty() && all_equal(reordered.offset, 0.0)) reordered.offset.clear();
   }
   LOG(INFO) << "--" << flag << "=" << path << ": entries reordered to the order of --images";
   *poses = std::move(reordered);
