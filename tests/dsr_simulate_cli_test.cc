@@ -46,6 +46,17 @@ class DsrSimulateCli : public ::testing::Test {
     return "--phantom_size=48 --frame_size=20,20,16 --num_frames=3 --max_rotation_deg=5 "
            "--max_translation_voxels=2 --min_depth_voxels=2";
   }
+  // Tiny()'s sequence options for the library (the phantom aside), noise-free.
+  static SimulationOptions TinyOptions() {
+    SimulationOptions o;
+    o.frame_size = Eigen::Vector3i(20, 20, 16);
+    o.num_frames = 3;
+    o.max_rotation_deg = 5.0;
+    o.max_translation_voxels = 2.0;
+    o.min_depth_voxels = 2.0;
+    o.noise_sigma = 0.0;
+    return o;
+  }
 
   fs::path dir_;
 };
@@ -148,13 +159,7 @@ TEST_F(DsrSimulateCli, InterpolationReachesTheSimulator) {
   std::string error;
   Image source;
   ASSERT_TRUE(ReadImage((cubic / "source.nii.gz").string(), &source, &error)) << error;
-  SimulationOptions o;  // Tiny()
-  o.frame_size = Eigen::Vector3i(20, 20, 16);
-  o.num_frames = 3;
-  o.max_rotation_deg = 5.0;
-  o.max_translation_voxels = 2.0;
-  o.min_depth_voxels = 2.0;
-  o.noise_sigma = 0.0;
+  SimulationOptions o = TinyOptions();
   o.interpolation = SourceInterpolation::kCubic;
   SimulatedSequence expected;
   ASSERT_TRUE(dsr::Simulate(source, o, &expected, &error)) << error;
@@ -180,13 +185,7 @@ TEST_F(DsrSimulateCli, EffectsReachTheSimulatorAndGainsAndOffsetsGoToTheGroundTr
   std::string error;
   Image source;
   ASSERT_TRUE(ReadImage((effects / "source.nii.gz").string(), &source, &error)) << error;
-  SimulationOptions o;  // Tiny()
-  o.frame_size = Eigen::Vector3i(20, 20, 16);
-  o.num_frames = 3;
-  o.max_rotation_deg = 5.0;
-  o.max_translation_voxels = 2.0;
-  o.min_depth_voxels = 2.0;
-  o.noise_sigma = 0.0;
+  SimulationOptions o = TinyOptions();
   o.seed = 4;
   o.gain_range = 0.25;
   o.offset_range = 15.0;
