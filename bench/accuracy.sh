@@ -10,7 +10,10 @@
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
 # real anatomical volume the project did not make). Protocols (11 frames of 96x96x80,
 # noise sigma 25): paper (+/-12 deg, +/-15 voxels), wide (+/-25 deg, +/-20 voxels), walk
-# (each frame within 6 deg / 6 voxels of the previous one). Masks: fov = the exact field of
+# (each frame within 6 deg / 6 voxels of the previous one); us: walk with ultrasound-like
+# effects (issue 21: noise sigma 15, speckle of 4 looks, 0.5 dB/cm attenuation, per-frame
+# gain within +/-15 % and offset within +/-10), us_flat: the same sequences (same poses,
+# noise and speckle) without the gain, offset and attenuation. Masks: fov = the exact field of
 # view (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one
 # voxel (what dsr_register uses without --masks). Sequences are cached under OUT/sequences.
 # --uncertainty: also the pose covariance (dsr_compare --uncertainty) and a table of the
@@ -46,7 +49,9 @@ protocol_flags() {
     paper) echo "--max_rotation_deg=12 --max_translation_voxels=15" ;;
     wide) echo "--max_rotation_deg=25 --max_translation_voxels=20" ;;
     walk) echo "--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15" ;;
-    *) echo "accuracy.sh: unknown protocol '$1' (paper, wide, walk)" >&2; exit 2 ;;
+    us) echo "--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15 --sigma=15 --speckle_looks=4 --attenuation_db_per_cm=0.5 --gain_range=0.15 --offset_range=10" ;;
+    us_flat) echo "--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15 --sigma=15 --speckle_looks=4" ;;
+    *) echo "accuracy.sh: unknown protocol '$1' (paper, wide, walk, us, us_flat)" >&2; exit 2 ;;
   esac
 }
 
