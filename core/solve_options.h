@@ -10,6 +10,8 @@
 #include <ceres/iteration_callback.h>
 #include <ceres/solver.h>
 
+#include "core/photometric.h"
+
 namespace dsr {
 
 struct SolveOptions {
@@ -87,6 +89,9 @@ struct SolveReport {
   // poses, from the solve's last pass when it was made there (else empty).
   std::vector<double> final_frame_cost;
   std::vector<int64_t> final_frame_observations;
+  // Per frame, the estimated gain and offset (solves with photometric parameters; else
+  // empty). Frame 0: 1 and 0.
+  std::vector<Photometric> photometric;
 };
 
 // Fills the common fields of a report from a Ceres summary.

@@ -42,6 +42,41 @@ bool DbaResidual::Evaluate(double const* const* parameters,
   return true;
 }
 
+bool DbaPhotometricResidual::Evaluate(double const* const* parameters,
+                                      double* residuals,
+                                      double** jacobians) const {
+  const Eigen::Isometry3d frame_from_world = ParametersToPose(parameters[0]);
+  double intensity;
+  RowVector6d jacobian_tangent;
+  const bool want_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
+  const bool observed = ObserveSample(*frame_, frame_from_world, voxel_center_in_world_,
+                                      &intensity, want_jacobian ? &jacobian_tangent : nullptr);
+  if (!observed) {  // sigma_ij = 0: zero residual, zero Jacobian.
+    residuals[0] = 0.0;
+    if (jacobians != nullptr) {
+      if (jacobians[0] != nullptr) std::memset(jacobians[0], 0, sizeof(double) * kPoseAmbientSize);
+      if (jacobians[1] != nullptr) jacobians[1][0] = 0.0;
+      if (jacobians[2] != nullptr) jacobians[2][0] = jacobians[2][1] = 0.0;
+    }
+    return true;
+  }
+  const Photometric photometric{parameters[2][0], parameters[2][1]};
+  const double gain = photometric.gain();
+  residuals[0] = parameters[1][0] - photometric.Correct(intensity);
+  if (jacobians != nullptr) {
+    if (jacobians[0] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(jacobians[0]);
+      ambient = -gain * jacobian_tangent * TangentToAmbientJacobian(parameters[0]);
+    }
+    if (jacobians[1] != nullptr) jacobians[1][0] = 1.0;
+    if (jacobians[2] != nullptr) {
+      jacobians[2][0] = -gain * intensity;  // d e / d log_gain
+      jacobians[2][1] = -1.0;               // d e / d offset
+    }
+  }
+  return true;
+}
+
 bool DbaOptions::Validate(std::string* error) const {
   if (!solve.Validate(error)) return false;
   if (!std::isfinite(memory_budget_bytes)) {
@@ -95,10 +130,15 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
 
 DbaProblem::DbaProblem(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
-                       const std::vector<Eigen::Isometry3d>& frame_from_world) {
+                       const std::vector<Eigen::Isometry3d>& frame_from_world,
+                       const std::vector<Photometric>& photometric) {
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(candidates.num_frames, m);
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
+  // The correction each frame's observations get (identity without photometric blocks).
+  std::vector<Photometric> correction(m);
+  if (!photometric.empty()) correction = photometric;
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
@@ -111,8 +151,16 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
   }
   problem_->SetParameterBlockConstant(poses_[0].data());
+  if (!photometric.empty()) {
+    photometric_.resize(m);
+    for (int i = 0; i < m; ++i) {
+      photometric_[i] = {photometric[i].log_gain, photometric[i].offset};
+      problem_->AddParameterBlock(photometric_[i].data(), 2);
+    }
+    problem_->SetParameterBlockConstant(photometric_[0].data());
+  }
 
-  // Initial intensities: the per-voxel mean of the observations (paper eq. 10).
+  // Initial intensities: the per-voxel mean of the (corrected) observations (paper eq. 10).
   const int64_t n = candidates.num_voxels();
   intensities_.assign(n, 0.0);
   ParallelFor(0, n, 0, [&](int64_t v) {
@@ -123,7 +171,7 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
       double value;
       if ((candidates.observers[v] >> i & 1u) &&
           ObserveSample(frames[i], frame_from_world[i], p, &value, nullptr)) {
-        sum += value;
+        sum += correction[i].Correct(value);
         ++count;
       }
     }
@@ -133,7 +181,8 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
       // meets a plausible intensity instead of 0 (which would make the cost jump).
       for (int i = 0; i < m; ++i) {
         if (!(candidates.observers[v] >> i & 1u)) continue;
-        sum += frames[i].InterpolateValue(frames[i].ToIndex(frame_from_world[i] * p));
+        sum += correction[i].Correct(
+            frames[i].InterpolateValue(frames[i].ToIndex(frame_from_world[i] * p)));
         ++count;
       }
     }
@@ -144,8 +193,13 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     const Eigen::Vector3d p = candidates.VoxelCenter(v);
     for (int i = 0; i < m; ++i) {
       if (!(candidates.observers[v] >> i & 1u)) continue;
-      problem_->AddResidualBlock(new DbaResidual(&frames[i], p), nullptr, poses_[i].data(),
-                                 &intensities_[v]);
+      if (photometric_.empty()) {
+        problem_->AddResidualBlock(new DbaResidual(&frames[i], p), nullptr, poses_[i].data(),
+                                   &intensities_[v]);
+      } else {
+        problem_->AddResidualBlock(new DbaPhotometricResidual(&frames[i], p), nullptr,
+                                   poses_[i].data(), &intensities_[v], photometric_[i].data());
+      }
       ++num_residual_blocks_;
     }
   }
@@ -154,6 +208,12 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
 std::vector<Eigen::Isometry3d> DbaProblem::Poses() const {
   std::vector<Eigen::Isometry3d> out;
   for (const auto& x : poses_) out.push_back(ParametersToPose(x.data()));
+  return out;
+}
+
+std::vector<Photometric> DbaProblem::PhotometricParameters() const {
+  std::vector<Photometric> out;
+  for (const auto& x : photometric_) out.push_back({x[0], x[1]});
   return out;
 }
 
@@ -166,6 +226,7 @@ std::shared_ptr<ceres::ParameterBlockOrdering> DbaProblem::MakeOrdering() {
   auto ordering = std::make_shared<ceres::ParameterBlockOrdering>();
   for (double& value : intensities_) ordering->AddElementToGroup(&value, 0);
   for (auto& x : poses_) ordering->AddElementToGroup(x.data(), 1);
+  for (auto& x : photometric_) ordering->AddElementToGroup(x.data(), 1);
   return ordering;
 }
 
@@ -194,7 +255,9 @@ bool SolveDba(const std::vector<Frame>& frames,
     return false;
   }
 
-  DbaProblem dba(frames, candidates, initial_frame_from_world);
+  DbaProblem dba(frames, candidates, initial_frame_from_world,
+                 options.photometric ? std::vector<Photometric>(frames.size())
+                                     : std::vector<Photometric>());
   ceres::Solver::Options solver_options;
   options.solve.ToCeres("DENSE_SCHUR", &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
@@ -217,6 +280,7 @@ bool SolveDba(const std::vector<Frame>& frames,
   FillReport(summary, progress, report);
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dba.Poses();
+  report->photometric = dba.PhotometricParameters();
   report->observations_per_iteration = dba.num_residual_blocks();
   if (intensities != nullptr) {
     intensities->resize(dba.num_intensities());

@@ -9,6 +9,12 @@
 //   e_ij = M_j - I_i(p_ij),  d e / d delta_i = -J_ij,  d e / d M_j = 1,
 // zero residual and zero Jacobian while sigma_ij = 0. Solved by Ceres's Schur solvers with
 // every intensity block in elimination group 0 and the poses in group 1.
+//
+// With photometric parameters (DbaOptions::photometric, issue 21), each frame also has a
+// 2-D block [log_gain, offset] (core/observation.h, Photometric; frame 0 constant, the
+// gauge) beside its pose, in group 1, and
+//   e_ij = M_j - (a_i I_i(p_ij) + b_i),  a_i = exp(log_gain_i),
+//   d e / d delta_i = -a_i J_ij,  d e / d log_gain_i = -a_i I_i(p_ij),  d e / d b_i = -1.
 #ifndef DSR_DBA_DBA_PROBLEM_H_
 #define DSR_DBA_DBA_PROBLEM_H_
 
@@ -21,6 +27,7 @@
 
 #include "core/frame.h"
 #include "core/observation.h"
+#include "core/photometric.h"
 #include "core/se3.h"
 #include "core/solve_options.h"
 
@@ -40,8 +47,26 @@ class DbaResidual final : public ceres::SizedCostFunction<1, kPoseAmbientSize, 1
   Eigen::Vector3d voxel_center_in_world_;
 };
 
+// The residual with the frame's photometric block:
+// SizedCostFunction<1, pose (7), intensity (1), [log_gain, offset] (2)>.
+class DbaPhotometricResidual final
+    : public ceres::SizedCostFunction<1, kPoseAmbientSize, 1, 2> {
+ public:
+  DbaPhotometricResidual(const Frame* frame, const Eigen::Vector3d& voxel_center_in_world)
+      : frame_(frame), voxel_center_in_world_(voxel_center_in_world) {}
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  const Frame* frame_;  // not owned
+  Eigen::Vector3d voxel_center_in_world_;
+};
+
 struct DbaOptions {
   SolveOptions solve;  // linear solver default: DENSE_SCHUR
+  // Estimate a gain and an offset per frame with the poses (frame 0's fixed at 1 and 0).
+  bool photometric = false;
   // Refuse problems whose estimated memory exceeds this; <= 0 means half the machine's RAM.
   double memory_budget_bytes = 0.0;
   bool Validate(std::string* error) const;
@@ -63,10 +88,14 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
 class DbaProblem {
  public:
   // Builds the problem at `frame_from_world` (frame 0 held constant). Intensities start at
-  // the per-voxel mean of the observations at these poses (0 where none observes).
+  // the per-voxel mean of the observations at these poses (0 where none observes). With
+  // `photometric` (one entry per frame, or empty for none), each frame gets a photometric
+  // block starting there (frame 0's is held constant; give it the gauge, 0 and 0), and the
+  // intensities start at the mean of the corrected observations.
   DbaProblem(const std::vector<Frame>& frames,
              const CandidateSet& candidates,
-             const std::vector<Eigen::Isometry3d>& frame_from_world);
+             const std::vector<Eigen::Isometry3d>& frame_from_world,
+             const std::vector<Photometric>& photometric = {});
 
   ceres::Problem& problem() { return *problem_; }
   double* pose_parameters(int frame) { return poses_[frame].data(); }
@@ -74,6 +103,9 @@ class DbaProblem {
   int64_t num_intensities() const { return static_cast<int64_t>(intensities_.size()); }
   int64_t num_residual_blocks() const { return num_residual_blocks_; }
   std::vector<Eigen::Isometry3d> Poses() const;
+  // Empty without photometric blocks.
+  std::vector<Photometric> PhotometricParameters() const;
+  double* photometric_parameters(int frame) { return photometric_[frame].data(); }
   // Sets every pose from `frame_from_world` (tests).
   void SetPoses(const std::vector<Eigen::Isometry3d>& frame_from_world);
   // Orders intensities (group 0) before poses (group 1) for Schur elimination.
@@ -82,13 +114,16 @@ class DbaProblem {
  private:
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
+  std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
   std::vector<double> intensities_;
   int64_t num_residual_blocks_ = 0;
 };
 
 // Builds and solves. Fails (false, `error`) when the memory estimate exceeds the budget,
 // naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
-// that runs but is not usable returns true with report->usable = false.
+// that runs but is not usable returns true with report->usable = false. With
+// options.photometric, the photometric parameters start at 1 and 0 and are returned in
+// report->photometric.
 bool SolveDba(const std::vector<Frame>& frames,
               const CandidateSet& candidates,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
