@@ -9,6 +9,10 @@
 
 namespace dsr {
 
+constexpr char kNoFastPhotometric[] =
+    "photometric parameters: DSR's fast path does not estimate them yet (use the reference "
+    "cost, or --mode=dba)";
+
 bool DsrOptions::Validate(std::string* error) const {
   if (!solve.Validate(error)) return false;
   const std::string& ls = solve.linear_solver;
@@ -17,6 +21,10 @@ bool DsrOptions::Validate(std::string* error) const {
     *error = "--linear_solver=" + ls +
              ": --mode=dsr solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
              "SPARSE_NORMAL_CHOLESKY";
+    return false;
+  }
+  if (photometric && !reference_cost) {
+    *error = kNoFastPhotometric;
     return false;
   }
   if (num_chunks < 1) {
@@ -45,6 +53,11 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
       problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
     }
     problem_->SetParameterBlockConstant(poses_[0].data());
+    if (options.photometric) {
+      photometric_.assign(m, {0.0, 0.0});
+      for (int i = 0; i < m; ++i) problem_->AddParameterBlock(photometric_[i].data(), 2);
+      problem_->SetParameterBlockConstant(photometric_[0].data());
+    }
     for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
       std::vector<const Frame*> observers;
       std::vector<double*> blocks;
@@ -54,8 +67,17 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
           blocks.push_back(poses_[i].data());
         }
       }
-      problem_->AddResidualBlock(new VoxelReducedCost(observers, candidates.VoxelCenter(v)),
-                                 nullptr, blocks);
+      if (options.photometric) {
+        for (int i = 0; i < m; ++i) {
+          if (candidates.observers[v] >> i & 1u) blocks.push_back(photometric_[i].data());
+        }
+        problem_->AddResidualBlock(
+            new VoxelReducedPhotometricCost(observers, candidates.VoxelCenter(v)), nullptr,
+            blocks);
+      } else {
+        problem_->AddResidualBlock(new VoxelReducedCost(observers, candidates.VoxelCenter(v)),
+                                   nullptr, blocks);
+      }
     }
     return;
   }
@@ -86,6 +108,12 @@ void DsrProblem::SetEvaluationPolicy(const StreamedEvaluationPolicy& policy) {
   for (ReducedChunkCost* chunk : chunks_) chunk->set_policy(policy);
 }
 
+std::vector<Photometric> DsrProblem::PhotometricParameters() const {
+  std::vector<Photometric> out;
+  for (const auto& x : photometric_) out.push_back({x[0], x[1]});
+  return out;
+}
+
 std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
   std::vector<Eigen::Isometry3d> out;
   for (const auto& x : poses_) out.push_back(ParametersToPose(x.data()));
@@ -98,6 +126,10 @@ bool SolveDsr(const std::vector<Frame>& frames,
               const DsrOptions& options,
               SolveReport* report,
               std::string* error) {
+  if (options.photometric && !options.reference_cost) {
+    *error = kNoFastPhotometric;
+    return false;
+  }
   DsrProblem dsr(frames, candidates, initial_frame_from_world, options);
   // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
   // it is set for this solve only (core/streamed_cost.h).
@@ -128,6 +160,7 @@ bool SolveDsr(const std::vector<Frame>& frames,
   FillReport(summary, progress, report);
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
+  report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();
   std::vector<const double*> free_blocks;
   for (size_t i = 1; i < frames.size(); ++i) free_blocks.push_back(dsr.pose_parameters(i));

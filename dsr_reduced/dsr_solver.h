@@ -23,6 +23,9 @@ struct DsrOptions {
   int num_chunks = 1;
   // Use the per-voxel reference cost instead (stores Jacobians: small problems only).
   bool reference_cost = false;
+  // Estimate a gain and an offset per frame with the poses (docs/design.md section 2.8;
+  // frame 0's fixed at 1 and 0). So far with the reference cost only.
+  bool photometric = false;
   bool Validate(std::string* error) const;
 };
 
@@ -37,6 +40,8 @@ class DsrProblem {
   ceres::Problem& problem() { return *problem_; }
   std::vector<Eigen::Isometry3d> Poses() const;
   double* pose_parameters(int frame) { return poses_[frame].data(); }
+  // Empty without photometric parameters.
+  std::vector<Photometric> PhotometricParameters() const;
   // Observations counted by the fast path's latest evaluation (sum over chunks); -1 for
   // the reference cost, which does not count them.
   int64_t LastObservations() const;
@@ -49,6 +54,7 @@ class DsrProblem {
  private:
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
+  std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
   std::vector<ReducedChunkCost*> chunks_;  // owned by problem_
 };
 

@@ -112,6 +112,72 @@ bool VoxelReducedCost::Evaluate(double const* const* parameters,
   return true;
 }
 
+VoxelReducedPhotometricCost::VoxelReducedPhotometricCost(
+    std::vector<const Frame*> observers, const Eigen::Vector3d& voxel_center_in_world)
+    : observers_(std::move(observers)), voxel_center_in_world_(voxel_center_in_world) {
+  set_num_residuals(static_cast<int>(observers_.size()));
+  for (size_t i = 0; i < observers_.size(); ++i) {
+    mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
+  }
+  for (size_t i = 0; i < observers_.size(); ++i) mutable_parameter_block_sizes()->push_back(2);
+}
+
+bool VoxelReducedPhotometricCost::Evaluate(double const* const* parameters,
+                                           double* residuals,
+                                           double** jacobians) const {
+  const int n = static_cast<int>(observers_.size());
+  std::vector<double> value(n, 0.0), corrected(n, 0.0), gain(n, 1.0);
+  std::vector<RowVector6d> jac(n, RowVector6d::Zero());
+  std::vector<int> sigma(n, 0);
+  int k = 0;
+  double sum = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const Photometric photometric{parameters[n + i][0], parameters[n + i][1]};
+    gain[i] = photometric.gain();
+    if (ObserveSample(*observers_[i], ParametersToPose(parameters[i]), voxel_center_in_world_,
+                      &value[i], &jac[i])) {
+      sigma[i] = 1;
+      ++k;
+      corrected[i] = photometric.Correct(value[i]);
+      sum += corrected[i];
+    }
+  }
+  if (jacobians != nullptr) {
+    for (int a = 0; a < n; ++a) {
+      if (jacobians[a] != nullptr) std::memset(jacobians[a], 0, sizeof(double) * n * kPoseAmbientSize);
+      if (jacobians[n + a] != nullptr) std::memset(jacobians[n + a], 0, sizeof(double) * n * 2);
+    }
+  }
+  if (k < 2) {  // mu_j = the lone observation (or none): no residual, no Jacobian.
+    std::fill(residuals, residuals + n, 0.0);
+    return true;
+  }
+  const double mean = sum / k;
+  for (int i = 0; i < n; ++i) residuals[i] = sigma[i] ? corrected[i] - mean : 0.0;
+  if (jacobians == nullptr) return true;
+  for (int a = 0; a < n; ++a) {
+    if (!sigma[a]) continue;
+    if (jacobians[a] != nullptr) {
+      const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
+          gain[a] * jac[a] * TangentToAmbientJacobian(parameters[a]);
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
+          jacobians[a], n, kPoseAmbientSize);
+      for (int i = 0; i < n; ++i) {
+        if (sigma[i]) out.row(i) = ((i == a ? 1.0 : 0.0) - 1.0 / k) * ambient;
+      }
+    }
+    if (jacobians[n + a] != nullptr) {
+      for (int i = 0; i < n; ++i) {
+        if (!sigma[i]) continue;
+        const double w = (i == a ? 1.0 : 0.0) - 1.0 / k;
+        jacobians[n + a][2 * i] = w * gain[a] * value[a];
+        jacobians[n + a][2 * i + 1] = w;
+      }
+    }
+  }
+  return true;
+}
+
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,

@@ -45,6 +45,25 @@ class VoxelReducedCost final : public ceres::CostFunction {
   Eigen::Vector3d voxel_center_in_world_;
 };
 
+// The reference with photometric parameters (docs/design.md section 2.8): residuals
+// r_ij = c_i - mean_a c_a over the voxel's observers, c_i = a_i I_i(p_ij) + b_i, with
+// a_i = exp(log_gain_i). Parameter blocks: the observers' poses (7 ambient each), then
+// their [log_gain, offset] blocks (2 each), both in increasing frame order.
+//   d r_i / d delta_a = (delta_ia - 1/k) a_a J_a,
+//   d r_i / d [log_gain_a, b_a] = (delta_ia - 1/k) [a_a I_a, 1].
+class VoxelReducedPhotometricCost final : public ceres::CostFunction {
+ public:
+  VoxelReducedPhotometricCost(std::vector<const Frame*> observers,
+                              const Eigen::Vector3d& voxel_center_in_world);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const override;
+
+ private:
+  std::vector<const Frame*> observers_;  // not owned
+  Eigen::Vector3d voxel_center_in_world_;
+};
+
 // The reduced normal equations over all m frames (6m x 6m; frame 0's rows included);
 // `observations` counts sum of k_j over voxels with k_j >= 2.
 using ReducedSystem = NormalEquations;

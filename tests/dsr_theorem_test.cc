@@ -8,6 +8,7 @@
 //     initial poses converge to the same poses, although Levenberg-Marquardt's damping of
 //     the intensity blocks makes their intermediate iterates differ.
 #include <ceres/ceres.h>
+#include <ceres/gradient_checker.h>
 #include <gtest/gtest.h>
 
 #include <array>
@@ -244,6 +245,104 @@ TEST(Theorem, DampedIteratesDifferButTheFixedPointIsShared) {
   const auto [rotation, translation] = MaxPoseDifference(converged.dba, converged.dsr_fast);
   EXPECT_LT(rotation, 1e-8);
   EXPECT_LT(translation, 1e-6);
+}
+
+// The theorem with photometric parameters (docs/design.md section 2.8): frames seen through
+// gains and offsets, DBA with a [log_gain, offset] block per frame and DSR's per-voxel
+// reference with the same blocks (intensities eliminated in closed form as the mean of the
+// corrected observations) converge to the same poses and the same parameters, and, on
+// these lattice-aligned problems, to the truth.
+TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
+  const Case c{4, 16, 5.0, 1};
+  auto s = MakeSequence(LatticeOptionsFor(c, 71));
+  const double g[] = {1.0, 1.25, 0.85, 1.1}, o[] = {0.0, 9.0, -6.0, 3.0};
+  for (int i = 1; i < c.num_frames; ++i) {
+    Image image = s.images[i];
+    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
+    s.frames[i] = Frame(image, s.masks[i]);
+  }
+  const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 72);
+  const CandidateSet cand = InteriorCandidates(s, init, 1.5);
+  ASSERT_GT(cand.num_voxels(), 200);
+  std::string error;
+  SolveReport dba_report, dsr_report;
+  DbaOptions dba;
+  dba.photometric = true;
+  dba.solve = FixedPointOptions(2000);
+  ASSERT_TRUE(SolveDba(s.frames, cand, init, dba, &dba_report, nullptr, &error)) << error;
+  ASSERT_TRUE(dba_report.usable) << dba_report.termination;
+  DsrOptions dsr;
+  dsr.photometric = true;
+  dsr.reference_cost = true;
+  dsr.solve = FixedPointOptions(1000);
+  ASSERT_TRUE(SolveDsr(s.frames, cand, init, dsr, &dsr_report, &error)) << error;
+  ASSERT_TRUE(dsr_report.usable) << dsr_report.termination;
+  const auto [rotation, translation] =
+      MaxPoseDifference(dba_report.frame_from_world, dsr_report.frame_from_world);
+  EXPECT_LT(rotation, 1e-8);
+  EXPECT_LT(translation, 1e-6);
+  ASSERT_EQ(dba_report.photometric.size(), 4u);
+  ASSERT_EQ(dsr_report.photometric.size(), 4u);
+  for (int i = 0; i < c.num_frames; ++i) {
+    EXPECT_NEAR(dba_report.photometric[i].log_gain, dsr_report.photometric[i].log_gain, 1e-8);
+    EXPECT_NEAR(dba_report.photometric[i].offset, dsr_report.photometric[i].offset, 1e-6);
+    EXPECT_NEAR(dsr_report.photometric[i].gain(), 1.0 / g[i], 1e-6) << i;
+    EXPECT_NEAR(dsr_report.photometric[i].offset, -o[i] / g[i], 1e-5) << i;
+  }
+  EXPECT_LT(MaxPoseDifference(dsr_report.frame_from_world, s.ground_truth).second, 1e-6);
+  // The fast path says it cannot, rather than ignoring the parameters.
+  dsr.reference_cost = false;
+  EXPECT_FALSE(SolveDsr(s.frames, cand, init, dsr, &dsr_report, &error));
+  EXPECT_NE(error.find("fast path"), std::string::npos) << error;
+}
+
+// The photometric reference cost's Jacobians against Ceres's numeric differentiation, on
+// a voxel with three observers, at poses and parameters away from the identity. The frames
+// are a linear ramp, where the gradient volumes' central differences are the exact
+// derivative of the interpolant (elsewhere they differ by design: docs/design.md 2.3).
+TEST(ReducedCost, PhotometricReferenceJacobiansMatchNumeric) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(16, 16, 16);
+  g.spacing_mm = Eigen::Vector3d(0.9, 1.1, 1.3);
+  Image image(g);
+  const Eigen::Vector3d slope(1.2, -0.7, 0.4);
+  for (int k = 0; k < 16; ++k)
+    for (int j = 0; j < 16; ++j)
+      for (int i = 0; i < 16; ++i)
+        image.at(i, j, k) =
+            static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + 40.0);
+  const Frame frame(image, Mask(g, 1));
+  const Eigen::Vector3d p = g.IndexToPhysical(Eigen::Vector3d(7.3, 8.1, 6.6));
+  std::array<Eigen::Isometry3d, 3> poses;
+  Vector6d d;
+  d << 0.0, 0.0, 0.0, 0.0, 0.0, 0.0;
+  poses[0] = ExpSE3(d);
+  d << 0.4, -0.3, 0.2, 0.05, -0.04, 0.03;
+  poses[1] = ExpSE3(d);
+  d << -0.2, 0.5, -0.1, -0.03, 0.02, 0.06;
+  poses[2] = ExpSE3(d);
+  VoxelReducedPhotometricCost cost({&frame, &frame, &frame}, p);
+  PoseManifold manifold;
+  std::vector<const ceres::Manifold*> manifolds = {&manifold, &manifold, &manifold,
+                                                   nullptr, nullptr, nullptr};
+  ceres::NumericDiffOptions numeric_options;
+  ceres::GradientChecker checker(&cost, &manifolds, numeric_options);
+  std::array<std::array<double, kPoseAmbientSize>, 3> x;
+  for (int i = 0; i < 3; ++i) PoseToParameters(poses[i], x[i].data());
+  double photometric[3][2] = {{0.0, 0.0}, {0.15, 4.0}, {-0.1, -2.5}};
+  const double* parameters[] = {x[0].data(), x[1].data(), x[2].data(),
+                                photometric[0], photometric[1], photometric[2]};
+  ceres::GradientChecker::ProbeResults results;
+  // 1e-3: the frame holds floats, as in dba_test's residual checks.
+  EXPECT_TRUE(checker.Probe(parameters, 1e-3, &results)) << results.error_log;
+  // At gains 1 and offsets 0 it is the plain reference cost.
+  VoxelReducedCost plain({&frame, &frame, &frame}, p);
+  double zero[3][2] = {{0.0, 0.0}, {0.0, 0.0}, {0.0, 0.0}};
+  const double* with_zero[] = {x[0].data(), x[1].data(), x[2].data(), zero[0], zero[1], zero[2]};
+  double r_photometric[3], r_plain[3];
+  ASSERT_TRUE(cost.Evaluate(with_zero, r_photometric, nullptr));
+  ASSERT_TRUE(plain.Evaluate(with_zero, r_plain, nullptr));
+  for (int i = 0; i < 3; ++i) EXPECT_EQ(r_photometric[i], r_plain[i]);
 }
 
 TEST(ReducedCost, FastPathMatchesPerVoxelReference) {
