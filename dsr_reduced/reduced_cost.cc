@@ -58,6 +58,74 @@ struct DsrVoxelTerm {
   }
 };
 
+// Both reference costs: the residuals r_i = c_i - mean c of one voxel's observers and their
+// Jacobians, with c_i = a_i I_i + b_i from `photometric` ([log_gain, offset] per observer)
+// or c_i = I_i when it is null (then a_i = 1 exactly, so the plain cost is unchanged).
+// `pose_jacobians` / `photometric_jacobians` (either may be null, as may their entries) are
+// n x 7 and n x 2 row-major per observer.
+void EvaluateVoxel(const std::vector<const Frame*>& observers,
+                   const Eigen::Vector3d& voxel_center_in_world,
+                   double const* const* poses,
+                   double const* const* photometric,
+                   double* residuals,
+                   double** pose_jacobians,
+                   double** photometric_jacobians) {
+  const int n = static_cast<int>(observers.size());
+  std::vector<double> value(n, 0.0), corrected(n, 0.0), gain(n, 1.0);
+  std::vector<RowVector6d> jac(n, RowVector6d::Zero());
+  std::vector<int> sigma(n, 0);
+  int k = 0;
+  double sum = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const Photometric correction =
+        photometric != nullptr ? Photometric{photometric[i][0], photometric[i][1]} : Photometric();
+    if (photometric != nullptr) gain[i] = correction.gain();
+    if (ObserveSample(*observers[i], ParametersToPose(poses[i]), voxel_center_in_world,
+                      &value[i], &jac[i])) {
+      sigma[i] = 1;
+      ++k;
+      corrected[i] = photometric != nullptr ? correction.Correct(value[i]) : value[i];
+      sum += corrected[i];
+    }
+  }
+  for (int a = 0; a < n; ++a) {
+    if (pose_jacobians != nullptr && pose_jacobians[a] != nullptr) {
+      std::memset(pose_jacobians[a], 0, sizeof(double) * n * kPoseAmbientSize);
+    }
+    if (photometric_jacobians != nullptr && photometric_jacobians[a] != nullptr) {
+      std::memset(photometric_jacobians[a], 0, sizeof(double) * n * 2);
+    }
+  }
+  if (k < 2) {  // mu_j = the lone observation (or none): no residual, no Jacobian.
+    std::fill(residuals, residuals + n, 0.0);
+    return;
+  }
+  const double mean = sum / k;
+  for (int i = 0; i < n; ++i) residuals[i] = sigma[i] ? corrected[i] - mean : 0.0;
+  for (int a = 0; a < n; ++a) {
+    if (!sigma[a]) continue;
+    // d r_i / d delta_a = sigma_i sigma_a (delta_ia - 1/k) a_a J_a, then to the ambient block.
+    if (pose_jacobians != nullptr && pose_jacobians[a] != nullptr) {
+      const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
+          gain[a] * jac[a] * TangentToAmbientJacobian(poses[a]);
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
+          pose_jacobians[a], n, kPoseAmbientSize);
+      for (int i = 0; i < n; ++i) {
+        if (sigma[i]) out.row(i) = ((i == a ? 1.0 : 0.0) - 1.0 / k) * ambient;
+      }
+    }
+    // d r_i / d [log_gain_a, b_a] = sigma_i sigma_a (delta_ia - 1/k) [a_a I_a, 1].
+    if (photometric_jacobians != nullptr && photometric_jacobians[a] != nullptr) {
+      for (int i = 0; i < n; ++i) {
+        if (!sigma[i]) continue;
+        const double w = (i == a ? 1.0 : 0.0) - 1.0 / k;
+        photometric_jacobians[a][2 * i] = w * gain[a] * value[a];
+        photometric_jacobians[a][2 * i + 1] = w;
+      }
+    }
+  }
+}
+
 }  // namespace
 
 VoxelReducedCost::VoxelReducedCost(std::vector<const Frame*> observers,
@@ -72,43 +140,8 @@ VoxelReducedCost::VoxelReducedCost(std::vector<const Frame*> observers,
 bool VoxelReducedCost::Evaluate(double const* const* parameters,
                                 double* residuals,
                                 double** jacobians) const {
-  const int n = static_cast<int>(observers_.size());
-  std::vector<double> value(n, 0.0);
-  std::vector<RowVector6d> jac(n, RowVector6d::Zero());
-  std::vector<int> sigma(n, 0);
-  int k = 0;
-  double sum = 0.0;
-  for (int i = 0; i < n; ++i) {
-    if (ObserveSample(*observers_[i], ParametersToPose(parameters[i]), voxel_center_in_world_,
-                      &value[i], &jac[i])) {
-      sigma[i] = 1;
-      ++k;
-      sum += value[i];
-    }
-  }
-  if (jacobians != nullptr) {
-    for (int a = 0; a < n; ++a) {
-      if (jacobians[a] != nullptr) std::memset(jacobians[a], 0, sizeof(double) * n * kPoseAmbientSize);
-    }
-  }
-  if (k < 2) {  // mu_j = the lone observation (or none): no residual, no Jacobian.
-    std::fill(residuals, residuals + n, 0.0);
-    return true;
-  }
-  const double mean = sum / k;
-  for (int i = 0; i < n; ++i) residuals[i] = sigma[i] ? value[i] - mean : 0.0;
-  if (jacobians == nullptr) return true;
-  for (int a = 0; a < n; ++a) {
-    if (jacobians[a] == nullptr || !sigma[a]) continue;
-    // d r_i / d delta_a = sigma_i sigma_a (delta_ia - 1/k) J_a, then to the ambient block.
-    const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
-        jac[a] * TangentToAmbientJacobian(parameters[a]);
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
-        jacobians[a], n, kPoseAmbientSize);
-    for (int i = 0; i < n; ++i) {
-      if (sigma[i]) out.row(i) = ((i == a ? 1.0 : 0.0) - 1.0 / k) * ambient;
-    }
-  }
+  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, nullptr, residuals, jacobians,
+                nullptr);
   return true;
 }
 
@@ -126,55 +159,8 @@ bool VoxelReducedPhotometricCost::Evaluate(double const* const* parameters,
                                            double* residuals,
                                            double** jacobians) const {
   const int n = static_cast<int>(observers_.size());
-  std::vector<double> value(n, 0.0), corrected(n, 0.0), gain(n, 1.0);
-  std::vector<RowVector6d> jac(n, RowVector6d::Zero());
-  std::vector<int> sigma(n, 0);
-  int k = 0;
-  double sum = 0.0;
-  for (int i = 0; i < n; ++i) {
-    const Photometric photometric{parameters[n + i][0], parameters[n + i][1]};
-    gain[i] = photometric.gain();
-    if (ObserveSample(*observers_[i], ParametersToPose(parameters[i]), voxel_center_in_world_,
-                      &value[i], &jac[i])) {
-      sigma[i] = 1;
-      ++k;
-      corrected[i] = photometric.Correct(value[i]);
-      sum += corrected[i];
-    }
-  }
-  if (jacobians != nullptr) {
-    for (int a = 0; a < n; ++a) {
-      if (jacobians[a] != nullptr) std::memset(jacobians[a], 0, sizeof(double) * n * kPoseAmbientSize);
-      if (jacobians[n + a] != nullptr) std::memset(jacobians[n + a], 0, sizeof(double) * n * 2);
-    }
-  }
-  if (k < 2) {  // mu_j = the lone observation (or none): no residual, no Jacobian.
-    std::fill(residuals, residuals + n, 0.0);
-    return true;
-  }
-  const double mean = sum / k;
-  for (int i = 0; i < n; ++i) residuals[i] = sigma[i] ? corrected[i] - mean : 0.0;
-  if (jacobians == nullptr) return true;
-  for (int a = 0; a < n; ++a) {
-    if (!sigma[a]) continue;
-    if (jacobians[a] != nullptr) {
-      const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
-          gain[a] * jac[a] * TangentToAmbientJacobian(parameters[a]);
-      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
-          jacobians[a], n, kPoseAmbientSize);
-      for (int i = 0; i < n; ++i) {
-        if (sigma[i]) out.row(i) = ((i == a ? 1.0 : 0.0) - 1.0 / k) * ambient;
-      }
-    }
-    if (jacobians[n + a] != nullptr) {
-      for (int i = 0; i < n; ++i) {
-        if (!sigma[i]) continue;
-        const double w = (i == a ? 1.0 : 0.0) - 1.0 / k;
-        jacobians[n + a][2 * i] = w * gain[a] * value[a];
-        jacobians[n + a][2 * i + 1] = w;
-      }
-    }
-  }
+  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, parameters + n, residuals,
+                jacobians, jacobians != nullptr ? jacobians + n : nullptr);
   return true;
 }
 
