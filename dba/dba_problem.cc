@@ -13,67 +13,68 @@
 
 namespace dsr {
 
+namespace {
+
+// Both residuals: e = M - c(I_i(p)), c the photometric correction (none when `photometric`
+// is null: then e = M - I exactly). Jacobian pointers may be null.
+void EvaluateObservation(const Frame& frame,
+                         const Eigen::Vector3d& voxel_center_in_world,
+                         const double* pose,
+                         double panorama_intensity,
+                         const double* photometric,
+                         double* residual,
+                         double* pose_jacobian,
+                         double* intensity_jacobian,
+                         double* photometric_jacobian) {
+  double intensity;
+  RowVector6d jacobian_tangent;
+  const bool observed =
+      ObserveSample(frame, ParametersToPose(pose), voxel_center_in_world, &intensity,
+                    pose_jacobian != nullptr ? &jacobian_tangent : nullptr);
+  if (!observed) {  // sigma_ij = 0: zero residual, zero Jacobian.
+    *residual = 0.0;
+    if (pose_jacobian != nullptr) {
+      std::memset(pose_jacobian, 0, sizeof(double) * kPoseAmbientSize);
+    }
+    if (intensity_jacobian != nullptr) *intensity_jacobian = 0.0;
+    if (photometric_jacobian != nullptr) photometric_jacobian[0] = photometric_jacobian[1] = 0.0;
+    return;
+  }
+  const Photometric correction =
+      photometric != nullptr ? Photometric{photometric[0], photometric[1]} : Photometric();
+  const double gain = photometric != nullptr ? correction.gain() : 1.0;
+  *residual =
+      panorama_intensity - (photometric != nullptr ? correction.Correct(intensity) : intensity);
+  if (pose_jacobian != nullptr) {
+    // d e / d delta = -a J_ij, placed in the ambient block via the MinusJacobian (se3.h).
+    Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(pose_jacobian);
+    ambient = -gain * jacobian_tangent * TangentToAmbientJacobian(pose);
+  }
+  if (intensity_jacobian != nullptr) *intensity_jacobian = 1.0;
+  if (photometric_jacobian != nullptr) {
+    photometric_jacobian[0] = -gain * intensity;  // d e / d log_gain
+    photometric_jacobian[1] = -1.0;               // d e / d offset
+  }
+}
+
+double* Block(double** jacobians, int i) { return jacobians != nullptr ? jacobians[i] : nullptr; }
+
+}  // namespace
+
 bool DbaResidual::Evaluate(double const* const* parameters,
                            double* residuals,
                            double** jacobians) const {
-  const Eigen::Isometry3d frame_from_world = ParametersToPose(parameters[0]);
-  double intensity;
-  RowVector6d jacobian_tangent;
-  const bool want_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
-  const bool observed = ObserveSample(*frame_, frame_from_world, voxel_center_in_world_,
-                                      &intensity, want_jacobian ? &jacobian_tangent : nullptr);
-  if (!observed) {  // sigma_ij = 0: zero residual, zero Jacobian.
-    residuals[0] = 0.0;
-    if (jacobians != nullptr) {
-      if (jacobians[0] != nullptr) std::memset(jacobians[0], 0, sizeof(double) * kPoseAmbientSize);
-      if (jacobians[1] != nullptr) jacobians[1][0] = 0.0;
-    }
-    return true;
-  }
-  residuals[0] = parameters[1][0] - intensity;
-  if (jacobians != nullptr) {
-    if (jacobians[0] != nullptr) {
-      // d e / d delta = -J_ij, placed in the ambient block via the MinusJacobian (se3.h).
-      Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(jacobians[0]);
-      ambient = -jacobian_tangent * TangentToAmbientJacobian(parameters[0]);
-    }
-    if (jacobians[1] != nullptr) jacobians[1][0] = 1.0;
-  }
+  EvaluateObservation(*frame_, voxel_center_in_world_, parameters[0], parameters[1][0], nullptr,
+                      residuals, Block(jacobians, 0), Block(jacobians, 1), nullptr);
   return true;
 }
 
 bool DbaPhotometricResidual::Evaluate(double const* const* parameters,
                                       double* residuals,
                                       double** jacobians) const {
-  const Eigen::Isometry3d frame_from_world = ParametersToPose(parameters[0]);
-  double intensity;
-  RowVector6d jacobian_tangent;
-  const bool want_jacobian = jacobians != nullptr && jacobians[0] != nullptr;
-  const bool observed = ObserveSample(*frame_, frame_from_world, voxel_center_in_world_,
-                                      &intensity, want_jacobian ? &jacobian_tangent : nullptr);
-  if (!observed) {  // sigma_ij = 0: zero residual, zero Jacobian.
-    residuals[0] = 0.0;
-    if (jacobians != nullptr) {
-      if (jacobians[0] != nullptr) std::memset(jacobians[0], 0, sizeof(double) * kPoseAmbientSize);
-      if (jacobians[1] != nullptr) jacobians[1][0] = 0.0;
-      if (jacobians[2] != nullptr) jacobians[2][0] = jacobians[2][1] = 0.0;
-    }
-    return true;
-  }
-  const Photometric photometric{parameters[2][0], parameters[2][1]};
-  const double gain = photometric.gain();
-  residuals[0] = parameters[1][0] - photometric.Correct(intensity);
-  if (jacobians != nullptr) {
-    if (jacobians[0] != nullptr) {
-      Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(jacobians[0]);
-      ambient = -gain * jacobian_tangent * TangentToAmbientJacobian(parameters[0]);
-    }
-    if (jacobians[1] != nullptr) jacobians[1][0] = 1.0;
-    if (jacobians[2] != nullptr) {
-      jacobians[2][0] = -gain * intensity;  // d e / d log_gain
-      jacobians[2][1] = -1.0;               // d e / d offset
-    }
-  }
+  EvaluateObservation(*frame_, voxel_center_in_world_, parameters[0], parameters[1][0],
+                      parameters[2], residuals, Block(jacobians, 0), Block(jacobians, 1),
+                      Block(jacobians, 2));
   return true;
 }
 

@@ -32,17 +32,8 @@ DbaOptions QuietOptions() {
 }
 
 TEST(DbaResidual, AnalyticJacobianMatchesNumeric) {
-  ImageGeometry g;
-  g.size = Eigen::Vector3i(16, 16, 16);
-  g.spacing_mm = Eigen::Vector3d(0.9, 1.1, 1.3);
-  Image image(g);
-  const Eigen::Vector3d slope(1.2, -0.7, 0.4);
-  for (int k = 0; k < 16; ++k)
-    for (int j = 0; j < 16; ++j)
-      for (int i = 0; i < 16; ++i)
-        image.at(i, j, k) =
-            static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + 10.0);
-  const Frame frame(image, Mask(g, 1));
+  const Frame frame = testing_problems::LinearRampFrame(10.0);
+  const ImageGeometry& g = frame.geometry();
   Vector6d d;
   d << 0.4, -0.3, 0.2, 0.05, -0.04, 0.03;
   const Eigen::Isometry3d pose = ExpSE3(d);
@@ -87,17 +78,8 @@ TEST(DbaResidual, AnalyticJacobianMatchesNumeric) {
 // The photometric residual e = M - (exp(log_gain) I + offset): every block's Jacobian
 // against Ceres's numeric differentiation, on the pose manifold.
 TEST(DbaPhotometricResidual, AnalyticJacobianMatchesNumeric) {
-  ImageGeometry g;
-  g.size = Eigen::Vector3i(16, 16, 16);
-  g.spacing_mm = Eigen::Vector3d(0.9, 1.1, 1.3);
-  Image image(g);
-  const Eigen::Vector3d slope(1.2, -0.7, 0.4);
-  for (int k = 0; k < 16; ++k)
-    for (int j = 0; j < 16; ++j)
-      for (int i = 0; i < 16; ++i)
-        image.at(i, j, k) =
-            static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + 10.0);
-  const Frame frame(image, Mask(g, 1));
+  const Frame frame = testing_problems::LinearRampFrame(10.0);
+  const ImageGeometry& g = frame.geometry();
   Vector6d d;
   d << 0.4, -0.3, 0.2, 0.05, -0.04, 0.03;
   const Eigen::Isometry3d pose = ExpSE3(d);

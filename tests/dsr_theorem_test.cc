@@ -301,17 +301,8 @@ TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
 // are a linear ramp, where the gradient volumes' central differences are the exact
 // derivative of the interpolant (elsewhere they differ by design: docs/design.md 2.3).
 TEST(ReducedCost, PhotometricReferenceJacobiansMatchNumeric) {
-  ImageGeometry g;
-  g.size = Eigen::Vector3i(16, 16, 16);
-  g.spacing_mm = Eigen::Vector3d(0.9, 1.1, 1.3);
-  Image image(g);
-  const Eigen::Vector3d slope(1.2, -0.7, 0.4);
-  for (int k = 0; k < 16; ++k)
-    for (int j = 0; j < 16; ++j)
-      for (int i = 0; i < 16; ++i)
-        image.at(i, j, k) =
-            static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + 40.0);
-  const Frame frame(image, Mask(g, 1));
+  const Frame frame = testing_problems::LinearRampFrame(40.0);
+  const ImageGeometry& g = frame.geometry();
   const Eigen::Vector3d p = g.IndexToPhysical(Eigen::Vector3d(7.3, 8.1, 6.6));
   std::array<Eigen::Isometry3d, 3> poses;
   Vector6d d;

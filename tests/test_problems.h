@@ -243,6 +243,23 @@ inline Eigen::MatrixXd DenseJacobian(ceres::Problem* problem,
   return j;
 }
 
+// A 16^3 frame (spacing 0.9, 1.1, 1.3 mm, all inside its mask) holding the linear ramp
+// slope . x + `base`: its gradient volumes' central differences are the exact derivative of
+// the interpolant, so analytic Jacobians can be checked numerically on it.
+inline Frame LinearRampFrame(double base) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(16, 16, 16);
+  g.spacing_mm = Eigen::Vector3d(0.9, 1.1, 1.3);
+  Image image(g);
+  const Eigen::Vector3d slope(1.2, -0.7, 0.4);
+  for (int k = 0; k < 16; ++k)
+    for (int j = 0; j < 16; ++j)
+      for (int i = 0; i < 16; ++i)
+        image.at(i, j, k) =
+            static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + base);
+  return Frame(image, Mask(g, 1));
+}
+
 }  // namespace testing_problems
 }  // namespace dsr
 
