@@ -3,6 +3,8 @@
 #define DSR_CORE_PHOTOMETRIC_H_
 
 #include <cmath>
+#include <string>
+#include <vector>
 
 namespace dsr {
 
@@ -16,6 +18,29 @@ struct Photometric {
   // The corrected observation gain * value + offset.
   double Correct(double value) const { return gain() * value + offset; }
 };
+
+// Checks a solver's starting photometric parameters: none, or (only when `enabled`) finite
+// ones with frame 0 at the gauge. False with `error` otherwise.
+inline bool ValidateInitialPhotometric(bool enabled,
+                                       const std::vector<Photometric>& initial,
+                                       std::string* error) {
+  if (initial.empty()) return true;
+  if (!enabled) {
+    *error = "initial photometric parameters given without photometric estimation";
+    return false;
+  }
+  for (const Photometric& p : initial) {
+    if (!std::isfinite(p.log_gain) || !std::isfinite(p.offset)) {
+      *error = "initial photometric parameters: not finite";
+      return false;
+    }
+  }
+  if (initial[0].log_gain != 0.0 || initial[0].offset != 0.0) {
+    *error = "initial photometric parameters: frame 0 must hold the gauge (gain 1, offset 0)";
+    return false;
+  }
+  return true;
+}
 
 }  // namespace dsr
 

@@ -84,7 +84,7 @@ bool DbaOptions::Validate(std::string* error) const {
     *error = "--memory_budget_mb: must be finite";
     return false;
   }
-  return true;
+  return ValidateInitialPhotometric(photometric, initial_photometric, error);
 }
 
 std::string DbaMemoryEstimate::ToString() const {
@@ -256,9 +256,19 @@ bool SolveDba(const std::vector<Frame>& frames,
     return false;
   }
 
-  DbaProblem dba(frames, candidates, initial_frame_from_world,
-                 options.photometric ? std::vector<Photometric>(frames.size())
-                                     : std::vector<Photometric>());
+  if (!options.initial_photometric.empty() &&
+      options.initial_photometric.size() != frames.size()) {
+    *error = "initial photometric parameters: " +
+             std::to_string(options.initial_photometric.size()) + " for " +
+             std::to_string(frames.size()) + " frames";
+    return false;
+  }
+  std::vector<Photometric> start;
+  if (options.photometric) {
+    start = options.initial_photometric.empty() ? std::vector<Photometric>(frames.size())
+                                                : options.initial_photometric;
+  }
+  DbaProblem dba(frames, candidates, initial_frame_from_world, start);
   ceres::Solver::Options solver_options;
   options.solve.ToCeres("DENSE_SCHUR", &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {

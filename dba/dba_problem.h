@@ -67,6 +67,9 @@ struct DbaOptions {
   SolveOptions solve;  // linear solver default: DENSE_SCHUR
   // Estimate a gain and an offset per frame with the poses (frame 0's fixed at 1 and 0).
   bool photometric = false;
+  // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
+  // empty: every gain 1 and offset 0.
+  std::vector<Photometric> initial_photometric;
   // Refuse problems whose estimated memory exceeds this; <= 0 means half the machine's RAM.
   double memory_budget_bytes = 0.0;
   bool Validate(std::string* error) const;
@@ -122,8 +125,8 @@ class DbaProblem {
 // Builds and solves. Fails (false, `error`) when the memory estimate exceeds the budget,
 // naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
 // that runs but is not usable returns true with report->usable = false. With
-// options.photometric, the photometric parameters start at 1 and 0 and are returned in
-// report->photometric.
+// options.photometric, the photometric parameters start at options.initial_photometric (or
+// 1 and 0) and are returned in report->photometric.
 bool SolveDba(const std::vector<Frame>& frames,
               const CandidateSet& candidates,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,

@@ -27,6 +27,7 @@ bool DsrOptions::Validate(std::string* error) const {
     *error = kNoFastPhotometric;
     return false;
   }
+  if (!ValidateInitialPhotometric(photometric, initial_photometric, error)) return false;
   if (num_chunks < 1) {
     *error = "--num_chunks=" + std::to_string(num_chunks) + ": must be >= 1";
     return false;
@@ -55,6 +56,13 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     problem_->SetParameterBlockConstant(poses_[0].data());
     if (options.photometric) {
       photometric_.assign(m, {0.0, 0.0});
+      if (!options.initial_photometric.empty()) {
+        CHECK_EQ(static_cast<int>(options.initial_photometric.size()), m);
+        for (int i = 0; i < m; ++i) {
+          photometric_[i] = {options.initial_photometric[i].log_gain,
+                             options.initial_photometric[i].offset};
+        }
+      }
       for (int i = 0; i < m; ++i) problem_->AddParameterBlock(photometric_[i].data(), 2);
       problem_->SetParameterBlockConstant(photometric_[0].data());
     }
@@ -128,6 +136,13 @@ bool SolveDsr(const std::vector<Frame>& frames,
               std::string* error) {
   if (options.photometric && !options.reference_cost) {
     *error = kNoFastPhotometric;
+    return false;
+  }
+  if (!options.initial_photometric.empty() &&
+      options.initial_photometric.size() != frames.size()) {
+    *error = "initial photometric parameters: " +
+             std::to_string(options.initial_photometric.size()) + " for " +
+             std::to_string(frames.size()) + " frames";
     return false;
   }
   DsrProblem dsr(frames, candidates, initial_frame_from_world, options);

@@ -26,6 +26,9 @@ struct DsrOptions {
   // Estimate a gain and an offset per frame with the poses (docs/design.md section 2.8;
   // frame 0's fixed at 1 and 0). So far with the reference cost only.
   bool photometric = false;
+  // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
+  // empty: every gain 1 and offset 0.
+  std::vector<Photometric> initial_photometric;
   bool Validate(std::string* error) const;
 };
 
