@@ -78,6 +78,7 @@ ApeChunkCost::ApeChunkCost(const std::vector<Frame>* frames,
       num_threads_(num_threads) {}
 
 void ApeChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                              const std::vector<Photometric>& /*photometric: none*/,
                               bool with_jacobian,
                               NormalEquations* out) const {
   AccumulateApeSystem(*frames_, *candidates_, frame_from_world, begin_, end_, with_jacobian,

@@ -77,6 +77,7 @@ class ApeChunkCost final : public StreamedPoseCost {
 
  private:
   void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                  const std::vector<Photometric>& photometric,  // empty: APE has none
                   bool with_jacobian,
                   NormalEquations* out) const override;
   const std::vector<Frame>* frames_;  // not owned

@@ -83,6 +83,7 @@ class PairMeanSquaresCost final : public StreamedPoseCost {
 
  private:
   void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                  const std::vector<Photometric>& /*photometric: none*/,
                   bool with_jacobian,
                   NormalEquations* out) const override {
     AccumulateApeSystem(*pair_, *candidates_, frame_from_world, begin_, end_, with_jacobian,

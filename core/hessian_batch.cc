@@ -11,41 +11,66 @@
 namespace dsr {
 namespace internal {
 
-void AddGroupHessianPortable(const HessianGroup& group,
-                             const HessianWeights& weights,
-                             double* h,
-                             int n) {
+namespace {
+
+template <int W>
+void AddGroupHessianPortableOf(const HessianGroup& group,
+                               const HessianWeights& weights,
+                               double* h,
+                               int n) {
   const int k = group.k;
   const int* frame = group.frame;
   for (int a = 0; a < k; ++a) {
     for (int b = a; b < k; ++b) {
-      double sum[6][6] = {};
+      double sum[W][W] = {};
       for (int r = 0; r < group.num_rows; ++r) {
-        const double* ja = group.rows[r] + 6 * a;
-        const double* jb = group.rows[r] + 6 * b;
-        for (int i = 0; i < 6; ++i) {
-          for (int j = 0; j < 6; ++j) sum[i][j] += ja[i] * jb[j];
+        const double* ja = group.rows[r] + W * a;
+        const double* jb = group.rows[r] + W * b;
+        for (int i = 0; i < W; ++i) {
+          for (int j = 0; j < W; ++j) sum[i][j] += ja[i] * jb[j];
         }
       }
       const double scale = weights.shared + (a == b ? weights.diagonal : 0.0);
-      for (int i = 0; i < 6; ++i) {
-        double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
-        for (int j = 0; j < 6; ++j) row[j] += scale * sum[i][j];
+      for (int i = 0; i < W; ++i) {
+        double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
+        for (int j = 0; j < W; ++j) row[j] += scale * sum[i][j];
       }
     }
   }
 }
 
-void AddGroupGradientPortable(const HessianGroup& group, const double* const* residuals, double* g) {
+template <int W>
+void AddGroupGradientPortableOf(const HessianGroup& group, const double* const* residuals, double* g) {
   for (int a = 0; a < group.k; ++a) {
-    double sum[6] = {};
+    double sum[W] = {};
     for (int r = 0; r < group.num_rows; ++r) {
       const double w = residuals[r][a];
-      const double* ja = group.rows[r] + 6 * a;
-      for (int i = 0; i < 6; ++i) sum[i] += w * ja[i];
+      const double* ja = group.rows[r] + W * a;
+      for (int i = 0; i < W; ++i) sum[i] += w * ja[i];
     }
-    double* ga = g + 6 * group.frame[a];
-    for (int i = 0; i < 6; ++i) ga[i] += sum[i];
+    double* ga = g + W * group.frame[a];
+    for (int i = 0; i < W; ++i) ga[i] += sum[i];
+  }
+}
+
+}  // namespace
+
+void AddGroupHessianPortable(const HessianGroup& group,
+                             const HessianWeights& weights,
+                             double* h,
+                             int n) {
+  if (group.width == kWideJacobianSize) {
+    AddGroupHessianPortableOf<kWideJacobianSize>(group, weights, h, n);
+  } else {
+    AddGroupHessianPortableOf<kJacobianSize>(group, weights, h, n);
+  }
+}
+
+void AddGroupGradientPortable(const HessianGroup& group, const double* const* residuals, double* g) {
+  if (group.width == kWideJacobianSize) {
+    AddGroupGradientPortableOf<kWideJacobianSize>(group, residuals, g);
+  } else {
+    AddGroupGradientPortableOf<kJacobianSize>(group, residuals, g);
   }
 }
 
@@ -97,7 +122,9 @@ void AddBatchHessian(const VoxelBatch& batch,
                      const HessianWeights* weights,
                      double* h,
                      int n,
-                     double* gradient) {
+                     double* gradient,
+                     int width) {
+  CHECK(width == kJacobianSize || width == kWideJacobianSize) << width;
   // Group the voxels by observer set: an open-addressing table (more slots than voxels),
   // groups numbered in order of first appearance, then a counting sort of the voxels.
   constexpr int kTableBits = 1 + __builtin_ctz(VoxelBatch::kMaxVoxels);
@@ -133,7 +160,7 @@ void AddBatchHessian(const VoxelBatch& batch,
   const double* residuals[VoxelBatch::kMaxVoxels];  // and its residuals (with g)
   for (int t = 0; t < batch.num_voxels; ++t) {
     const int r = fill[voxel_group[t]]++;
-    rows[r] = batch.jac[batch.begin[t]];
+    rows[r] = width == kWideJacobianSize ? batch.wide_jac[batch.begin[t]] : batch.jac[batch.begin[t]];
     residuals[r] = batch.residual + batch.begin[t];
   }
 
@@ -143,7 +170,7 @@ void AddBatchHessian(const VoxelBatch& batch,
     int k = 0;
     for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
     DCHECK_GE(k, 2);
-    const internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame};
+    const internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame, width};
     AddGroup(path, group, residuals + group_start[g], weights[k], h, n, gradient);
   }
 }

@@ -197,7 +197,80 @@ DSR_TARGET_AVX2 inline void AddScaled2(double* h, __m128d s, __m128d x) {
   _mm_storeu_pd(h, _mm_fmadd_pd(s, x, _mm_loadu_pd(h)));
 }
 
+// Width 8 (core/hessian_batch.h): every block row is two 4-lane registers. For every
+// block row a, half of it (4 rows of the 8) at a time, and every block b >= a: 8
+// accumulators, each row r adding S_r[i] * S_r[8 columns of b] for its 4 rows i (4
+// broadcasts, 2 loads, 8 FMAs), then the 4 x 8 tile scaled and added to H.
+DSR_TARGET_AVX2 void AddGroupHessianWideAvx2(const HessianGroup& group,
+                                             const HessianWeights& weights,
+                                             double* h,
+                                             int n) {
+  constexpr int W = kWideJacobianSize;
+  const double* const* rows = group.rows;
+  const int num_rows = group.num_rows, k = group.k;
+  const int* frame = group.frame;
+  for (int a = 0; a < k; ++a) {
+    for (int i0 = W * a; i0 < W * a + W; i0 += 4) {
+      double* h_row = h + static_cast<int64_t>(W * frame[a] + i0 - W * a) * n;
+      for (int b = a; b < k; ++b) {
+        const int c = W * b;
+        __m256d acc[4][2];
+        for (int i = 0; i < 4; ++i) acc[i][0] = acc[i][1] = _mm256_setzero_pd();
+        for (int r = 0; r < num_rows; ++r) {
+          const double* s = rows[r];
+          const __m256d c0 = _mm256_loadu_pd(s + c), c1 = _mm256_loadu_pd(s + c + 4);
+          for (int i = 0; i < 4; ++i) {
+            const __m256d x = _mm256_broadcast_sd(s + i0 + i);
+            acc[i][0] = _mm256_fmadd_pd(x, c0, acc[i][0]);
+            acc[i][1] = _mm256_fmadd_pd(x, c1, acc[i][1]);
+          }
+        }
+        const __m256d scale = _mm256_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        for (int i = 0; i < 4; ++i) {
+          double* hb = h_row + static_cast<int64_t>(i) * n + W * frame[b];
+          AddScaled4(hb, scale, acc[i][0]);
+          AddScaled4(hb + 4, scale, acc[i][1]);
+        }
+      }
+    }
+  }
+}
+
+// Width 8: the 8 entries as two 4-lane registers, rows in pairs as below.
+DSR_TARGET_AVX2 void AddGroupGradientWideAvx2(const HessianGroup& group,
+                                              const double* const* residuals,
+                                              double* g) {
+  constexpr int W = kWideJacobianSize;
+  const double* const* rows = group.rows;
+  const int num_rows = group.num_rows;
+  for (int a = 0; a < group.k; ++a) {
+    __m256d lo0 = _mm256_setzero_pd(), lo1 = _mm256_setzero_pd();
+    __m256d hi0 = _mm256_setzero_pd(), hi1 = _mm256_setzero_pd();
+    int r = 0;
+    for (; r + 1 < num_rows; r += 2) {
+      const double* j0 = rows[r] + W * a;
+      const double* j1 = rows[r + 1] + W * a;
+      const __m256d w0 = _mm256_broadcast_sd(residuals[r] + a);
+      const __m256d w1 = _mm256_broadcast_sd(residuals[r + 1] + a);
+      lo0 = _mm256_fmadd_pd(w0, _mm256_loadu_pd(j0), lo0);
+      hi0 = _mm256_fmadd_pd(w0, _mm256_loadu_pd(j0 + 4), hi0);
+      lo1 = _mm256_fmadd_pd(w1, _mm256_loadu_pd(j1), lo1);
+      hi1 = _mm256_fmadd_pd(w1, _mm256_loadu_pd(j1 + 4), hi1);
+    }
+    if (r < num_rows) {
+      const double* j0 = rows[r] + W * a;
+      const __m256d w0 = _mm256_broadcast_sd(residuals[r] + a);
+      lo0 = _mm256_fmadd_pd(w0, _mm256_loadu_pd(j0), lo0);
+      hi0 = _mm256_fmadd_pd(w0, _mm256_loadu_pd(j0 + 4), hi0);
+    }
+    double* ga = g + W * group.frame[a];
+    _mm256_storeu_pd(ga, _mm256_add_pd(_mm256_loadu_pd(ga), _mm256_add_pd(lo0, lo1)));
+    _mm256_storeu_pd(ga + 4, _mm256_add_pd(_mm256_loadu_pd(ga + 4), _mm256_add_pd(hi0, hi1)));
+  }
+}
+
 }  // namespace
+
 
 // The group's rows S_r = [J_0 ... J_{k-1}] are 6k consecutive doubles each. For every
 // block row a and half of it (3 rows of the 6), the kernel walks the columns of blocks
@@ -209,6 +282,10 @@ DSR_TARGET_AVX2 void AddGroupHessianAvx2(const HessianGroup& group,
                          const HessianWeights& weights,
                          double* h,
                          int n) {
+  if (group.width == kWideJacobianSize) {
+    AddGroupHessianWideAvx2(group, weights, h, n);
+    return;
+  }
   const double* const* rows = group.rows;
   const int num_rows = group.num_rows, k = group.k;
   const int* frame = group.frame;
@@ -276,6 +353,10 @@ DSR_TARGET_AVX2 void AddGroupHessianAvx2(const HessianGroup& group,
 DSR_TARGET_AVX2 void AddGroupGradientAvx2(const HessianGroup& group,
                                           const double* const* residuals,
                                           double* g) {
+  if (group.width == kWideJacobianSize) {
+    AddGroupGradientWideAvx2(group, residuals, g);
+    return;
+  }
   const double* const* rows = group.rows;
   const int num_rows = group.num_rows;
   for (int a = 0; a < group.k; ++a) {

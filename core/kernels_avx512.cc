@@ -7,7 +7,8 @@
 // the 32 registers), each row r adding S_r[i] * S_r[24 columns] for i = 0..5 (6
 // broadcasts, 3 loads, 18 FMAs). A last chunk of 1-3 blocks loads only the registers it
 // needs (its last one masked: nothing past the row). The 6 x 24 tile is then scaled per
-// block and added to H, 6 masked lanes per block row.
+// block and added to H, 6 masked lanes per block row. Width 8 (photometric parameters):
+// one whole register per block row, 8 rows x 3 blocks per tile (AddGroupHessianWideAvx512).
 #include "core/kernels_avx512.h"
 
 #include "core/hessian_batch.h"
@@ -90,12 +91,81 @@ DSR_TARGET_AVX512 inline void SumBlocks(const double* const* rows,
   }
 }
 
+// Width 8 (core/hessian_batch.h): one register per block row. The tile of `kBlocks`
+// (1-3) blocks from column c, all 8 rows of block row a at once: up to 24 accumulators,
+// each row r adding S_r[i0 + i] * S_r[8 kBlocks columns] for i = 0..7 (8 broadcasts,
+// kBlocks loads, 8 kBlocks FMAs).
+template <int kBlocks>
+DSR_TARGET_AVX512 void SumWideTile(const double* const* rows,
+                                   int num_rows,
+                                   int i0,
+                                   int c,
+                                   double tile[8][24]) {
+  __m512d acc[8][kBlocks];
+  for (int i = 0; i < 8; ++i) {
+    for (int v = 0; v < kBlocks; ++v) acc[i][v] = _mm512_setzero_pd();
+  }
+  for (int r = 0; r < num_rows; ++r) {
+    const double* s = rows[r];
+    __m512d col[kBlocks];
+    for (int v = 0; v < kBlocks; ++v) col[v] = _mm512_loadu_pd(s + c + 8 * v);
+    for (int i = 0; i < 8; ++i) {
+      const __m512d x = _mm512_set1_pd(s[i0 + i]);
+      for (int v = 0; v < kBlocks; ++v) acc[i][v] = _mm512_fmadd_pd(x, col[v], acc[i][v]);
+    }
+  }
+  for (int i = 0; i < 8; ++i) {
+    for (int v = 0; v < kBlocks; ++v) _mm512_storeu_pd(tile[i] + 8 * v, acc[i][v]);
+  }
+}
+
+DSR_TARGET_AVX512 void AddGroupHessianWideAvx512(const HessianGroup& group,
+                                                 const HessianWeights& weights,
+                                                 double* h,
+                                                 int n) {
+  constexpr int W = kWideJacobianSize;
+  const double* const* rows = group.rows;
+  const int num_rows = group.num_rows, k = group.k;
+  const int* frame = group.frame;
+  alignas(64) double tile[8][24];
+  for (int a = 0; a < k; ++a) {
+    const int i0 = W * a;
+    for (int b0 = a; b0 < k; b0 += 3) {
+      const int blocks = k - b0 < 3 ? k - b0 : 3;
+      const int c = W * b0;
+      switch (blocks) {
+        case 1:
+          SumWideTile<1>(rows, num_rows, i0, c, tile);
+          break;
+        case 2:
+          SumWideTile<2>(rows, num_rows, i0, c, tile);
+          break;
+        default:
+          SumWideTile<3>(rows, num_rows, i0, c, tile);
+      }
+      for (int q = 0; q < blocks; ++q) {
+        const int b = b0 + q;
+        const __m512d scale = _mm512_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        for (int i = 0; i < W; ++i) {
+          double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
+          _mm512_storeu_pd(row, _mm512_fmadd_pd(scale, _mm512_loadu_pd(tile[i] + 8 * q),
+                                                _mm512_loadu_pd(row)));
+        }
+      }
+    }
+  }
+}
+
 }  // namespace
 
 DSR_TARGET_AVX512 void AddGroupHessianAvx512(const HessianGroup& group,
                          const HessianWeights& weights,
                          double* h,
                          int n) {
+  if (group.width == kWideJacobianSize) {
+    AddGroupHessianWideAvx512(group, weights, h, n);
+    return;
+  }
   const double* const* rows = group.rows;
   const int num_rows = group.num_rows, k = group.k;
   const int* frame = group.frame;

@@ -42,12 +42,24 @@ void CompressNormalEquations(const Eigen::MatrixXd& hessian,
   (*residual)[n] = std::sqrt(std::max(0.0, cost - explained));
 }
 
-StreamedPoseCost::StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world)
-    : num_frames_(num_frames), frame0_from_world_(frame0_from_world) {
+namespace {
+
+// Tangent parameters per frame.
+int FrameParameters(bool photometric) { return photometric ? kWideJacobianSize : kJacobianSize; }
+
+}  // namespace
+
+StreamedPoseCost::StreamedPoseCost(int num_frames,
+                                   const Eigen::Isometry3d& frame0_from_world,
+                                   bool photometric)
+    : num_frames_(num_frames), frame0_from_world_(frame0_from_world), photometric_(photometric) {
   const int free = num_frames - 1;
   CHECK_GE(free, 1);
-  set_num_residuals(6 * free + 1);
+  set_num_residuals(FrameParameters(photometric) * free + 1);
   for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
+  if (photometric) {
+    for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(2);
+  }
 }
 
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
@@ -65,14 +77,25 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
                                 double** jacobians) const {
   const int m = num_frames_;
   const int free = m - 1;
-  const int n = 6 * free;
-  std::vector<double> flat(static_cast<size_t>(free) * kPoseAmbientSize);
+  const int n = FrameParameters(photometric_) * free;
+  // The point: every free parameter, poses first (what a pass is cached by).
+  std::vector<double> flat(static_cast<size_t>(free) * (kPoseAmbientSize + (photometric_ ? 2 : 0)));
   for (int i = 0; i < free; ++i) {
     std::copy(parameters[i], parameters[i] + kPoseAmbientSize, flat.begin() + i * kPoseAmbientSize);
   }
   std::vector<Eigen::Isometry3d> poses(m);
   poses[0] = frame0_from_world_;
   for (int i = 1; i < m; ++i) poses[i] = ParametersToPose(parameters[i - 1]);
+  std::vector<Photometric> photometric;
+  if (photometric_) {
+    photometric.resize(m);  // frame 0: the gauge
+    for (int i = 1; i < m; ++i) {
+      const double* x = parameters[free + i - 1];
+      photometric[i] = {x[0], x[1]};
+      flat[free * kPoseAmbientSize + 2 * (i - 1)] = x[0];
+      flat[free * kPoseAmbientSize + 2 * (i - 1) + 1] = x[1];
+    }
+  }
   const bool with_jacobian = jacobians != nullptr;
   const bool same_point = !pass_parameters_.empty() && flat == pass_parameters_;
 
@@ -92,7 +115,7 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
         final_step = motion < policy_.step_tolerance_voxels;
       }
       const bool speculate = policy_.speculate && speculate_next_ && !final_step;
-      Accumulate(poses, speculate, &pass_);
+      Accumulate(poses, photometric, speculate, &pass_);
       ++(speculate ? counts_.jacobian_passes : counts_.cost_passes);
       pass_parameters_ = flat;
       pass_has_jacobian_ = speculate;
@@ -121,7 +144,7 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
     return WriteJacobianEvaluation(accepted_, /*exact_cost=*/true, parameters, residuals,
                                    jacobians);
   } else {
-    Accumulate(poses, true, &accepted_);
+    Accumulate(poses, photometric, true, &accepted_);
     ++counts_.jacobian_passes;
     pass_ = accepted_;
     pass_parameters_ = flat;
@@ -134,13 +157,23 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
   return WriteJacobianEvaluation(accepted_, /*exact_cost=*/false, parameters, residuals, jacobians);
 }
 
-const NormalEquations* StreamedPoseCost::PassAt(const std::vector<const double*>& free_blocks) const {
-  if (pass_parameters_.empty() || static_cast<int>(free_blocks.size()) != num_frames_ - 1) {
+const NormalEquations* StreamedPoseCost::PassAt(
+    const std::vector<const double*>& free_blocks,
+    const std::vector<const double*>& photometric_blocks) const {
+  const size_t free = num_frames_ - 1;
+  if (pass_parameters_.empty() || free_blocks.size() != free ||
+      photometric_blocks.size() != (photometric_ ? free : 0)) {
     return nullptr;
   }
-  for (size_t i = 0; i < free_blocks.size(); ++i) {
+  for (size_t i = 0; i < free; ++i) {
     if (!std::equal(free_blocks[i], free_blocks[i] + kPoseAmbientSize,
                     pass_parameters_.begin() + i * kPoseAmbientSize)) {
+      return nullptr;
+    }
+  }
+  for (size_t i = 0; i < photometric_blocks.size(); ++i) {
+    if (!std::equal(photometric_blocks[i], photometric_blocks[i] + 2,
+                    pass_parameters_.begin() + free * kPoseAmbientSize + 2 * i)) {
       return nullptr;
     }
   }
@@ -153,7 +186,8 @@ bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
                                                double* residuals,
                                                double** jacobians) const {
   const int m = num_frames_;
-  const int n = 6 * (m - 1);
+  const int p = FrameParameters(photometric_);
+  const int n = p * (m - 1);
   Eigen::VectorXd r;
   Eigen::MatrixXd jac;
   CompressNormalEquations(system.hessian.bottomRightCorner(n, n), system.gradient.tail(n),
@@ -170,10 +204,16 @@ bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
   if (!r.allFinite() || !jac.allFinite()) return false;
   Eigen::Map<Eigen::VectorXd>(residuals, n + 1) = r;
   for (int i = 1; i < m; ++i) {
-    if (jacobians[i - 1] == nullptr) continue;
-    Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
-        jacobians[i - 1], n + 1, kPoseAmbientSize);
-    out.noalias() = jac.middleCols<6>(6 * (i - 1)) * TangentToAmbientJacobian(parameters[i - 1]);
+    if (jacobians[i - 1] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
+          jacobians[i - 1], n + 1, kPoseAmbientSize);
+      out.noalias() = jac.middleCols<6>(p * (i - 1)) * TangentToAmbientJacobian(parameters[i - 1]);
+    }
+    // [log_gain, offset] are their own tangent coordinates.
+    if (photometric_ && jacobians[m - 1 + i - 1] != nullptr) {
+      Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>>(
+          jacobians[m - 1 + i - 1], n + 1, 2) = jac.middleCols<2>(p * (i - 1) + 6);
+    }
   }
   return true;
 }

@@ -10,8 +10,11 @@
 // landmark marginalisation).
 //
 // Parameter blocks: the poses of frames 1..m-1 in order (7 ambient each, core/se3.h);
-// frame 0 is the constant pose given at construction (the gauge). num_residuals =
-// 6 (m - 1) + 1.
+// frame 0 is the constant pose given at construction (the gauge). With photometric
+// parameters (docs/design.md section 2.8), then the [log_gain, offset] blocks of frames
+// 1..m-1 (frame 0's: the gauge, 0 and 0), and the subclass's normal equations have 8
+// parameters per frame (the pose tangent, log gain, offset). num_residuals = p (m - 1) + 1,
+// p = 6 or 8.
 #ifndef DSR_CORE_STREAMED_COST_H_
 #define DSR_CORE_STREAMED_COST_H_
 
@@ -25,6 +28,7 @@
 #include <ceres/ceres.h>
 
 #include "core/frame.h"
+#include "core/photometric.h"
 #include "core/solve_options.h"
 #include "core/voxel_stream.h"
 
@@ -70,7 +74,8 @@ StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
 
 class StreamedPoseCost : public ceres::CostFunction {
  public:
-  StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world);
+  StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world,
+                   bool photometric = false);
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const final;
@@ -80,14 +85,19 @@ class StreamedPoseCost : public ceres::CostFunction {
   int64_t last_observations() const { return last_observations_; }
   void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
   const StreamedPassCounts& pass_counts() const { return counts_; }
-  // The latest pass when it was made at exactly these free-pose parameters (frames 1..m-1,
-  // 7 each), else null: e.g. the pass at the final poses of a solve, whose per-frame costs
-  // the caller may reuse.
-  const NormalEquations* PassAt(const std::vector<const double*>& free_blocks) const;
+  // The latest pass when it was made at exactly these free parameters (the poses of
+  // frames 1..m-1, 7 each, and with photometric parameters their 2 each), else null: e.g.
+  // the pass at the final poses of a solve, whose per-frame costs the caller may reuse.
+  const NormalEquations* PassAt(const std::vector<const double*>& free_blocks,
+                                const std::vector<const double*>& photometric_blocks = {}) const;
+  bool photometric() const { return photometric_; }
 
  protected:
-  // Normal equations over all m frames (6m x 6m) at `frame_from_world` (frame 0 first).
+  // Normal equations over all m frames (p m x p m; p = 6, or 8 with photometric
+  // parameters) at `frame_from_world` and `photometric` (frame 0 first; empty without
+  // photometric parameters).
   virtual void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                          const std::vector<Photometric>& photometric,
                           bool with_jacobian,
                           NormalEquations* out) const = 0;
 
@@ -102,6 +112,7 @@ class StreamedPoseCost : public ceres::CostFunction {
 
   int num_frames_;
   Eigen::Isometry3d frame0_from_world_;
+  bool photometric_;
   StreamedEvaluationPolicy policy_;
   mutable int64_t last_observations_ = 0;
   mutable StreamedPassCounts counts_;

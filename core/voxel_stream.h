@@ -33,6 +33,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <type_traits>
 #include <vector>
 
 #include <Eigen/Core>
@@ -46,8 +47,9 @@
 
 namespace dsr {
 
-// Normal equations of a sum of squares over all m frames (6m x 6m, frame 0's rows
-// included): H = J^T J (full square), g = J^T r, cost = sum r^2.
+// Normal equations of a sum of squares over all m frames (p m x p m, frame 0's rows
+// included; p = 6 pose parameters per frame, or 8 with photometric parameters: the pose
+// tangent, then log gain and offset): H = J^T J (full square), g = J^T r, cost = sum r^2.
 struct NormalEquations {
   Eigen::MatrixXd hessian;
   Eigen::VectorXd gradient;
@@ -100,6 +102,9 @@ const char* KernelPathName(KernelPath path);
 // Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
 // Gauss-Newton kernel reads as 6k consecutive doubles).
 constexpr int kJacobianSize = 6;
+// With photometric parameters (docs/design.md section 2.8) a term works with wide
+// Jacobians J'_ij = [a_i J_ij, a_i I_i(p_ij), 1] (pose, log gain, offset of frame i).
+constexpr int kWideJacobianSize = 8;
 
 // Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
 // else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
@@ -124,6 +129,9 @@ struct VoxelBatch {
   // Only with Jacobians, for terms with a batched gradient: the observations' residuals
   // r, written by the term (g_{frame} += r J is added a batch at a time).
   double residual[kMaxObservations];
+  // Only with Jacobians, for terms with 8 parameters per frame: their wide Jacobians,
+  // written by the term from jac and value (the batched kernels read these instead).
+  alignas(64) double wide_jac[kMaxObservations][kWideJacobianSize];
 };
 
 // Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
@@ -146,10 +154,14 @@ struct VoxelObservations {
   // Set (with Jacobians) for terms with batched_gradient: the term writes its residual
   // r_a of each observation here instead of adding g_{frame[a]} += r_a J_a itself.
   double* residual = nullptr;
+  // Set (with Jacobians) for terms with 8 parameters per frame: the term writes each
+  // observation's wide Jacobian here (the stream's batched kernels read it).
+  double (*wide_jac)[kWideJacobianSize] = nullptr;
 };
 
-// Per-block accumulator: H (row-major, n x n with n = 6m; terms fill at least the upper
-// block triangle, see StreamNormalEquations), g (n), cost.
+// Per-block accumulator: H (row-major, n x n with n = p m, p the term's parameters per
+// frame; terms fill at least the upper block triangle, see StreamNormalEquations), g (n),
+// cost.
 struct VoxelAccumulator {
   int n = 0;
   std::vector<double> hessian, gradient;
@@ -187,6 +199,16 @@ inline void AddOuter(double* h, int n, int fa, int fb, const double* ja, const d
 
 namespace internal {
 
+// A term's parameters per frame: Term::kFrameParameters when it declares it, else 6.
+template <class Term, class = void>
+struct FrameParametersOf {
+  static constexpr int value = kJacobianSize;
+};
+template <class Term>
+struct FrameParametersOf<Term, std::void_t<decltype(Term::kFrameParameters)>> {
+  static constexpr int value = Term::kFrameParameters;
+};
+
 // Fixed number of accumulation blocks per voxel range: results do not depend on threads.
 constexpr int64_t kStreamBlocks = 64;
 
@@ -199,6 +221,8 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
                  const Term& term,
                  VoxelBatch* batch,
                  VoxelAccumulator* acc) {
+  constexpr int kWidth = FrameParametersOf<Term>::value;
+  static_assert(kWidth == kJacobianSize || kWidth == kWideJacobianSize, "6 or 8 per frame");
   const bool batched = with_jacobian && term.batched_hessian;
   const bool batched_gradient = batched && term.batched_gradient;
   HessianWeights weights[kMaxFrames + 1];
@@ -216,11 +240,12 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
       obs.value = batch->value + first;
       obs.jac = batch->jac + first;
       if (batched_gradient) obs.residual = batch->residual + first;
+      if (with_jacobian && kWidth == kWideJacobianSize) obs.wide_jac = batch->wide_jac + first;
       term(obs, with_jacobian, acc);
     }
     if (batched) {
       AddBatchHessian(*batch, weights, acc->hessian.data(), acc->n,
-                      batched_gradient ? acc->gradient.data() : nullptr);
+                      batched_gradient ? acc->gradient.data() : nullptr, kWidth);
     }
   }
 }
@@ -234,7 +259,9 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
 // row-major H, the diagonal blocks at least on and above their diagonal (AddOuter does
 // this). The result's H is made symmetric from that upper triangle. Without Jacobians
 // only cost and observations are filled.
-// The term also has `bool batched_hessian`, `bool batched_gradient` and
+// The term may declare `static constexpr int kFrameParameters` (6, the default: the pose;
+// 8: the pose and photometric parameters, the term then writing
+// VoxelObservations::wide_jac, which the batched kernels read). It has `bool batched_hessian`, `bool batched_gradient` and
 // `HessianWeights Weights(int k)`: when batched_hessian is true, the term adds no
 // Gauss-Newton terms itself and the stream adds H_ab += (delta_ab * diagonal + shared)
 // J_a^T J_b for it, a batch at a time (core/hessian_batch.h); when batched_gradient is
@@ -258,7 +285,7 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
   const int64_t count = std::max<int64_t>(0, end - begin);
   const int64_t num_blocks = std::max<int64_t>(1, std::min(internal::kStreamBlocks, count));
   const int64_t block_size = (count + num_blocks - 1) / num_blocks;
-  const int n = 6 * m;
+  const int n = internal::FrameParametersOf<Term>::value * m;
   std::vector<VoxelAccumulator> partial(num_blocks);
   ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
     VoxelAccumulator& acc = partial[block];

@@ -9,10 +9,6 @@
 
 namespace dsr {
 
-constexpr char kNoFastPhotometric[] =
-    "photometric parameters: DSR's fast path does not estimate them yet (use the reference "
-    "cost, or --mode=dba)";
-
 bool DsrOptions::Validate(std::string* error) const {
   if (!solve.Validate(error)) return false;
   const std::string& ls = solve.linear_solver;
@@ -21,10 +17,6 @@ bool DsrOptions::Validate(std::string* error) const {
     *error = "--linear_solver=" + ls +
              ": --mode=dsr solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
              "SPARSE_NORMAL_CHOLESKY";
-    return false;
-  }
-  if (photometric && !reference_cost) {
-    *error = kNoFastPhotometric;
     return false;
   }
   if (!ValidateInitialPhotometric(photometric, initial_photometric, error)) return false;
@@ -48,6 +40,16 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
   poses_.resize(m);
   for (int i = 0; i < m; ++i) PoseToParameters(frame_from_world[i], poses_[i].data());
+  if (options.photometric) {
+    photometric_.assign(m, {0.0, 0.0});
+    if (!options.initial_photometric.empty()) {
+      CHECK_EQ(static_cast<int>(options.initial_photometric.size()), m);
+      for (int i = 0; i < m; ++i) {
+        photometric_[i] = {options.initial_photometric[i].log_gain,
+                           options.initial_photometric[i].offset};
+      }
+    }
+  }
 
   if (options.reference_cost) {
     for (int i = 0; i < m; ++i) {
@@ -55,14 +57,6 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     }
     problem_->SetParameterBlockConstant(poses_[0].data());
     if (options.photometric) {
-      photometric_.assign(m, {0.0, 0.0});
-      if (!options.initial_photometric.empty()) {
-        CHECK_EQ(static_cast<int>(options.initial_photometric.size()), m);
-        for (int i = 0; i < m; ++i) {
-          photometric_[i] = {options.initial_photometric[i].log_gain,
-                             options.initial_photometric[i].offset};
-        }
-      }
       for (int i = 0; i < m; ++i) problem_->AddParameterBlock(photometric_[i].data(), 2);
       problem_->SetParameterBlockConstant(photometric_[0].data());
     }
@@ -94,12 +88,19 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
     free_blocks.push_back(poses_[i].data());
   }
+  // Frame 0's photometric parameters are the chunk costs' constant gauge, not a block.
+  if (options.photometric) {
+    for (int i = 1; i < m; ++i) {
+      problem_->AddParameterBlock(photometric_[i].data(), 2);
+      free_blocks.push_back(photometric_[i].data());
+    }
+  }
   const int64_t n = candidates.num_voxels();
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(options.num_chunks, n));
   for (int64_t c = 0; c < chunks; ++c) {
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
-                                       options.solve.num_threads);
+                                       options.solve.num_threads, options.photometric);
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -134,10 +135,6 @@ bool SolveDsr(const std::vector<Frame>& frames,
               const DsrOptions& options,
               SolveReport* report,
               std::string* error) {
-  if (options.photometric && !options.reference_cost) {
-    *error = kNoFastPhotometric;
-    return false;
-  }
   if (!options.initial_photometric.empty() &&
       options.initial_photometric.size() != frames.size()) {
     *error = "initial photometric parameters: " +
@@ -177,19 +174,22 @@ bool SolveDsr(const std::vector<Frame>& frames,
   report->frame_from_world = dsr.Poses();
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();
-  std::vector<const double*> free_blocks;
-  for (size_t i = 1; i < frames.size(); ++i) free_blocks.push_back(dsr.pose_parameters(i));
+  std::vector<const double*> free_blocks, photometric_blocks;
+  for (size_t i = 1; i < frames.size(); ++i) {
+    free_blocks.push_back(dsr.pose_parameters(i));
+    if (options.photometric) photometric_blocks.push_back(dsr.photometric_parameters(i));
+  }
   bool final_pass = !dsr.chunks().empty();
   for (const ReducedChunkCost* chunk : dsr.chunks()) {
     report->jacobian_passes += chunk->pass_counts().jacobian_passes;
     report->cost_passes += chunk->pass_counts().cost_passes;
-    final_pass = final_pass && chunk->PassAt(free_blocks) != nullptr;
+    final_pass = final_pass && chunk->PassAt(free_blocks, photometric_blocks) != nullptr;
   }
   if (final_pass) {
     report->final_frame_cost.assign(frames.size(), 0.0);
     report->final_frame_observations.assign(frames.size(), 0);
     for (const ReducedChunkCost* chunk : dsr.chunks()) {
-      const NormalEquations* pass = chunk->PassAt(free_blocks);
+      const NormalEquations* pass = chunk->PassAt(free_blocks, photometric_blocks);
       for (size_t i = 0; i < frames.size(); ++i) {
         report->final_frame_cost[i] += pass->frame_cost[i];
         report->final_frame_observations[i] += pass->frame_observations[i];

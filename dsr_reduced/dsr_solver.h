@@ -1,4 +1,5 @@
-// DSR solve: Ceres over the 6(m-1) free pose parameters only (docs/design.md section 4).
+// DSR solve: Ceres over the 6(m-1) free pose parameters (and, with photometric parameters,
+// 2(m-1) more) only (docs/design.md sections 4 and 2.8).
 #ifndef DSR_DSR_REDUCED_DSR_SOLVER_H_
 #define DSR_DSR_REDUCED_DSR_SOLVER_H_
 
@@ -24,7 +25,7 @@ struct DsrOptions {
   // Use the per-voxel reference cost instead (stores Jacobians: small problems only).
   bool reference_cost = false;
   // Estimate a gain and an offset per frame with the poses (docs/design.md section 2.8;
-  // frame 0's fixed at 1 and 0). So far with the reference cost only.
+  // frame 0's fixed at 1 and 0), with either cost.
   bool photometric = false;
   // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
   // empty: every gain 1 and offset 0.
@@ -45,6 +46,8 @@ class DsrProblem {
   double* pose_parameters(int frame) { return poses_[frame].data(); }
   // Empty without photometric parameters.
   std::vector<Photometric> PhotometricParameters() const;
+  // Frame i's [log_gain, offset] (with photometric parameters; frame 0's is the gauge).
+  double* photometric_parameters(int frame) { return photometric_[frame].data(); }
   // Observations counted by the fast path's latest evaluation (sum over chunks); -1 for
   // the reference cost, which does not count them.
   int64_t LastObservations() const;

@@ -16,6 +16,7 @@ namespace {
 // batches by the stream from the Jacobians and the residuals the term writes (fast path),
 // or here voxel by voxel (the twin tests compare with).
 struct DsrVoxelTerm {
+  static constexpr int kFrameParameters = 6;
   bool batched_hessian = true;
   bool batched_gradient = true;
   HessianWeights Weights(int k) const { return {1.0, -1.0 / k}; }
@@ -54,6 +55,75 @@ struct DsrVoxelTerm {
     for (int a = 0; a < k; ++a) {
       AddOuter(h, n, frame[a], frame[a], obs.jac[a], obs.jac[a], 1.0 - inv_k);
       for (int b = a + 1; b < k; ++b) AddOuter(h, n, frame[a], frame[b], obs.jac[a], obs.jac[b], -inv_k);
+    }
+  }
+};
+
+// The DSR term with photometric parameters (docs/design.md section 2.8): the corrected
+// observations c_a = g_a I_a + b_a (g = gain, b = offset of the observing frame), r_a =
+// c_a - mean c, and the wide Jacobians J'_a = [g_a J_a, g_a I_a, 1] in the place of J_a:
+//   d r_a / d x_b = (delta_ab - 1/k) J'_b  (x_b: frame b's pose tangent, log gain, offset),
+//   cost += sum_a r_a^2,  g_b += J'_b^T r_b,  H_ab += (delta_ab - 1/k) J'_a^T J'_b,
+// the same form as DsrVoxelTerm with 8 x 8 blocks, batched by the stream the same way.
+struct DsrPhotometricVoxelTerm {
+  static constexpr int kFrameParameters = kWideJacobianSize;
+  bool batched_hessian = true;
+  bool batched_gradient = true;
+  double gain[kMaxFrames];
+  double offset[kMaxFrames];
+  HessianWeights Weights(int k) const { return {1.0, -1.0 / k}; }
+
+  void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
+    const int k = obs.k;
+    const int* __restrict frame = obs.frame;
+    const double* __restrict value = obs.value;
+    double corrected[kMaxFrames];
+    double mean = 0.0;
+    for (int a = 0; a < k; ++a) {
+      corrected[a] = gain[frame[a]] * value[a] + offset[frame[a]];
+      mean += corrected[a];
+    }
+    mean /= k;
+    double local[kMaxFrames];
+    double* __restrict residual = obs.residual != nullptr ? obs.residual : local;
+    double cost = 0.0;
+    for (int a = 0; a < k; ++a) {
+      const double r = corrected[a] - mean;
+      residual[a] = r;
+      cost += r * r;
+      acc->frame_cost[frame[a]] += r * r;
+      ++acc->frame_observations[frame[a]];
+    }
+    acc->cost += cost;
+    acc->observations += k;
+    if (!with_jacobian) return;
+    double (*__restrict wide)[kWideJacobianSize] = obs.wide_jac;
+    for (int a = 0; a < k; ++a) {
+      const double g = gain[frame[a]];
+      for (int e = 0; e < kJacobianSize; ++e) wide[a][e] = g * obs.jac[a][e];
+      wide[a][6] = g * value[a];
+      wide[a][7] = 1.0;
+    }
+    if (obs.residual != nullptr) return;  // the stream adds g and H
+    constexpr int W = kWideJacobianSize;
+    double* __restrict grad = acc->gradient.data();
+    for (int a = 0; a < k; ++a) {
+      for (int e = 0; e < W; ++e) grad[W * frame[a] + e] += residual[a] * wide[a][e];
+    }
+    if (batched_hessian) return;
+    // The slow twin: every pair's 8 x 8 block (the diagonal ones whole, above their
+    // diagonal is what the stream reads).
+    const double inv_k = 1.0 / k;
+    double* h = acc->hessian.data();
+    const int n = acc->n;
+    for (int a = 0; a < k; ++a) {
+      for (int b = a; b < k; ++b) {
+        const double w = (a == b ? 1.0 : 0.0) - inv_k;
+        for (int i = 0; i < W; ++i) {
+          double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
+          for (int j = 0; j < W; ++j) row[j] += w * wide[a][i] * wide[b][j];
+        }
+      }
     }
   }
 };
@@ -180,13 +250,36 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                         num_threads, term, out);
 }
 
+void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
+                                        const CandidateSet& candidates,
+                                        const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                        const std::vector<Photometric>& photometric,
+                                        int64_t begin,
+                                        int64_t end,
+                                        bool with_jacobian,
+                                        int num_threads,
+                                        ReducedSystem* out,
+                                        bool batched_hessian) {
+  CHECK_EQ(photometric.size(), frames.size());
+  DsrPhotometricVoxelTerm term;
+  term.batched_hessian = batched_hessian;
+  term.batched_gradient = batched_hessian;
+  for (size_t i = 0; i < photometric.size(); ++i) {
+    term.gain[i] = photometric[i].gain();
+    term.offset[i] = photometric[i].offset;
+  }
+  StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
+                        num_threads, term, out);
+}
+
 ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    const CandidateSet* candidates,
                                    const Eigen::Isometry3d& frame0_from_world,
                                    int64_t begin,
                                    int64_t end,
-                                   int num_threads)
-    : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world),
+                                   int num_threads,
+                                   bool photometric)
+    : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric),
       frames_(frames),
       candidates_(candidates),
       begin_(begin),
@@ -194,8 +287,14 @@ ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
       num_threads_(num_threads) {}
 
 void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                  const std::vector<Photometric>& photometric,
                                   bool with_jacobian,
                                   NormalEquations* out) const {
+  if (!photometric.empty()) {
+    AccumulateReducedPhotometricSystem(*frames_, *candidates_, frame_from_world, photometric,
+                                       begin_, end_, with_jacobian, num_threads_, out);
+    return;
+  }
   AccumulateReducedSystem(*frames_, *candidates_, frame_from_world, begin_, end_, with_jacobian,
                           num_threads_, out);
 }

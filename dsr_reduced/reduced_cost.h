@@ -25,6 +25,7 @@
 
 #include "core/frame.h"
 #include "core/observation.h"
+#include "core/photometric.h"
 #include "core/se3.h"
 #include "core/streamed_cost.h"
 #include "core/voxel_stream.h"
@@ -83,9 +84,25 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              ReducedSystem* out,
                              bool batched_hessian = true);
 
+// The same with photometric parameters (one per frame, frame 0 first; docs/design.md
+// section 2.8): the normal equations have 8 parameters per frame (pose tangent, log gain,
+// offset), 8m x 8m, with the residuals of VoxelReducedPhotometricCost. `batched_hessian`
+// false: the voxel-by-voxel twin.
+void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
+                                        const CandidateSet& candidates,
+                                        const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                        const std::vector<Photometric>& photometric,
+                                        int64_t begin,
+                                        int64_t end,
+                                        bool with_jacobian,
+                                        int num_threads,
+                                        ReducedSystem* out,
+                                        bool batched_hessian = true);
+
 // Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
-// poses (frames 1..m-1, in order; core/streamed_cost.h). Frame 0's pose is the constant
-// `frame0_from_world`. num_residuals = 6 (m - 1) + 1.
+// poses (frames 1..m-1, in order; core/streamed_cost.h) and, with `photometric`, their
+// photometric blocks after them. Frame 0's pose is the constant `frame0_from_world`, its
+// photometric parameters the gauge. num_residuals = p (m - 1) + 1, p = 6 or 8.
 class ReducedChunkCost final : public StreamedPoseCost {
  public:
   ReducedChunkCost(const std::vector<Frame>* frames,
@@ -93,7 +110,8 @@ class ReducedChunkCost final : public StreamedPoseCost {
                    const Eigen::Isometry3d& frame0_from_world,
                    int64_t begin,
                    int64_t end,
-                   int num_threads);
+                   int num_threads,
+                   bool photometric = false);
 
   // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
   static void Compress(const Eigen::MatrixXd& hessian_free,
@@ -106,6 +124,7 @@ class ReducedChunkCost final : public StreamedPoseCost {
 
  private:
   void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                  const std::vector<Photometric>& photometric,
                   bool with_jacobian,
                   NormalEquations* out) const override;
 

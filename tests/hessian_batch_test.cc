@@ -1,7 +1,8 @@
 // AddBatchHessian (core/hessian_batch.h) against the voxel-by-voxel AddOuter and
 // AddGradient twins, on random Jacobians, residuals and observer sets, for every kernel
 // path this CPU has: a batch with one voxel, batches with one observer set, with many
-// interleaved sets, and with the largest frame count.
+// interleaved sets, and with the largest frame count; for 6 parameters per frame and for
+// 8 (photometric parameters).
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -44,6 +45,7 @@ void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBa
       const int o = batch->num_observations++;
       batch->frame[o] = __builtin_ctz(b);
       for (int t = 0; t < kJacobianSize; ++t) batch->jac[o][t] = n01(rng);
+      for (int t = 0; t < kWideJacobianSize; ++t) batch->wide_jac[o][t] = n01(rng);
       batch->residual[o] = n01(rng);
     }
     batch->observers[batch->num_voxels] = bits;
@@ -51,14 +53,46 @@ void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBa
   }
 }
 
-void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
+// The twin of the width-8 kernels (photometric parameters): every block of every voxel,
+// element by element.
+void AddWideTwin(const VoxelBatch& batch,
+                 const HessianWeights* weights,
+                 int n,
+                 std::vector<double>* h,
+                 std::vector<double>* g) {
+  constexpr int W = kWideJacobianSize;
+  for (int t = 0; t < batch.num_voxels; ++t) {
+    const int first = batch.begin[t], k = batch.begin[t + 1] - first;
+    for (int a = 0; a < k; ++a) {
+      const int fa = batch.frame[first + a];
+      for (int i = 0; i < W; ++i) {
+        (*g)[W * fa + i] += batch.residual[first + a] * batch.wide_jac[first + a][i];
+      }
+      for (int b = a; b < k; ++b) {
+        const int fb = batch.frame[first + b];
+        const double scale = weights[k].shared + (a == b ? weights[k].diagonal : 0.0);
+        for (int i = 0; i < W; ++i) {
+          for (int j = 0; j < W; ++j) {
+            (*h)[(W * fa + i) * n + W * fb + j] +=
+                scale * batch.wide_jac[first + a][i] * batch.wide_jac[first + b][j];
+          }
+        }
+      }
+    }
+  }
+}
+
+void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed, int width = kJacobianSize) {
   const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
   FillRandomBatch(m, num_sets, num_voxels, seed, batch.get());
   HessianWeights weights[kMaxFrames + 1];
   for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};  // DSR's form
-  const int n = 6 * m;
+  const int n = width * m;
   std::vector<double> twin(n * n, 0.0), twin_gradient(n, 0.0);
-  for (int t = 0; t < batch->num_voxels; ++t) {
+  if (width == kWideJacobianSize) {
+    AddWideTwin(*batch, weights, n, &twin, &twin_gradient);
+  }
+  for (int t = 0; t < batch->num_voxels && width == kJacobianSize; ++t) {
     const int first = batch->begin[t], k = batch->begin[t + 1] - first;
     const HessianWeights& w = weights[k];
     const double(*jac)[kJacobianSize] = batch->jac + first;
@@ -75,7 +109,7 @@ void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed) {
   for (KernelPath path : AvailablePaths()) {
     KernelPathScope scope(path);
     std::vector<double> batched(n * n, 0.0), batched_gradient(n, 0.0);
-    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data());
+    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data(), width);
     double gradient_diff = 0.0, gradient_norm = 0.0;
     for (int r = 0; r < n; ++r) {
       gradient_diff += (batched_gradient[r] - twin_gradient[r]) * (batched_gradient[r] - twin_gradient[r]);
@@ -107,6 +141,15 @@ TEST(AddBatchHessian, MatchesVoxelByVoxelAccumulation) {
 
 TEST(AddBatchHessian, OneObserverSetIsOneGroup) {
   CompareWithTwin(5, 1, VoxelBatch::kMaxVoxels, 5);  // a full batch of one set
+}
+
+// Width 8 (pose and photometric parameters per frame): the same cases.
+TEST(AddBatchHessian, WideMatchesVoxelByVoxelAccumulation) {
+  CompareWithTwin(3, 2, 1, 11, kWideJacobianSize);
+  CompareWithTwin(4, 3, 200, 12, kWideJacobianSize);
+  CompareWithTwin(11, 40, 250, 13, kWideJacobianSize);
+  CompareWithTwin(32, 12, 60, 14, kWideJacobianSize);
+  CompareWithTwin(5, 1, VoxelBatch::kMaxVoxels, 15, kWideJacobianSize);
 }
 
 }  // namespace
