@@ -143,13 +143,18 @@ Volume<float> ValidCellDistance(const Frame& frame) {
 
 namespace {
 
-// Shared by both fusions: per voxel, each valid observation with weight `weight(f, p_ij)`.
+// Shared by both fusions: per voxel, each valid observation with weight `weight(f, p_ij)`,
+// corrected by photometric[f] when given.
 template <class Weight>
 PanoramaImages Fuse(const std::vector<Frame>& frames,
                     const std::vector<Eigen::Isometry3d>& frame_from_world,
                     const ImageGeometry& grid,
                     int num_threads,
+                    const std::vector<Photometric>& photometric,
                     const Weight& weight) {
+  CHECK(photometric.empty() || photometric.size() == frames.size())
+      << photometric.size() << " photometric corrections for " << frames.size() << " frames";
+  const bool correct = !photometric.empty();
   PanoramaImages out;
   out.mean = Image(grid, 0.0f);
   out.count = Volume<uint8_t>(grid, 0);
@@ -165,6 +170,7 @@ PanoramaImages Fuse(const std::vector<Frame>& frames,
           double value;
           const Eigen::Vector3d x = frame_from_world[f] * p;
           if (frames[f].Sample(x, &value, nullptr)) {
+            if (correct) value = photometric[f].Correct(value);
             const double w = weight(f, x);
             sum += w * value;
             weights += w;
@@ -191,8 +197,9 @@ PanoramaImages Fuse(const std::vector<Frame>& frames,
 PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const ImageGeometry& grid,
-                                int num_threads) {
-  return Fuse(frames, frame_from_world, grid, num_threads,
+                                int num_threads,
+                                const std::vector<Photometric>& photometric) {
+  return Fuse(frames, frame_from_world, grid, num_threads, photometric,
               [](size_t, const Eigen::Vector3d&) { return 1.0; });
 }
 
@@ -200,15 +207,18 @@ PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                                    const ImageGeometry& grid,
                                    double feather_voxels,
-                                   int num_threads) {
-  if (!(feather_voxels > 0.0)) return FusePanoramaMean(frames, frame_from_world, grid, num_threads);
+                                   int num_threads,
+                                   const std::vector<Photometric>& photometric) {
+  if (!(feather_voxels > 0.0)) {
+    return FusePanoramaMean(frames, frame_from_world, grid, num_threads, photometric);
+  }
   std::vector<Frame> distance(frames.size());
   ParallelFor(0, static_cast<int64_t>(frames.size()), num_threads, [&](int64_t f) {
     const Volume<float> d = ValidCellDistance(frames[f]);
     // A Frame over the distance volume gives its trilinear interpolation.
     distance[f] = Frame(d, Mask(d.geometry, 1));
   });
-  return Fuse(frames, frame_from_world, grid, num_threads,
+  return Fuse(frames, frame_from_world, grid, num_threads, photometric,
               [&](size_t f, const Eigen::Vector3d& x) {
                 const double d = distance[f].InterpolateValue(distance[f].ToIndex(x));
                 return std::clamp(d / feather_voxels, 1e-6, 1.0);

@@ -15,6 +15,7 @@
 
 #include "core/frame.h"
 #include "core/observation.h"
+#include "core/photometric.h"
 #include "core/volume.h"
 
 namespace dsr {
@@ -49,10 +50,15 @@ struct PanoramaImages {
 
 // Closed-form panorama over every voxel of `grid` (not only candidates): each frame's
 // valid samples at the given poses, averaged. Multithreaded over slabs, deterministic.
+// With `photometric` (one per frame; empty: none) each sample of frame i is corrected to
+// gain_i I_i(p_ij) + offset_i first (frame 0's intensity scale, docs/design.md section 2.8),
+// so mean = (1/k_j) sum_i sigma_ij (gain_i I_i(p_ij) + offset_i). Without it the result is
+// bit for bit the uncorrected mean.
 PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const ImageGeometry& grid,
-                                int num_threads);
+                                int num_threads,
+                                const std::vector<Photometric>& photometric = {});
 
 // Feathered panorama: the observations weighted by how deep they lie inside their frame's
 // field of view, w_ij = min(1, d_i(p_ij) / feather_voxels), with d_i the city-block
@@ -60,11 +66,13 @@ PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
 // invalid one. Weights fall to zero towards each field-of-view edge, so the seams of the
 // mean panorama vanish; with feather_voxels <= 0 every weight is 1 and this is the mean.
 // `mean` holds sum w I / sum w; `count` and the voxel counts are as for the mean.
+// `photometric` corrects each sample as for FusePanoramaMean (sum w c / sum w).
 PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                                    const ImageGeometry& grid,
                                    double feather_voxels,
-                                   int num_threads);
+                                   int num_threads,
+                                   const std::vector<Photometric>& photometric = {});
 
 // The fused panorama as a Frame in world coordinates (what a frame is registered to, in the
 // sequential baseline and in recovery): the mean image, with the voxels some frame observes

@@ -36,11 +36,14 @@ std::string Serialize(const ComparisonRow& row) {
     << row.iterations << ' ' << row.seconds_per_iteration << ' '
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
+    << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
     << row.frame_from_world.size();
   for (const Eigen::Isometry3d& t : row.frame_from_world) {
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c) s << ' ' << t(r, c);
   }
+  s << ' ' << row.photometric.size();
+  for (const Photometric& p : row.photometric) s << ' ' << p.log_gain << ' ' << p.offset;
   s << '\n' << row.failure;
   return s.str();
 }
@@ -52,16 +55,26 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
       row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
       row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
       row->added_memory_mb;
-  std::string predicted, nees;
-  s >> predicted >> nees >> poses;
+  std::string predicted, nees, mae_gain, mae_offset;
+  s >> predicted >> nees >> mae_gain >> mae_offset >> poses;
   if (!s || poses > 1000) return false;
-  row->predicted_tre_mm = predicted == "nan" ? std::nan("") : std::stod(predicted);
-  row->nees = nees == "nan" ? std::nan("") : std::stod(nees);
+  const auto number = [](const std::string& text) {
+    return text == "nan" ? std::nan("") : std::stod(text);
+  };
+  row->predicted_tre_mm = number(predicted);
+  row->nees = number(nees);
+  row->mae_gain = number(mae_gain);
+  row->mae_offset = number(mae_offset);
   row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
   for (Eigen::Isometry3d& t : row->frame_from_world) {
     for (int r = 0; r < 3; ++r)
       for (int c = 0; c < 4; ++c) s >> t(r, c);
   }
+  size_t photometric = 0;
+  s >> photometric;
+  if (!s || photometric > 1000) return false;
+  row->photometric.assign(photometric, Photometric());
+  for (Photometric& p : row->photometric) s >> p.log_gain >> p.offset;
   if (!s) return false;
   std::string rest;
   std::getline(s, rest);  // end of the numbers line
@@ -109,6 +122,18 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   row.seconds_per_iteration = finest_seconds / std::max(1, finest_iterations);
   row.differences_per_iteration = finest_differences / std::max(1, finest_solves);
   row.frame_from_world = result.frame_from_world;
+  row.photometric = result.photometric;
+  const std::vector<Photometric>& truth = sequence.ground_truth_photometric;
+  const size_t m = row.photometric.size();
+  if (m > 1 && truth.size() == m) {
+    double gain = 0.0, offset = 0.0;
+    for (size_t i = 1; i < m; ++i) {
+      gain += std::abs(row.photometric[i].gain() - truth[i].gain());
+      offset += std::abs(row.photometric[i].offset - truth[i].offset);
+    }
+    row.mae_gain = gain / (m - 1);
+    row.mae_offset = offset / (m - 1);
+  }
   const PoseUncertainty& u = result.uncertainty;
   if (!u.covariance.empty()) {
     const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(sequence.ground_truth);
@@ -190,12 +215,18 @@ ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOp
       row.added_memory_mb = std::max(0.0, row.peak_memory_mb - row.added_memory_mb);
     }
   }
-  row.method = options.mode + (options.init == InitialPoses::kPairwise ? "+pairwise_init"
-                                : options.init == InitialPoses::kGlobal ? "+global_init"
-                                : options.max_recoveries > 0            ? "+auto"
-                                                                        : "");
+  row.method = MethodLabel(options);
   row.sequence = sequence.name;
   return row;
+}
+
+std::string MethodLabel(const RegistrationOptions& options) {
+  return options.mode +
+         (options.init == InitialPoses::kPairwise ? "+pairwise_init"
+          : options.init == InitialPoses::kGlobal ? "+global_init"
+          : options.max_recoveries > 0            ? "+auto"
+                                                  : "") +
+         (options.photometric == PhotometricModel::kAffine ? "+affine" : "");
 }
 
 std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
@@ -204,7 +235,7 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
   s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
        "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
        "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
-       "predicted_tre_mm,nees,failure\n";
+       "predicted_tre_mm,nees,mae_gain,mae_offset,failure\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
@@ -212,8 +243,10 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
       << r.seconds_per_iteration << ',' << r.differences_per_iteration << ',' << r.seconds
       << ',' << r.peak_memory_mb << ',' << r.added_memory_mb << ',';
     if (!std::isnan(r.predicted_tre_mm)) s << r.predicted_tre_mm;
-    s << ',';
-    if (!std::isnan(r.nees)) s << r.nees;
+    for (double v : {r.nees, r.mae_gain, r.mae_offset}) {
+      s << ',';
+      if (!std::isnan(v)) s << v;
+    }
     s << ',' << CsvField(r.failure) << '\n';
   }
   return s.str();

@@ -11,6 +11,7 @@
 
 #include <Eigen/Geometry>
 
+#include "core/photometric.h"
 #include "core/volume.h"
 #include "pipeline/registration.h"
 
@@ -21,6 +22,9 @@ struct ExperimentSequence {
   std::vector<Image> frames;
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world (any world)
+  // The frames' true intensity corrections on frame 0's scale (core/io_poses.h, "gain" and
+  // "offset"), one per frame; empty when unknown.
+  std::vector<Photometric> ground_truth_photometric;
 };
 
 // One row of the comparison.
@@ -44,8 +48,19 @@ struct ComparisonRow {
   // e^T C^-1 e against the ground truth (pipeline/uncertainty.h; 6 when calibrated).
   double predicted_tre_mm = std::numeric_limits<double>::quiet_NaN();
   double nees = std::numeric_limits<double>::quiet_NaN();
+  // With RegistrationOptions::photometric kAffine (NaN otherwise, or without a known truth),
+  // over frames 1..m-1: the mean absolute error of the estimated gains and offsets against
+  // ExperimentSequence::ground_truth_photometric (offsets in intensity units).
+  double mae_gain = std::numeric_limits<double>::quiet_NaN();
+  double mae_offset = std::numeric_limits<double>::quiet_NaN();
   std::vector<Eigen::Isometry3d> frame_from_world;
+  std::vector<Photometric> photometric;  // the estimate (RegistrationResult::photometric)
 };
+
+// The method's name in a comparison's rows and poses files: the mode, then "+pairwise_init",
+// "+global_init" or "+auto" for the initialisation, then "+affine" with photometric
+// parameters.
+std::string MethodLabel(const RegistrationOptions& options);
 
 // Runs `options` (its mode is the method) on the sequence from identity initial poses in
 // a child process and fills a row.

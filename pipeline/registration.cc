@@ -38,26 +38,44 @@ BaselineOptions ToBaselineOptions(const RegistrationOptions& options, const Solv
   return baseline;
 }
 
-// Runs the mode's solver once with the candidates fixed.
+// The solver options of modes dsr and dba (without their start).
+DsrOptions ToDsrOptions(const RegistrationOptions& options, const SolveOptions& solve) {
+  DsrOptions dsr;
+  dsr.solve = solve;
+  dsr.num_chunks = options.dsr_num_chunks;
+  dsr.reference_cost = options.dsr_reference_cost;
+  dsr.photometric = options.photometric == PhotometricModel::kAffine;
+  return dsr;
+}
+
+DbaOptions ToDbaOptions(const RegistrationOptions& options, const SolveOptions& solve) {
+  DbaOptions dba;
+  dba.solve = solve;
+  dba.memory_budget_bytes = options.dba_memory_budget_bytes;
+  dba.photometric = options.photometric == PhotometricModel::kAffine;
+  return dba;
+}
+
+// Runs the mode's solver once with the candidates fixed. With photometric parameters they
+// start at `photometric` (one per frame, frame 0 the gauge; empty: every gain 1, offset 0)
+// and the estimate is in report->photometric.
 bool SolveOnce(const RegistrationOptions& options,
                const SolveOptions& solve,
                const std::vector<Frame>& frames,
                const CandidateSet& candidates,
                const std::vector<Eigen::Isometry3d>& initial,
+               const std::vector<Photometric>& photometric,
                SolveReport* report,
                std::vector<float>* dba_intensities,
                std::string* error) {
   if (options.mode == "dsr") {
-    DsrOptions dsr;
-    dsr.solve = solve;
-    dsr.num_chunks = options.dsr_num_chunks;
-    dsr.reference_cost = options.dsr_reference_cost;
+    DsrOptions dsr = ToDsrOptions(options, solve);
+    if (dsr.photometric) dsr.initial_photometric = photometric;
     return SolveDsr(frames, candidates, initial, dsr, report, error);
   }
   if (options.mode == "dba") {
-    DbaOptions dba;
-    dba.solve = solve;
-    dba.memory_budget_bytes = options.dba_memory_budget_bytes;
+    DbaOptions dba = ToDbaOptions(options, solve);
+    if (dba.photometric) dba.initial_photometric = photometric;
     return SolveDba(frames, candidates, initial, dba, report, dba_intensities, error);
   }
   BaselineOptions baseline = ToBaselineOptions(options, solve);
@@ -143,6 +161,18 @@ std::vector<std::string> ModeNames() {
   return {"dsr", "dba", "pairwise", "lie_normalization", "sequential", "ape"};
 }
 
+bool StringToPhotometricModel(const std::string& name, PhotometricModel* model) {
+  for (PhotometricModel m : {PhotometricModel::kNone, PhotometricModel::kAffine}) {
+    if (name == PhotometricModelToString(m)) {
+      *model = m;
+      return true;
+    }
+  }
+  return false;
+}
+
+bool ModeEstimatesPhotometric(const std::string& mode) { return mode == "dsr" || mode == "dba"; }
+
 std::vector<std::string> InitialisationNames() {
   return {"auto", "identity", "pairwise", "global"};
 }
@@ -220,16 +250,25 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
     return false;
   }
-  if (mode == "dsr") {
-    DsrOptions dsr;
-    dsr.solve = solve;
-    dsr.num_chunks = dsr_num_chunks;
-    if (!dsr.Validate(error)) return false;
+  const bool affine = photometric == PhotometricModel::kAffine;
+  if (affine && !ModeEstimatesPhotometric(mode)) {
+    return bad("photometric", PhotometricModelToString(photometric),
+               "needs --mode=dsr or dba (--mode=" + mode +
+                   " is a baseline without photometric parameters; use --photometric=none)");
   }
-  if (mode == "dba") {
-    DbaOptions dba;
-    dba.solve = solve;
-    if (!dba.Validate(error)) return false;
+  // Each solver's own rules first without the photometric parameters, so that an error of
+  // theirs with them is the flag's.
+  if (mode == "dsr" || mode == "dba") {
+    RegistrationOptions plain = *this;
+    plain.photometric = PhotometricModel::kNone;
+    const bool valid = mode == "dsr" ? ToDsrOptions(plain, solve).Validate(error)
+                                     : ToDbaOptions(plain, solve).Validate(error);
+    if (!valid) return false;
+    if (affine && !(mode == "dsr" ? ToDsrOptions(*this, solve).Validate(error)
+                                  : ToDbaOptions(*this, solve).Validate(error))) {
+      *error = "--photometric=affine: " + *error;
+      return false;
+    }
   }
   if (mode != "dsr" && mode != "dba" && !ToBaselineOptions(*this, solve).Validate(error)) {
     return false;
@@ -290,9 +329,11 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
 // The coarse-to-fine solves from `start_poses`: every level's solves with candidate
 // rebuilds, the divergence guard at each rebuild and the checks of the final poses; with
 // `check_every_level`, the misfit check also after each coarse level; frames marked in
-// `misfit_exempt` are never the misfit check's outlier. Returns false for bad input or
-// set-up problems; a registration that is not usable returns true with result->usable =
-// false, result->failure and result->flagged_frames.
+// `misfit_exempt` are never the misfit check's outlier. With photometric parameters they
+// start at gain 1 and offset 0, each solve from the previous one's estimate, and end in
+// result->photometric. Returns false for bad input or set-up problems; a registration that
+// is not usable returns true with result->usable = false, result->failure and
+// result->flagged_frames.
 bool SolveLevels(const std::vector<Image>& images,
                  const std::vector<Mask>& masks,
                  const std::vector<Eigen::Isometry3d>& start_poses,
@@ -305,6 +346,11 @@ bool SolveLevels(const std::vector<Image>& images,
                  std::string* error) {
   const int m = static_cast<int>(images.size());
   std::vector<Eigen::Isometry3d> poses = start_poses;
+  // The current gains and offsets (empty: 1 and 0, or no photometric parameters). The
+  // checks compare frames on frame 0's intensity scale through them (FrameMisfits).
+  std::vector<Photometric> photometric;
+  const bool affine = options.photometric == PhotometricModel::kAffine;
+  result->photometric.clear();
   result->usable = true;
   result->flagged_frames.clear();
   result->flagged_by_misfit = false;
@@ -318,6 +364,7 @@ bool SolveLevels(const std::vector<Image>& images,
                       ": " + why;
     result->flagged_frames = std::move(flagged);
     result->frame_from_world = poses;
+    result->photometric = photometric;
     return true;
   };
   const bool release = options.max_recoveries == 0;
@@ -343,6 +390,7 @@ bool SolveLevels(const std::vector<Image>& images,
     SolveOptions solve = options.solve;
     if (level > 0) solve.max_iterations = std::min(solve.max_iterations, options.coarse_max_iterations);
     const std::vector<Eigen::Isometry3d> level_start = poses;
+    const std::vector<Photometric> level_start_photometric = photometric;
     // The pair-based baselines build their own pair grids and candidates in every solve:
     // rebuilding the shared candidates between their solves would only repeat them.
     const bool pair_based = options.mode == "pairwise" || options.mode == "lie_normalization" ||
@@ -378,7 +426,7 @@ bool SolveLevels(const std::vector<Image>& images,
         // pair graph is the only remedy left).
         if (check_every_level) {
           const std::vector<double> misfits =
-              FrameMisfits(frames, candidates, poses, options.solve.num_threads);
+              FrameMisfits(frames, candidates, poses, options.solve.num_threads, photometric);
           for (int f : MisfitOutliers(misfits, options.max_misfit_ratio, &misfit_exempt)) {
             if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
           }
@@ -393,6 +441,7 @@ bool SolveLevels(const std::vector<Image>& images,
           // and start the next one from the poses this level started from.
           LOG(INFO) << "skipping pyramid level " << level << ": " << connect_error;
           poses = level_start;
+          photometric = level_start_photometric;
           break;
         }
         *error = connect_error + " (pyramid level " + std::to_string(level) + ")";
@@ -408,6 +457,7 @@ bool SolveLevels(const std::vector<Image>& images,
           if (level > 0) {
             LOG(INFO) << "skipping pyramid level " << level << ": " << why;
             poses = level_start;
+            photometric = level_start_photometric;
             break;
           }
           *error = why + " at the initial poses of the finest level";
@@ -420,7 +470,7 @@ bool SolveLevels(const std::vector<Image>& images,
       prefix << "level " << level << "." << rebuild << " ";
       solve.progress_prefix = options.solve.progress_prefix + prefix.str();
       std::vector<float> intensities;
-      if (!SolveOnce(options, solve, frames, candidates, poses, &record.report,
+      if (!SolveOnce(options, solve, frames, candidates, poses, photometric, &record.report,
                      options.mode == "dba" && level == 0 ? &intensities : nullptr, error)) {
         return false;
       }
@@ -431,7 +481,14 @@ bool SolveLevels(const std::vector<Image>& images,
       }
       result->total_iterations += record.report.num_iterations;
       const bool usable = record.report.usable;
-      if (usable) poses = next;
+      if (usable) {
+        poses = next;
+        if (affine) {
+          CHECK_EQ(static_cast<int>(record.report.photometric.size()), m)
+              << "a photometric solve returned no estimate";
+          photometric = record.report.photometric;
+        }
+      }
       if (level == 0) {
         result->grid = grid;
         if (!intensities.empty()) {
@@ -448,6 +505,7 @@ bool SolveLevels(const std::vector<Image>& images,
         result->failure = "the solve at pyramid level " + std::to_string(level) +
                           " is not usable: " + result->solves.back().report.termination;
         result->frame_from_world = poses;
+        result->photometric = photometric;
         return true;
       }
       solved = true;
@@ -461,7 +519,7 @@ bool SolveLevels(const std::vector<Image>& images,
       // solve's candidates (at the poses it reached, up to the rebuild tolerance).
       if (check_every_level && solved) {
         const std::vector<double> misfits =
-            FrameMisfits(frames, last_candidates, poses, options.solve.num_threads);
+            FrameMisfits(frames, last_candidates, poses, options.solve.num_threads, photometric);
         std::string why;
         if (MisfitOutlier(misfits, options.max_misfit_ratio, &why, &misfit_exempt)) {
           result->flagged_by_misfit = true;
@@ -497,9 +555,10 @@ bool SolveLevels(const std::vector<Image>& images,
       return diverged(0, why, slid);
     }
     // DSR's last pass was at the final poses over these candidates when the solve kept it
-    // (core/streamed_cost.h): its per-frame costs are the misfits' sums.
+    // (core/streamed_cost.h): its per-frame costs are the misfits' sums. With photometric
+    // parameters the misfits are always measured here, on corrected intensities.
     const SolveReport& last = result->solves.back().report;
-    const bool reuse_last_pass = options.mode == "dsr" &&
+    const bool reuse_last_pass = options.mode == "dsr" && !affine &&
                                  last_motion <= options.rebuild_tolerance_voxels &&
                                  static_cast<int>(last.final_frame_cost.size()) == m;
     if (reuse_last_pass) {
@@ -507,7 +566,7 @@ bool SolveLevels(const std::vector<Image>& images,
           MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
     } else {
       result->frame_misfits =
-          FrameMisfits(frames, final_candidates, poses, options.solve.num_threads);
+          FrameMisfits(frames, final_candidates, poses, options.solve.num_threads, photometric);
     }
     if (MisfitOutlier(result->frame_misfits, options.max_misfit_ratio, &why, &misfit_exempt)) {
       result->flagged_by_misfit = true;
@@ -519,7 +578,15 @@ bool SolveLevels(const std::vector<Image>& images,
                          options.max_pair_mismatch_ratio, &flagged, &why)) {
       return diverged(0, why, flagged);
     }
-    if (options.estimate_uncertainty && (options.mode == "dsr" || options.mode == "dba")) {
+    if (options.estimate_uncertainty && affine) {
+      // The estimate linearises the poses' stopping rule alone (pipeline/uncertainty.h); the
+      // gains and offsets solved with them would change both its gradient and its
+      // derivative.
+      result->uncertainty_note =
+          "the pose uncertainty does not model the photometric parameters "
+          "(--photometric=affine)";
+    } else if (options.estimate_uncertainty &&
+               (options.mode == "dsr" || options.mode == "dba")) {
       if (!EstimatePoseUncertainty(frames, final_candidates, poses, masks,
                                    options.solve.num_threads, &result->uncertainty,
                                    &result->uncertainty_note)) {
@@ -528,6 +595,7 @@ bool SolveLevels(const std::vector<Image>& images,
     }
   }
   result->frame_from_world = poses;
+  result->photometric = photometric;
   return true;
 }
 
@@ -552,6 +620,7 @@ bool RegisterScaled(const std::vector<Image>& images,
     init_options.mode = "pairwise";
     init_options.init = InitialPoses::kGiven;
     init_options.max_recoveries = 0;
+    init_options.photometric = PhotometricModel::kNone;  // a baseline's run
     // The initial poses are judged by this run's own checks of its final poses.
     init_options.min_kept_overlap = 0.0;
     init_options.max_misfit_ratio = 0.0;
@@ -693,6 +762,8 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
     for (double& c : r.final_frame_cost) c = cost(c);
   }
   for (double& misfit : result->frame_misfits) misfit = std::ldexp(misfit, -exponent);
+  // Gains are ratios of intensities (unchanged); offsets are intensities.
+  for (Photometric& p : result->photometric) p.offset = std::ldexp(p.offset, -exponent);
   for (float& v : result->dba_intensities.voxels) v = std::ldexp(v, -exponent);
   result->uncertainty.noise_sigma = std::ldexp(result->uncertainty.noise_sigma, -exponent);
 }

@@ -24,6 +24,7 @@
 
 #include "core/frame.h"
 #include "core/observation.h"
+#include "core/photometric.h"
 #include "core/solve_options.h"
 #include "core/volume.h"
 #include "init/placement_search.h"
@@ -39,6 +40,28 @@ enum class InitialPoses {
   kGlobal,    // the pair graph of init/pair_graph.h: every pair searched globally, placed
               // along a maximum-confidence spanning tree, refined by a robust pose graph
 };
+
+// Which photometric model the solves of modes dsr and dba estimate (docs/design.md section
+// 2.8): none, or per frame a gain and an offset (frame i observes the panorama as
+// exp(log_gain_i) I_i + offset_i; frame 0 the gauge, 1 and 0).
+enum class PhotometricModel {
+  kNone,
+  kAffine,
+};
+
+// The tools' --photometric default (dsr_register, dsr_compare). Note: the one place to
+// change it; with kAffine the tools fall back to kNone for the baseline modes unless
+// --photometric is given explicitly (then a baseline mode is refused).
+constexpr PhotometricModel kDefaultPhotometricModel = PhotometricModel::kNone;
+
+// "none" / "affine" (the tools' --photometric values).
+constexpr const char* PhotometricModelToString(PhotometricModel model) {
+  return model == PhotometricModel::kAffine ? "affine" : "none";
+}
+// The inverse of PhotometricModelToString; false (and *model untouched) for any other text.
+bool StringToPhotometricModel(const std::string& name, PhotometricModel* model);
+// Whether `mode` (RegistrationOptions::mode) can estimate photometric parameters: dsr and dba.
+bool ModeEstimatesPhotometric(const std::string& mode);
 
 struct RegistrationOptions {
   // "dsr" (reduced problem, default), "dba" (full bundle adjustment) or a baseline of
@@ -100,6 +123,19 @@ struct RegistrationOptions {
   // Off by default (its cost).
   bool estimate_uncertainty = false;
 
+  // Photometric parameters (modes dsr and dba only; Validate refuses kAffine for the
+  // baselines, naming --photometric). With kAffine every solve estimates a gain and an
+  // offset per frame (DsrOptions/DbaOptions::photometric). They do not depend on the
+  // resolution (the pyramid's normalised smoothing maps a I + b to a I_s + b), so each
+  // solve starts from the previous solve's estimate, across candidate rebuilds and pyramid
+  // levels (a skipped level reverts them with the poses); a recovery, which starts again
+  // from the coarsest level with frames re-placed, starts them again at 1 and 0 (the
+  // flagged frames' estimates came from a wrong minimum). The misfit check then measures
+  // corrected intensities, and the pose uncertainty is not estimated (it does not model the
+  // parameters; RegistrationResult::uncertainty_note says so). The library default is
+  // kNone; the tools' is kDefaultPhotometricModel.
+  PhotometricModel photometric = PhotometricModel::kNone;
+
   // Mode-specific.
   int dsr_num_chunks = 1;
   bool dsr_reference_cost = false;
@@ -121,9 +157,16 @@ struct LevelSolve {
 
 struct RegistrationResult {
   std::vector<Eigen::Isometry3d> frame_from_world;  // final poses, frame 0 = identity
+  // With RegistrationOptions::photometric kAffine, the final gain and offset of every frame
+  // (frame 0: 1 and 0; offsets in the input's intensity units): frame i's corrected
+  // intensity gain * I_i + offset is on frame 0's scale, the convention of the poses file's
+  // "gain" and "offset" (core/io_poses.h). Empty otherwise. When the registration is not
+  // usable, the estimate at the poses it ended at (empty if no solve ran).
+  std::vector<Photometric> photometric;
   std::vector<LevelSolve> solves;
   bool usable = false;        // every solve usable and the final cost finite
-  // Per frame, RMS difference to the per-voxel mean at the final poses (FrameMisfits).
+  // Per frame, RMS difference to the per-voxel mean at the final poses (FrameMisfits; of the
+  // corrected intensities, on frame 0's scale, with photometric parameters).
   std::vector<double> frame_misfits;
   std::string failure;        // why not usable
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)

@@ -6,6 +6,8 @@
 #include <filesystem>
 #include <sstream>
 
+#include <glog/logging.h>
+
 #include "core/atomic_file.h"
 #include "core/io_picture.h"
 #include "core/io_poses.h"
@@ -100,11 +102,13 @@ Picture RenderSlice(const Image& panorama,
   return pic;
 }
 
-// Samples frame f on the axial slice `k` of `grid` under `pose`: value and validity.
+// Samples frame f on the axial slice `k` of `grid` under `pose`: value (corrected by
+// `correction`) and validity.
 void SampleSlice(const Frame& frame,
                  const Eigen::Isometry3d& pose,
                  const ImageGeometry& grid,
                  int k,
+                 const Photometric& correction,
                  std::vector<float>* value,
                  std::vector<uint8_t>* seen) {
   const int nx = grid.size[0], ny = grid.size[1];
@@ -114,7 +118,7 @@ void SampleSlice(const Frame& frame,
     for (int i = 0; i < nx; ++i) {
       double v;
       if (frame.Sample(pose * grid.IndexToPhysical(Eigen::Vector3d(i, j, k)), &v, nullptr)) {
-        (*value)[size_t(j) * nx + i] = static_cast<float>(v);
+        (*value)[size_t(j) * nx + i] = static_cast<float>(correction.Correct(v));
         (*seen)[size_t(j) * nx + i] = 1;
       }
     }
@@ -160,7 +164,12 @@ Picture RenderPairComparison(const std::vector<Frame>& frames,
                              int b,
                              const std::vector<Eigen::Isometry3d>& before,
                              const std::vector<Eigen::Isometry3d>& after,
-                             const ImageGeometry& grid) {
+                             const ImageGeometry& grid,
+                             const std::vector<Photometric>& photometric) {
+  CHECK(photometric.empty() || photometric.size() == frames.size());
+  const Photometric none;
+  const Photometric& ca = photometric.empty() ? none : photometric[a];
+  const Photometric& cb = photometric.empty() ? none : photometric[b];
   const int nx = grid.size[0], ny = grid.size[1];
   // The axial slice with the most voxels both frames observe after registration.
   int best_k = grid.size[2] / 2;
@@ -168,8 +177,8 @@ Picture RenderPairComparison(const std::vector<Frame>& frames,
   std::vector<float> va, vb;
   std::vector<uint8_t> sa, sb;
   for (int k = 0; k < grid.size[2]; k += std::max(1, grid.size[2] / 24)) {
-    SampleSlice(frames[a], after[a], grid, k, &va, &sa);
-    SampleSlice(frames[b], after[b], grid, k, &vb, &sb);
+    SampleSlice(frames[a], after[a], grid, k, ca, &va, &sa);
+    SampleSlice(frames[b], after[b], grid, k, cb, &vb, &sb);
     int64_t both = 0;
     for (size_t l = 0; l < sa.size(); ++l) both += sa[l] && sb[l];
     if (both > best) {
@@ -181,7 +190,7 @@ Picture RenderPairComparison(const std::vector<Frame>& frames,
   std::vector<float> all;
   for (const auto* poses : {&before, &after}) {
     for (int f : {a, b}) {
-      SampleSlice(frames[f], (*poses)[f], grid, best_k, &va, &sa);
+      SampleSlice(frames[f], (*poses)[f], grid, best_k, f == a ? ca : cb, &va, &sa);
       all.insert(all.end(), va.begin(), va.end());
     }
   }
@@ -191,8 +200,8 @@ Picture RenderPairComparison(const std::vector<Frame>& frames,
   const char* rows[2] = {"before", "after"};
   int row = 0;
   for (const auto* poses : {&before, &after}) {
-    SampleSlice(frames[a], (*poses)[a], grid, best_k, &va, &sa);
-    SampleSlice(frames[b], (*poses)[b], grid, best_k, &vb, &sb);
+    SampleSlice(frames[a], (*poses)[a], grid, best_k, ca, &va, &sa);
+    SampleSlice(frames[b], (*poses)[b], grid, best_k, cb, &vb, &sb);
     Picture checker(w, h), overlay(w, h);
     for (int y = 0; y < h; ++y) {
       for (int x = 0; x < w; ++x) {
@@ -266,6 +275,15 @@ Picture RenderConvergence(const std::vector<LevelSolve>& solves) {
   return out;
 }
 
+void PhotometricToPoses(const std::vector<Photometric>& photometric, PosesFile* poses) {
+  poses->gain.clear();
+  poses->offset.clear();
+  for (const Photometric& p : photometric) {
+    poses->gain.push_back(p.gain());
+    poses->offset.push_back(p.offset);
+  }
+}
+
 std::vector<std::string> ReportFiles(int num_frames, int pair_a, int pair_b) {
   char name[64];
   std::snprintf(name, sizeof(name), "pair_%02d_%02d.png", pair_a, pair_b);
@@ -298,7 +316,7 @@ bool WriteReport(const std::string& dir,
   }
   const std::vector<std::string> names = ReportFiles(m, in.pair_a, in.pair_b);
   if (!WritePng(RenderPairComparison(in.frames, in.pair_a, in.pair_b, in.initial,
-                                     r.frame_from_world, r.grid),
+                                     r.frame_from_world, r.grid, r.photometric),
                 file(names[1]), error) ||
       !WritePng(RenderConvergence(r.solves), file("convergence.png"), error)) {
     return false;
@@ -311,6 +329,8 @@ bool WriteReport(const std::string& dir,
     poses.covariance = r.uncertainty.covariance;
     poses.predicted_tre_mm = r.uncertainty.predicted_tre_mm;
   }
+  const bool photometric = !r.photometric.empty();
+  PhotometricToPoses(r.photometric, &poses);
   if (!WritePoses(poses, file("poses.json"), error)) return false;
   for (int i = 0; i < m; ++i) {
     if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
@@ -328,7 +348,9 @@ bool WriteReport(const std::string& dir,
         "`transforms/frame_XX.tfm` (world -> frame, LPS: resampling frame XX with its file "
         "puts it on the panorama in 3D Slicer, ITK/SimpleITK, ANTs or elastix).\n\n"
      << "| frame | image | translation (mm) | rotation angle (deg) |"
-     << (uncertainty ? " predicted TRE (mm) |\n|---|---|---|---|---|\n" : "\n|---|---|---|---|\n");
+     << (photometric ? " gain | offset |" : "") << (uncertainty ? " predicted TRE (mm) |" : "")
+     << "\n|---|---|---|---|" << (photometric ? "---|---|" : "") << (uncertainty ? "---|" : "")
+     << "\n";
   for (int i = 0; i < m; ++i) {
     const Eigen::Isometry3d& t = r.frame_from_world[i];
     const double angle = Eigen::AngleAxisd(t.linear()).angle() * 180.0 / M_PI;
@@ -337,11 +359,20 @@ bool WriteReport(const std::string& dir,
                   i < static_cast<int>(in.image_names.size()) ? in.image_names[i].c_str() : "",
                   t.translation().x(), t.translation().y(), t.translation().z(), angle);
     md << row;
+    if (photometric) {
+      std::snprintf(row, sizeof(row), " %.4f | %.3f |", r.photometric[i].gain(),
+                    r.photometric[i].offset);
+      md << row;
+    }
     if (uncertainty) {
       std::snprintf(row, sizeof(row), " %.4f |", r.uncertainty.predicted_tre_mm[i]);
       md << row;
     }
     md << '\n';
+  }
+  if (photometric) {
+    md << "\nGain and offset: frame i's intensities on frame 0's scale are gain * I_i + offset "
+          "(--photometric=affine); the panorama and the pair picture show them so.\n";
   }
   if (uncertainty || !r.uncertainty_note.empty()) {
     md << "\n" << UncertaintySummary(r.uncertainty, r.uncertainty_note) << ".\n";

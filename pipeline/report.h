@@ -18,6 +18,8 @@
 
 #include "core/eval.h"
 #include "core/frame.h"
+#include "core/io_poses.h"
+#include "core/photometric.h"
 #include "core/picture.h"
 #include "core/volume.h"
 #include "pipeline/registration.h"
@@ -34,13 +36,16 @@ Picture RenderPanoramaSlices(const Image& panorama,
 // Frames a and b on the axial panorama slice through the centre of their overlap (at the
 // `after` poses): top row before (poses `before`), bottom row after; left a checkerboard of
 // 8-pixel tiles alternating a and b, right a colour overlay (a magenta, b green: aligned
-// structures turn grey).
+// structures turn grey). With `photometric` (one per frame; empty: none) both frames are
+// shown corrected to frame 0's intensity scale (gain I + offset) in both rows, so that the
+// picture compares their geometry, not their brightness.
 Picture RenderPairComparison(const std::vector<Frame>& frames,
                              int a,
                              int b,
                              const std::vector<Eigen::Isometry3d>& before,
                              const std::vector<Eigen::Isometry3d>& after,
-                             const ImageGeometry& grid);
+                             const ImageGeometry& grid,
+                             const std::vector<Photometric>& photometric = {});
 
 // Cost (log scale) and step norm per iteration over every solve, in solve order; solves
 // are separated by vertical lines.
@@ -57,6 +62,14 @@ struct ReportInputs {
   const PoseErrorSummary* errors = nullptr;  // ground-truth errors, or null
   std::string mode;
 };
+// With photometric parameters (result->photometric not empty) the pair picture shows
+// corrected intensities, poses.json carries each frame's "gain" and "offset" and index.md
+// lists them; `panorama` should then be fused from corrected intensities too.
+
+// Fills poses->gain and ->offset from per-frame photometric parameters (both emptied when
+// `photometric` is empty): the poses file's convention is the pipeline's, frame i's
+// corrected intensity gain * I_i + offset on frame 0's scale (core/io_poses.h).
+void PhotometricToPoses(const std::vector<Photometric>& photometric, PosesFile* poses);
 
 // The files WriteReport writes, relative to its folder, in the order it writes them (the
 // tools plan their outputs with it): panorama_slices.png, pair_AA_BB.png, convergence.png,

@@ -2,6 +2,8 @@
 // alone or as a group, are reported by name; ordinary motion is not.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include "core/panorama.h"
 #include "pipeline/divergence_guard.h"
 #include "test_problems.h"
@@ -155,6 +157,44 @@ TEST(MisfitOutlier, SkipsExemptFrames) {
   // Exempting the low frames leaves the reference where it was: frame 3 (12) passes.
   const std::vector<bool> exempt_low = {true, true, false, false, false};
   EXPECT_EQ(MisfitOutliers(misfits, 2.0, &exempt_low), std::vector<int>({2, 4}));
+}
+
+// With photometric corrections the misfits compare corrected intensities (issue 21): frames
+// seen through a gain and an offset, on lattice-aligned noise-free data, match exactly once
+// corrected back to frame 0's scale (up to float storage), while the raw intensities do not.
+TEST(FrameMisfits, CompareCorrectedIntensities) {
+  SequenceOptions o;
+  o.num_frames = 4;
+  o.size = 16;
+  o.lattice = true;
+  o.seed = 9;
+  const TestSequence s = MakeSequence(o);
+  const double g[] = {1.0, 1.3, 0.8, 1.1}, b[] = {0.0, 12.0, -7.0, 4.0};
+  std::vector<Frame> frames;
+  std::vector<Photometric> correction;  // back to frame 0's scale: (I - b) / g
+  for (int i = 0; i < o.num_frames; ++i) {
+    Image image = s.images[i];
+    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + b[i]);
+    frames.emplace_back(image, s.masks[i]);
+    correction.push_back({-std::log(g[i]), -b[i] / g[i]});
+  }
+  const CandidateSet candidates = CandidatesAt(frames, s.ground_truth);
+  const std::vector<double> raw = FrameMisfits(frames, candidates, s.ground_truth, 2);
+  const std::vector<double> corrected =
+      FrameMisfits(frames, candidates, s.ground_truth, 2, correction);
+  ASSERT_EQ(corrected.size(), 4u);
+  for (int i = 0; i < 4; ++i) {
+    // Intensities of about 100 stored as float: differences of a few 1e-5 at most.
+    EXPECT_LT(corrected[i], 1e-4) << i;
+    EXPECT_GT(raw[i], 1.0) << i;
+  }
+  // Deterministic for any thread count.
+  EXPECT_EQ(FrameMisfits(frames, candidates, s.ground_truth, 1, correction),
+            FrameMisfits(frames, candidates, s.ground_truth, 3, correction));
+  // The gauge on every frame (gain exactly 1, offset 0) is no correction.
+  const std::vector<Photometric> gauge(4);
+  const std::vector<double> with_gauge = FrameMisfits(frames, candidates, s.ground_truth, 2, gauge);
+  for (int i = 0; i < 4; ++i) EXPECT_NEAR(with_gauge[i], raw[i], 1e-12 * raw[i]) << i;
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <cstdlib>
 #include <filesystem>
 
@@ -89,6 +90,72 @@ TEST(Fusion, MeanAndFeatherMatchBruteForce) {
   EXPECT_EQ(mean.frame0_voxels, seen0);
   EXPECT_DOUBLE_EQ(mean.EnlargementRatio(), static_cast<double>(seen) / seen0);
   EXPECT_GT(mean.EnlargementRatio(), 1.0);
+}
+
+// Two frames of the same content, frame 1 seen through a gain 1.2 and an offset 5 (its
+// voxels are (content - 5) / 1.2): corrected by (1.2, 5) the fused panorama is the content
+// wherever both observe it, without correction it has a seam; the gauge (1, 0) on every
+// frame leaves the panorama bit for bit as it was.
+TEST(Fusion, PhotometricCorrectionsRemoveAGainSeam) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(16, 14, 12);
+  const auto content = [](int i, int j, int k) {
+    return 60.0 + 30.0 * std::sin(0.7 * i) + 15.0 * std::cos(0.5 * j) + 3.0 * k;
+  };
+  constexpr int kShift = 5;  // frame 1 sees world x = i + 5
+  Image frame0(g), frame1(g);
+  for (int k = 0; k < g.size[2]; ++k)
+    for (int j = 0; j < g.size[1]; ++j)
+      for (int i = 0; i < g.size[0]; ++i) {
+        frame0.at(i, j, k) = static_cast<float>(content(i, j, k));
+        frame1.at(i, j, k) = static_cast<float>((content(i + kShift, j, k) - 5.0) / 1.2);
+      }
+  const std::vector<Frame> frames = {Frame(frame0, Mask(g, 1)), Frame(frame1, Mask(g, 1))};
+  Eigen::Isometry3d shifted = Eigen::Isometry3d::Identity();
+  shifted.translation() = Eigen::Vector3d(-kShift, 0.0, 0.0);
+  const std::vector<Eigen::Isometry3d> poses = {Eigen::Isometry3d::Identity(), shifted};
+  const std::vector<Photometric> correction = {Photometric(), {std::log(1.2), 5.0}};
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
+  const PanoramaImages raw = FusePanoramaMean(frames, poses, grid, 2);
+  const PanoramaImages mean = FusePanoramaMean(frames, poses, grid, 2, correction);
+  const PanoramaImages feathered = FusePanoramaFeather(frames, poses, grid, 3.0, 2, correction);
+  int64_t overlap = 0;
+  double largest_seam = 0.0;
+  for (int k = 0; k < grid.size[2]; ++k) {
+    for (int j = 0; j < grid.size[1]; ++j) {
+      for (int i = 0; i < grid.size[0]; ++i) {
+        const int64_t l = grid.LinearIndex(i, j, k);
+        const Eigen::Vector3d p = grid.IndexToPhysical(Eigen::Vector3d(i, j, k));
+        // Both frames interpolate the same lattice: the content there is frame 0's sample
+        // where frame 0 sees p, else frame 1's corrected one.
+        double value0, value1;
+        const bool seen0 = frames[0].Sample(poses[0] * p, &value0, nullptr);
+        const bool seen1 = frames[1].Sample(poses[1] * p, &value1, nullptr);
+        ASSERT_EQ(mean.count.voxels[l], seen0 + seen1);
+        if (!seen0 && !seen1) continue;
+        const double expected = seen0 ? value0 : correction[1].Correct(value1);
+        // Float voxels of about 100: a few 1e-6 relative at most.
+        const double tolerance = 1e-6 * std::abs(expected);
+        EXPECT_NEAR(mean.mean.voxels[l], expected, tolerance) << i << " " << j << " " << k;
+        EXPECT_NEAR(feathered.mean.voxels[l], expected, tolerance) << i << " " << j << " " << k;
+        if (seen0 && seen1) {
+          ++overlap;
+          largest_seam = std::max(largest_seam, std::abs(raw.mean.voxels[l] - expected));
+        }
+      }
+    }
+  }
+  EXPECT_GT(overlap, 500);
+  // Uncorrected, the overlap averages content and (content - 5) / 1.2: off by
+  // (0.2 content + 5) / 2.4, several grey levels here.
+  EXPECT_GT(largest_seam, 5.0);
+  // No correction (the gauge everywhere): the uncorrected panorama, bit for bit.
+  const std::vector<Photometric> gauge(2);
+  EXPECT_EQ(FusePanoramaMean(frames, poses, grid, 2, gauge).mean.voxels, raw.mean.voxels);
+  EXPECT_EQ(FusePanoramaFeather(frames, poses, grid, 3.0, 2, gauge).mean.voxels,
+            FusePanoramaFeather(frames, poses, grid, 3.0, 2).mean.voxels);
 }
 
 TEST(Fusion, DistanceMapIsCityBlockDistanceToTheInvalidRegion) {

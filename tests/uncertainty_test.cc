@@ -213,7 +213,7 @@ TEST(PoseUncertainty, IsPositiveDefiniteAndGrowsWithTheNoise) {
 // both columns, empty for the latter.
 TEST(PoseUncertainty, ComparisonRowsCarryIt) {
   const SimulatedSequence s = Sequence(10.0);
-  ExperimentSequence sequence{"seq", s.frames, s.masks, s.frame_from_world};
+  ExperimentSequence sequence{"seq", s.frames, s.masks, s.frame_from_world, {}};
   RegistrationOptions o;
   o.solve.log_progress = false;
   o.solve.num_threads = 2;
@@ -236,8 +236,10 @@ TEST(PoseUncertainty, ComparisonRowsCarryIt) {
   dsr.method = "dsr";
   ape.method = "ape";
   const std::string csv = ComparisonCsv({dsr, ape});
-  EXPECT_NE(csv.find(",predicted_tre_mm,nees,failure\n"), std::string::npos) << csv;
-  EXPECT_NE(csv.find(",,,\n"), std::string::npos) << "ape: empty predicted_tre_mm, nees, failure";
+  EXPECT_NE(csv.find(",predicted_tre_mm,nees,mae_gain,mae_offset,failure\n"), std::string::npos)
+      << csv;
+  EXPECT_NE(csv.find(",,,,,\n"), std::string::npos)
+      << "ape: empty predicted_tre_mm, nees, mae_gain, mae_offset, failure";
 }
 
 }  // namespace

@@ -17,6 +17,7 @@
 #include "core/io_poses.h"
 #include "pipeline/experiment.h"
 #include "pipeline/registration.h"
+#include "pipeline/report.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
 #include "tools/output_plan.h"
@@ -62,6 +63,23 @@ DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
 DEFINE_bool(uncertainty, false, "dsr and dba: estimate the pose covariance (docs/design.md "
             "section 8.6) and add the mean predicted TRE and the mean normalised squared pose "
             "error (6 when calibrated) to results.csv (predicted_tre_mm, nees).");
+DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
+              "Photometric model of the methods dsr and dba (docs/design.md section 2.8): "
+              "none, or affine (each frame's gain and offset against frame 0 estimated with "
+              "the poses; their rows are named METHOD+affine). The baselines have no "
+              "photometric parameters and always run without. With affine, "
+              "poses/<sequence>_<method>.json carries each frame's \"gain\" and \"offset\", "
+              "and results.csv the mean absolute gain and offset errors over frames 1..m-1 "
+              "(mae_gain, mae_offset) when the ground truth has them (gt_poses.json's "
+              "\"gain\"/\"offset\"; 1 and 0 for the sequences simulated here).");
+namespace {
+bool ValidatePhotometric(const char* flag, const std::string& v) {
+  dsr::PhotometricModel model;
+  return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
+                        "must be none or affine");
+}
+}  // namespace
+DEFINE_validator(photometric, &ValidatePhotometric);
 DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
             "false: with each frame's non-zero voxels eroded by one voxel, as dsr_register "
             "does without --masks.");
@@ -155,6 +173,7 @@ bool LoadSequence(const SequenceFiles& files, dsr::ExperimentSequence* out, std:
     }
   }
   out->ground_truth = files.ground_truth.frame_from_world;
+  out->ground_truth_photometric = dsr::PhotometricFromPoses(files.ground_truth);
   return true;
 }
 
@@ -229,15 +248,22 @@ int Main(int argc, char** argv) {
     base.max_misfit_ratio = defaults.max_misfit_ratio;
     base.max_pair_mismatch_ratio = defaults.max_pair_mismatch_ratio;
   }
-  // The pairwise baseline started from the pairwise baseline is the baseline itself.
-  const auto init_for = [](const std::string& method) {
-    return method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init;
+  dsr::PhotometricModel photometric = dsr::PhotometricModel::kNone;
+  dsr::StringToPhotometricModel(FLAGS_photometric, &photometric);  // validated
+  // Each method's options: the pairwise baseline started from the pairwise baseline is the
+  // baseline itself; photometric parameters for the modes that have them.
+  const auto options_for = [&](const std::string& method) {
+    dsr::RegistrationOptions o = base;
+    o.mode = method;
+    dsr::SetInitialisation(
+        method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init,
+        dsr::kDefaultMaxRecoveries, &o);
+    o.photometric =
+        dsr::ModeEstimatesPhotometric(method) ? photometric : dsr::PhotometricModel::kNone;
+    return o;
   };
   for (const std::string& m : methods) {
-    dsr::RegistrationOptions o = base;
-    o.mode = m;
-    dsr::SetInitialisation(init_for(m), dsr::kDefaultMaxRecoveries, &o);
-    if (!o.Validate(&error)) return Fail(error);
+    if (!options_for(m).Validate(&error)) return Fail(error);
   }
   namespace fs = std::filesystem;
   const std::vector<std::string> folders = dsr::SplitCommaList(FLAGS_sequences);
@@ -293,7 +319,8 @@ int Main(int argc, char** argv) {
     const std::string name = folders.empty() ? "seed" + std::to_string(FLAGS_seed + s)
                                              : sequence_files[s].name;
     for (const std::string& m : methods) {
-      plan.AddDerivedFile("out_dir", FLAGS_out_dir, "poses/" + name + "_" + m + ".json");
+      plan.AddDerivedFile("out_dir", FLAGS_out_dir,
+                          "poses/" + name + "_" + dsr::MethodLabel(options_for(m)) + ".json");
     }
   }
   if (!plan.Check(&error)) return Fail(error);
@@ -326,12 +353,14 @@ int Main(int argc, char** argv) {
       sequence.frames = std::move(simulated.frames);
       sequence.masks = std::move(simulated.masks);
       sequence.ground_truth = std::move(simulated.frame_from_world);
+      std::vector<double> gain, offset;
+      dsr::Frame0IntensityCorrections(simulated.gain, simulated.offset, &gain, &offset);
+      for (size_t i = 0; i < gain.size(); ++i) {
+        sequence.ground_truth_photometric.push_back({std::log(gain[i]), offset[i]});
+      }
     }
     for (const std::string& m : methods) {
-      dsr::RegistrationOptions o = base;
-      o.mode = m;
-      dsr::SetInitialisation(init_for(m), dsr::kDefaultMaxRecoveries, &o);
-      dsr::ComparisonRow row = dsr::RunMethod(sequence, o);
+      dsr::ComparisonRow row = dsr::RunMethod(sequence, options_for(m));
       std::fprintf(stderr, "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
                    row.method.c_str(), row.sequence.c_str(), row.ok ? "ok    " : "FAILED",
                    row.mae_translation_voxels, row.mae_rotation_rad, row.iterations, row.seconds);
@@ -339,6 +368,7 @@ int Main(int argc, char** argv) {
       if (row.ok) {
         dsr::PosesFile poses;
         poses.frame_from_world = row.frame_from_world;
+        dsr::PhotometricToPoses(row.photometric, &poses);
         for (size_t i = 0; i < row.frame_from_world.size(); ++i) {
           char name[32];
           std::snprintf(name, sizeof(name), "frame_%02zu", i);

@@ -32,7 +32,9 @@ DEFINE_string(poses, "", "Poses JSON (dsr_register --out_poses), one entry per i
               "given, its file name, or its file name without the extension) and reordered "
               "to --images' order; a name that matches no image, or an image matched by no "
               "entry, is an error. A file whose names are all empty is used in its order. "
-              "Required.");
+              "When its entries have \"gain\" and \"offset\" (dsr_register "
+              "--photometric=affine), each frame's samples are corrected to gain * value + "
+              "offset (frame 0's intensity scale) before they are fused. Required.");
 DEFINE_string(out, "", "Output panorama image (.nii, .nii.gz, .mha, .nrrd). Required.");
 DEFINE_string(blend, "mean", "mean (paper eq. 10: per-voxel mean of the observations) or "
               "feather (weights fall off towards each field-of-view edge, so seams vanish).");
@@ -152,20 +154,25 @@ int Main(int argc, char** argv) {
           &error)) {
     return Fail(error);
   }
+  // The file's gains and offsets (re-gauged to frame 0 by MatchPosesToImages), if any.
+  const std::vector<dsr::Photometric> photometric = dsr::PhotometricFromPoses(poses);
   const dsr::PanoramaImages fused =
       FLAGS_blend == "feather"
-          ? dsr::FusePanoramaFeather(frames, frame_from_world, grid, FLAGS_feather_voxels, FLAGS_num_threads)
-          : dsr::FusePanoramaMean(frames, frame_from_world, grid, FLAGS_num_threads);
+          ? dsr::FusePanoramaFeather(frames, frame_from_world, grid, FLAGS_feather_voxels,
+                                     FLAGS_num_threads, photometric)
+          : dsr::FusePanoramaMean(frames, frame_from_world, grid, FLAGS_num_threads, photometric);
   if (!dsr::WriteImage(fused.mean, FLAGS_out, &error)) return Fail(error, dsr::kExitFailed);
   if (!FLAGS_out_count.empty()) {
     dsr::Image count(grid, 0.0f);
     std::copy(fused.count.voxels.begin(), fused.count.voxels.end(), count.voxels.begin());
     if (!dsr::WriteImage(count, FLAGS_out_count, &error)) return Fail(error, dsr::kExitFailed);
   }
-  std::printf("dsr_fuse: %d frames, %s blend, panorama %dx%dx%d voxels of %.3gx%.3gx%.3g mm; "
+  std::printf("dsr_fuse: %d frames, %s blend%s, panorama %dx%dx%d voxels of %.3gx%.3gx%.3g mm; "
               "field-of-view enlargement %.3f (%lld voxels seen / %lld in frame 0's field of view)"
               "; wrote %s\n",
-              m, FLAGS_blend.c_str(), grid.size[0], grid.size[1], grid.size[2], grid.spacing_mm[0],
+              m, FLAGS_blend.c_str(),
+              photometric.empty() ? "" : " of intensities corrected by --poses' gain and offset",
+              grid.size[0], grid.size[1], grid.size[2], grid.spacing_mm[0],
               grid.spacing_mm[1], grid.spacing_mm[2], fused.EnlargementRatio(),
               static_cast<long long>(fused.seen_voxels), static_cast<long long>(fused.frame0_voxels),
               FLAGS_out.c_str());

@@ -38,6 +38,23 @@ DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no -
 DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
               "(full direct bundle adjustment in Ceres; small problems only), or one of the "
               "paper's baselines: pairwise, lie_normalization, sequential, ape.");
+DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
+              "Photometric model (docs/design.md section 2.8): none, or affine: every solve "
+              "also estimates each frame's gain and offset against frame 0 (frame i's "
+              "intensities on frame 0's scale are gain * I_i + offset), for frames whose "
+              "brightness differs. --mode=dsr or dba only (an explicit affine with a baseline "
+              "mode is refused). With affine, --out_poses and the report carry each frame's "
+              "\"gain\" and \"offset\", the panorama and the report's pictures use the "
+              "corrected intensities, the misfit check compares them, and --uncertainty is "
+              "not estimated.");
+namespace {
+bool ValidatePhotometric(const char* flag, const std::string& v) {
+  dsr::PhotometricModel model;
+  return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
+                        "must be none or affine");
+}
+}  // namespace
+DEFINE_validator(photometric, &ValidatePhotometric);
 DEFINE_string(init, "auto", "Initial poses: 'auto' (identity; frames the checks flag after a "
               "level are re-placed by a global search against the others and the "
               "registration starts again, at most --max_recoveries times), 'identity' "
@@ -64,8 +81,9 @@ DEFINE_double(panorama_spacing, 1.0, "Panorama voxel spacing as a multiple of fr
 DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
               "frame 0 = identity). Required.");
 DEFINE_string(out_panorama, "", "Optional output image of the panorama on the final grid: "
-              "the per-voxel mean of the observations (paper eq. 10); with --mode=dba the "
-              "optimised intensities.");
+              "the per-voxel mean of the observations (paper eq. 10; with "
+              "--photometric=affine of the corrected ones); with --mode=dba the optimised "
+              "intensities.");
 DEFINE_string(gt_poses, "", "Optional ground-truth poses JSON (e.g. dsr_simulate's "
               "gt_poses.json): prints per-frame errors and the mean absolute errors; "
               "matched to --images by its image names as --init.");
@@ -122,7 +140,8 @@ DEFINE_string(out_tfm_dir, "", "Optional folder (created if missing) for one ITK
               "Slicer, ITK/SimpleITK, ANTs or elastix lands it on the panorama.");
 DEFINE_string(out_resampled_dir, "", "Optional folder (created if missing) for each frame "
               "resampled onto the panorama grid, frame_XX_in_panorama.nii.gz (0 outside its "
-              "field of view).");
+              "field of view), in the frame's own intensities (with --photometric=affine, "
+              "--out_poses' gain * value + offset puts them on frame 0's scale).");
 DEFINE_string(report_dir, "", "Optional folder (created if missing) for a report: pictures "
               "(panorama slices with field-of-view outlines, a frame pair before/after, "
               "convergence), poses, transforms and index.md.");
@@ -143,6 +162,35 @@ std::string WithFrameFile(const std::string& message, const std::vector<std::str
     return message;
   }
   return paths[frame] + ": " + message;
+}
+
+// One line: each frame's estimated gain and offset and, when the ground truth has them
+// (on frame 0's scale, as MatchPosesToImages leaves them), the mean absolute errors over
+// frames 1..m-1.
+std::string PhotometricSummary(const std::vector<dsr::Photometric>& photometric,
+                               const dsr::PosesFile* ground_truth) {
+  std::string line = "photometric (gain, offset) per frame:";
+  char item[96];
+  for (size_t i = 0; i < photometric.size(); ++i) {
+    std::snprintf(item, sizeof(item), "%s %zu (%.4f, %.3f)", i == 0 ? "" : ";", i,
+                  photometric[i].gain(), photometric[i].offset);
+    line += item;
+  }
+  const size_t m = photometric.size();
+  const std::vector<dsr::Photometric> truth =
+      ground_truth == nullptr ? std::vector<dsr::Photometric>()
+                              : dsr::PhotometricFromPoses(*ground_truth);
+  if (truth.size() == m && m > 1) {
+    double gain_error = 0.0, offset_error = 0.0;
+    for (size_t i = 1; i < m; ++i) {
+      gain_error += std::abs(photometric[i].gain() - truth[i].gain());
+      offset_error += std::abs(photometric[i].offset - truth[i].offset);
+    }
+    std::snprintf(item, sizeof(item), "; against --gt_poses: MAE gain %.4f, offset %.3f",
+                  gain_error / (m - 1), offset_error / (m - 1));
+    line += item;
+  }
+  return line;
 }
 
 double SecondsSince(std::chrono::steady_clock::time_point start) {
@@ -216,6 +264,13 @@ int Main(int argc, char** argv) {
   options.dsr_num_chunks = FLAGS_num_chunks;
   options.dsr_reference_cost = FLAGS_reference_cost;
   options.estimate_uncertainty = FLAGS_uncertainty;
+  // The default applies to the modes that estimate photometric parameters; a baseline mode
+  // runs without them unless --photometric is given (then Validate refuses it).
+  dsr::StringToPhotometricModel(FLAGS_photometric, &options.photometric);  // validated
+  if (gflags::GetCommandLineFlagInfoOrDie("photometric").is_default &&
+      !dsr::ModeEstimatesPhotometric(options.mode)) {
+    options.photometric = dsr::PhotometricModel::kNone;
+  }
   if (FLAGS_uncertainty && FLAGS_mode != "dsr" && FLAGS_mode != "dba") {
     return Fail("--uncertainty: needs --mode=dsr or dba (got --mode=" + FLAGS_mode + ")");
   }
@@ -395,12 +450,15 @@ int Main(int argc, char** argv) {
     frames.resize(m);
     dsr::ParallelFor(0, m, options.solve.num_threads,
                      [&](int64_t i) { frames[i] = dsr::Frame(images[i], masks[i]); });
+    // With photometric parameters, of the corrected intensities (result.photometric;
+    // empty otherwise).
     const dsr::PanoramaImages fused =
         FLAGS_blend == "feather"
             ? dsr::FusePanoramaFeather(frames, result.frame_from_world, result.grid,
-                                       FLAGS_feather_voxels, options.solve.num_threads)
+                                       FLAGS_feather_voxels, options.solve.num_threads,
+                                       result.photometric)
             : dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
-                                    options.solve.num_threads);
+                                    options.solve.num_threads, result.photometric);
     enlargement = fused.EnlargementRatio();
     panorama = options.mode == "dba" && FLAGS_blend == "mean" ? result.dba_intensities : fused.mean;
   }
@@ -459,6 +517,8 @@ int Main(int argc, char** argv) {
     out.covariance = uncertainty.covariance;
     out.predicted_tre_mm = uncertainty.predicted_tre_mm;
   }
+  // The pipeline's gains and offsets are relative to frame 0, as the file's are.
+  dsr::PhotometricToPoses(result.photometric, &out);
   if (!dsr::WritePoses(out, FLAGS_out_poses, &error)) return Fail(error, dsr::kExitFailed);
 
   const dsr::LevelSolve& last = result.solves.back();
@@ -472,6 +532,11 @@ int Main(int argc, char** argv) {
               SecondsSince(start), load_seconds, result.pyramid_seconds,
               result.seconds - result.pyramid_seconds,
               static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
+  if (!result.photometric.empty()) {
+    std::printf("dsr_register: %s\n",
+                PhotometricSummary(result.photometric, FLAGS_gt_poses.empty() ? nullptr : &gt)
+                    .c_str());
+  }
   if (FLAGS_uncertainty) {
     std::printf("dsr_register: %s\n", dsr::UncertaintySummary(result.uncertainty, result.uncertainty_note).c_str());
   }

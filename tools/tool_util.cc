@@ -501,6 +501,22 @@ bool MatchPosesToImages(const std::string& flag,
   return true;
 }
 
+std::vector<Photometric> PhotometricFromPoses(const PosesFile& poses) {
+  std::vector<Photometric> photometric;
+  if (poses.gain.empty() && poses.offset.empty()) return photometric;
+  const size_t m = poses.frame_from_world.size();
+  CHECK(poses.gain.empty() || poses.gain.size() == m);
+  CHECK(poses.offset.empty() || poses.offset.size() == m);
+  for (size_t i = 0; i < m; ++i) {
+    Photometric p;
+    // ReadPoses refuses gains <= 0.
+    if (!poses.gain.empty()) p.log_gain = std::log(poses.gain[i]);
+    if (!poses.offset.empty()) p.offset = poses.offset[i];
+    photometric.push_back(p);
+  }
+  return photometric;
+}
+
 std::vector<std::string> SplitCommaList(const std::string& text) {
   std::vector<std::string> items;
   size_t begin = 0;

@@ -14,6 +14,7 @@
 #include <Eigen/Core>
 
 #include "core/io_poses.h"
+#include "core/photometric.h"
 #include "core/volume.h"
 
 namespace dsr {
@@ -118,6 +119,11 @@ bool MatchPosesToImages(const std::string& flag,
                         const std::vector<std::string>& image_paths,
                         PosesFile* poses,
                         std::string* error);
+
+// The per-frame intensity corrections of a poses file (its "gain" and "offset"; a field the
+// file lacks is 1, resp. 0, on every frame), as Photometric: frame i's corrected intensity
+// is gain_i I_i + offset_i. Empty when the file has neither field.
+std::vector<Photometric> PhotometricFromPoses(const PosesFile& poses);
 
 // "a,b,,c" -> {"a", "b", "c"}: items trimmed of spaces, empty items dropped.
 std::vector<std::string> SplitCommaList(const std::string& text);
