@@ -13,7 +13,7 @@
 # OUT/runs/auto/SOURCE-PROTOCOL-MASKS/results.csv (bench/accuracy.sh's output), if present.
 #
 #   bash bench/elastix.sh [--seeds=10 | --seeds=FIRST-LAST] [--sources=phantom,mni]
-#                         [--protocols=paper,wide,walk] [--masks=fov,none]
+#                         [--protocols=paper,wide,walk] [--masks=fov,none]   (bench/protocols.sh)
 #                         [--out=bench/results/accuracy] [--compare_init=auto]
 #                         [--iterations=1000] [--samples=2048] [--threads=0] [--rerun]
 #
@@ -70,14 +70,8 @@ python=${DSR_PYTHON:-.venv/bin/python}
 tools=${DSR_TOOLS:-build/tools}
 mni=""
 
-protocol_flags() {  # the same as bench/accuracy.sh
-  case "$1" in
-    paper) echo "--max_rotation_deg=12 --max_translation_voxels=15" ;;
-    wide) echo "--max_rotation_deg=25 --max_translation_voxels=20" ;;
-    walk) echo "--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15" ;;
-    *) return 1 ;;
-  esac
-}
+# shellcheck source=bench/protocols.sh
+source bench/protocols.sh
 
 # Settings that change a row: a cached row written with other settings is run again.
 settings="elastix $(elastix --version 2>/dev/null | tr -d '\n'); $(md5sum < bench/elastix_groupwise.py | cut -c1-12); iterations=$iterations samples=$samples"
@@ -96,7 +90,7 @@ for source in "${source_list[@]}"; do
     echo "elastix.sh: unknown source '$source' (phantom, mni)" >&2; exit 2; }
   for protocol in "${protocol_list[@]}"; do
     flags=$(protocol_flags "$protocol") || {
-      echo "elastix.sh: unknown protocol '$protocol' (paper, wide, walk)" >&2; exit 2; }
+      echo "elastix.sh: unknown protocol '$protocol' ($protocol_names)" >&2; exit 2; }
     for ((seed = first; seed <= last; ++seed)); do
       dir="$out/sequences/$source/$protocol/seed$seed"
       [[ -f "$dir/gt_poses.json" ]] && continue
