@@ -122,6 +122,7 @@ struct VoxelBatch {
   int num_observations = 0;
   int begin[kMaxVoxels + 1];
   uint32_t observers[kMaxVoxels];  // bit f: frame f observes voxel t (sigma = 1)
+  int64_t voxel[kMaxVoxels];       // voxel t's index in the CandidateSet
   int frame[kMaxObservations];
   double value[kMaxObservations];
   // Only with Jacobians.
@@ -148,6 +149,7 @@ int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
 // `frame[a]` with value `value[a]` and, when Jacobians are wanted, J in `jac[a]`.
 struct VoxelObservations {
   int k = 0;
+  int64_t voxel = -1;  // the voxel's index in the CandidateSet
   const int* frame = nullptr;
   const double* value = nullptr;
   const double (*jac)[kJacobianSize] = nullptr;
@@ -236,6 +238,7 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
       VoxelObservations obs;
       const int first = batch->begin[t];
       obs.k = batch->begin[t + 1] - first;
+      obs.voxel = batch->voxel[t];
       obs.frame = batch->frame + first;
       obs.value = batch->value + first;
       obs.jac = batch->jac + first;

@@ -84,6 +84,7 @@ bool DbaOptions::Validate(std::string* error) const {
     *error = "--memory_budget_mb: must be finite";
     return false;
   }
+  if (!loss.Validate(error)) return false;
   return ValidateInitialPhotometric(photometric, initial_photometric, error);
 }
 
@@ -97,7 +98,8 @@ std::string DbaMemoryEstimate::ToString() const {
 
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
-                                    const std::string& linear_solver) {
+                                    const std::string& linear_solver,
+                                    bool photometric) {
   // Per-item costs in bytes for Ceres 2.1: a residual block (ResidualBlock, the DbaResidual
   // object, parameter pointers, its Jacobian row (8 doubles) and row-block structure in the
   // BlockSparseMatrix, residual, program copies) and an intensity block (ParameterBlock, map
@@ -107,23 +109,33 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
   // block all-inclusive; this estimate gives about 690, i.e. it errs 30% on the safe side.
   constexpr double kBytesPerResidualBlock = 560.0;
   constexpr double kBytesPerIntensityBlock = 420.0;
+  // A photometric residual block has a third parameter block: one more parameter pointer
+  // (in the block and in its program copy) and 2 more Jacobian entries (in the
+  // BlockSparseMatrix, the evaluator's scratch and the Schur F block), about 6 doubles.
+  // The per-frame [log_gain, offset] blocks themselves are negligible; the reduced
+  // system has 8 parameters per frame instead of 6.
+  constexpr double kBytesPerPhotometricResidualBlock = 48.0;
   DbaMemoryEstimate e;
   e.residual_blocks = candidates.NumObservations();
   e.intensity_blocks = candidates.num_voxels();
   double bytes = kBytesPerResidualBlock * e.residual_blocks +
                  kBytesPerIntensityBlock * e.intensity_blocks;
-  const double pose_params = 6.0 * (num_frames - 1);
+  if (photometric) bytes += kBytesPerPhotometricResidualBlock * e.residual_blocks;
+  const double pose_params = (photometric ? 8.0 : 6.0) * (num_frames - 1);
   const double params = pose_params + e.intensity_blocks;
+  // Non-zeros of one residual's Jacobian row in tangent coordinates: pose, intensity and
+  // with photometric parameters [log_gain, offset].
+  const double row = photometric ? 9.0 : 7.0;
   if (linear_solver == "DENSE_QR" || linear_solver == "DENSE_NORMAL_CHOLESKY") {
     // Dense Jacobian (rows x columns) or normal matrix, plus a factorisation copy.
     const double rows = linear_solver == "DENSE_QR" ? e.residual_blocks : params;
     bytes += 2.0 * 8.0 * rows * params;
   } else if (linear_solver == "SPARSE_NORMAL_CHOLESKY") {
     // J^T J and its Cholesky factor: the pose rows fill in against every intensity.
-    bytes += 2.0 * 12.0 * (7.0 * e.residual_blocks + pose_params * params);
+    bytes += 2.0 * 12.0 * (row * e.residual_blocks + pose_params * params);
   } else {
     // Schur solvers: reduced camera matrix and per-voxel E^T E / F^T E workspaces.
-    bytes += 8.0 * (pose_params * pose_params * 3.0 + 8.0 * e.residual_blocks);
+    bytes += 8.0 * (pose_params * pose_params * 3.0 + (row + 1.0) * e.residual_blocks);
   }
   e.bytes = static_cast<int64_t>(bytes);
   return e;
@@ -132,7 +144,9 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
 DbaProblem::DbaProblem(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
-                       const std::vector<Photometric>& photometric) {
+                       const std::vector<Photometric>& photometric,
+                       const RobustLoss& loss)
+    : loss_(loss.CeresLoss()) {
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(candidates.num_frames, m);
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
@@ -143,6 +157,7 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_options.cost_function_ownership = ceres::TAKE_OWNERSHIP;
+  problem_options.loss_function_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;  // loss_, shared
   problem_ = std::make_unique<ceres::Problem>(problem_options);
   static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
 
@@ -195,10 +210,10 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     for (int i = 0; i < m; ++i) {
       if (!(candidates.observers[v] >> i & 1u)) continue;
       if (photometric_.empty()) {
-        problem_->AddResidualBlock(new DbaResidual(&frames[i], p), nullptr, poses_[i].data(),
-                                   &intensities_[v]);
+        problem_->AddResidualBlock(new DbaResidual(&frames[i], p), loss_.get(),
+                                   poses_[i].data(), &intensities_[v]);
       } else {
-        problem_->AddResidualBlock(new DbaPhotometricResidual(&frames[i], p), nullptr,
+        problem_->AddResidualBlock(new DbaPhotometricResidual(&frames[i], p), loss_.get(),
                                    poses_[i].data(), &intensities_[v], photometric_[i].data());
       }
       ++num_residual_blocks_;
@@ -241,7 +256,8 @@ bool SolveDba(const std::vector<Frame>& frames,
   const std::string linear_solver =
       options.solve.linear_solver.empty() ? "DENSE_SCHUR" : options.solve.linear_solver;
   const DbaMemoryEstimate estimate =
-      EstimateDbaMemory(candidates, static_cast<int>(frames.size()), linear_solver);
+      EstimateDbaMemory(candidates, static_cast<int>(frames.size()), linear_solver,
+                        options.photometric);
   const double budget = options.memory_budget_bytes > 0.0
                             ? options.memory_budget_bytes
                             : 0.5 * static_cast<double>(PhysicalMemoryBytes());
@@ -268,7 +284,8 @@ bool SolveDba(const std::vector<Frame>& frames,
     start = options.initial_photometric.empty() ? std::vector<Photometric>(frames.size())
                                                 : options.initial_photometric;
   }
-  DbaProblem dba(frames, candidates, initial_frame_from_world, start);
+  if (!options.loss.Validate(error)) return false;
+  DbaProblem dba(frames, candidates, initial_frame_from_world, start, options.loss);
   ceres::Solver::Options solver_options;
   options.solve.ToCeres("DENSE_SCHUR", &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {

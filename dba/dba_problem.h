@@ -15,6 +15,10 @@
 // gauge) beside its pose, in group 1, and
 //   e_ij = M_j - (a_i I_i(p_ij) + b_i),  a_i = exp(log_gain_i),
 //   d e / d delta_i = -a_i J_ij,  d e / d log_gain_i = -a_i I_i(p_ij),  d e / d b_i = -1.
+//
+// With a robust loss (DbaOptions::loss, core/robust_loss.h; docs/design.md section 4.7)
+// every residual block gets the matching ceres::LossFunction: the objective becomes
+// sum_j sum_i rho(e_ij^2).
 #ifndef DSR_DBA_DBA_PROBLEM_H_
 #define DSR_DBA_DBA_PROBLEM_H_
 
@@ -28,6 +32,7 @@
 #include "core/frame.h"
 #include "core/observation.h"
 #include "core/photometric.h"
+#include "core/robust_loss.h"
 #include "core/se3.h"
 #include "core/solve_options.h"
 
@@ -70,6 +75,8 @@ struct DbaOptions {
   // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
   // empty: every gain 1 and offset 0.
   std::vector<Photometric> initial_photometric;
+  // The loss of every residual (default squared: no Ceres loss at all).
+  RobustLoss loss;
   // Refuse problems whose estimated memory exceeds this; <= 0 means half the machine's RAM.
   double memory_budget_bytes = 0.0;
   bool Validate(std::string* error) const;
@@ -83,9 +90,11 @@ struct DbaMemoryEstimate {
   int64_t bytes = 0;
   std::string ToString() const;
 };
+// `photometric`: with a [log_gain, offset] block per frame (DbaOptions::photometric).
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
-                                    const std::string& linear_solver);
+                                    const std::string& linear_solver,
+                                    bool photometric = false);
 
 // The Ceres problem, kept as an object so tests can evaluate its Jacobian.
 class DbaProblem {
@@ -94,11 +103,13 @@ class DbaProblem {
   // the per-voxel mean of the observations at these poses (0 where none observes). With
   // `photometric` (one entry per frame, or empty for none), each frame gets a photometric
   // block starting there (frame 0's is held constant; give it the gauge, 0 and 0), and the
-  // intensities start at the mean of the corrected observations.
+  // intensities start at the mean of the corrected observations. Every residual block gets
+  // `loss` (one shared Ceres loss object, owned by this problem; none for squared).
   DbaProblem(const std::vector<Frame>& frames,
              const CandidateSet& candidates,
              const std::vector<Eigen::Isometry3d>& frame_from_world,
-             const std::vector<Photometric>& photometric = {});
+             const std::vector<Photometric>& photometric = {},
+             const RobustLoss& loss = RobustLoss());
 
   ceres::Problem& problem() { return *problem_; }
   double* pose_parameters(int frame) { return poses_[frame].data(); }
@@ -115,6 +126,9 @@ class DbaProblem {
   std::shared_ptr<ceres::ParameterBlockOrdering> MakeOrdering();
 
  private:
+  // Declared before problem_, which refers to it (Problem::Options::loss_function_ownership
+  // is DO_NOT_TAKE_OWNERSHIP), so it outlives the problem.
+  std::unique_ptr<ceres::LossFunction> loss_;
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
   std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
@@ -126,7 +140,8 @@ class DbaProblem {
 // naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
 // that runs but is not usable returns true with report->usable = false. With
 // options.photometric, the photometric parameters start at options.initial_photometric (or
-// 1 and 0) and are returned in report->photometric.
+// 1 and 0) and are returned in report->photometric. With a robust loss, the reported costs
+// are Ceres's, 1/2 sum rho(e_ij^2).
 bool SolveDba(const std::vector<Frame>& frames,
               const CandidateSet& candidates,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,

@@ -1,6 +1,9 @@
 // DSR solve in Ceres: LM or dogleg with a dense solver over the pose parameters.
 #include "dsr_reduced/dsr_solver.h"
 
+#include <algorithm>
+#include <cmath>
+
 #include <glog/logging.h>
 
 #include "core/convergence.h"
@@ -20,6 +23,7 @@ bool DsrOptions::Validate(std::string* error) const {
     return false;
   }
   if (!ValidateInitialPhotometric(photometric, initial_photometric, error)) return false;
+  if (!loss.Validate(error)) return false;
   if (num_chunks < 1) {
     *error = "--num_chunks=" + std::to_string(num_chunks) + ": must be >= 1";
     return false;
@@ -30,10 +34,14 @@ bool DsrOptions::Validate(std::string* error) const {
 DsrProblem::DsrProblem(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
-                       const DsrOptions& options) {
+                       const DsrOptions& options,
+                       const ObservationWeights* weights) {
   const int m = static_cast<int>(frames.size());
   CHECK_GE(m, 2);
   CHECK_EQ(candidates.num_frames, m);
+  CHECK(weights == nullptr ||
+        static_cast<int64_t>(weights->offset.size()) == candidates.num_voxels() + 1)
+      << "weights built for another candidate set";
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_ = std::make_unique<ceres::Problem>(problem_options);
@@ -69,16 +77,24 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
           blocks.push_back(poses_[i].data());
         }
       }
+      // The voxel's weights, in the observers' (increasing frame) order; none unweighted.
+      std::vector<double> voxel_weights;
+      if (weights != nullptr) {
+        voxel_weights.assign(weights->weight.begin() + weights->offset[v],
+                             weights->weight.begin() + weights->offset[v + 1]);
+      }
       if (options.photometric) {
         for (int i = 0; i < m; ++i) {
           if (candidates.observers[v] >> i & 1u) blocks.push_back(photometric_[i].data());
         }
         problem_->AddResidualBlock(
-            new VoxelReducedPhotometricCost(observers, candidates.VoxelCenter(v)), nullptr,
-            blocks);
+            new VoxelReducedPhotometricCost(observers, candidates.VoxelCenter(v),
+                                            std::move(voxel_weights)),
+            nullptr, blocks);
       } else {
-        problem_->AddResidualBlock(new VoxelReducedCost(observers, candidates.VoxelCenter(v)),
-                                   nullptr, blocks);
+        problem_->AddResidualBlock(
+            new VoxelReducedCost(observers, candidates.VoxelCenter(v), std::move(voxel_weights)),
+            nullptr, blocks);
       }
     }
     return;
@@ -100,7 +116,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   for (int64_t c = 0; c < chunks; ++c) {
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
-                                       options.solve.num_threads, options.photometric);
+                                       options.solve.num_threads, options.photometric, weights);
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -129,20 +145,17 @@ std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
   return out;
 }
 
-bool SolveDsr(const std::vector<Frame>& frames,
-              const CandidateSet& candidates,
-              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-              const DsrOptions& options,
-              SolveReport* report,
-              std::string* error) {
-  if (!options.initial_photometric.empty() &&
-      options.initial_photometric.size() != frames.size()) {
-    *error = "initial photometric parameters: " +
-             std::to_string(options.initial_photometric.size()) + " for " +
-             std::to_string(frames.size()) + " frames";
-    return false;
-  }
-  DsrProblem dsr(frames, candidates, initial_frame_from_world, options);
+namespace {
+
+// One Ceres solve of f (weights null) or of f_w.
+bool SolveOnce(const std::vector<Frame>& frames,
+               const CandidateSet& candidates,
+               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+               const DsrOptions& options,
+               const ObservationWeights* weights,
+               SolveReport* report,
+               std::string* error) {
+  DsrProblem dsr(frames, candidates, initial_frame_from_world, options, weights);
   // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
   // it is set for this solve only (core/streamed_cost.h).
   dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
@@ -179,7 +192,8 @@ bool SolveDsr(const std::vector<Frame>& frames,
     free_blocks.push_back(dsr.pose_parameters(i));
     if (options.photometric) photometric_blocks.push_back(dsr.photometric_parameters(i));
   }
-  bool final_pass = !dsr.chunks().empty();
+  // The weighted per-frame costs are not the misfits' sums of squares: none with weights.
+  bool final_pass = !dsr.chunks().empty() && weights == nullptr;
   for (const ReducedChunkCost* chunk : dsr.chunks()) {
     report->jacobian_passes += chunk->pass_counts().jacobian_passes;
     report->cost_passes += chunk->pass_counts().cost_passes;
@@ -203,6 +217,104 @@ bool SolveDsr(const std::vector<Frame>& frames,
     report->observations_per_iteration = counts.observations;
   }
   return true;
+}
+
+// IRLS for a robust loss (SolveDsr's comment in dsr_solver.h).
+bool SolveReweighted(const std::vector<Frame>& frames,
+                     const CandidateSet& candidates,
+                     const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                     const DsrOptions& options,
+                     SolveReport* report,
+                     std::string* error) {
+  const int m = static_cast<int>(frames.size());
+  const int threads = options.solve.num_threads;
+  std::vector<Eigen::Isometry3d> poses = initial_frame_from_world;
+  std::vector<Photometric> photometric;
+  if (options.photometric) {
+    photometric = options.initial_photometric.empty() ? std::vector<Photometric>(m)
+                                                      : options.initial_photometric;
+  }
+  ObservationWeights weights(candidates);
+  ReweightStats stats;
+  UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, threads, &weights,
+                           &stats);
+  *report = SolveReport();
+  report->initial_cost = 0.5 * stats.robust_cost;
+  report->usable = true;
+  const double tolerance = options.solve.step_tolerance_voxels;
+  DsrOptions solve_options = options;
+  std::string why;
+  int solves = 0;
+  for (; solves < kMaxReweightings; ++solves) {
+    if (options.photometric) solve_options.initial_photometric = photometric;
+    SolveReport part;
+    if (!SolveOnce(frames, candidates, poses, solve_options, &weights, &part, error)) return false;
+    // Sum the solves: iteration records follow one another, renumbered.
+    for (IterationRecord record : part.iterations) {
+      record.iteration += report->num_iterations;
+      record.seconds += report->seconds;
+      report->iterations.push_back(record);
+    }
+    report->num_iterations += part.num_iterations;
+    report->seconds += part.seconds;
+    report->jacobian_passes += part.jacobian_passes;
+    report->cost_passes += part.cost_passes;
+    report->observations_per_iteration = part.observations_per_iteration;
+    report->termination = part.termination;
+    if (!part.usable) {  // the report keeps the last usable poses and their weights' cost
+      report->usable = false;
+      ++solves;
+      why = "weighted solve " + std::to_string(solves) + " not usable";
+      break;
+    }
+    double motion = 0.0;
+    for (int i = 1; i < m; ++i) {
+      motion = std::max(motion,
+                        MaxCornerMotionVoxels(frames[i], poses[i], part.frame_from_world[i]));
+    }
+    poses = part.frame_from_world;
+    if (options.photometric) photometric = part.photometric;
+    UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, threads,
+                             &weights, &stats);
+    if (tolerance > 0.0 ? motion < tolerance
+                        : (stats.max_weight_change <= kWeightChangeTolerance || motion == 0.0)) {
+      ++solves;
+      why = "converged";
+      break;
+    }
+  }
+  if (why.empty()) why = "stopped at the limit of " + std::to_string(kMaxReweightings) + " solves";
+  report->termination = options.loss.ToString() + " loss, " + std::to_string(solves) +
+                        " reweighted solves (" + why + "); last solve: " + report->termination;
+  report->frame_from_world = poses;
+  report->photometric = photometric;
+  report->final_cost = 0.5 * stats.robust_cost;
+  report->usable = report->usable && std::isfinite(report->final_cost);
+  report->seconds_per_iteration = report->seconds / std::max(1, report->num_iterations);
+  return true;
+}
+
+}  // namespace
+
+bool SolveDsr(const std::vector<Frame>& frames,
+              const CandidateSet& candidates,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const DsrOptions& options,
+              SolveReport* report,
+              std::string* error) {
+  if (!options.initial_photometric.empty() &&
+      options.initial_photometric.size() != frames.size()) {
+    *error = "initial photometric parameters: " +
+             std::to_string(options.initial_photometric.size()) + " for " +
+             std::to_string(frames.size()) + " frames";
+    return false;
+  }
+  if (!options.loss.Validate(error)) return false;
+  if (options.loss.IsSquared()) {
+    return SolveOnce(frames, candidates, initial_frame_from_world, options, nullptr, report,
+                     error);
+  }
+  return SolveReweighted(frames, candidates, initial_frame_from_world, options, report, error);
 }
 
 }  // namespace dsr

@@ -1,5 +1,6 @@
 // DSR solve: Ceres over the 6(m-1) free pose parameters (and, with photometric parameters,
-// 2(m-1) more) only (docs/design.md sections 4 and 2.8).
+// 2(m-1) more) only (docs/design.md sections 4 and 2.8). With a robust loss, iteratively
+// reweighted solves (docs/design.md section 4.7).
 #ifndef DSR_DSR_REDUCED_DSR_SOLVER_H_
 #define DSR_DSR_REDUCED_DSR_SOLVER_H_
 
@@ -30,17 +31,32 @@ struct DsrOptions {
   // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
   // empty: every gain 1 and offset 0.
   std::vector<Photometric> initial_photometric;
+  // The loss (core/robust_loss.h). Squared: one solve of f. Huber or Cauchy: iteratively
+  // reweighted solves of the weighted cost f_w (dsr_reduced/reduced_cost.h), with either cost.
+  RobustLoss loss;
   bool Validate(std::string* error) const;
 };
+
+// Most weighted solves of one robust SolveDsr (IRLS); it usually stops after 3 to 6, when
+// a solve moves no field of view by solve.step_tolerance_voxels (docs/design.md 4.7).
+constexpr int kMaxReweightings = 30;
+// With solve.step_tolerance_voxels = 0 (solves run to their fixed point), IRLS stops when
+// no weight changes by more than this (about 2 ulp of a float weight near 1) or the poses
+// stop moving at all.
+constexpr double kWeightChangeTolerance = 2.5e-7;
 
 // The reduced Ceres problem over free poses (frame 0 constant, not a parameter block of
 // the fast cost; a constant block of the reference cost).
 class DsrProblem {
  public:
+  // With `weights` (built for `candidates`; not owned, must outlive the problem and not
+  // change while it is solved), the weighted cost f_w; null: the plain cost f.
+  // options.loss is not used here (SolveDsr computes the weights from it).
   DsrProblem(const std::vector<Frame>& frames,
              const CandidateSet& candidates,
              const std::vector<Eigen::Isometry3d>& frame_from_world,
-             const DsrOptions& options);
+             const DsrOptions& options,
+             const ObservationWeights* weights = nullptr);
   ceres::Problem& problem() { return *problem_; }
   std::vector<Eigen::Isometry3d> Poses() const;
   double* pose_parameters(int frame) { return poses_[frame].data(); }
@@ -65,6 +81,18 @@ class DsrProblem {
 };
 
 // Solves. A solve that runs but is not usable returns true with report->usable = false.
+// With a robust loss (options.loss not squared), iteratively reweighted least squares:
+// weights w_ij = rho'(r_ij^2) from the robust location of each voxel at the start
+// (UpdateObservationWeights), then repeatedly one Ceres solve of f_w with the weights fixed
+// and new weights at its poses, until a solve moves no field of view by
+// solve.step_tolerance_voxels (core/convergence.h) or, with that tolerance 0, until no
+// weight changes by more than kWeightChangeTolerance or the poses stay put; at most
+// kMaxReweightings solves. The report then sums iterations, times and passes over the
+// solves (iteration records concatenated and renumbered; each record's cost is 1/2 f_w of
+// its own solve's weights) and gives as initial_cost and final_cost the robust cost
+// 1/2 sum rho(r_ij^2) at the start and at the final poses (r_ij from the final weights'
+// location: at the fixed point, DBA's final cost with the same loss). final_frame_cost
+// stays empty (the weighted per-frame costs are not the misfits' plain sums).
 bool SolveDsr(const std::vector<Frame>& frames,
               const CandidateSet& candidates,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,

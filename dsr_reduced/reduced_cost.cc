@@ -2,8 +2,10 @@
 #include "dsr_reduced/reduced_cost.h"
 
 #include <algorithm>
+#include <cfloat>
 #include <cmath>
 #include <cstring>
+#include <memory>
 
 #include <glog/logging.h>
 
@@ -128,15 +130,99 @@ struct DsrPhotometricVoxelTerm {
   }
 };
 
+// The weighted DSR term (robust loss, IRLS; the header's f_w): with observation weights
+// w_a (> 0) of the voxel's valid observations and W = sum_a w_a, the corrected observations
+// c_a (= I_a, or g_a I_a + b_a with photometric parameters) and their rows J'_a (J_a, or the
+// wide [g_a J_a, g_a I_a, 1]),
+//   mu = sum_a w_a c_a / W,  r_a = c_a - mu,  cost += sum_a w_a r_a^2,
+//   g_a += w_a r_a J'_a,     H_ab += (delta_ab w_a - w_a w_b / W) J'_a^T J'_b,
+// added voxel by voxel (the weights differ per observation, so H has no batched form
+// here). The voxel's weights are found by its candidate index (VoxelObservations::voxel).
+template <int kWidth>
+struct DsrWeightedVoxelTerm {
+  static_assert(kWidth == kJacobianSize || kWidth == kWideJacobianSize, "6 or 8 per frame");
+  static constexpr int kFrameParameters = kWidth;
+  bool batched_hessian = false;
+  bool batched_gradient = false;
+  HessianWeights Weights(int) const { return {}; }  // not batched
+  const uint32_t* observers = nullptr;              // CandidateSet::observers
+  const ObservationWeights* weights = nullptr;
+  double gain[kMaxFrames];    // kWidth 8 only
+  double offset[kMaxFrames];  // kWidth 8 only
+
+  void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
+    const int k = obs.k;
+    const int* __restrict frame = obs.frame;
+    const double* __restrict value = obs.value;
+    const uint32_t bits = observers[obs.voxel];
+    const float* voxel_weights = weights->weight.data() + weights->offset[obs.voxel];
+    double w[kMaxFrames], c[kMaxFrames], r[kMaxFrames];
+    double total = 0.0, sum = 0.0;
+    for (int a = 0; a < k; ++a) {
+      const int f = frame[a];
+      w[a] = voxel_weights[__builtin_popcount(bits & ((1u << f) - 1u))];
+      c[a] = kWidth == kWideJacobianSize ? gain[f] * value[a] + offset[f] : value[a];
+      total += w[a];
+      sum += w[a] * c[a];
+    }
+    const double mean = sum / total;
+    double cost = 0.0;
+    for (int a = 0; a < k; ++a) {
+      r[a] = c[a] - mean;
+      const double share = w[a] * r[a] * r[a];
+      cost += share;
+      acc->frame_cost[frame[a]] += share;
+      ++acc->frame_observations[frame[a]];
+    }
+    acc->cost += cost;
+    acc->observations += k;
+    if (!with_jacobian) return;
+    double row[kMaxFrames][kWidth];
+    for (int a = 0; a < k; ++a) {
+      if (kWidth == kJacobianSize) {
+        for (int e = 0; e < kJacobianSize; ++e) row[a][e] = obs.jac[a][e];
+      } else {
+        const double g = gain[frame[a]];
+        for (int e = 0; e < kJacobianSize; ++e) row[a][e] = g * obs.jac[a][e];
+        row[a][kJacobianSize] = g * value[a];
+        row[a][kJacobianSize + 1] = 1.0;
+      }
+    }
+    double* __restrict grad = acc->gradient.data();
+    for (int a = 0; a < k; ++a) {
+      const double s = w[a] * r[a];
+      for (int e = 0; e < kWidth; ++e) grad[kWidth * frame[a] + e] += s * row[a][e];
+    }
+    // Blocks (frame[a], frame[b]) for a <= b (frames increase with a), the diagonal ones on
+    // and above their diagonal: what the stream reads.
+    double* h = acc->hessian.data();
+    const int n = acc->n;
+    for (int a = 0; a < k; ++a) {
+      for (int b = a; b < k; ++b) {
+        const double coefficient = (a == b ? w[a] : 0.0) - w[a] * w[b] / total;
+        for (int i = 0; i < kWidth; ++i) {
+          const double si = coefficient * row[a][i];
+          double* out = h + static_cast<int64_t>(kWidth * frame[a] + i) * n + kWidth * frame[b];
+          for (int j = a == b ? i : 0; j < kWidth; ++j) out[j] += si * row[b][j];
+        }
+      }
+    }
+  }
+};
+
 // Both reference costs: the residuals r_i = c_i - mean c of one voxel's observers and their
 // Jacobians, with c_i = a_i I_i + b_i from `photometric` ([log_gain, offset] per observer)
 // or c_i = I_i when it is null (then a_i = 1 exactly, so the plain cost is unchanged).
 // `pose_jacobians` / `photometric_jacobians` (either may be null, as may their entries) are
-// n x 7 and n x 2 row-major per observer.
+// n x 7 and n x 2 row-major per observer. With `weight` (n entries, > 0), the weighted
+// residuals sqrt(w_i) (c_i - sum w c / W) and their Jacobians sqrt(w_i) (delta_ia - w_a / W)
+// times a_a J_a and [a_a I_a, 1]; without, the plain ones (the same numbers as before the
+// weights existed).
 void EvaluateVoxel(const std::vector<const Frame*>& observers,
                    const Eigen::Vector3d& voxel_center_in_world,
                    double const* const* poses,
                    double const* const* photometric,
+                   const double* weight,
                    double* residuals,
                    double** pose_jacobians,
                    double** photometric_jacobians) {
@@ -146,6 +232,7 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
   std::vector<int> sigma(n, 0);
   int k = 0;
   double sum = 0.0;
+  double weighted_sum = 0.0, total_weight = 0.0;  // with weights only
   for (int i = 0; i < n; ++i) {
     const Photometric correction =
         photometric != nullptr ? Photometric{photometric[i][0], photometric[i][1]} : Photometric();
@@ -156,6 +243,10 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
       ++k;
       corrected[i] = photometric != nullptr ? correction.Correct(value[i]) : value[i];
       sum += corrected[i];
+      if (weight != nullptr) {
+        weighted_sum += weight[i] * corrected[i];
+        total_weight += weight[i];
+      }
     }
   }
   for (int a = 0; a < n; ++a) {
@@ -170,25 +261,38 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
     std::fill(residuals, residuals + n, 0.0);
     return;
   }
-  const double mean = sum / k;
-  for (int i = 0; i < n; ++i) residuals[i] = sigma[i] ? corrected[i] - mean : 0.0;
+  const double mean = weight != nullptr ? weighted_sum / total_weight : sum / k;
+  for (int i = 0; i < n; ++i) {
+    if (!sigma[i]) {
+      residuals[i] = 0.0;
+    } else {
+      residuals[i] = weight != nullptr ? std::sqrt(weight[i]) * (corrected[i] - mean)
+                                       : corrected[i] - mean;
+    }
+  }
+  // d r_i / d x_a = sigma_i sigma_a factor(i, a) J'_a: (delta_ia - 1/k), or with weights
+  // sqrt(w_i) (delta_ia - w_a / W).
+  const auto factor = [&](int i, int a) {
+    if (weight == nullptr) return (i == a ? 1.0 : 0.0) - 1.0 / k;
+    return std::sqrt(weight[i]) * ((i == a ? 1.0 : 0.0) - weight[a] / total_weight);
+  };
   for (int a = 0; a < n; ++a) {
     if (!sigma[a]) continue;
-    // d r_i / d delta_a = sigma_i sigma_a (delta_ia - 1/k) a_a J_a, then to the ambient block.
+    // d r_i / d delta_a = sigma_i sigma_a factor(i, a) a_a J_a, then to the ambient block.
     if (pose_jacobians != nullptr && pose_jacobians[a] != nullptr) {
       const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
           gain[a] * jac[a] * TangentToAmbientJacobian(poses[a]);
       Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
           pose_jacobians[a], n, kPoseAmbientSize);
       for (int i = 0; i < n; ++i) {
-        if (sigma[i]) out.row(i) = ((i == a ? 1.0 : 0.0) - 1.0 / k) * ambient;
+        if (sigma[i]) out.row(i) = factor(i, a) * ambient;
       }
     }
-    // d r_i / d [log_gain_a, b_a] = sigma_i sigma_a (delta_ia - 1/k) [a_a I_a, 1].
+    // d r_i / d [log_gain_a, b_a] = sigma_i sigma_a factor(i, a) [a_a I_a, 1].
     if (photometric_jacobians != nullptr && photometric_jacobians[a] != nullptr) {
       for (int i = 0; i < n; ++i) {
         if (!sigma[i]) continue;
-        const double w = (i == a ? 1.0 : 0.0) - 1.0 / k;
+        const double w = factor(i, a);
         photometric_jacobians[a][2 * i] = w * gain[a] * value[a];
         photometric_jacobians[a][2 * i + 1] = w;
       }
@@ -198,9 +302,23 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
 
 }  // namespace
 
+ObservationWeights::ObservationWeights(const CandidateSet& candidates) {
+  const int64_t n = candidates.num_voxels();
+  offset.resize(n + 1);
+  offset[0] = 0;
+  for (int64_t v = 0; v < n; ++v) {
+    offset[v + 1] = offset[v] + __builtin_popcount(candidates.observers[v]);
+  }
+  weight.assign(offset[n], 1.0f);
+}
+
 VoxelReducedCost::VoxelReducedCost(std::vector<const Frame*> observers,
-                                   const Eigen::Vector3d& voxel_center_in_world)
-    : observers_(std::move(observers)), voxel_center_in_world_(voxel_center_in_world) {
+                                   const Eigen::Vector3d& voxel_center_in_world,
+                                   std::vector<double> weights)
+    : observers_(std::move(observers)),
+      voxel_center_in_world_(voxel_center_in_world),
+      weights_(std::move(weights)) {
+  CHECK(weights_.empty() || weights_.size() == observers_.size());
   set_num_residuals(static_cast<int>(observers_.size()));
   for (size_t i = 0; i < observers_.size(); ++i) {
     mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
@@ -210,14 +328,19 @@ VoxelReducedCost::VoxelReducedCost(std::vector<const Frame*> observers,
 bool VoxelReducedCost::Evaluate(double const* const* parameters,
                                 double* residuals,
                                 double** jacobians) const {
-  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, nullptr, residuals, jacobians,
-                nullptr);
+  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, nullptr,
+                weights_.empty() ? nullptr : weights_.data(), residuals, jacobians, nullptr);
   return true;
 }
 
 VoxelReducedPhotometricCost::VoxelReducedPhotometricCost(
-    std::vector<const Frame*> observers, const Eigen::Vector3d& voxel_center_in_world)
-    : observers_(std::move(observers)), voxel_center_in_world_(voxel_center_in_world) {
+    std::vector<const Frame*> observers,
+    const Eigen::Vector3d& voxel_center_in_world,
+    std::vector<double> weights)
+    : observers_(std::move(observers)),
+      voxel_center_in_world_(voxel_center_in_world),
+      weights_(std::move(weights)) {
+  CHECK(weights_.empty() || weights_.size() == observers_.size());
   set_num_residuals(static_cast<int>(observers_.size()));
   for (size_t i = 0; i < observers_.size(); ++i) {
     mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
@@ -229,8 +352,9 @@ bool VoxelReducedPhotometricCost::Evaluate(double const* const* parameters,
                                            double* residuals,
                                            double** jacobians) const {
   const int n = static_cast<int>(observers_.size());
-  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, parameters + n, residuals,
-                jacobians, jacobians != nullptr ? jacobians + n : nullptr);
+  EvaluateVoxel(observers_, voxel_center_in_world_, parameters, parameters + n,
+                weights_.empty() ? nullptr : weights_.data(), residuals, jacobians,
+                jacobians != nullptr ? jacobians + n : nullptr);
   return true;
 }
 
@@ -272,24 +396,156 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
                         num_threads, term, out);
 }
 
+void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
+                                     const CandidateSet& candidates,
+                                     const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                     const std::vector<Photometric>& photometric,
+                                     const ObservationWeights& weights,
+                                     int64_t begin,
+                                     int64_t end,
+                                     bool with_jacobian,
+                                     int num_threads,
+                                     ReducedSystem* out) {
+  CHECK_EQ(static_cast<int64_t>(weights.offset.size()), candidates.num_voxels() + 1)
+      << "weights built for another candidate set";
+  if (photometric.empty()) {
+    DsrWeightedVoxelTerm<kJacobianSize> term;
+    term.observers = candidates.observers.data();
+    term.weights = &weights;
+    StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
+                          num_threads, term, out);
+    return;
+  }
+  CHECK_EQ(photometric.size(), frames.size());
+  DsrWeightedVoxelTerm<kWideJacobianSize> term;
+  term.observers = candidates.observers.data();
+  term.weights = &weights;
+  for (size_t i = 0; i < photometric.size(); ++i) {
+    term.gain[i] = photometric[i].gain();
+    term.offset[i] = photometric[i].offset;
+  }
+  StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
+                        num_threads, term, out);
+}
+
+void UpdateObservationWeights(const std::vector<Frame>& frames,
+                              const CandidateSet& candidates,
+                              const std::vector<Eigen::Isometry3d>& frame_from_world,
+                              const std::vector<Photometric>& photometric,
+                              const RobustLoss& loss,
+                              int num_threads,
+                              ObservationWeights* weights,
+                              ReweightStats* stats) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
+  CHECK_EQ(static_cast<int64_t>(weights->offset.size()), candidates.num_voxels() + 1)
+      << "weights built for another candidate set";
+  double gain[kMaxFrames], offset[kMaxFrames];
+  for (int i = 0; i < m; ++i) {
+    gain[i] = photometric.empty() ? 1.0 : photometric[i].gain();
+    offset[i] = photometric.empty() ? 0.0 : photometric[i].offset;
+  }
+  const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
+  // Fixed blocks summed in order, as in StreamNormalEquations: identical for any thread
+  // count. Each voxel's weights are written by its block only.
+  const int64_t n = candidates.num_voxels();
+  const int64_t num_blocks = std::max<int64_t>(1, std::min<int64_t>(64, n));
+  const int64_t block_size = (n + num_blocks - 1) / num_blocks;
+  std::vector<ReweightStats> partial(num_blocks);
+  float* w_all = weights->weight.data();
+  const int64_t* offsets = weights->offset.data();
+  ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
+    ReweightStats& out = partial[block];
+    // Candidate observations the sampler does not hand over get weight 1.
+    const auto reset = [&](int64_t v0, int64_t v1) {
+      for (int64_t l = offsets[v0]; l < offsets[v1]; ++l) {
+        out.max_weight_change = std::max(out.max_weight_change, std::abs(1.0 - w_all[l]));
+        w_all[l] = 1.0f;
+      }
+    };
+    thread_local std::unique_ptr<VoxelBatch> batch;
+    if (batch == nullptr) batch.reset(new VoxelBatch);
+    const int64_t b0 = std::min(n, block * block_size), b1 = std::min(n, b0 + block_size);
+    for (int64_t v = b0; v < b1;) {
+      const int64_t next = SampleVoxelBatch(posed, candidates, v, b1, false, batch.get());
+      int64_t done = v;
+      for (int t = 0; t < batch->num_voxels; ++t) {
+        const int64_t voxel = batch->voxel[t];
+        reset(done, voxel);
+        done = voxel + 1;
+        const int first = batch->begin[t], k = batch->begin[t + 1] - first;
+        const uint32_t bits = candidates.observers[voxel];
+        float* slots = w_all + offsets[voxel];
+        double c[kMaxFrames], w[kMaxFrames], old[kMaxFrames];
+        int slot[kMaxFrames];
+        for (int a = 0; a < k; ++a) {
+          const int f = batch->frame[first + a];
+          slot[a] = __builtin_popcount(bits & ((1u << f) - 1u));
+          c[a] = gain[f] * batch->value[first + a] + offset[f];
+          old[a] = w[a] = slots[slot[a]];
+        }
+        RobustLocation(loss, c, k, w, kLocationIterations);
+        // Candidate observers that do not observe the voxel now: weight 1.
+        uint32_t valid_slots = 0;
+        for (int a = 0; a < k; ++a) valid_slots |= 1u << slot[a];
+        const int kc = static_cast<int>(offsets[voxel + 1] - offsets[voxel]);
+        for (int e = 0; e < kc; ++e) {
+          if (valid_slots >> e & 1u) continue;
+          out.max_weight_change = std::max(out.max_weight_change, std::abs(1.0 - slots[e]));
+          slots[e] = 1.0f;
+        }
+        double total = 0.0, sum = 0.0;
+        for (int a = 0; a < k; ++a) {
+          // The stored (float) weights define the next solve's mean; the cost below uses
+          // them too.
+          const float stored = std::max(FLT_MIN, static_cast<float>(w[a]));
+          slots[slot[a]] = stored;
+          out.max_weight_change = std::max(out.max_weight_change, std::abs(stored - old[a]));
+          total += stored;
+          sum += stored * c[a];
+        }
+        const double mean = sum / total;
+        for (int a = 0; a < k; ++a) out.robust_cost += loss.Rho((c[a] - mean) * (c[a] - mean));
+        out.observations += k;
+      }
+      reset(done, next);
+      v = next;
+    }
+  });
+  *stats = ReweightStats();
+  for (const ReweightStats& part : partial) {
+    stats->robust_cost += part.robust_cost;
+    stats->max_weight_change = std::max(stats->max_weight_change, part.max_weight_change);
+    stats->observations += part.observations;
+  }
+}
+
 ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    const CandidateSet* candidates,
                                    const Eigen::Isometry3d& frame0_from_world,
                                    int64_t begin,
                                    int64_t end,
                                    int num_threads,
-                                   bool photometric)
+                                   bool photometric,
+                                   const ObservationWeights* weights)
     : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric),
       frames_(frames),
       candidates_(candidates),
       begin_(begin),
       end_(end),
-      num_threads_(num_threads) {}
+      num_threads_(num_threads),
+      weights_(weights) {}
 
 void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
                                   const std::vector<Photometric>& photometric,
                                   bool with_jacobian,
                                   NormalEquations* out) const {
+  if (weights_ != nullptr) {
+    AccumulateWeightedReducedSystem(*frames_, *candidates_, frame_from_world, photometric,
+                                    *weights_, begin_, end_, with_jacobian, num_threads_, out);
+    return;
+  }
   if (!photometric.empty()) {
     AccumulateReducedPhotometricSystem(*frames_, *candidates_, frame_from_world, photometric,
                                        begin_, end_, with_jacobian, num_threads_, out);

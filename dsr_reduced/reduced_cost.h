@@ -16,6 +16,18 @@
 //    Jacobian R with R^T R = H_c, R^T r' = g_c, |r'|^2 = f_c (R from the eigen-decomposition
 //    of H_c plus one extra residual sqrt(f_c - |r'|^2) with a zero Jacobian row), so the
 //    Gauss-Newton/LM model equals the uncompressed one. Nothing per observation is stored.
+//
+// With a robust loss (docs/design.md section 4.7) DSR solves by iteratively reweighted
+// least squares: weights w_ij, fixed during one solve (ObservationWeights), give the
+// weighted reduced cost
+//     f_w(T) = sum_j sum_i w_ij (c_ij - mu_j)^2,   mu_j = sum_i w_ij c_ij / W_j,  W_j = sum_i w_ij
+// (c_ij the observation, corrected by gain and offset with photometric parameters), with
+// r~_ij = sqrt(w_ij) (c_ij - mu_j) and, J'_a the observation Jacobian (wide with
+// photometric parameters),
+//     d r~_i / d x_a = sqrt(w_i) (delta_ia - w_a / W) J'_a,
+//     H_ab = (delta_ab w_a - w_a w_b / W) J'_a^T J'_b,   g_a = w_a r_a J'_a.
+// Both costs have a weighted variant: the per-voxel reference with the voxel's weights,
+// and the chunk cost with the weights of the whole candidate set.
 #ifndef DSR_DSR_REDUCED_REDUCED_COST_H_
 #define DSR_DSR_REDUCED_REDUCED_COST_H_
 
@@ -26,17 +38,38 @@
 #include "core/frame.h"
 #include "core/observation.h"
 #include "core/photometric.h"
+#include "core/robust_loss.h"
 #include "core/se3.h"
 #include "core/streamed_cost.h"
 #include "core/voxel_stream.h"
 
 namespace dsr {
 
+// The weights of the reweighted reduced cost: one per candidate observation (voxel v of a
+// CandidateSet and each of its candidate observers), voxel v's in increasing frame order at
+// weight[offset[v] .. offset[v + 1]). Floats: 4 bytes per candidate observation, plus
+// the offsets (8 bytes per candidate voxel).
+struct ObservationWeights {
+  std::vector<int64_t> offset;  // num_voxels + 1 entries
+  std::vector<float> weight;
+  ObservationWeights() = default;
+  // Every weight 1 (the plain cost).
+  explicit ObservationWeights(const CandidateSet& candidates);
+  // Index in `weight` of frame `frame`'s observation of voxel v, whose candidate
+  // observers are `observers` (bit `frame` must be set).
+  int64_t Index(int64_t v, uint32_t observers, int frame) const {
+    return offset[v] + __builtin_popcount(observers & ((1u << frame) - 1u));
+  }
+};
+
 // Reference: residuals r_ij for the candidate observers of one voxel. Parameter blocks are
-// the observers' poses (7 ambient each) in increasing frame order.
+// the observers' poses (7 ambient each) in increasing frame order. With `weights` (one per
+// observer, > 0; empty: the plain cost), the weighted residuals r~_ij above.
 class VoxelReducedCost final : public ceres::CostFunction {
  public:
-  VoxelReducedCost(std::vector<const Frame*> observers, const Eigen::Vector3d& voxel_center_in_world);
+  VoxelReducedCost(std::vector<const Frame*> observers,
+                   const Eigen::Vector3d& voxel_center_in_world,
+                   std::vector<double> weights = {});
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override;
@@ -44,6 +77,7 @@ class VoxelReducedCost final : public ceres::CostFunction {
  private:
   std::vector<const Frame*> observers_;  // not owned
   Eigen::Vector3d voxel_center_in_world_;
+  std::vector<double> weights_;
 };
 
 // The reference with photometric parameters (docs/design.md section 2.8): residuals
@@ -52,10 +86,12 @@ class VoxelReducedCost final : public ceres::CostFunction {
 // their [log_gain, offset] blocks (2 each), both in increasing frame order.
 //   d r_i / d delta_a = (delta_ia - 1/k) a_a J_a,
 //   d r_i / d [log_gain_a, b_a] = (delta_ia - 1/k) [a_a I_a, 1].
+// With `weights` (one per observer, > 0; empty: unweighted), the weighted residuals.
 class VoxelReducedPhotometricCost final : public ceres::CostFunction {
  public:
   VoxelReducedPhotometricCost(std::vector<const Frame*> observers,
-                              const Eigen::Vector3d& voxel_center_in_world);
+                              const Eigen::Vector3d& voxel_center_in_world,
+                              std::vector<double> weights = {});
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const override;
@@ -63,6 +99,7 @@ class VoxelReducedPhotometricCost final : public ceres::CostFunction {
  private:
   std::vector<const Frame*> observers_;  // not owned
   Eigen::Vector3d voxel_center_in_world_;
+  std::vector<double> weights_;
 };
 
 // The reduced normal equations over all m frames (6m x 6m; frame 0's rows included);
@@ -99,10 +136,58 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
                                         ReducedSystem* out,
                                         bool batched_hessian = true);
 
+// The weighted system (the normal equations of f_w above; p = 6 per frame, or 8 with
+// `photometric`, one per frame, non-empty) with the weights of `weights` (built for
+// `candidates`), added voxel by voxel: H's per-voxel form (delta_ab w_a - w_a w_b / W) is
+// not the batched (delta_ab d + s) of core/hessian_batch.h. The per-frame costs are the
+// weighted ones, sum_j w_ij r_ij^2.
+void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
+                                     const CandidateSet& candidates,
+                                     const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                     const std::vector<Photometric>& photometric,
+                                     const ObservationWeights& weights,
+                                     int64_t begin,
+                                     int64_t end,
+                                     bool with_jacobian,
+                                     int num_threads,
+                                     ReducedSystem* out);
+
+// What a reweighting pass measured at its poses.
+struct ReweightStats {
+  // sum_j sum_i rho(r_ij^2) with r_ij = c_ij - mu_j, mu_j the weighted mean with the new
+  // weights, over voxels with k_j >= 2 (not halved: Ceres's cost is half of it).
+  double robust_cost = 0.0;
+  // Largest change of a weight (all candidate observations).
+  double max_weight_change = 0.0;
+  int64_t observations = 0;  // sum of k_j over voxels with k_j >= 2
+};
+
+// Most IRLS steps of a voxel's location per reweighting pass (RobustLocation; they stop
+// early once the location settles).
+constexpr int kLocationIterations = 10;
+
+// The reweighting step of IRLS at fixed poses (and photometric parameters, empty for
+// none): for each candidate voxel with k_j >= 2 valid observations, the robust location
+// of its corrected observations (RobustLocation under `loss`, starting from the weighted
+// mean with the current weights, at most kLocationIterations steps) and the weights
+// w_ij = rho'(r_ij^2) there; every other candidate observation (sigma_ij = 0 now, or k_j
+// < 2) gets weight 1. Streams the voxels like the cost (core/voxel_stream.h); the result is
+// identical for any `num_threads`. Weights are stored as floats, at least FLT_MIN.
+void UpdateObservationWeights(const std::vector<Frame>& frames,
+                              const CandidateSet& candidates,
+                              const std::vector<Eigen::Isometry3d>& frame_from_world,
+                              const std::vector<Photometric>& photometric,
+                              const RobustLoss& loss,
+                              int num_threads,
+                              ObservationWeights* weights,
+                              ReweightStats* stats);
+
 // Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
 // poses (frames 1..m-1, in order; core/streamed_cost.h) and, with `photometric`, their
 // photometric blocks after them. Frame 0's pose is the constant `frame0_from_world`, its
-// photometric parameters the gauge. num_residuals = p (m - 1) + 1, p = 6 or 8.
+// photometric parameters the gauge. num_residuals = p (m - 1) + 1, p = 6 or 8. With
+// `weights` (not owned; must not change while the block lives, since its passes are
+// cached), the weighted cost f_w.
 class ReducedChunkCost final : public StreamedPoseCost {
  public:
   ReducedChunkCost(const std::vector<Frame>* frames,
@@ -111,7 +196,8 @@ class ReducedChunkCost final : public StreamedPoseCost {
                    int64_t begin,
                    int64_t end,
                    int num_threads,
-                   bool photometric = false);
+                   bool photometric = false,
+                   const ObservationWeights* weights = nullptr);
 
   // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
   static void Compress(const Eigen::MatrixXd& hessian_free,
@@ -132,6 +218,7 @@ class ReducedChunkCost final : public StreamedPoseCost {
   const CandidateSet* candidates_;    // not owned
   int64_t begin_, end_;
   int num_threads_;
+  const ObservationWeights* weights_;  // not owned; null: unweighted
 };
 
 }  // namespace dsr

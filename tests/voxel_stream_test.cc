@@ -80,6 +80,8 @@ TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
         ASSERT_LT(t, batch->num_voxels) << KernelPathName(path);
         const int first = batch->begin[t], k = batch->begin[t + 1] - first;
         ASSERT_EQ(k, static_cast<int>(frames.size())) << KernelPathName(path) << " voxel " << v;
+        // The weighted terms find a voxel's weights by its candidate index.
+        EXPECT_EQ(batch->voxel[t], v) << KernelPathName(path);
         for (int a = 0; a < k; ++a) {
           EXPECT_EQ(batch->frame[first + a], frames[a]);
           EXPECT_NEAR(batch->value[first + a], values[a], kValueTolerance);
