@@ -30,7 +30,7 @@ void AddGroupHessianPortableOf(const HessianGroup& group,
           for (int j = 0; j < W; ++j) sum[i][j] += ja[i] * jb[j];
         }
       }
-      const double scale = weights.shared + (a == b ? weights.diagonal : 0.0);
+      const double scale = BlockScale(group, weights, a, b);
       for (int i = 0; i < W; ++i) {
         double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
         for (int j = 0; j < W; ++j) row[j] += scale * sum[i][j];
@@ -123,7 +123,8 @@ void AddBatchHessian(const VoxelBatch& batch,
                      double* h,
                      int n,
                      double* gradient,
-                     int width) {
+                     int width,
+                     const double* projection_factors) {
   CHECK(width == kJacobianSize || width == kWideJacobianSize) << width;
   // Group the voxels by observer set: an open-addressing table (more slots than voxels),
   // groups numbered in order of first appearance, then a counting sort of the voxels.
@@ -170,8 +171,19 @@ void AddBatchHessian(const VoxelBatch& batch,
     int k = 0;
     for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
     DCHECK_GE(k, 2);
-    const internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame, width};
-    AddGroup(path, group, residuals + group_start[g], weights[k], h, n, gradient);
+    internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame, width};
+    HessianWeights form = weights != nullptr ? weights[k] : HessianWeights();
+    double factor[kMaxFrames];
+    if (projection_factors != nullptr) {
+      double sum = 0.0;
+      for (int a = 0; a < k; ++a) {
+        factor[a] = projection_factors[frame[a]];
+        sum += factor[a] * factor[a];
+      }
+      form = {1.0, -1.0 / sum};
+      group.factor = factor;
+    }
+    AddGroup(path, group, residuals + group_start[g], form, h, n, gradient);
   }
 }
 

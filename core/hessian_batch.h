@@ -42,13 +42,19 @@ struct HessianWeights {
 // With `gradient` (n entries), also g_f += r J for every observation, from the
 // batch's residuals, summed per group first like H. `width` 6 reads the batch's pose
 // Jacobians (jac), 8 its wide ones (wide_jac).
+// With `projection_factors` (one u_f > 0 per frame), `weights` is not read: every voxel
+// has the form of a weighted mean's projection instead,
+//   H_ab += (delta_ab - u_a u_b / sum_c u_c^2) J_a^T J_b   (c over the voxel's observers),
+// which is DSR's with photometric parameters (u = 1 / gain; docs/design.md 2.8) and the
+// plain form (1, -1/k) when every u is 1. Voxels with the same observers share it.
 // Uses the kernel path of ActiveKernelPath() (core/voxel_stream.h).
 void AddBatchHessian(const VoxelBatch& batch,
                      const HessianWeights* weights,
                      double* h,
                      int n,
                      double* gradient = nullptr,
-                     int width = 6);
+                     int width = 6,
+                     const double* projection_factors = nullptr);
 
 namespace internal {
 
@@ -61,11 +67,21 @@ struct HessianGroup {
   int k;
   const int* frame;
   int width;
+  // Null, or per observer f_a: the shared weight of block (a, b) is then shared f_a f_b.
+  const double* factor = nullptr;
 };
 
+// The scale of block (a, b) (positions in the group): shared (times f_a f_b with factors)
+// plus diagonal when a == b. Every kernel scales its sums by this.
+inline double BlockScale(const HessianGroup& group, const HessianWeights& weights, int a, int b) {
+  const double shared =
+      group.factor != nullptr ? weights.shared * group.factor[a] * group.factor[b] : weights.shared;
+  return shared + (a == b ? weights.diagonal : 0.0);
+}
+
 // Adds scale_ab * sum_r J_a^T J_b to block (frame[a], frame[b]) (width x width, at rows
-// and columns width * frame) of the row-major n x n `h` for a <= b, with scale_ab = shared
-// + (a == b ? diagonal : 0). Every kernel path (core/kernels_avx2.h, core/kernels_avx512.h)
+// and columns width * frame) of the row-major n x n `h` for a <= b, with scale_ab =
+// BlockScale(group, weights, a, b). Every kernel path (core/kernels_avx2.h, core/kernels_avx512.h)
 // has this contract.
 void AddGroupHessianPortable(const HessianGroup& group,
                              const HessianWeights& weights,

@@ -225,7 +225,7 @@ DSR_TARGET_AVX2 void AddGroupHessianWideAvx2(const HessianGroup& group,
             acc[i][1] = _mm256_fmadd_pd(x, c1, acc[i][1]);
           }
         }
-        const __m256d scale = _mm256_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        const __m256d scale = _mm256_set1_pd(BlockScale(group, weights, a, b));
         for (int i = 0; i < 4; ++i) {
           double* hb = h_row + static_cast<int64_t>(i) * n + W * frame[b];
           AddScaled4(hb, scale, acc[i][0]);
@@ -294,7 +294,7 @@ DSR_TARGET_AVX2 void AddGroupHessianAvx2(const HessianGroup& group,
       double* h_row = h + static_cast<int64_t>(6 * frame[a] + i0 - 6 * a) * n;
       for (int b = a; b < k; b += 2) {
         const int c = 6 * b;
-        const double wb = weights.shared + (b == a ? weights.diagonal : 0.0);
+        const double wb = BlockScale(group, weights, a, b);
         if (b + 1 < k) {
           __m256d acc[3][3];
           for (int i = 0; i < 3; ++i) acc[i][0] = acc[i][1] = acc[i][2] = _mm256_setzero_pd();
@@ -310,7 +310,8 @@ DSR_TARGET_AVX2 void AddGroupHessianAvx2(const HessianGroup& group,
             }
           }
           // Columns 0..5 belong to block b (weight wb), 6..11 to block b + 1 (b + 1 > a).
-          const __m256d s0 = _mm256_set1_pd(wb), s2 = _mm256_set1_pd(weights.shared);
+          const __m256d s0 = _mm256_set1_pd(wb),
+                        s2 = _mm256_set1_pd(BlockScale(group, weights, a, b + 1));
           for (int i = 0; i < 3; ++i) {
             double* hb = h_row + static_cast<int64_t>(i) * n + 6 * frame[b];
             double* hb1 = h_row + static_cast<int64_t>(i) * n + 6 * frame[b + 1];

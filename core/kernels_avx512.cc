@@ -145,7 +145,7 @@ DSR_TARGET_AVX512 void AddGroupHessianWideAvx512(const HessianGroup& group,
       }
       for (int q = 0; q < blocks; ++q) {
         const int b = b0 + q;
-        const __m512d scale = _mm512_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        const __m512d scale = _mm512_set1_pd(BlockScale(group, weights, a, b));
         for (int i = 0; i < W; ++i) {
           double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
           _mm512_storeu_pd(row, _mm512_fmadd_pd(scale, _mm512_loadu_pd(tile[i] + 8 * q),
@@ -179,7 +179,7 @@ DSR_TARGET_AVX512 void AddGroupHessianAvx512(const HessianGroup& group,
       SumBlocks(rows, num_rows, i0, c, width, blocks, tile);
       for (int q = 0; q < blocks; ++q) {
         const int b = c / 6 + q;
-        const __m512d scale = _mm512_set1_pd(weights.shared + (b == a ? weights.diagonal : 0.0));
+        const __m512d scale = _mm512_set1_pd(BlockScale(group, weights, a, b));
         for (int i = 0; i < 6; ++i) {
           double* row = h + static_cast<int64_t>(6 * frame[a] + i) * n + 6 * frame[b];
           const __m512d sum = _mm512_maskz_loadu_pd(kBlockRow, tile[i] + 6 * q);

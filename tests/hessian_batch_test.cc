@@ -54,27 +54,36 @@ void FillRandomBatch(int m, int num_sets, int num_voxels, uint64_t seed, VoxelBa
 }
 
 // The twin of the width-8 kernels (photometric parameters): every block of every voxel,
-// element by element.
+// element by element; with `factors` (per frame u), the projection form
+// delta_ab - u_a u_b / sum_c u_c^2 instead of `weights`.
 void AddWideTwin(const VoxelBatch& batch,
                  const HessianWeights* weights,
+                 const double* factors,
                  int n,
                  std::vector<double>* h,
-                 std::vector<double>* g) {
-  constexpr int W = kWideJacobianSize;
+                 std::vector<double>* g,
+                 int W = kWideJacobianSize) {
+  const auto jac = [&](int o) { return W == kJacobianSize ? batch.jac[o] : batch.wide_jac[o]; };
   for (int t = 0; t < batch.num_voxels; ++t) {
     const int first = batch.begin[t], k = batch.begin[t + 1] - first;
+    double sum_u2 = 0.0;
+    for (int a = 0; a < k && factors != nullptr; ++a) {
+      sum_u2 += factors[batch.frame[first + a]] * factors[batch.frame[first + a]];
+    }
     for (int a = 0; a < k; ++a) {
       const int fa = batch.frame[first + a];
       for (int i = 0; i < W; ++i) {
-        (*g)[W * fa + i] += batch.residual[first + a] * batch.wide_jac[first + a][i];
+        (*g)[W * fa + i] += batch.residual[first + a] * jac(first + a)[i];
       }
       for (int b = a; b < k; ++b) {
         const int fb = batch.frame[first + b];
-        const double scale = weights[k].shared + (a == b ? weights[k].diagonal : 0.0);
+        const double scale =
+            factors != nullptr ? (a == b ? 1.0 : 0.0) - factors[fa] * factors[fb] / sum_u2
+                               : weights[k].shared + (a == b ? weights[k].diagonal : 0.0);
         for (int i = 0; i < W; ++i) {
           for (int j = 0; j < W; ++j) {
             (*h)[(W * fa + i) * n + W * fb + j] +=
-                scale * batch.wide_jac[first + a][i] * batch.wide_jac[first + b][j];
+                scale * jac(first + a)[i] * jac(first + b)[j];
           }
         }
       }
@@ -82,17 +91,29 @@ void AddWideTwin(const VoxelBatch& batch,
   }
 }
 
-void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed, int width = kJacobianSize) {
+void CompareWithTwin(int m,
+                     int num_sets,
+                     int num_voxels,
+                     uint64_t seed,
+                     int width = kJacobianSize,
+                     bool with_factors = false) {
   const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
   FillRandomBatch(m, num_sets, num_voxels, seed, batch.get());
   HessianWeights weights[kMaxFrames + 1];
   for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};  // DSR's form
   const int n = width * m;
   std::vector<double> twin(n * n, 0.0), twin_gradient(n, 0.0);
-  if (width == kWideJacobianSize) {
-    AddWideTwin(*batch, weights, n, &twin, &twin_gradient);
+  std::vector<double> factors;
+  if (with_factors) {
+    std::mt19937_64 rng(seed + 1000);
+    std::uniform_real_distribution<double> u(0.7, 1.4);
+    for (int f = 0; f < m; ++f) factors.push_back(u(rng));
   }
-  for (int t = 0; t < batch->num_voxels && width == kJacobianSize; ++t) {
+  const double* factor_data = with_factors ? factors.data() : nullptr;
+  if (width == kWideJacobianSize || with_factors) {
+    AddWideTwin(*batch, weights, factor_data, n, &twin, &twin_gradient, width);
+  }
+  for (int t = 0; t < batch->num_voxels && width == kJacobianSize && !with_factors; ++t) {
     const int first = batch->begin[t], k = batch->begin[t + 1] - first;
     const HessianWeights& w = weights[k];
     const double(*jac)[kJacobianSize] = batch->jac + first;
@@ -109,7 +130,8 @@ void CompareWithTwin(int m, int num_sets, int num_voxels, uint64_t seed, int wid
   for (KernelPath path : AvailablePaths()) {
     KernelPathScope scope(path);
     std::vector<double> batched(n * n, 0.0), batched_gradient(n, 0.0);
-    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data(), width);
+    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data(), width,
+                    factor_data);
     double gradient_diff = 0.0, gradient_norm = 0.0;
     for (int r = 0; r < n; ++r) {
       gradient_diff += (batched_gradient[r] - twin_gradient[r]) * (batched_gradient[r] - twin_gradient[r]);
@@ -150,6 +172,16 @@ TEST(AddBatchHessian, WideMatchesVoxelByVoxelAccumulation) {
   CompareWithTwin(11, 40, 250, 13, kWideJacobianSize);
   CompareWithTwin(32, 12, 60, 14, kWideJacobianSize);
   CompareWithTwin(5, 1, VoxelBatch::kMaxVoxels, 15, kWideJacobianSize);
+}
+
+// Width 8 with per-frame projection factors (DSR's form with photometric parameters).
+TEST(AddBatchHessian, WideWithProjectionFactorsMatchesVoxelByVoxelAccumulation) {
+  CompareWithTwin(3, 2, 1, 21, kWideJacobianSize, true);
+  CompareWithTwin(4, 3, 200, 22, kWideJacobianSize, true);
+  CompareWithTwin(11, 40, 250, 23, kWideJacobianSize, true);
+  CompareWithTwin(32, 12, 60, 24, kWideJacobianSize, true);
+  CompareWithTwin(11, 40, 250, 25, kJacobianSize, true);  // the width-6 kernels' factors
+  CompareWithTwin(32, 12, 60, 26, kJacobianSize, true);
 }
 
 }  // namespace
