@@ -47,41 +47,6 @@ std::vector<double> TiedFractions(const std::vector<Frame>& frames,
   return fraction;
 }
 
-namespace {
-
-// The cost-only DSR term on corrected observations c_a = gain_a I_a + offset_a: per voxel
-// r_a = c_a - mean c, split by frame (the misfits' sums). No Jacobians, so the stream never
-// asks for Gauss-Newton terms.
-struct CorrectedMisfitTerm {
-  bool batched_hessian = false;
-  bool batched_gradient = false;
-  HessianWeights Weights(int) const { return {}; }
-
-  double gain[kMaxFrames];
-  double offset[kMaxFrames];
-
-  void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
-    CHECK(!with_jacobian);
-    const int k = obs.k;
-    double corrected[kMaxFrames];
-    double mean = 0.0;
-    for (int a = 0; a < k; ++a) {
-      corrected[a] = gain[obs.frame[a]] * obs.value[a] + offset[obs.frame[a]];
-      mean += corrected[a];
-    }
-    mean /= k;
-    for (int a = 0; a < k; ++a) {
-      const double r = corrected[a] - mean;
-      acc->cost += r * r;
-      acc->frame_cost[obs.frame[a]] += r * r;
-      ++acc->frame_observations[obs.frame[a]];
-    }
-    acc->observations += k;
-  }
-};
-
-}  // namespace
-
 std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
                                  const CandidateSet& candidates,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -93,14 +58,12 @@ std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
     AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
                             /*with_jacobian=*/false, num_threads, &system);
   } else {
+    // The same pass with the photometric term: DSR's residuals of the corrected
+    // observations (docs/design.md 2.8), each in its frame's own intensity units.
     CHECK_EQ(photometric.size(), frames.size());
-    CorrectedMisfitTerm term;
-    for (size_t i = 0; i < frames.size(); ++i) {
-      term.gain[i] = photometric[i].gain();
-      term.offset[i] = photometric[i].offset;
-    }
-    StreamNormalEquations(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
-                          /*with_jacobian=*/false, num_threads, term, &system);
+    AccumulateReducedPhotometricSystem(frames, candidates, frame_from_world, photometric, 0,
+                                       candidates.num_voxels(), /*with_jacobian=*/false,
+                                       num_threads, &system);
   }
   return MisfitsFromFrameCosts(system.frame_cost, system.frame_observations);
 }
