@@ -226,7 +226,8 @@ std::string MethodLabel(const RegistrationOptions& options) {
           : options.init == InitialPoses::kGlobal ? "+global_init"
           : options.max_recoveries > 0            ? "+auto"
                                                   : "") +
-         (options.photometric == PhotometricModel::kAffine ? "+affine" : "");
+         (options.photometric == PhotometricModel::kAffine ? "+affine" : "") +
+         (options.loss.IsSquared() ? "" : std::string("+") + RobustLossKindName(options.loss.kind));
 }
 
 std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {

@@ -45,6 +45,7 @@ DsrOptions ToDsrOptions(const RegistrationOptions& options, const SolveOptions& 
   dsr.num_chunks = options.dsr_num_chunks;
   dsr.reference_cost = options.dsr_reference_cost;
   dsr.photometric = options.photometric == PhotometricModel::kAffine;
+  dsr.loss = options.loss;
   return dsr;
 }
 
@@ -53,6 +54,7 @@ DbaOptions ToDbaOptions(const RegistrationOptions& options, const SolveOptions& 
   dba.solve = solve;
   dba.memory_budget_bytes = options.dba_memory_budget_bytes;
   dba.photometric = options.photometric == PhotometricModel::kAffine;
+  dba.loss = options.loss;
   return dba;
 }
 
@@ -249,6 +251,11 @@ bool RegistrationOptions::Validate(std::string* error) const {
   }
   if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
     return false;
+  }
+  if (!loss.Validate(error)) return false;
+  if (!loss.IsSquared() && !ModeEstimatesPhotometric(mode)) {
+    return bad("loss", RobustLossKindName(loss.kind),
+               "needs --mode=dsr or dba (--mode=" + mode + " is a baseline with squared differences)");
   }
   const bool affine = photometric == PhotometricModel::kAffine;
   if (affine && !ModeEstimatesPhotometric(mode)) {
@@ -585,6 +592,10 @@ bool SolveLevels(const std::vector<Image>& images,
       result->uncertainty_note =
           "the pose uncertainty does not model the photometric parameters "
           "(--photometric=affine)";
+    } else if (options.estimate_uncertainty && !options.loss.IsSquared()) {
+      // Its noise model is the squared differences' (pipeline/uncertainty.h).
+      result->uncertainty_note = "the pose uncertainty does not model the robust loss (--loss=" +
+                                 std::string(RobustLossKindName(options.loss.kind)) + ")";
     } else if (options.estimate_uncertainty &&
                (options.mode == "dsr" || options.mode == "dba")) {
       if (!EstimatePoseUncertainty(frames, final_candidates, poses, masks,
@@ -807,7 +818,11 @@ bool Register(const std::vector<Image>& input_images,
   for (Image& image : scaled) {
     for (float& v : image.voxels) v = std::ldexp(v, exponent);
   }
-  if (!RegisterScaled(scaled, masks, initial_frame_from_world, options, start, result, error)) {
+  // The loss's scale is in grey levels: it follows the intensities.
+  RegistrationOptions scaled_options = options;
+  scaled_options.loss.scale = std::ldexp(options.loss.scale, exponent);
+  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, start, result,
+                      error)) {
     return false;
   }
   UnscaleResult(exponent, result);

@@ -25,6 +25,7 @@
 #include "core/frame.h"
 #include "core/observation.h"
 #include "core/photometric.h"
+#include "core/robust_loss.h"
 #include "core/solve_options.h"
 #include "core/volume.h"
 #include "init/placement_search.h"
@@ -135,6 +136,13 @@ struct RegistrationOptions {
   // parameters; RegistrationResult::uncertainty_note says so). The library default is
   // kNone; the tools' is kDefaultPhotometricModel.
   PhotometricModel photometric = PhotometricModel::kNone;
+
+  // The loss of the intensity differences (modes dsr and dba; core/robust_loss.h):
+  // squared (default), or huber / cauchy with a scale in the input's grey levels, for
+  // outliers such as shadows and reverberation. DBA applies it through Ceres; DSR by
+  // iteratively reweighted solves (docs/design.md 4.7). The pose uncertainty is then not
+  // estimated (a note says so).
+  RobustLoss loss;
 
   // Mode-specific.
   int dsr_num_chunks = 1;

@@ -131,6 +131,26 @@ TEST_F(DsrRegisterCli, DbaModeAndMasksFromImages) {
   EXPECT_TRUE(fs::exists(Out("dba.json")));
 }
 
+// --loss=cauchy / huber (issue 21): both modes register the sequence; the pose uncertainty
+// says it does not model the loss.
+TEST_F(DsrRegisterCli, RobustLossesRegisterInBothModes) {
+  for (const std::string& flags : {std::string("--loss=cauchy --loss_scale=20 --uncertainty"),
+                                   std::string("--loss=huber --loss_scale=10 --mode=dba")}) {
+    const std::string poses_path = Out("robust.json");
+    const ToolRun run = Register("--images=" + Images() + " --masks=" + Masks() + " " + flags +
+                                 " --out_poses=" + poses_path + " --progress=false" +
+                                 " --gt_poses=" + Seq("gt_poses.json"));
+    ASSERT_EQ(run.exit_code, 0) << flags << "\n" << run.err;
+    EXPECT_NE(run.out.find("MAE: translation"), std::string::npos) << run.out;
+    PosesFile poses;
+    std::string error;
+    ASSERT_TRUE(ReadPoses(poses_path, 3, &poses, &error)) << error;
+    if (flags.find("uncertainty") != std::string::npos) {
+      EXPECT_NE(run.out.find("does not model the robust loss"), std::string::npos) << run.out;
+    }
+  }
+}
+
 // --photometric=affine (issue 21): frames with different gains and offsets; the poses file,
 // the summary and the report carry each frame's estimate, on frame 0's scale like the
 // simulator's ground truth.
@@ -340,6 +360,10 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   ExpectBadInput(images + " --max_misfit_ratio=0.5", "--max_misfit_ratio");
   ExpectBadInput(images + " --unknown_flag=3", "unknown_flag");
   ExpectBadInput(images + " --photometric=linear", "--photometric=linear: must be none or affine");
+  ExpectBadInput(images + " --loss=tukey", "--loss");
+  ExpectBadInput(images + " --loss=huber", "--loss_scale");  // no scale
+  ExpectBadInput(images + " --loss=cauchy --loss_scale=-1", "--loss_scale");
+  ExpectBadInput(images + " --mode=ape --loss=cauchy --loss_scale=5", "--loss");
   // A baseline has no photometric parameters: an explicit affine names both flags.
   ExpectBadInput(images + " --mode=ape --photometric=affine", "--photometric=affine");
   ExpectBadInput(images + " --mode=pairwise --photometric=affine", "--mode=pairwise");

@@ -63,6 +63,13 @@ DEFINE_bool(progress, false, "Print one line per solver iteration on stderr.");
 DEFINE_bool(uncertainty, false, "dsr and dba: estimate the pose covariance (docs/design.md "
             "section 8.6) and add the mean predicted TRE and the mean normalised squared pose "
             "error (6 when calibrated) to results.csv (predicted_tre_mm, nees).");
+DEFINE_string(loss, "squared",
+              "Loss of the intensity differences (modes dsr and dba; docs/design.md 4.7): "
+              "squared, or huber / cauchy with --loss_scale (grey levels of the input) for "
+              "outliers such as shadows and reverberation. DBA applies it through Ceres, DSR "
+              "by iteratively reweighted solves. --uncertainty is then not estimated.");
+DEFINE_double(loss_scale, 0.0, "Scale of --loss=huber or cauchy, in grey levels of the input "
+              "(residuals larger than about this are down-weighted); > 0.");
 DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
               "Photometric model of the methods dsr and dba (docs/design.md section 2.8): "
               "none, or affine (each frame's gain and offset against frame 0 estimated with "
@@ -250,6 +257,8 @@ int Main(int argc, char** argv) {
   }
   dsr::PhotometricModel photometric = dsr::PhotometricModel::kNone;
   dsr::StringToPhotometricModel(FLAGS_photometric, &photometric);  // validated
+  dsr::RobustLoss loss;
+  if (!dsr::MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &loss, &error)) return Fail(error);
   // Each method's options: the pairwise baseline started from the pairwise baseline is the
   // baseline itself; photometric parameters for the modes that have them.
   const auto options_for = [&](const std::string& method) {
@@ -260,6 +269,7 @@ int Main(int argc, char** argv) {
         dsr::kDefaultMaxRecoveries, &o);
     o.photometric =
         dsr::ModeEstimatesPhotometric(method) ? photometric : dsr::PhotometricModel::kNone;
+    if (dsr::ModeEstimatesPhotometric(method)) o.loss = loss;  // the baselines: squared
     return o;
   };
   for (const std::string& m : methods) {

@@ -38,6 +38,13 @@ DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no -
 DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
               "(full direct bundle adjustment in Ceres; small problems only), or one of the "
               "paper's baselines: pairwise, lie_normalization, sequential, ape.");
+DEFINE_string(loss, "squared",
+              "Loss of the intensity differences (modes dsr and dba; docs/design.md 4.7): "
+              "squared, or huber / cauchy with --loss_scale (grey levels of the input) for "
+              "outliers such as shadows and reverberation. DBA applies it through Ceres, DSR "
+              "by iteratively reweighted solves. --uncertainty is then not estimated.");
+DEFINE_double(loss_scale, 0.0, "Scale of --loss=huber or cauchy, in grey levels of the input "
+              "(residuals larger than about this are down-weighted); > 0.");
 DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
               "Photometric model (docs/design.md section 2.8): none, or affine: every solve "
               "also estimates each frame's gain and offset against frame 0 (frame i's "
@@ -270,6 +277,9 @@ int Main(int argc, char** argv) {
   if (gflags::GetCommandLineFlagInfoOrDie("photometric").is_default &&
       !dsr::ModeEstimatesPhotometric(options.mode)) {
     options.photometric = dsr::PhotometricModel::kNone;
+  }
+  if (!dsr::MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options.loss, &error)) {
+    return Fail(error);
   }
   if (FLAGS_uncertainty && FLAGS_mode != "dsr" && FLAGS_mode != "dba") {
     return Fail("--uncertainty: needs --mode=dsr or dba (got --mode=" + FLAGS_mode + ")");
