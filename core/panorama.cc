@@ -170,8 +170,13 @@ PanoramaImages Fuse(const std::vector<Frame>& frames,
           double value;
           const Eigen::Vector3d x = frame_from_world[f] * p;
           if (frames[f].Sample(x, &value, nullptr)) {
-            if (correct) value = photometric[f].Correct(value);
-            const double w = weight(f, x);
+            double w = weight(f, x);
+            if (correct) {
+              // Frame f's noise is u_f = 1 / gain_f times larger on frame 0's scale: its
+              // corrected sample counts u_f^2 (docs/design.md 2.8).
+              value = photometric[f].Correct(value);
+              w *= photometric[f].unit() * photometric[f].unit();
+            }
             sum += w * value;
             weights += w;
             ++count;

@@ -51,9 +51,10 @@ struct PanoramaImages {
 // Closed-form panorama over every voxel of `grid` (not only candidates): each frame's
 // valid samples at the given poses, averaged. Multithreaded over slabs, deterministic.
 // With `photometric` (one per frame; empty: none) each sample of frame i is corrected to
-// gain_i I_i(p_ij) + offset_i first (frame 0's intensity scale, docs/design.md section 2.8),
-// so mean = (1/k_j) sum_i sigma_ij (gain_i I_i(p_ij) + offset_i). Without it the result is
-// bit for bit the uncorrected mean.
+// c_ij = gain_i I_i(p_ij) + offset_i first (frame 0's intensity scale, docs/design.md
+// section 2.8) and weighted by u_i^2 = 1 / gain_i^2, so mean = sum_i sigma_ij u_i^2 c_ij /
+// sum_i sigma_ij u_i^2, the model's closed-form intensity. Without it (or with the gauge
+// on every frame) the result is bit for bit the uncorrected mean.
 PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const ImageGeometry& grid,
@@ -66,7 +67,8 @@ PanoramaImages FusePanoramaMean(const std::vector<Frame>& frames,
 // invalid one. Weights fall to zero towards each field-of-view edge, so the seams of the
 // mean panorama vanish; with feather_voxels <= 0 every weight is 1 and this is the mean.
 // `mean` holds sum w I / sum w; `count` and the voxel counts are as for the mean.
-// `photometric` corrects each sample as for FusePanoramaMean (sum w c / sum w).
+// `photometric` corrects and weights each sample as for FusePanoramaMean
+// (sum w u^2 c / sum w u^2).
 PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world,
                                    const ImageGeometry& grid,

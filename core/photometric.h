@@ -8,13 +8,17 @@
 
 namespace dsr {
 
-// Photometric parameters of a frame (issue 21, docs/design.md section 2.8): frame i observes
-// the panorama intensity M_j as gain_i * I_i(p_ij) + offset_i, with gain_i = exp(log_gain)
-// (always positive). Frame 0 holds the gauge (log_gain 0, offset 0).
+// Photometric parameters of a frame (docs/design.md section 2.8): frame i observes the
+// panorama intensity M_j as gain_i * I_i(p_ij) + offset_i, with gain_i = exp(log_gain)
+// (always positive). Frame 0 holds the gauge (log_gain 0, offset 0). The residuals are in
+// the frame's own grey levels, e_ij = (M_j - offset_i) / gain_i - I_i(p_ij), so that every
+// frame's noise counts once whatever its gain (section 2.8 says why that matters).
 struct Photometric {
   double log_gain = 0.0;
   double offset = 0.0;
   double gain() const { return std::exp(log_gain); }
+  // 1 / gain: the factor u_i that takes frame 0's grey levels to the frame's own.
+  double unit() const { return std::exp(-log_gain); }
   // The corrected observation gain * value + offset.
   double Correct(double value) const { return gain() * value + offset; }
 };

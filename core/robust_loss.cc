@@ -118,20 +118,25 @@ double RobustLocation(const RobustLoss& loss,
                       const double* c,
                       int k,
                       double* weight,
-                      int max_iterations) {
+                      int max_iterations,
+                      const double* unit) {
   CHECK_GE(k, 1);
+  // Without units the sums are the plain weighted mean's, bit for bit.
   auto weighted_mean = [&] {
     double sum = 0.0, total = 0.0;
     for (int a = 0; a < k; ++a) {
-      sum += weight[a] * c[a];
-      total += weight[a];
+      const double w = unit != nullptr ? weight[a] * unit[a] * unit[a] : weight[a];
+      sum += w * c[a];
+      total += w;
     }
     CHECK_GT(total, 0.0) << "robust location: weights must be > 0";
     return sum / total;
   };
   double mu = weighted_mean();
   for (int it = 0; it < max_iterations; ++it) {
-    for (int a = 0; a < k; ++a) weight[a] = loss.Weight(c[a] - mu);
+    for (int a = 0; a < k; ++a) {
+      weight[a] = loss.Weight(unit != nullptr ? unit[a] * (c[a] - mu) : c[a] - mu);
+    }
     const double next = weighted_mean();
     const bool settled = std::abs(next - mu) <= 1e-9 * (std::abs(mu) + loss.scale);
     mu = next;

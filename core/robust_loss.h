@@ -59,11 +59,15 @@ bool MakeRobustLoss(const std::string& name, double scale, RobustLoss* loss, std
 // stopping early when mu changes by no more than 1e-9 (|mu| + scale). Writes the last
 // weights to `weight` and returns the weighted mean with them (so the pair is consistent:
 // the location the next weighted solve starts from). Weights must be > 0.
+// With `unit` (k factors u_a > 0; null: all 1), value a's residual is u_a (c_a - mu) (the
+// observations of photometric frames in their own grey levels, docs/design.md 2.8):
+//   w_a = rho'(u_a^2 (c_a - mu)^2),  mu = sum_a w_a u_a^2 c_a / sum_a w_a u_a^2.
 double RobustLocation(const RobustLoss& loss,
                       const double* c,
                       int k,
                       double* weight,
-                      int max_iterations);
+                      int max_iterations,
+                      const double* unit = nullptr);
 
 }  // namespace dsr
 

@@ -211,6 +211,17 @@ struct FrameParametersOf<Term, std::void_t<decltype(Term::kFrameParameters)>> {
   static constexpr int value = Term::kFrameParameters;
 };
 
+// A term's projection factors (one per frame, for the batched H of a weighted mean:
+// core/hessian_batch.h) when it has a member `const double* projection_factors`, else none.
+template <class Term, class = void>
+struct ProjectionFactorsOf {
+  static const double* Get(const Term&) { return nullptr; }
+};
+template <class Term>
+struct ProjectionFactorsOf<Term, std::void_t<decltype(Term::projection_factors)>> {
+  static const double* Get(const Term& term) { return term.projection_factors; }
+};
+
 // Fixed number of accumulation blocks per voxel range: results do not depend on threads.
 constexpr int64_t kStreamBlocks = 64;
 
@@ -248,7 +259,8 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
     }
     if (batched) {
       AddBatchHessian(*batch, weights, acc->hessian.data(), acc->n,
-                      batched_gradient ? acc->gradient.data() : nullptr, kWidth);
+                      batched_gradient ? acc->gradient.data() : nullptr, kWidth,
+                      ProjectionFactorsOf<Term>::Get(term));
     }
   }
 }
@@ -267,7 +279,9 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
 // VoxelObservations::wide_jac, which the batched kernels read). It has `bool batched_hessian`, `bool batched_gradient` and
 // `HessianWeights Weights(int k)`: when batched_hessian is true, the term adds no
 // Gauss-Newton terms itself and the stream adds H_ab += (delta_ab * diagonal + shared)
-// J_a^T J_b for it, a batch at a time (core/hessian_batch.h); when batched_gradient is
+// J_a^T J_b for it, a batch at a time (core/hessian_batch.h), or, when the term has a
+// member `const double* projection_factors` (u_f per frame, not null), H_ab +=
+// (delta_ab - u_a u_b / sum_c u_c^2) J_a^T J_b (Weights is then not read); when batched_gradient is
 // also true, the term writes its residuals to VoxelObservations::residual instead of
 // adding its gradient, and the stream adds g_{frame[a]} += r_a J_a the same way.
 template <class Term>

@@ -15,8 +15,11 @@ namespace dsr {
 
 namespace {
 
-// Both residuals: e = M - c(I_i(p)), c the photometric correction (none when `photometric`
-// is null: then e = M - I exactly). Jacobian pointers may be null.
+// Both residuals. Without photometric parameters (`photometric` null) e = M - I exactly.
+// With them, in the frame's own grey levels (docs/design.md 2.8): with u = 1 / gain,
+//   e = u (M - offset) - I,
+//   d e / d delta = -J,  d e / d M = u,  d e / d [log_gain, offset] = [-u (M - offset), -u],
+// so frames whose gain differs count their noise alike. Jacobian pointers may be null.
 void EvaluateObservation(const Frame& frame,
                          const Eigen::Vector3d& voxel_center_in_world,
                          const double* pose,
@@ -40,20 +43,23 @@ void EvaluateObservation(const Frame& frame,
     if (photometric_jacobian != nullptr) photometric_jacobian[0] = photometric_jacobian[1] = 0.0;
     return;
   }
-  const Photometric correction =
-      photometric != nullptr ? Photometric{photometric[0], photometric[1]} : Photometric();
-  const double gain = photometric != nullptr ? correction.gain() : 1.0;
-  *residual =
-      panorama_intensity - (photometric != nullptr ? correction.Correct(intensity) : intensity);
-  if (pose_jacobian != nullptr) {
-    // d e / d delta = -a J_ij, placed in the ambient block via the MinusJacobian (se3.h).
-    Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(pose_jacobian);
-    ambient = -gain * jacobian_tangent * TangentToAmbientJacobian(pose);
+  if (photometric == nullptr) {
+    *residual = panorama_intensity - intensity;
+    if (intensity_jacobian != nullptr) *intensity_jacobian = 1.0;
+  } else {
+    const double unit = Photometric{photometric[0], photometric[1]}.unit();
+    const double panorama_in_frame = unit * (panorama_intensity - photometric[1]);
+    *residual = panorama_in_frame - intensity;
+    if (intensity_jacobian != nullptr) *intensity_jacobian = unit;
+    if (photometric_jacobian != nullptr) {
+      photometric_jacobian[0] = -panorama_in_frame;  // d e / d log_gain
+      photometric_jacobian[1] = -unit;               // d e / d offset
+    }
   }
-  if (intensity_jacobian != nullptr) *intensity_jacobian = 1.0;
-  if (photometric_jacobian != nullptr) {
-    photometric_jacobian[0] = -gain * intensity;  // d e / d log_gain
-    photometric_jacobian[1] = -1.0;               // d e / d offset
+  if (pose_jacobian != nullptr) {
+    // d e / d delta = -J_ij, placed in the ambient block via the MinusJacobian (se3.h).
+    Eigen::Map<Eigen::Matrix<double, 1, kPoseAmbientSize>> ambient(pose_jacobian);
+    ambient = -jacobian_tangent * TangentToAmbientJacobian(pose);
   }
 }
 
@@ -176,33 +182,37 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     problem_->SetParameterBlockConstant(photometric_[0].data());
   }
 
-  // Initial intensities: the per-voxel mean of the (corrected) observations (paper eq. 10).
+  // Initial intensities: the minimiser over M of the squared residuals, the per-voxel mean
+  // of the observations (paper eq. 10); with photometric blocks the mean of the corrected
+  // observations weighted by u_i^2 = 1 / gain_i^2 (docs/design.md 2.8), which is the plain
+  // mean at the gauge.
   const int64_t n = candidates.num_voxels();
   intensities_.assign(n, 0.0);
   ParallelFor(0, n, 0, [&](int64_t v) {
     const Eigen::Vector3d p = candidates.VoxelCenter(v);
-    double sum = 0.0;
-    int count = 0;
+    double sum = 0.0, total = 0.0;
     for (int i = 0; i < m; ++i) {
       double value;
       if ((candidates.observers[v] >> i & 1u) &&
           ObserveSample(frames[i], frame_from_world[i], p, &value, nullptr)) {
-        sum += correction[i].Correct(value);
-        ++count;
+        const double w = correction[i].unit() * correction[i].unit();
+        sum += w * correction[i].Correct(value);
+        total += w;
       }
     }
-    if (count == 0) {
+    if (total == 0.0) {
       // Nobody observes the voxel yet (a margin candidate). Start from the frames' values
       // ignoring the mask, so a sample that enters the field of view during the solve
       // meets a plausible intensity instead of 0 (which would make the cost jump).
       for (int i = 0; i < m; ++i) {
         if (!(candidates.observers[v] >> i & 1u)) continue;
-        sum += correction[i].Correct(
-            frames[i].InterpolateValue(frames[i].ToIndex(frame_from_world[i] * p)));
-        ++count;
+        const double w = correction[i].unit() * correction[i].unit();
+        sum += w * correction[i].Correct(
+                       frames[i].InterpolateValue(frames[i].ToIndex(frame_from_world[i] * p)));
+        total += w;
       }
     }
-    intensities_[v] = count > 0 ? sum / count : 0.0;
+    intensities_[v] = total > 0.0 ? sum / total : 0.0;
   });
 
   for (int64_t v = 0; v < n; ++v) {

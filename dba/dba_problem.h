@@ -10,11 +10,13 @@
 // zero residual and zero Jacobian while sigma_ij = 0. Solved by Ceres's Schur solvers with
 // every intensity block in elimination group 0 and the poses in group 1.
 //
-// With photometric parameters (DbaOptions::photometric, issue 21), each frame also has a
-// 2-D block [log_gain, offset] (core/observation.h, Photometric; frame 0 constant, the
-// gauge) beside its pose, in group 1, and
-//   e_ij = M_j - (a_i I_i(p_ij) + b_i),  a_i = exp(log_gain_i),
-//   d e / d delta_i = -a_i J_ij,  d e / d log_gain_i = -a_i I_i(p_ij),  d e / d b_i = -1.
+// With photometric parameters (DbaOptions::photometric), each frame also has a 2-D block
+// [log_gain, offset] (core/photometric.h, Photometric; frame 0 constant, the gauge) beside
+// its pose, in group 1: frame i sees M_j as a_i I_i + b_i, and its residual is in its own
+// grey levels (docs/design.md 2.8), with a_i = exp(log_gain_i) and u_i = 1 / a_i,
+//   e_ij = u_i (M_j - b_i) - I_i(p_ij),
+//   d e / d delta_i = -J_ij,  d e / d M_j = u_i,
+//   d e / d log_gain_i = -u_i (M_j - b_i),  d e / d b_i = -u_i.
 //
 // With a robust loss (DbaOptions::loss, core/robust_loss.h; docs/design.md section 4.7)
 // every residual block gets the matching ceres::LossFunction: the objective becomes

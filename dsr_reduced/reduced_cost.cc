@@ -61,36 +61,51 @@ struct DsrVoxelTerm {
   }
 };
 
-// The DSR term with photometric parameters (docs/design.md section 2.8): the corrected
-// observations c_a = g_a I_a + b_a (g = gain, b = offset of the observing frame), r_a =
-// c_a - mean c, and the wide Jacobians J'_a = [g_a J_a, g_a I_a, 1] in the place of J_a:
-//   d r_a / d x_b = (delta_ab - 1/k) J'_b  (x_b: frame b's pose tangent, log gain, offset),
-//   cost += sum_a r_a^2,  g_b += J'_b^T r_b,  H_ab += (delta_ab - 1/k) J'_a^T J'_b,
-// the same form as DsrVoxelTerm with 8 x 8 blocks, batched by the stream the same way.
+// The DSR term with photometric parameters (docs/design.md section 2.8), residuals in each
+// frame's own grey levels. With the corrected observations c_a = g_a I_a + b_a (g = gain,
+// b = offset of the observing frame) and u_a = 1 / g_a,
+//   mu = sum_a u_a^2 c_a / S,  S = sum_a u_a^2,   r_a = u_a (c_a - mu),
+// and the rows R_a = [J_a, u_a (mu - b_a), u_a] (pose tangent, log gain, offset): the
+// Jacobian of r with the intensity eliminated (DBA's Schur complement at M = mu) is
+//   d r_a / d x_b = (delta_ab - u_a u_b / S) R_b,
+//   cost += sum_a r_a^2,  g_b += R_b^T r_b,  H_ab += (delta_ab - u_a u_b / S) R_a^T R_b,
+// batched by the stream with the projection factors u (core/hessian_batch.h).
 struct DsrPhotometricVoxelTerm {
   static constexpr int kFrameParameters = kWideJacobianSize;
   bool batched_hessian = true;
   bool batched_gradient = true;
   double gain[kMaxFrames];
   double offset[kMaxFrames];
-  HessianWeights Weights(int k) const { return {1.0, -1.0 / k}; }
+  double unit[kMaxFrames];              // 1 / gain
+  const double* projection_factors = unit;
+  HessianWeights Weights(int) const { return {}; }  // not read: projection_factors
+
+  DsrPhotometricVoxelTerm() = default;
+  // `unit` is an array member: a copy must point at its own.
+  DsrPhotometricVoxelTerm(const DsrPhotometricVoxelTerm&) = delete;
+  DsrPhotometricVoxelTerm& operator=(const DsrPhotometricVoxelTerm&) = delete;
 
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
     const int k = obs.k;
     const int* __restrict frame = obs.frame;
     const double* __restrict value = obs.value;
-    double corrected[kMaxFrames];
-    double mean = 0.0;
+    double u[kMaxFrames];
+    double weighted = 0.0, total = 0.0;
     for (int a = 0; a < k; ++a) {
-      corrected[a] = gain[frame[a]] * value[a] + offset[frame[a]];
-      mean += corrected[a];
+      const int f = frame[a];
+      u[a] = unit[f];
+      const double w = u[a] * u[a];
+      weighted += w * (gain[f] * value[a] + offset[f]);
+      total += w;
     }
-    mean /= k;
+    const double mean = weighted / total;
     double local[kMaxFrames];
     double* __restrict residual = obs.residual != nullptr ? obs.residual : local;
     double cost = 0.0;
     for (int a = 0; a < k; ++a) {
-      const double r = corrected[a] - mean;
+      // u (c - mu) = I - u (mu - b): in the frame's grey levels.
+      const double in_frame = u[a] * (mean - offset[frame[a]]);
+      const double r = value[a] - in_frame;
       residual[a] = r;
       cost += r * r;
       acc->frame_cost[frame[a]] += r * r;
@@ -101,10 +116,9 @@ struct DsrPhotometricVoxelTerm {
     if (!with_jacobian) return;
     double (*__restrict wide)[kWideJacobianSize] = obs.wide_jac;
     for (int a = 0; a < k; ++a) {
-      const double g = gain[frame[a]];
-      for (int e = 0; e < kJacobianSize; ++e) wide[a][e] = g * obs.jac[a][e];
-      wide[a][6] = g * value[a];
-      wide[a][7] = 1.0;
+      for (int e = 0; e < kJacobianSize; ++e) wide[a][e] = obs.jac[a][e];
+      wide[a][6] = value[a] - residual[a];  // u (mu - b)
+      wide[a][7] = u[a];
     }
     if (obs.residual != nullptr) return;  // the stream adds g and H
     constexpr int W = kWideJacobianSize;
@@ -115,12 +129,11 @@ struct DsrPhotometricVoxelTerm {
     if (batched_hessian) return;
     // The slow twin: every pair's 8 x 8 block (the diagonal ones whole, above their
     // diagonal is what the stream reads).
-    const double inv_k = 1.0 / k;
     double* h = acc->hessian.data();
     const int n = acc->n;
     for (int a = 0; a < k; ++a) {
       for (int b = a; b < k; ++b) {
-        const double w = (a == b ? 1.0 : 0.0) - inv_k;
+        const double w = (a == b ? 1.0 : 0.0) - u[a] * u[b] / total;
         for (int i = 0; i < W; ++i) {
           double* row = h + static_cast<int64_t>(W * frame[a] + i) * n + W * frame[b];
           for (int j = 0; j < W; ++j) row[j] += w * wide[a][i] * wide[b][j];
@@ -131,11 +144,11 @@ struct DsrPhotometricVoxelTerm {
 };
 
 // The weighted DSR term (robust loss, IRLS; the header's f_w): with observation weights
-// w_a (> 0) of the voxel's valid observations and W = sum_a w_a, the corrected observations
-// c_a (= I_a, or g_a I_a + b_a with photometric parameters) and their rows J'_a (J_a, or the
-// wide [g_a J_a, g_a I_a, 1]),
-//   mu = sum_a w_a c_a / W,  r_a = c_a - mu,  cost += sum_a w_a r_a^2,
-//   g_a += w_a r_a J'_a,     H_ab += (delta_ab w_a - w_a w_b / W) J'_a^T J'_b,
+// w_a (> 0) of the voxel's valid observations, the corrected observations c_a (= I_a, or
+// g_a I_a + b_a with photometric parameters), their units u_a (1, or 1 / g_a) and rows R_a
+// (J_a, or [J_a, u_a (mu - b_a), u_a]), V = sum_a w_a u_a^2,
+//   mu = sum_a w_a u_a^2 c_a / V,  r_a = u_a (c_a - mu),  cost += sum_a w_a r_a^2,
+//   g_a += w_a r_a R_a,            H_ab += (delta_ab w_a - w_a u_a w_b u_b / V) R_a^T R_b,
 // added voxel by voxel (the weights differ per observation, so H has no batched form
 // here). The voxel's weights are found by its candidate index (VoxelObservations::voxel).
 template <int kWidth>
@@ -149,26 +162,31 @@ struct DsrWeightedVoxelTerm {
   const ObservationWeights* weights = nullptr;
   double gain[kMaxFrames];    // kWidth 8 only
   double offset[kMaxFrames];  // kWidth 8 only
+  double unit[kMaxFrames];    // kWidth 8 only: 1 / gain
 
   void operator()(const VoxelObservations& obs, bool with_jacobian, VoxelAccumulator* acc) const {
+    constexpr bool kPhotometric = kWidth == kWideJacobianSize;
     const int k = obs.k;
     const int* __restrict frame = obs.frame;
     const double* __restrict value = obs.value;
     const uint32_t bits = observers[obs.voxel];
     const float* voxel_weights = weights->weight.data() + weights->offset[obs.voxel];
-    double w[kMaxFrames], c[kMaxFrames], r[kMaxFrames];
+    // v[a] = w_a u_a^2, the weight of c_a in the mean (w_a without photometric parameters,
+    // so that the plain numbers are those of the plain weighted mean).
+    double w[kMaxFrames], v[kMaxFrames], c[kMaxFrames], r[kMaxFrames];
     double total = 0.0, sum = 0.0;
     for (int a = 0; a < k; ++a) {
       const int f = frame[a];
       w[a] = voxel_weights[__builtin_popcount(bits & ((1u << f) - 1u))];
-      c[a] = kWidth == kWideJacobianSize ? gain[f] * value[a] + offset[f] : value[a];
-      total += w[a];
-      sum += w[a] * c[a];
+      c[a] = kPhotometric ? gain[f] * value[a] + offset[f] : value[a];
+      v[a] = kPhotometric ? w[a] * unit[f] * unit[f] : w[a];
+      total += v[a];
+      sum += v[a] * c[a];
     }
     const double mean = sum / total;
     double cost = 0.0;
     for (int a = 0; a < k; ++a) {
-      r[a] = c[a] - mean;
+      r[a] = kPhotometric ? value[a] - unit[frame[a]] * (mean - offset[frame[a]]) : c[a] - mean;
       const double share = w[a] * r[a] * r[a];
       cost += share;
       acc->frame_cost[frame[a]] += share;
@@ -178,14 +196,16 @@ struct DsrWeightedVoxelTerm {
     acc->observations += k;
     if (!with_jacobian) return;
     double row[kMaxFrames][kWidth];
+    double wu[kMaxFrames];  // w_a u_a
     for (int a = 0; a < k; ++a) {
-      if (kWidth == kJacobianSize) {
-        for (int e = 0; e < kJacobianSize; ++e) row[a][e] = obs.jac[a][e];
+      for (int e = 0; e < kJacobianSize; ++e) row[a][e] = obs.jac[a][e];
+      if (kPhotometric) {
+        const double u = unit[frame[a]];
+        row[a][kWidth - 2] = value[a] - r[a];  // u (mu - b)
+        row[a][kWidth - 1] = u;
+        wu[a] = w[a] * u;
       } else {
-        const double g = gain[frame[a]];
-        for (int e = 0; e < kJacobianSize; ++e) row[a][e] = g * obs.jac[a][e];
-        row[a][kJacobianSize] = g * value[a];
-        row[a][kJacobianSize + 1] = 1.0;
+        wu[a] = w[a];
       }
     }
     double* __restrict grad = acc->gradient.data();
@@ -199,7 +219,7 @@ struct DsrWeightedVoxelTerm {
     const int n = acc->n;
     for (int a = 0; a < k; ++a) {
       for (int b = a; b < k; ++b) {
-        const double coefficient = (a == b ? w[a] : 0.0) - w[a] * w[b] / total;
+        const double coefficient = (a == b ? w[a] : 0.0) - wu[a] * wu[b] / total;
         for (int i = 0; i < kWidth; ++i) {
           const double si = coefficient * row[a][i];
           double* out = h + static_cast<int64_t>(kWidth * frame[a] + i) * n + kWidth * frame[b];
@@ -210,14 +230,21 @@ struct DsrWeightedVoxelTerm {
   }
 };
 
-// Both reference costs: the residuals r_i = c_i - mean c of one voxel's observers and their
-// Jacobians, with c_i = a_i I_i + b_i from `photometric` ([log_gain, offset] per observer)
-// or c_i = I_i when it is null (then a_i = 1 exactly, so the plain cost is unchanged).
+// Both reference costs: the residuals of one voxel's observers and their Jacobians.
+// Without photometric parameters (`photometric` null) r_i = I_i - mean I, and with
+// `weight` (n entries, > 0) sqrt(w_i) (I_i - sum w I / W), with Jacobians
+// (delta_ia - 1/k) J_a, or sqrt(w_i) (delta_ia - w_a / W) J_a: the same numbers as before
+// photometric parameters existed. With them ([log_gain, offset] per observer), in each
+// frame's grey levels (docs/design.md 2.8): c_i = g_i I_i + b_i, u_i = 1 / g_i,
+// V = sum w u^2 (w = 1 without weights), mu = sum w u^2 c / V,
+//   r_i = sqrt(w_i) u_i (c_i - mu),
+//   d r_i / d x_a = sqrt(w_i) (delta_ia - u_i u_a w_a / V) R_a,  R_a = [J_a, u_a (mu - b_a), u_a],
+// the Jacobian with the intensity eliminated at M = mu: DBA's Schur complement (section 4.3).
+// Where u or w vary it is not the full derivative of r (which also moves mu's weights);
+// it differs from it by the projection onto the voxel's intensity direction, and
+// J^T r is the exact gradient (tests check both against numeric differentiation).
 // `pose_jacobians` / `photometric_jacobians` (either may be null, as may their entries) are
-// n x 7 and n x 2 row-major per observer. With `weight` (n entries, > 0), the weighted
-// residuals sqrt(w_i) (c_i - sum w c / W) and their Jacobians sqrt(w_i) (delta_ia - w_a / W)
-// times a_a J_a and [a_a I_a, 1]; without, the plain ones (the same numbers as before the
-// weights existed).
+// n x 7 and n x 2 row-major per observer.
 void EvaluateVoxel(const std::vector<const Frame*>& observers,
                    const Eigen::Vector3d& voxel_center_in_world,
                    double const* const* poses,
@@ -227,26 +254,28 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
                    double** pose_jacobians,
                    double** photometric_jacobians) {
   const int n = static_cast<int>(observers.size());
-  std::vector<double> value(n, 0.0), corrected(n, 0.0), gain(n, 1.0);
+  std::vector<double> value(n, 0.0), corrected(n, 0.0), unit(n, 1.0), offset(n, 0.0);
   std::vector<RowVector6d> jac(n, RowVector6d::Zero());
   std::vector<int> sigma(n, 0);
   int k = 0;
   double sum = 0.0;
-  double weighted_sum = 0.0, total_weight = 0.0;  // with weights only
+  double weighted_sum = 0.0, total_weight = 0.0;  // with weights or photometric parameters
   for (int i = 0; i < n; ++i) {
     const Photometric correction =
         photometric != nullptr ? Photometric{photometric[i][0], photometric[i][1]} : Photometric();
-    if (photometric != nullptr) gain[i] = correction.gain();
+    if (photometric != nullptr) {
+      unit[i] = correction.unit();
+      offset[i] = correction.offset;
+    }
     if (ObserveSample(*observers[i], ParametersToPose(poses[i]), voxel_center_in_world,
                       &value[i], &jac[i])) {
       sigma[i] = 1;
       ++k;
       corrected[i] = photometric != nullptr ? correction.Correct(value[i]) : value[i];
       sum += corrected[i];
-      if (weight != nullptr) {
-        weighted_sum += weight[i] * corrected[i];
-        total_weight += weight[i];
-      }
+      const double w = (weight != nullptr ? weight[i] : 1.0) * unit[i] * unit[i];
+      weighted_sum += w * corrected[i];
+      total_weight += w;
     }
   }
   for (int a = 0; a < n; ++a) {
@@ -261,40 +290,45 @@ void EvaluateVoxel(const std::vector<const Frame*>& observers,
     std::fill(residuals, residuals + n, 0.0);
     return;
   }
-  const double mean = weight != nullptr ? weighted_sum / total_weight : sum / k;
+  const bool plain = weight == nullptr && photometric == nullptr;
+  const double mean = plain ? sum / k : weighted_sum / total_weight;
+  const auto root_weight = [&](int i) { return weight != nullptr ? std::sqrt(weight[i]) : 1.0; };
   for (int i = 0; i < n; ++i) {
     if (!sigma[i]) {
       residuals[i] = 0.0;
+    } else if (photometric != nullptr) {
+      residuals[i] = root_weight(i) * (value[i] - unit[i] * (mean - offset[i]));
     } else {
-      residuals[i] = weight != nullptr ? std::sqrt(weight[i]) * (corrected[i] - mean)
-                                       : corrected[i] - mean;
+      residuals[i] = root_weight(i) * (corrected[i] - mean);
     }
   }
-  // d r_i / d x_a = sigma_i sigma_a factor(i, a) J'_a: (delta_ia - 1/k), or with weights
-  // sqrt(w_i) (delta_ia - w_a / W).
+  // d r_i / d x_a = sigma_i sigma_a factor(i, a) R_a.
   const auto factor = [&](int i, int a) {
-    if (weight == nullptr) return (i == a ? 1.0 : 0.0) - 1.0 / k;
-    return std::sqrt(weight[i]) * ((i == a ? 1.0 : 0.0) - weight[a] / total_weight);
+    if (plain) return (i == a ? 1.0 : 0.0) - 1.0 / k;
+    const double w_a = weight != nullptr ? weight[a] : 1.0;
+    if (photometric == nullptr) return root_weight(i) * ((i == a ? 1.0 : 0.0) - w_a / total_weight);
+    return root_weight(i) * ((i == a ? 1.0 : 0.0) - unit[i] * unit[a] * w_a / total_weight);
   };
   for (int a = 0; a < n; ++a) {
     if (!sigma[a]) continue;
-    // d r_i / d delta_a = sigma_i sigma_a factor(i, a) a_a J_a, then to the ambient block.
+    // d r_i / d delta_a = sigma_i sigma_a factor(i, a) J_a, then to the ambient block.
     if (pose_jacobians != nullptr && pose_jacobians[a] != nullptr) {
       const Eigen::Matrix<double, 1, kPoseAmbientSize> ambient =
-          gain[a] * jac[a] * TangentToAmbientJacobian(poses[a]);
+          jac[a] * TangentToAmbientJacobian(poses[a]);
       Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
           pose_jacobians[a], n, kPoseAmbientSize);
       for (int i = 0; i < n; ++i) {
         if (sigma[i]) out.row(i) = factor(i, a) * ambient;
       }
     }
-    // d r_i / d [log_gain_a, b_a] = sigma_i sigma_a factor(i, a) [a_a I_a, 1].
+    // d r_i / d [log_gain_a, b_a] = sigma_i sigma_a factor(i, a) [u_a (mu - b_a), u_a].
     if (photometric_jacobians != nullptr && photometric_jacobians[a] != nullptr) {
+      const double in_frame = unit[a] * (mean - offset[a]);
       for (int i = 0; i < n; ++i) {
         if (!sigma[i]) continue;
-        const double w = factor(i, a);
-        photometric_jacobians[a][2 * i] = w * gain[a] * value[a];
-        photometric_jacobians[a][2 * i + 1] = w;
+        const double f = factor(i, a);
+        photometric_jacobians[a][2 * i] = f * in_frame;
+        photometric_jacobians[a][2 * i + 1] = f * unit[a];
       }
     }
   }
@@ -391,6 +425,7 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
   for (size_t i = 0; i < photometric.size(); ++i) {
     term.gain[i] = photometric[i].gain();
     term.offset[i] = photometric[i].offset;
+    term.unit[i] = photometric[i].unit();
   }
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
                         num_threads, term, out);
@@ -423,6 +458,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
   for (size_t i = 0; i < photometric.size(); ++i) {
     term.gain[i] = photometric[i].gain();
     term.offset[i] = photometric[i].offset;
+    term.unit[i] = photometric[i].unit();
   }
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
                         num_threads, term, out);
@@ -441,10 +477,11 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
   CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
   CHECK_EQ(static_cast<int64_t>(weights->offset.size()), candidates.num_voxels() + 1)
       << "weights built for another candidate set";
-  double gain[kMaxFrames], offset[kMaxFrames];
+  double gain[kMaxFrames], offset[kMaxFrames], unit[kMaxFrames];
   for (int i = 0; i < m; ++i) {
     gain[i] = photometric.empty() ? 1.0 : photometric[i].gain();
     offset[i] = photometric.empty() ? 0.0 : photometric[i].offset;
+    unit[i] = photometric.empty() ? 1.0 : photometric[i].unit();
   }
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
   // Fixed blocks summed in order, as in StreamNormalEquations: identical for any thread
@@ -477,15 +514,18 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
         const int first = batch->begin[t], k = batch->begin[t + 1] - first;
         const uint32_t bits = candidates.observers[voxel];
         float* slots = w_all + offsets[voxel];
-        double c[kMaxFrames], w[kMaxFrames], old[kMaxFrames];
+        double c[kMaxFrames], w[kMaxFrames], old[kMaxFrames], u[kMaxFrames];
         int slot[kMaxFrames];
         for (int a = 0; a < k; ++a) {
           const int f = batch->frame[first + a];
           slot[a] = __builtin_popcount(bits & ((1u << f) - 1u));
           c[a] = gain[f] * batch->value[first + a] + offset[f];
+          u[a] = unit[f];
           old[a] = w[a] = slots[slot[a]];
         }
-        RobustLocation(loss, c, k, w, kLocationIterations);
+        // Residuals in each frame's grey levels (docs/design.md 2.8): units u = 1 / gain.
+        const double* units = photometric.empty() ? nullptr : u;
+        RobustLocation(loss, c, k, w, kLocationIterations, units);
         // Candidate observers that do not observe the voxel now: weight 1.
         uint32_t valid_slots = 0;
         for (int a = 0; a < k; ++a) valid_slots |= 1u << slot[a];
@@ -502,11 +542,15 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
           const float stored = std::max(FLT_MIN, static_cast<float>(w[a]));
           slots[slot[a]] = stored;
           out.max_weight_change = std::max(out.max_weight_change, std::abs(stored - old[a]));
-          total += stored;
-          sum += stored * c[a];
+          const double v = units != nullptr ? stored * u[a] * u[a] : stored;
+          total += v;
+          sum += v * c[a];
         }
         const double mean = sum / total;
-        for (int a = 0; a < k; ++a) out.robust_cost += loss.Rho((c[a] - mean) * (c[a] - mean));
+        for (int a = 0; a < k; ++a) {
+          const double r = units != nullptr ? u[a] * (c[a] - mean) : c[a] - mean;
+          out.robust_cost += loss.Rho(r * r);
+        }
         out.observations += k;
       }
       reset(done, next);

@@ -17,17 +17,23 @@
 //    of H_c plus one extra residual sqrt(f_c - |r'|^2) with a zero Jacobian row), so the
 //    Gauss-Newton/LM model equals the uncompressed one. Nothing per observation is stored.
 //
+// With photometric parameters (docs/design.md section 2.8) frame i's observation is
+// corrected to c_ij = g_i I_i(p_ij) + b_i and its residual is in its own grey levels,
+// r_ij = u_i (c_ij - mu_j) with u_i = 1 / g_i and mu_j = sum_i u_i^2 c_ij / sum_i u_i^2.
+//
 // With a robust loss (docs/design.md section 4.7) DSR solves by iteratively reweighted
 // least squares: weights w_ij, fixed during one solve (ObservationWeights), give the
 // weighted reduced cost
-//     f_w(T) = sum_j sum_i w_ij (c_ij - mu_j)^2,   mu_j = sum_i w_ij c_ij / W_j,  W_j = sum_i w_ij
-// (c_ij the observation, corrected by gain and offset with photometric parameters), with
-// r~_ij = sqrt(w_ij) (c_ij - mu_j) and, J'_a the observation Jacobian (wide with
-// photometric parameters),
-//     d r~_i / d x_a = sqrt(w_i) (delta_ia - w_a / W) J'_a,
-//     H_ab = (delta_ab w_a - w_a w_b / W) J'_a^T J'_b,   g_a = w_a r_a J'_a.
-// Both costs have a weighted variant: the per-voxel reference with the voxel's weights,
-// and the chunk cost with the weights of the whole candidate set.
+//     f_w(T) = sum_j sum_i w_ij u_i^2 (c_ij - mu_j)^2,   mu_j = sum_i w_ij u_i^2 c_ij / V_j,
+//     V_j = sum_i w_ij u_i^2
+// (u_i = 1 and c_ij = I_i(p_ij) without photometric parameters), with
+// r~_ij = sqrt(w_ij) u_i (c_ij - mu_j) and, R_a the observation's row (J_a, or with
+// photometric parameters [J_a, u_a (mu - b_a), u_a]),
+//     d r~_i / d x_a = sqrt(w_i) (delta_ia - u_i u_a w_a / V) R_a,
+//     H_ab = (delta_ab w_a - w_a u_a w_b u_b / V) R_a^T R_b,   g_a = w_a r_a R_a,
+// r_a = u_a (c_a - mu) (the Jacobian with the intensity eliminated at M = mu, DBA's Schur
+// complement). Both costs have a weighted variant: the per-voxel reference with the
+// voxel's weights, and the chunk cost with the weights of the whole candidate set.
 #ifndef DSR_DSR_REDUCED_REDUCED_COST_H_
 #define DSR_DSR_REDUCED_REDUCED_COST_H_
 
@@ -80,12 +86,16 @@ class VoxelReducedCost final : public ceres::CostFunction {
   std::vector<double> weights_;
 };
 
-// The reference with photometric parameters (docs/design.md section 2.8): residuals
-// r_ij = c_i - mean_a c_a over the voxel's observers, c_i = a_i I_i(p_ij) + b_i, with
-// a_i = exp(log_gain_i). Parameter blocks: the observers' poses (7 ambient each), then
-// their [log_gain, offset] blocks (2 each), both in increasing frame order.
-//   d r_i / d delta_a = (delta_ia - 1/k) a_a J_a,
-//   d r_i / d [log_gain_a, b_a] = (delta_ia - 1/k) [a_a I_a, 1].
+// The reference with photometric parameters (docs/design.md section 2.8): residuals in
+// each observer's grey levels, r_i = u_i (c_i - mu) with c_i = a_i I_i(p_ij) + b_i,
+// a_i = exp(log_gain_i), u_i = 1 / a_i and mu = sum u^2 c / S, S = sum u^2 over the voxel's
+// observers. Parameter blocks: the observers' poses (7 ambient each), then their
+// [log_gain, offset] blocks (2 each), both in increasing frame order. The Jacobian is the
+// one with the intensity eliminated at M = mu (DBA's Schur complement):
+//   d r_i / d delta_a = (delta_ia - u_i u_a / S) J_a,
+//   d r_i / d [log_gain_a, b_a] = (delta_ia - u_i u_a / S) [u_a (mu - b_a), u_a];
+// it is the full derivative of r projected off the direction u (r's own derivative also
+// moves mu's weights), so J^T r is the exact gradient of |r|^2 / 2.
 // With `weights` (one per observer, > 0; empty: unweighted), the weighted residuals.
 class VoxelReducedPhotometricCost final : public ceres::CostFunction {
  public:

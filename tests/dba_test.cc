@@ -96,14 +96,15 @@ TEST(DbaPhotometricResidual, AnalyticJacobianMatchesNumeric) {
   const double* parameters[] = {x, &intensity, photometric};
   ceres::GradientChecker::ProbeResults results;
   EXPECT_TRUE(checker.Probe(parameters, kGradientCheckPrecision, &results)) << results.error_log;
-  // The value itself: M - (gain I + offset), against the plain residual's M - I.
+  // The value itself, in the frame's grey levels: (M - offset) / gain - I, against the
+  // plain residual's M - I.
   DbaResidual plain(&frame, p);
   const double* plain_parameters[] = {x, &intensity};
   double r_plain, r;
   ASSERT_TRUE(plain.Evaluate(plain_parameters, &r_plain, nullptr));
   ASSERT_TRUE(residual.Evaluate(parameters, &r, nullptr));
   const double sample = intensity - r_plain;
-  EXPECT_NEAR(r, intensity - (std::exp(0.2) * sample - 3.0), 1e-9);
+  EXPECT_NEAR(r, (intensity + 3.0) / std::exp(0.2) - sample, 1e-9);
 }
 
 TEST(DbaResidual, UnobservedSampleHasZeroResidualAndJacobian) {

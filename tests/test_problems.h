@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <ceres/ceres.h>
+#include <ceres/gradient_checker.h>
 #include <Eigen/Geometry>
 
 #include "core/frame.h"
@@ -258,6 +259,47 @@ inline Frame LinearRampFrame(double base) {
         image.at(i, j, k) =
             static_cast<float>(slope.dot(g.IndexToPhysical(Eigen::Vector3d(i, j, k))) + base);
   return Frame(image, Mask(g, 1));
+}
+
+// Checks a reduced cost whose Jacobian is the one with the voxel's intensity eliminated
+// (DBA's Schur complement at M = mu; docs/design.md 2.8) against Ceres's numeric
+// derivatives at `parameters`: that Jacobian is the full derivative of the residuals
+// projected off `direction` (the voxel's intensity column, one entry per residual), and
+// its J^T r is the exact gradient of |r|^2 / 2. Both within `relative_tolerance` of the
+// numeric values' norms. All blocks, in tangent coordinates (`manifolds` as for
+// ceres::GradientChecker).
+inline void ExpectEliminatedJacobianMatchesNumeric(
+    const ceres::CostFunction& cost,
+    const std::vector<const ceres::Manifold*>& manifolds,
+    const double* const* parameters,
+    const Eigen::VectorXd& direction,
+    double relative_tolerance) {
+  ceres::NumericDiffOptions numeric_options;
+  ceres::GradientChecker checker(&cost, &manifolds, numeric_options);
+  ceres::GradientChecker::ProbeResults results;
+  // The probe's own verdict compares with the full derivative: not this check.
+  checker.Probe(parameters, 1.0, &results);
+  ASSERT_TRUE(results.return_value);
+  const int rows = static_cast<int>(results.residuals.size());
+  ASSERT_EQ(direction.size(), rows);
+  int cols = 0;
+  for (const auto& block : results.local_jacobians) cols += static_cast<int>(block.cols());
+  Eigen::MatrixXd analytic(rows, cols), numeric(rows, cols);
+  for (size_t b = 0, c = 0; b < results.local_jacobians.size(); ++b) {
+    const int w = static_cast<int>(results.local_jacobians[b].cols());
+    analytic.middleCols(c, w) = results.local_jacobians[b];
+    numeric.middleCols(c, w) = results.local_numeric_jacobians[b];
+    c += w;
+  }
+  const Eigen::VectorXd d = direction / direction.norm();
+  const Eigen::MatrixXd projected = numeric - d * (d.transpose() * numeric);
+  EXPECT_LT((analytic - projected).norm(), relative_tolerance * numeric.norm())
+      << "analytic\n" << analytic << "\nprojected numeric\n" << projected;
+  const Eigen::VectorXd gradient = numeric.transpose() * results.residuals;
+  EXPECT_LT((analytic.transpose() * results.residuals - gradient).norm(),
+            relative_tolerance * gradient.norm());
+  // The projection matters here: the check is not the plain one in disguise.
+  EXPECT_GT((projected - numeric).norm(), 10.0 * relative_tolerance * numeric.norm());
 }
 
 }  // namespace testing_problems
