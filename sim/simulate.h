@@ -67,14 +67,19 @@
 //          (a gamma distribution with L looks), intensity autocorrelation
 //          |sum_t w_t w_t+d|^2 at a lag of d voxels along an axis (w the 1-D kernel, unit
 //          squared sum), which is exp(-d^2 / (2 c^2)) to 1e-3 for c >= 1. Drawn per frame
-//          on the frame grid: it follows the probe, not the tissue;
+//          on the frame grid, it follows the probe, not the tissue, unless
+//          speckle_world_fraction rho > 0 (SpeckleFields): then each look's complex field is
+//            z_l(x) = sqrt(rho) zW_l(world_from_frame_i x) + sqrt(1 - rho) z_i,l(x),
+//          z_i,l the per-frame field above (the same draws) and zW_l one world-fixed field per
+//          look, shared by all frames (scatterers fixed in the tissue), so at one world
+//          point two frames' speckle intensities correlate by about rho^2;
 //   g_i  = 1 + gain_range u, o_i = offset_range u' (u, u' uniform in [-1, 1)): the frame's
 //          gain and offset (SimulatedSequence::gain/offset).
 // Outside the field of view the voxels stay 0. The effects' draws come from their own
 // generators, std::mt19937_64 seeded by a 64-bit mix of (seed, a constant per effect,
-// frame index[, look, padded slice]), never from the poses-and-noise generator, so the
-// poses and the noise draws are the same with the effects on or off, and the speckle does
-// not depend on the thread count.
+// frame index[, look, padded slice]; the world speckle: look, padded slice of the world
+// grid), never from the poses-and-noise generator, so the poses and the noise draws are the
+// same with the effects on or off, and the speckle does not depend on the thread count.
 //
 // Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
@@ -147,6 +152,10 @@ struct SimulationOptions {
   // Standard deviation (frame voxels) of the Gaussian that correlates each look's complex
   // field, in [0, 4]; 0: independent voxels.
   double speckle_correlation_voxels = 1.0;
+  // Fraction rho of each look's complex speckle field that is fixed in the world (the
+  // tissue) rather than drawn per frame, in [0, 1]; > 0 needs speckle_looks >= 1. 0: every
+  // frame's speckle is its own (bit for bit the simulator before this option).
+  double speckle_world_fraction = 0.0;
   double attenuation_db_per_cm = 0.0;  // depth attenuation from the apex, dB/cm, in [0, 10]
 
   // Checks ranges and cross-field rules. The message names the dsr_simulate flag
@@ -194,11 +203,51 @@ void Frame0IntensityCorrections(const std::vector<double>& gain,
 // Frame `frame_index`'s multiplicative speckle on `frame` (the frame grid, see the header
 // comment): mean 1, variance 1 / speckle_looks, correlated over about
 // speckle_correlation_voxels. Bit-identical for every num_threads (<= 0: all hardware
-// threads). options must be valid with speckle_looks >= 1.
+// threads). options must be valid with speckle_looks >= 1 and speckle_world_fraction 0
+// (a world-fixed part depends on every frame's pose: SpeckleFields).
 Image SpeckleField(const ImageGeometry& frame,
                    const SimulationOptions& options,
                    int frame_index,
                    int num_threads);
+
+// The axis-aligned world grid that carries the world-fixed speckle of the frames at
+// `frame_from_world` (frame i at frame_from_world[i], all on the grid `frame`, whose
+// spacing must be isotropic): identity direction, the frames' spacing s, the lattice of
+// world points n s (n integer), and the smallest such box that holds every frame's
+// field-of-view voxel centres (PyramidFieldOfView of `frame`), so that trilinear sampling
+// inside the fields of view never leaves it. options must be valid; frame_from_world
+// non-empty.
+ImageGeometry SpeckleWorldGrid(const ImageGeometry& frame,
+                               const std::vector<Eigen::Isometry3d>& frame_from_world,
+                               const SimulationOptions& options);
+
+// Every frame's multiplicative speckle (frame i at frame_from_world[i], on the grid
+// `frame`), as Simulate applies it. With speckle_world_fraction rho = 0 frame i's field is
+// exactly SpeckleField(frame, options, i, ...). With rho > 0, per look l and frame voxel x
+// of frame i, the complex field is
+//   z_l(x) = sqrt(rho) zW_l(p) / sqrt(V(p)) + sqrt(1 - rho) z_i,l(x),
+//   p = world_from_frame_i x, as an index of SpeckleWorldGrid,
+// with z_i,l SpeckleField's per-frame field (the same draws) and zW_l the trilinear
+// interpolant of one white circular complex Gaussian field per look, drawn on the world
+// grid padded by the kernel radius and smoothed with SpeckleField's separable kernel w
+// (c in world voxels = frame voxels). The smoothed field's correlation is separable, with
+// r1 = sum_d w_d w_d+1 at one grid step along an axis, so trilinear weights (1 - t, t)
+// give the interpolant the variance factor
+//   V(p) = prod over the 3 axes of ((1 - t)^2 + t^2 + 2 t (1 - t) r1)
+// exactly (c = 0: r1 = 0); dividing by its root keeps z_l circular complex Gaussian with
+// today's E|z_l|^2 at every voxel. So the speckle s = mean over looks of |z_l|^2 / E|z|^2
+// still has mean 1 and variance 1 / speckle_looks, and two frames' s at one world point
+// correlate by rho^2 (the intensity correlation of a complex correlation rho). With rho > 0
+// the fields are 1 outside the field of view (PyramidFieldOfView of `frame`), where
+// Simulate writes 0 anyway: sampling the world field is most of the cost. The world field
+// depends on the grid, i.e. on all the poses passed. Memory: one look's world field
+// (16 bytes per padded world voxel) at a time, plus the returned fields.
+// Bit-identical for every num_threads (<= 0: all hardware threads). options must be valid
+// with speckle_looks >= 1; frame_from_world non-empty.
+std::vector<Image> SpeckleFields(const ImageGeometry& frame,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const SimulationOptions& options,
+                                 int num_threads);
 
 // Runs the protocol. Returns false with a one-line `error` when options are invalid, the
 // source is empty or has an invalid grid, the (eroded) mask is empty, or a

@@ -219,6 +219,32 @@ TEST_F(DsrSimulateCli, EffectsReachTheSimulatorAndGainsAndOffsetsGoToTheGroundTr
   EXPECT_EQ(poses.gain.size(), 3u);
   EXPECT_EQ(poses.offset, std::vector<double>(3, 0.0));
 
+  // The world fraction reaches the library (the frames are its frames) and the log.
+  const fs::path world = dir_ / "world";
+  const ToolRun world_run = Simulate("--out_dir=" + world.string() + " " + Tiny() +
+                                     " --sigma=0 --write_source --seed=4 --speckle_looks=2 "
+                                     "--speckle_world_fraction=0.5 --v=1");
+  ASSERT_EQ(world_run.exit_code, 0) << world_run.err;
+  EXPECT_NE(world_run.err.find("--speckle_world_fraction=0.5"), std::string::npos)
+      << "flags are logged at --v=1";
+  ASSERT_TRUE(ReadImage((world / "source.nii.gz").string(), &source, &error)) << error;
+  SimulationOptions w = TinyOptions();
+  w.seed = 4;
+  w.speckle_looks = 2;
+  w.speckle_world_fraction = 0.5;
+  SimulatedSequence world_expected;
+  ASSERT_TRUE(dsr::Simulate(source, w, &world_expected, &error)) << error;
+  w.speckle_world_fraction = 0.0;
+  SimulatedSequence frame_only;
+  ASSERT_TRUE(dsr::Simulate(source, w, &frame_only, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    const std::string name = "frame_0" + std::to_string(f) + ".nii.gz";
+    Image frame;
+    ASSERT_TRUE(ReadImage((world / name).string(), &frame, &error)) << error;
+    EXPECT_EQ(frame.voxels, world_expected.frames[f].voxels) << name;
+    EXPECT_NE(frame.voxels, frame_only.frames[f].voxels) << name;
+  }
+
   // Speckle and attenuation alone change no intensity scale: no such fields.
   const fs::path speckle_only = dir_ / "speckle_only";
   ASSERT_EQ(Simulate("--out_dir=" + speckle_only.string() + " " + Tiny() +
@@ -262,6 +288,14 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
       {"--speckle_looks=-1" + out, "--speckle_looks=-1: must be 0 (no speckle) or in [1, 64]"},
       {"--speckle_correlation_voxels=5" + out,
        "--speckle_correlation_voxels=5: must be in [0, 4]"},
+      {"--speckle_world_fraction=1.5 --speckle_looks=2" + out,
+       "--speckle_world_fraction=1.5: must be in [0, 1]"},
+      {"--speckle_world_fraction=-0.2 --speckle_looks=2" + out,
+       "--speckle_world_fraction=-0.2: must be in [0, 1]"},
+      {"--speckle_world_fraction=nan --speckle_looks=2" + out,
+       "--speckle_world_fraction=nan: must be in [0, 1]"},
+      {"--speckle_world_fraction=0.5" + out,
+       "--speckle_world_fraction=0.5: needs speckle (--speckle_looks >= 1), which is off"},
       {"--attenuation_db_per_cm=11" + out, "--attenuation_db_per_cm=11: must be in [0, 10]"},
       {"--attenuation_db_per_cm=nan" + out, "--attenuation_db_per_cm=nan: must be in [0, 10]"},
       {"--num_frames=abc" + out, "num_frames"},
@@ -334,6 +368,7 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "offset_range",
                              "speckle_looks",
                              "speckle_correlation_voxels",
+                             "speckle_world_fraction",
                              "attenuation_db_per_cm",
                              "write_source"}) {
       EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)

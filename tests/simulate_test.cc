@@ -3,7 +3,8 @@
 // motions fit the default phantom, noise statistics, the field of view and its mask,
 // option validation; the cubic source interpolation (CubicInterpolateValue) and the
 // default linear frames staying bit-identical; the ultrasound-like effects (gain, offset,
-// speckle, attenuation) and their ground truth.
+// speckle, attenuation) and their ground truth; the world-fixed part of the speckle
+// (speckle_world_fraction): its statistics, its sharing between frames, its determinism.
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -922,6 +923,14 @@ TEST(Simulate, ValidateRejectsNonsense) {
        "--speckle_correlation_voxels=4.5: must be in [0, 4]"},
       {[](SimulationOptions* o) { o->speckle_correlation_voxels = -1.0; },
        "--speckle_correlation_voxels=-1"},
+      {[](SimulationOptions* o) { o->speckle_world_fraction = 1.5; },
+       "--speckle_world_fraction=1.5: must be in [0, 1]"},
+      {[](SimulationOptions* o) { o->speckle_world_fraction = -0.1; },
+       "--speckle_world_fraction=-0.1: must be in [0, 1]"},
+      {[](SimulationOptions* o) { o->speckle_world_fraction = std::nan(""); },
+       "--speckle_world_fraction=nan"},
+      {[](SimulationOptions* o) { o->speckle_world_fraction = 0.5; },  // no speckle
+       "--speckle_world_fraction=0.5: needs speckle (--speckle_looks >= 1)"},
       {[](SimulationOptions* o) { o->attenuation_db_per_cm = 11.0; },
        "--attenuation_db_per_cm=11: must be in [0, 10]"},
       {[](SimulationOptions* o) { o->attenuation_db_per_cm = INFINITY; },
@@ -1287,6 +1296,354 @@ TEST(SimulateEffects, AllEffectsTogetherAreDeterministicAndInTheirOrder) {
           << "frame " << f << " voxel " << v;
     }
   }
+}
+
+// --- World-fixed speckle (SimulationOptions::speckle_world_fraction, SpeckleFields) ---
+
+// The world-speckle tests' frames on a 64^3 grid with a wide pyramid (150 degrees, from
+// depth 0), so that most voxels are in the field of view: frame 0 rotated by 3 degrees and
+// shifted by a fraction of a voxel, frame 1 rotated by a further 5 degrees about another
+// axis through the grid's centre and shifted by (3, -2, 4.4) voxels. Neither grid is
+// aligned with the world lattice, so their voxels sample the world field at every
+// sub-voxel offset (the variance normalisation matters everywhere).
+ImageGeometry WorldSpeckleGrid() {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(64, 64, 64);
+  return g;
+}
+SimulationOptions WorldSpeckleOptions(int looks, double world_fraction) {
+  SimulationOptions o;
+  o.azimuth_deg = 150.0;
+  o.elevation_deg = 150.0;
+  o.min_depth_voxels = 0.0;
+  o.speckle_looks = looks;
+  o.speckle_world_fraction = world_fraction;
+  return o;
+}
+std::vector<Eigen::Isometry3d> WorldSpecklePoses(const ImageGeometry& g) {
+  const Eigen::Vector3d center =
+      g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
+  const auto about_center = [&](double degrees,
+                                const Eigen::Vector3d& axis,
+                                const Eigen::Vector3d& shift_voxels) {
+    return Eigen::Isometry3d(Eigen::Translation3d(center + shift_voxels) *
+                             Eigen::AngleAxisd(degrees * M_PI / 180.0, axis.normalized()) *
+                             Eigen::Translation3d(-center));
+  };
+  const Eigen::Isometry3d world_from_frame0 =
+      about_center(3.0, Eigen::Vector3d(1.0, 2.0, 0.5), Eigen::Vector3d(0.3, -0.45, 0.2));
+  const Eigen::Isometry3d world_from_frame1 =
+      about_center(5.0, Eigen::Vector3d(-0.5, 1.0, 1.5), Eigen::Vector3d(3.0, -2.0, 4.4)) *
+      world_from_frame0;
+  return {world_from_frame0.inverse(), world_from_frame1.inverse()};
+}
+
+// Mean and variance of `field` over the voxels of `mask`.
+FieldStatistics MaskedStatistics(const Image& field, const Mask& mask) {
+  double sum = 0.0, sum2 = 0.0;
+  int64_t count = 0;
+  for (size_t v = 0; v < field.voxels.size(); ++v) {
+    if (!mask.voxels[v]) continue;
+    sum += field.voxels[v];
+    sum2 += double{field.voxels[v]} * field.voxels[v];
+    ++count;
+  }
+  FieldStatistics st;
+  st.mean = sum / count;
+  st.variance = sum2 / count - st.mean * st.mean;
+  return st;
+}
+
+// The correlation of two frames' speckle at the world points both observe: each
+// field-of-view voxel of frame 0 is paired with the field-of-view voxel of frame 1 nearest
+// to its world point (up to half a voxel per axis away). `all` is over every pair, `close`
+// over the pairs at most kClosePairVoxels apart, which see nearly one world point.
+constexpr double kClosePairVoxels = 0.25;
+struct CrossFrame {
+  double all = 0.0, close = 0.0;
+  int64_t all_pairs = 0, close_pairs = 0;
+};
+CrossFrame CrossFrameCorrelation(const std::vector<Image>& fields,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const Mask& fov) {
+  const ImageGeometry& g = fields[0].geometry;
+  const Eigen::Isometry3d frame1_from_frame0 = frame_from_world[1] * frame_from_world[0].inverse();
+  struct Sums {
+    double a = 0.0, b = 0.0, aa = 0.0, bb = 0.0, ab = 0.0;
+    int64_t count = 0;
+    void Add(double x, double y) {
+      a += x;
+      b += y;
+      aa += x * x;
+      bb += y * y;
+      ab += x * y;
+      ++count;
+    }
+    double Correlation() const {
+      const double ma = a / count, mb = b / count;
+      return (ab / count - ma * mb) / std::sqrt((aa / count - ma * ma) * (bb / count - mb * mb));
+    }
+  } all, close;
+  for (int k = 0; k < g.size[2]; ++k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        if (!fov.at(i, j, k)) continue;
+        const Eigen::Vector3d y =
+            g.PhysicalToIndex(frame1_from_frame0 * g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
+        const Eigen::Vector3d nearest = y.array().round();
+        if ((nearest.array() < 0.0).any() ||
+            (nearest.array() > g.size.cast<double>().array() - 1.0).any()) {
+          continue;
+        }
+        const Eigen::Vector3i n = nearest.cast<int>();
+        if (!fov.at(n[0], n[1], n[2])) continue;
+        const double a = fields[0].at(i, j, k), b = fields[1].at(n[0], n[1], n[2]);
+        all.Add(a, b);
+        if ((y - nearest).norm() <= kClosePairVoxels) close.Add(a, b);
+      }
+    }
+  }
+  CrossFrame c;
+  c.all = all.Correlation();
+  c.close = close.Correlation();
+  c.all_pairs = all.count;
+  c.close_pairs = close.count;
+  return c;
+}
+
+// Checksums (FramesChecksum) of SmallOptions() with sigma 25 and every effect on
+// (WorldFractionChecksumOptions) on SmallSource(1 mm), recorded with the simulator before
+// speckle_world_fraction existed: at 0 the speckle must stay bit-identical. Same caveat as
+// DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption (one compiler and library).
+SimulationOptions WorldFractionChecksumOptions(int looks, double correlation_voxels) {
+  SimulationOptions o = SmallOptions();
+  o.noise_sigma = 25.0;
+  o.gain_range = 0.3;
+  o.offset_range = 20.0;
+  o.attenuation_db_per_cm = 3.0;
+  o.speckle_looks = looks;
+  o.speckle_correlation_voxels = correlation_voxels;
+  return o;
+}
+
+TEST(SimulateWorldSpeckle, ZeroWorldFractionIsBitIdenticalToBefore) {
+  struct Recorded {
+    int looks;
+    double correlation_voxels;
+    uint64_t checksum;
+  };
+  const Recorded recorded[] = {
+      {1, 1.0, 0x301a69dc9d439906ull},
+      {3, 0.0, 0x0f9a2c550127fe62ull},
+      {3, 2.5, 0x55d99b415aee51d8ull},
+  };
+  const Image source = SmallSource(Eigen::Vector3d::Ones());
+  for (const Recorded& r : recorded) {
+    SimulationOptions o = WorldFractionChecksumOptions(r.looks, r.correlation_voxels);
+    ASSERT_EQ(o.speckle_world_fraction, 0.0);  // the default
+    SimulatedSequence s;
+    std::string error;
+    ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
+    EXPECT_EQ(FramesChecksum(s), r.checksum)
+        << r.looks << " looks, correlation " << r.correlation_voxels;
+  }
+  // SpeckleFields at 0 is SpeckleField frame by frame.
+  const ImageGeometry g = WorldSpeckleGrid();
+  const SimulationOptions o = WorldSpeckleOptions(2, 0.0);
+  const std::vector<Image> fields = SpeckleFields(g, WorldSpecklePoses(g), o, 0);
+  ASSERT_EQ(fields.size(), 2u);
+  for (int f = 0; f < 2; ++f) EXPECT_EQ(fields[f].voxels, SpeckleField(g, o, f, 0).voxels) << f;
+}
+
+TEST(SimulateWorldSpeckle, WorldGridCoversEveryFieldOfViewOnTheWorldLattice) {
+  const ImageGeometry g = WorldSpeckleGrid();
+  const std::vector<Eigen::Isometry3d> poses = WorldSpecklePoses(g);
+  for (const SimulationOptions& o : {WorldSpeckleOptions(1, 0.5), SmallOptions()}) {
+    const ImageGeometry world = SpeckleWorldGrid(g, poses, o);
+    EXPECT_TRUE(world.direction.isIdentity());
+    EXPECT_EQ(world.spacing_mm, g.spacing_mm);
+    const Mask fov = PyramidFieldOfView(g, o);
+    // The continuous world-grid indices of the voxel centres: inside [0, size - 1], and the
+    // box is the smallest on the lattice (each face less than one voxel past a centre).
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e9), hi = -lo;
+    for (const Eigen::Isometry3d& frame_from_world : poses) {
+      for (int k = 0; k < g.size[2]; ++k) {
+        for (int j = 0; j < g.size[1]; ++j) {
+          for (int i = 0; i < g.size[0]; ++i) {
+            if (!fov.at(i, j, k)) continue;
+            const Eigen::Vector3d u = world.PhysicalToIndex(
+                frame_from_world.inverse() * g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
+            lo = lo.cwiseMin(u);
+            hi = hi.cwiseMax(u);
+          }
+        }
+      }
+    }
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_NEAR(world.origin_mm[a] / world.spacing_mm[a],
+                  std::round(world.origin_mm[a] / world.spacing_mm[a]),
+                  1e-9)
+          << "on the lattice, axis " << a;
+      EXPECT_GE(lo[a], -1e-9) << a;
+      EXPECT_LT(lo[a], 1.0) << a;
+      EXPECT_LE(hi[a], world.size[a] - 1 + 1e-9) << a;
+      EXPECT_GT(hi[a], world.size[a] - 2.0) << a;
+    }
+  }
+}
+
+TEST(SimulateWorldSpeckle, KeepsMeanOneAndVarianceOneOverLooks) {
+  // Over the ~237000 field-of-view voxels of frame 1 (rotated against the world lattice):
+  // as SpeckleHasMeanOneVarianceOneOverLooksAndItsCorrelation, about 15000 independent
+  // values at c = 1, so standard errors about 0.8% of the mean and 2% of the variance
+  // with one look, less with four and at c = 0. Without the per-sample normalisation the
+  // world part's mean would be E[V] = (2/3 + r1/3)^3: 0.80 at c = 1, 0.30 at c = 0.
+  constexpr double kMeanTolerance = 0.03;
+  constexpr double kRelativeVarianceTolerance = 0.1;
+  const ImageGeometry g = WorldSpeckleGrid();
+  const std::vector<Eigen::Isometry3d> poses = WorldSpecklePoses(g);
+  for (double c : {1.0, 0.0}) {
+    for (int looks : {1, 4}) {
+      for (double rho : {0.5, 1.0}) {
+        SimulationOptions o = WorldSpeckleOptions(looks, rho);
+        o.speckle_correlation_voxels = c;
+        const Mask fov = PyramidFieldOfView(g, o);
+        ASSERT_GT(CountInside(fov), 200000);
+        const std::vector<Image> fields = SpeckleFields(g, poses, o, 0);
+        ASSERT_EQ(fields.size(), 2u);
+        for (int f = 0; f < 2; ++f) {
+          EXPECT_GE(*std::min_element(fields[f].voxels.begin(), fields[f].voxels.end()), 0.0f);
+          const FieldStatistics st = MaskedStatistics(fields[f], fov);
+          EXPECT_NEAR(st.mean, 1.0, kMeanTolerance)
+              << "c " << c << ", " << looks << " looks, rho " << rho << ", frame " << f;
+          EXPECT_NEAR(st.variance * looks, 1.0, kRelativeVarianceTolerance)
+              << "c " << c << ", " << looks << " looks, rho " << rho << ", frame " << f;
+        }
+      }
+    }
+  }
+}
+
+TEST(SimulateWorldSpeckle, FramesShareTheSquareOfTheWorldFraction) {
+  // Frames 0 and 1 of WorldSpecklePoses: 5 degrees and about 5.7 voxels apart. At one world
+  // point the intensities of one look correlate by |rho k|^2, k the world part's complex
+  // correlation between the two sample points (1 at one point), whatever the looks.
+  // Close pairs (<= 0.25 voxel apart, ~12900 pairs): k^2 >= exp(-0.25^2 / 2) = 0.97 at
+  // c = 1. Over seeds 1-10 with 4 looks the close correlation was 0.983-0.985 at rho = 1,
+  // 0.228-0.279 at 0.5 and -0.009-0.033 at 0 (standard deviation 0.016: the pairs come in
+  // clusters, about 2500 independent ones), so 0.06 is ~4 standard deviations. All pairs
+  // (~203000, up to 0.87 voxel apart, standard error ~0.005): the correlation is rho^2
+  // times the rho = 1 one (0.896-0.898), checked to 0.02.
+  constexpr double kCloseTolerance = 0.06;
+  constexpr double kAllTolerance = 0.02;
+  const ImageGeometry g = WorldSpeckleGrid();
+  const std::vector<Eigen::Isometry3d> poses = WorldSpecklePoses(g);
+  const Mask fov = PyramidFieldOfView(g, WorldSpeckleOptions(4, 0.0));
+  const CrossFrame shared = CrossFrameCorrelation(
+      SpeckleFields(g, poses, WorldSpeckleOptions(4, 1.0), 0), poses, fov);
+  EXPECT_GT(shared.close_pairs, 10000);
+  EXPECT_GT(shared.all_pairs, 150000);
+  EXPECT_GT(shared.close, 0.95);
+  EXPECT_GT(shared.all, 0.85);
+  for (double rho : {0.0, 0.5}) {
+    const CrossFrame c = CrossFrameCorrelation(
+        SpeckleFields(g, poses, WorldSpeckleOptions(4, rho), 0), poses, fov);
+    EXPECT_NEAR(c.close, rho * rho, kCloseTolerance) << "rho " << rho;
+    EXPECT_NEAR(c.all, rho * rho * shared.all, kAllTolerance) << "rho " << rho;
+  }
+}
+
+TEST(SimulateWorldSpeckle, IsIndependentOfThreadsAndKeepsThePerFrameDraws) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(23, 17, 19);  // odd sizes, so slices split unevenly
+  std::vector<Eigen::Isometry3d> poses = WorldSpecklePoses(g);
+  poses.push_back(poses[1] * Eigen::Translation3d(1.3, 0.0, -2.1));
+  for (double rho : {0.6, 1.0}) {  // 1: no per-frame field at all
+    SimulationOptions o = WorldSpeckleOptions(3, rho);
+    o.speckle_correlation_voxels = 1.5;
+    const std::vector<Image> one = SpeckleFields(g, poses, o, 1);
+    ASSERT_EQ(one.size(), 3u);
+    for (int threads : {2, 3, 0}) {
+      const std::vector<Image> many = SpeckleFields(g, poses, o, threads);
+      for (int f = 0; f < 3; ++f) {
+        EXPECT_EQ(many[f].voxels, one[f].voxels) << "rho " << rho << ", " << threads
+                                                 << " threads, frame " << f;
+      }
+    }
+    o.seed = 2;
+    EXPECT_NE(SpeckleFields(g, poses, o, 1)[0].voxels, one[0].voxels) << "another seed";
+  }
+  // A tiny world fraction barely moves the per-frame speckle in the field of view (the
+  // per-frame draws are today's: z = 1e-5 zW + (1 - 5e-11) z_i changes s by ~1e-5 of its
+  // size) and leaves 1 outside it.
+  SimulationOptions o = WorldSpeckleOptions(3, 1e-10);
+  o.azimuth_deg = o.elevation_deg = 75.0;
+  const Mask fov = PyramidFieldOfView(g, o);
+  ASSERT_GT(CountInside(fov), 0);
+  ASSERT_LT(CountInside(fov), g.NumVoxels());
+  const std::vector<Image> tiny = SpeckleFields(g, poses, o, 0);
+  o.speckle_world_fraction = 0.0;
+  for (int f = 0; f < 3; ++f) {
+    const Image alone = SpeckleField(g, o, f, 0);
+    for (size_t v = 0; v < alone.voxels.size(); ++v) {
+      if (!fov.voxels[v]) {
+        ASSERT_EQ(tiny[f].voxels[v], 1.0f) << "frame " << f << " voxel " << v;
+        continue;
+      }
+      ASSERT_NEAR(tiny[f].voxels[v], alone.voxels[v], 1e-3 * (1.0 + alone.voxels[v]))
+          << "frame " << f << " voxel " << v;
+    }
+  }
+}
+
+TEST(SimulateWorldSpeckle, SimulateAppliesItAndLeavesTheOtherDrawsAlone) {
+  // A constant source: frame = clamp(g_i 60 s_i + o_i + n), s_i = SpeckleFields at the
+  // drawn poses. The poses, gains, offsets and noise draws are those of the world fraction
+  // 0 run (each voxel's noise: frame minus its noise-free value, where nothing clamps).
+  ImageGeometry grid;
+  grid.size = Eigen::Vector3i(80, 80, 80);
+  grid.origin_mm = Eigen::Vector3d::Constant(-39.5);
+  const Image flat(grid, 60.0f);
+  SimulationOptions o = SmallOptions();
+  o.noise_sigma = 10.0;
+  o.speckle_looks = 2;
+  o.gain_range = 0.2;
+  o.offset_range = 5.0;
+  o.speckle_world_fraction = 0.7;
+  SimulatedSequence world, plain;
+  std::string error;
+  ASSERT_TRUE(Simulate(flat, o, &world, &error)) << error;
+  SimulationOptions p = o;
+  p.speckle_world_fraction = 0.0;
+  ASSERT_TRUE(Simulate(flat, p, &plain, &error)) << error;
+  const ImageGeometry& fg = world.frames[0].geometry;
+  const Mask fov = PyramidFieldOfView(fg, o);
+  const std::vector<Image> world_fields = SpeckleFields(fg, world.frame_from_world, o, 1);
+  const std::vector<Image> plain_fields = SpeckleFields(fg, plain.frame_from_world, p, 1);
+  int64_t compared = 0;
+  for (int f = 0; f < o.num_frames; ++f) {
+    EXPECT_TRUE(world.frame_from_world[f].matrix() == plain.frame_from_world[f].matrix());
+    EXPECT_EQ(world.gain[f], plain.gain[f]);
+    EXPECT_EQ(world.offset[f], plain.offset[f]);
+    EXPECT_NE(world_fields[f].voxels, plain_fields[f].voxels);
+    for (size_t v = 0; v < fov.voxels.size(); ++v) {
+      if (!fov.voxels[v]) {
+        ASSERT_EQ(world.frames[f].voxels[v], 0.0f);
+        continue;
+      }
+      const double a = world.frames[f].voxels[v], b = plain.frames[f].voxels[v];
+      if (a <= 0.0 || a >= 255.0 || b <= 0.0 || b >= 255.0) continue;
+      const double noise_world =
+          a - (world.gain[f] * 60.0 * world_fields[f].voxels[v] + world.offset[f]);
+      const double noise_plain =
+          b - (plain.gain[f] * 60.0 * plain_fields[f].voxels[v] + plain.offset[f]);
+      ASSERT_NEAR(noise_world, noise_plain, kFloatValueTolerance)
+          << "frame " << f << " voxel " << v;
+      ASSERT_LT(std::abs(noise_world), 6.0 * o.noise_sigma);
+      ++compared;
+    }
+  }
+  EXPECT_GT(compared, 20000);
 }
 
 TEST(Simulate, FailsClearlyWhenTheSourceIsTooSmall) {

@@ -120,16 +120,24 @@ DEFINE_double(offset_range,
 DEFINE_int32(speckle_looks,
              0,
              "Ultrasound-like effect (off at 0): multiplicative speckle of mean 1, drawn anew "
-             "for each frame on its own grid (it follows the probe, not the tissue): the mean "
-             "of this many looks of |z|^2, each z a complex Gaussian field smoothed over "
-             "--speckle_correlation_voxels; a gamma distribution with variance 1/looks. 0 or "
-             "in [1, 64].");
+             "for each frame on its own grid (it follows the probe, not the tissue; see "
+             "--speckle_world_fraction): the mean of this many looks of |z|^2, each z a complex "
+             "Gaussian field smoothed over --speckle_correlation_voxels; a gamma distribution "
+             "with variance 1/looks. 0 or in [1, 64].");
 DEFINE_double(speckle_correlation_voxels,
               1.0,
               "With --speckle_looks: standard deviation, in frame voxels, of the Gaussian that "
               "smooths each look's complex field (the speckle's correlation at a lag of d "
               "voxels is about exp(-d^2 / (2 this^2)) for this >= 1), in [0, 4]; 0: "
               "independent voxels.");
+DEFINE_double(speckle_world_fraction,
+              0.0,
+              "With --speckle_looks: the fraction rho of each look's complex field that is "
+              "fixed in the world (the tissue) and shared by all frames, the rest drawn per "
+              "frame: z = sqrt(rho) z_world + sqrt(1 - rho) z_frame, so the speckle keeps its "
+              "mean and variance and two frames' speckle at one world point correlates by "
+              "about rho^2. In [0, 1]; 0: independent per frame (the former sequences); > 0 "
+              "needs --speckle_looks >= 1.");
 DEFINE_double(attenuation_db_per_cm,
               0.0,
               "Ultrasound-like effect (off at 0): depth attenuation; a voxel at distance r cm "
@@ -194,6 +202,9 @@ bool ValidateSpeckleLooks(const char* flag, int32_t v) {
 bool ValidateSpeckleCorrelation(const char* flag, double v) {
   return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 4.0, flag, v, "must be in [0, 4]");
 }
+bool ValidateSpeckleWorldFraction(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 1.0, flag, v, "must be in [0, 1]");
+}
 bool ValidateAttenuation(const char* flag, double v) {
   return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 10.0, flag, v, "must be in [0, 10]");
 }
@@ -223,6 +234,7 @@ DEFINE_validator(gain_range, &ValidateGainRange);
 DEFINE_validator(offset_range, &ValidateOffsetRange);
 DEFINE_validator(speckle_looks, &ValidateSpeckleLooks);
 DEFINE_validator(speckle_correlation_voxels, &ValidateSpeckleCorrelation);
+DEFINE_validator(speckle_world_fraction, &ValidateSpeckleWorldFraction);
 DEFINE_validator(attenuation_db_per_cm, &ValidateAttenuation);
 
 namespace {
@@ -238,7 +250,8 @@ int Main(int argc, char** argv) {
       "ultrasound-like effects (per-frame gain and offset, speckle, depth attenuation).\n"
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
       "[--pose_model=random|walk] [--interpolation=linear|cubic] [--gain_range=0] "
-      "[--offset_range=0] [--speckle_looks=0] [--attenuation_db_per_cm=0] ...\n"
+      "[--offset_range=0] [--speckle_looks=0] [--speckle_world_fraction=0] "
+      "[--attenuation_db_per_cm=0] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       {"out_dir"},
@@ -266,6 +279,7 @@ int Main(int argc, char** argv) {
   options.offset_range = FLAGS_offset_range;
   options.speckle_looks = FLAGS_speckle_looks;
   options.speckle_correlation_voxels = FLAGS_speckle_correlation_voxels;
+  options.speckle_world_fraction = FLAGS_speckle_world_fraction;
   options.attenuation_db_per_cm = FLAGS_attenuation_db_per_cm;
   std::string error;
   if (!options.Validate(&error)) return dsr::Fail(error);
@@ -273,17 +287,36 @@ int Main(int argc, char** argv) {
   // masks (uint8), the field of view and one frame's copies while it is written, the
   // source (checked again once a --source is read), and the effects' scratch: the
   // attenuation (double) and the speckle's three complex double grids, padded by
-  // 3 --speckle_correlation_voxels per side, its sum (double) and its field (float).
+  // 3 --speckle_correlation_voxels per side, its sum (double) and its field (float); with
+  // --speckle_world_fraction also every frame's field (float) and one look's world field
+  // (complex double on the world grid padded likewise; the fields of view lie in the
+  // source, so at most the source's axis-aligned box in frame voxels).
   const double frame_voxels = options.frame_size.cast<double>().prod();
   const double speckle_padding = 2.0 * std::ceil(3.0 * options.speckle_correlation_voxels);
   const double padded_voxels =
       (options.frame_size.cast<double>().array() + speckle_padding).prod();
+  const bool world_speckle = options.speckle_looks > 0 && options.speckle_world_fraction > 0.0;
   const double effects_bytes =
       (options.attenuation_db_per_cm > 0.0 ? 8.0 * frame_voxels : 0.0) +
-      (options.speckle_looks > 0 ? 48.0 * padded_voxels + 12.0 * frame_voxels : 0.0);
-  const auto check_memory = [&](double source_voxels) {
+      (options.speckle_looks > 0 ? 48.0 * padded_voxels + 12.0 * frame_voxels : 0.0) +
+      (world_speckle ? 4.0 * frame_voxels * options.num_frames : 0.0);
+  const auto world_speckle_bytes = [&](const dsr::ImageGeometry& source) {
+    if (!world_speckle) return 0.0;
+    const double spacing = dsr::SimulatedFrameGeometry(source, options).spacing_mm[0];
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(INFINITY), hi = -lo;
+    for (int corner = 0; corner < 8; ++corner) {
+      const Eigen::Vector3d xyz_mm = source.IndexToPhysical(
+          Eigen::Vector3d(corner & 1 ? source.size[0] - 1 : 0,
+                          corner & 2 ? source.size[1] - 1 : 0,
+                          corner & 4 ? source.size[2] - 1 : 0));
+      lo = lo.cwiseMin(xyz_mm);
+      hi = hi.cwiseMax(xyz_mm);
+    }
+    return 16.0 * ((hi - lo).array() / spacing + 2.0 + speckle_padding).prod();
+  };
+  const auto check_memory = [&](double source_voxels, double world_bytes) {
     const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + effects_bytes +
-                         4.0 * source_voxels;
+                         world_bytes + 4.0 * source_voxels;
     return dsr::CheckMemoryEstimate(
         "--frame_size=" + FLAGS_frame_size + " --num_frames=" + std::to_string(options.num_frames),
         bytes,
@@ -291,7 +324,10 @@ int Main(int argc, char** argv) {
         &error);
   };
   const double phantom_voxels = std::pow(static_cast<double>(FLAGS_phantom_size), 3);
-  if (!check_memory(FLAGS_source.empty() ? phantom_voxels : 0.0)) {
+  dsr::ImageGeometry phantom_grid;  // the phantom's extent (1 mm voxels) before it is made
+  phantom_grid.size = Eigen::Vector3i::Constant(FLAGS_phantom_size);
+  if (!check_memory(FLAGS_source.empty() ? phantom_voxels : 0.0,
+                    FLAGS_source.empty() ? world_speckle_bytes(phantom_grid) : 0.0)) {
     return dsr::Fail(error);
   }
   // Every file this run reads and writes, before the source is read or the folder created.
@@ -320,7 +356,8 @@ int Main(int argc, char** argv) {
   } else if (!dsr::ReadImage(FLAGS_source, &source, &error)) {
     return dsr::Fail("--source: " + error);
   }
-  if (!FLAGS_source.empty() && !check_memory(static_cast<double>(source.voxels.size()))) {
+  if (!FLAGS_source.empty() && !check_memory(static_cast<double>(source.voxels.size()),
+                                              world_speckle_bytes(source.geometry))) {
     return dsr::Fail(error);
   }
   const double source_seconds = SecondsSince(start);
