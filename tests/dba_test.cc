@@ -6,6 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "test_problems.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -201,6 +202,7 @@ TEST(Dba, PanoramaAtConvergenceIsThePerVoxelMean) {
 // to 1e-6 relative (the issue asks 1 %). Lattice-aligned, noise-free frames make the truth
 // the exact minimum (test_problems.h).
 TEST(Dba, PhotometricBlocksRecoverGainsAndOffsets) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   SequenceOptions so;
   so.num_frames = 4;
   so.size = 16;

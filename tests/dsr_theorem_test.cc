@@ -20,6 +20,7 @@
 #include "dsr_reduced/reduced_cost.h"
 #include "kernel_paths.h"
 #include "test_problems.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -274,6 +275,7 @@ SequenceOptions LatticeOptionsFor(const Case& c, uint64_t seed) {
 }
 
 TEST(Theorem, FullSolvesOfBothModesConvergeToTheSamePoses) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   uint64_t seed = 51;
   for (const Case& c : {Case{3, 16, 0.0, 1}, Case{4, 16, 5.0, 1}, Case{4, 16, 0.0, 2}, Case{5, 16, 2.0, 1}}) {
     const auto s = MakeSequence(LatticeOptionsFor(c, seed++));
@@ -329,6 +331,7 @@ TEST(Theorem, DampedIteratesDifferButTheFixedPointIsShared) {
 // corrected observations) converge to the same poses and the same parameters, and, on
 // these lattice-aligned problems, to the truth.
 TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const Case c{4, 16, 5.0, 1};
   auto s = MakeSequence(LatticeOptionsFor(c, 71));
   const double g[] = {1.0, 1.25, 0.85, 1.1}, o[] = {0.0, 9.0, -6.0, 3.0};

@@ -19,6 +19,7 @@
 #include "pipeline/registration.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -112,6 +113,7 @@ SimulationOptions PairOptions() {
 // and shifted by 20 voxels: the search (centred on the identity, within 45 degrees) finds
 // B_from_A to within a voxel and a degree after refinement.
 TEST(PlacementSearch, FindsAFortyDegreeTwentyVoxelOffset) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const Image& source = Phantom128();
   const SimulationOptions o = PairOptions();
   const ImageGeometry g = SimulatedFrameGeometry(source.geometry, o);
@@ -180,6 +182,7 @@ RegistrationOptions SmallOptions() {
 // Global initialisation, then the registration, with frames 1..3 given in another order:
 // each frame ends at the same pose.
 TEST(PairGraph, ShuffledFramesGiveTheSamePoses) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const SimulatedSequence s = SmallSequence(11, 4);
   RegistrationOptions o = SmallOptions();
   o.search.num_rotations = 150;
@@ -211,6 +214,7 @@ TEST(PairGraph, ShuffledFramesGiveTheSamePoses) {
 // A frame started 60 degrees off: without recovery the registration is refused (the frame
 // is flagged); with recovery it is re-placed and the registration reaches ground truth.
 TEST(Recovery, RePlacesAFrameStartedSixtyDegreesOff) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const SimulatedSequence s = SmallSequence(5);
   std::vector<Eigen::Isometry3d> start = RelativeToFrame0(s.frame_from_world);
   const int off = 3;
@@ -251,6 +255,7 @@ TEST(Recovery, RePlacesAFrameStartedSixtyDegreesOff) {
 // the panorama of the others (at their true poses) to within the search level's reach of
 // the local solver; a frame that was not off is kept without a search.
 TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const SimulatedSequence s = SmallSequence(5);
   const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(s.frame_from_world);
   std::vector<Frame> frames;

@@ -12,14 +12,7 @@
 #include "sim/phantom.h"
 #include "sim/simulate.h"
 #include "test_problems.h"
-
-#if defined(__SANITIZE_ADDRESS__)
-#define DSR_UNDER_ASAN 1
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-#define DSR_UNDER_ASAN 1
-#endif
-#endif
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -123,11 +116,9 @@ TEST(Pipeline, DsrCapturesThePaperMotionRangeFromIdentity) {
 }
 
 TEST(Pipeline, DbaRecoversGroundTruth) {
-#if defined(DSR_UNDER_ASAN)
-  // ~4 minutes under AddressSanitizer (Ceres's Schur solvers over every voxel): the Release
-  // pass runs it; the sanitizer pass covers the DBA code through dba_test and the CLI tests.
-  GTEST_SKIP() << "slow under AddressSanitizer; run by the Release pass";
-#endif
+  // ~4 minutes under AddressSanitizer (Ceres's Schur solvers over every voxel); the
+  // sanitizer pass covers the DBA code through dba_test and the CLI tests.
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   for (double sigma : {0.0, 25.0}) {
     SequenceSetup setup;
     // 6 frames; 48x48x40 rather than 32^3: with sigma 25 a 32-voxel frame's rotation is
@@ -158,6 +149,7 @@ TEST(Pipeline, DbaRecoversGroundTruth) {
 // none. The frames sample an analytic volume (test_problems.h), so nothing is clipped (the
 // simulator clamps to 0..255, which biases every gain against a clipped frame 0).
 TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   testing_problems::SequenceOptions so;
   so.num_frames = 4;
   so.size = 20;

@@ -27,6 +27,7 @@
 #include "dsr_reduced/dsr_solver.h"
 #include "dsr_reduced/reduced_cost.h"
 #include "test_problems.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -889,6 +890,7 @@ void ExpectSharedRobustFixedPoint(const RobustLoss& loss, double rotation, doubl
 // ~1e-6 mm from the truth), and so are the residuals the modes' model mismatch acts on:
 // the brief's tolerance holds (measured on seeds 52, 7, 9: 1.4e-8 rad, 2.8e-7 mm).
 TEST(RobustTheorem, CauchyFullSolvesOfBothModesReachTheSameFixedPoint) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   ExpectSharedRobustFixedPoint(Cauchy(5.0), 1e-7, 1e-5);
 }
 
@@ -898,6 +900,7 @@ TEST(RobustTheorem, CauchyFullSolvesOfBothModesReachTheSameFixedPoint) {
 // a few per cent of that distance (measured on seeds 52, 7, 9: up to 7.8e-7 rad and
 // 7.4e-6 mm), where either mode's trust region stops.
 TEST(RobustTheorem, HuberFullSolvesOfBothModesReachTheSameFixedPoint) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   ExpectSharedRobustFixedPoint(Huber(5.0), 2e-6, 2e-5);
 }
 
@@ -911,6 +914,7 @@ TEST(RobustTheorem, HuberFullSolvesOfBothModesReachTheSameFixedPoint) {
 // So this checks the photometric robust solves end to end, the two DSR costs against
 // each other exactly, and DBA at the valley's scale.
 TEST(RobustTheorem, PhotometricCauchySolvesOfBothModesAgree) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   OutlierProblem p = MakeOutlierProblem(52);
   const double g[] = {1.0, 1.2, 0.85}, o[] = {0.0, -6.0, 9.0};
   for (int i = 1; i < 3; ++i) {
@@ -969,6 +973,7 @@ TEST(RobustTheorem, PhotometricCauchySolvesOfBothModesAgree) {
 // A shadow (a block of one frame at 0) in ordinary lattice-aligned frames, solved with the
 // default stopping rules: the robust losses land closer to the truth, in both modes.
 TEST(RobustLoss, OutliersPullSquaredPosesMoreThanRobustOnes) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   SequenceOptions o;
   o.num_frames = 4;
   o.size = 20;

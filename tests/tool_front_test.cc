@@ -18,6 +18,7 @@
 #include "core/io_image.h"
 #include "core/io_poses.h"
 #include "core/observation.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -33,19 +34,8 @@ constexpr int kAddressSpaceKiB = 3000000;
 
 // AddressSanitizer reserves terabytes of address space for its shadow memory, so a tool
 // built with it cannot start under `ulimit -v`: those cases run in the plain build only.
-#if defined(__SANITIZE_ADDRESS__)
-constexpr bool kUnderAsan = true;
-#elif defined(__has_feature)
-#if __has_feature(address_sanitizer)
-constexpr bool kUnderAsan = true;
-#else
-constexpr bool kUnderAsan = false;
-#endif
-#else
-constexpr bool kUnderAsan = false;
-#endif
-#define DSR_SKIP_UNDER_ASAN() \
-  if (kUnderAsan) GTEST_SKIP() << "ulimit -v cannot hold an AddressSanitizer build"
+constexpr bool kUnderAsan = testing_support::kUnderAddressSanitizer;
+#define DSR_SKIP_UNDER_ASAN() DSR_SKIP_UNDER_SANITIZER("ulimit -v cannot hold an AddressSanitizer build")
 
 std::string Join(const std::vector<std::string>& items) {
   std::string joined;
@@ -460,13 +450,17 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
       for (int c = 0; c < 6; ++c) {
         const double v = frame["covariance"][r][c].get<double>();
         EXPECT_EQ(v, frame["covariance"][c][r].get<double>());
-        if (f == 0) EXPECT_EQ(v, 0.0);
-        if (f > 0 && r == c) EXPECT_GT(v, 0.0);
+        if (f == 0) {
+          EXPECT_EQ(v, 0.0);
+        } else if (r == c) {
+          EXPECT_GT(v, 0.0);
+        }
       }
     }
     const double tre = frame["predicted_tre_mm"].get<double>();
-    if (f == 0) EXPECT_EQ(tre, 0.0);
-    if (f > 0) {
+    if (f == 0) {
+      EXPECT_EQ(tre, 0.0);
+    } else {
       EXPECT_GT(tre, 0.0);
       EXPECT_LT(tre, 1.0);
     }

@@ -15,6 +15,7 @@
 #include "pipeline/uncertainty.h"
 #include "sim/phantom.h"
 #include "sim/simulate.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -120,6 +121,7 @@ Eigen::VectorXd GradientOver(const std::vector<Frame>& frames, const CandidateSe
 // diagonal is well below Gauss-Newton's (the noisy gradient volumes inflate J^T J; the
 // residual curvature takes that back).
 TEST(PoseUncertainty, GradientJacobianIsTheDerivativeOfTheGradient) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const SimulatedSequence s = Sequence(25.0);
   const RegistrationResult r = RegisterWithUncertainty(s);
   std::vector<Frame> frames;
