@@ -8,6 +8,8 @@
 #   (c) DSR time per iteration and peak memory versus frames (3..11) and frame size
 #       (48^3 .. 176x176x200 at 0.6 mm), with a log-log plot
 #   (d) DSR with 1 vs 2 threads (5 runs each, alternating)
+#   (e) DSR with --photometric=affine vs none at 11 frames of 96x96x80: time per iteration
+#       (7 runs, alternating; median of the per-run ratios)
 # plus the Google Benchmark kernels (bench/kernels_bench.cc). Every registration runs in its
 # own process (dsr_compare), so peak memory is per run. Writes bench/results/: kernels.json,
 # one CSV per part, summary.md (markdown tables) and scaling.png.
@@ -76,6 +78,17 @@ if [ "$quick" != "--quick" ]; then
     done
   done
 fi
+# (e) photometric parameters: the same sequence registered with and without them, back to
+# back in each run (8 x 8 instead of 6 x 6 blocks per frame pair).
+echo "compare: (e) photometric none vs affine" >&2
+photometric_repeats=7
+[ "$quick" = "--quick" ] && photometric_repeats=1
+for r in $(seq 1 $photometric_repeats); do
+  for p in none affine; do
+    compare "photometric_${p}_r$r" --methods=dsr --num_frames=11 --frame_size=96,96,80 \
+      --photometric=$p
+  done
+done
 python="$(bash scripts/python_env.sh)"
 "$python" bench/summarize.py "$out" "$(nproc)"
 echo "compare: wrote $out/summary.md and $out/scaling.png" >&2

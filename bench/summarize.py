@@ -57,6 +57,7 @@ def main():
 
     # Kernels.
     kernels = os.path.join(out, "kernels.json")
+    times = {}  # kernel benchmark medians by run name
     if os.path.exists(kernels):
         with open(kernels) as f:
             bench = json.load(f)["benchmarks"]
@@ -198,6 +199,33 @@ def main():
         for n in (1, 2):
             md.append(f"| {n} | {t[n][2]} | {t[n][0]:.3f} | {t[n][1]:.2f} |")
         md.append(f"\n2 threads: {t[1][0] / t[2][0]:.2f}x faster per iteration, {t[1][1] / t[2][1]:.2f}x in total.\n")
+
+    # (e) photometric parameters: per run, affine's time per iteration over none's.
+    photometric = []
+    for name in sorted(os.listdir(out)):
+        if name.startswith("photometric_none_r"):
+            run = name[len("photometric_none_r"):]
+            affine = os.path.join(out, f"photometric_affine_r{run}")
+            if not os.path.isdir(affine):
+                continue
+            n = [x for x in rows(os.path.join(out, name)) if x["ok"] == "1"]
+            a = [x for x in rows(affine) if x["ok"] == "1"]
+            if n and a:
+                photometric.append((run, n[0], a[0]))
+    if photometric:
+        md.append(f"## (e) photometric parameters (11 frames of 96x96x80, {len(photometric)} runs)\n")
+        md.append("| run | none: time / iteration (s) | affine: time / iteration (s) | affine / none | iterations none / affine | TRE none / affine (mm) |\n|---|---|---|---|---|---|")
+        ratios = []
+        for run, n, a in photometric:
+            ratio = float(a["seconds_per_iteration"]) / float(n["seconds_per_iteration"])
+            ratios.append(ratio)
+            md.append(f"| r{run} | {float(n['seconds_per_iteration']):.4f} | {float(a['seconds_per_iteration']):.4f} | {ratio:.2f}x | "
+                      f"{n['iterations']} / {a['iterations']} | {float(n['tre_mean_mm']):.4f} / {float(a['tre_mean_mm']):.4f} |")
+        md.append(f"\nTime per iteration with photometric parameters: {median(ratios):.2f}x (median of the runs; range "
+                  f"{min(ratios):.2f}-{max(ratios):.2f}x).\n")
+        dsr, wide = times.get("BM_DsrEvaluation/1/1/real_time"), times.get("BM_DsrPhotometricEvaluation/1/1/real_time")
+        if dsr and wide:
+            md.append(f"One evaluation with Jacobians, 1 thread: {wide:.1f} ms with the parameters against {dsr:.1f} ms ({wide / dsr:.2f}x).\n")
 
     tmp = os.path.join(out, "summary.md.tmp")
     with open(tmp, "w") as f:
