@@ -12,7 +12,8 @@
 # real anatomical volume the project did not make). Protocols: bench/protocols.sh (paper,
 # wide, walk, and the ultrasound-like us and us_flat of issue 21). Masks: fov = the exact field of
 # view (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one
-# voxel (what dsr_register uses without --masks). Sequences are cached under OUT/sequences.
+# voxel (what dsr_register uses without --masks). Sequences are cached under OUT/sequences (simulated again when their protocol's flags
+# change).
 # --uncertainty: also the pose covariance (dsr_compare --uncertainty) and a table of the
 # predicted against the measured error (runs go to OUT/runs/INIT-uncertainty).
 # --photometric=affine: per-frame gain and offset estimated with the poses (dsr_compare
@@ -68,12 +69,9 @@ for source in "${source_list[@]}"; do
     folders=()
     for ((seed = 1; seed <= seeds; ++seed)); do
       dir="$out/sequences/$source/$protocol/seed$seed"
-      if [[ ! -f "$dir/gt_poses.json" ]]; then
-        # shellcheck disable=SC2086
-        "$tools/dsr_simulate" --out_dir="$dir" --seed="$seed" --mask_erosion=0 $source_flag $flags \
-          >/dev/null 2>"$out/simulate.log" || {
-          echo "accuracy.sh: dsr_simulate failed for $dir: $(tail -n 1 "$out/simulate.log")" >&2; exit 1; }
-      fi
+      # shellcheck disable=SC2086
+      simulate_sequence "$tools" "$dir" "$seed" $source_flag $flags || {
+        echo "accuracy.sh: dsr_simulate failed for $dir: $(tail -n 1 "$dir.log")" >&2; exit 1; }
       folders+=("$dir")
     done
     list=$(IFS=,; echo "${folders[*]}")

@@ -93,9 +93,8 @@ for source in "${source_list[@]}"; do
       echo "elastix.sh: unknown protocol '$protocol' ($protocol_names)" >&2; exit 2; }
     for ((seed = first; seed <= last; ++seed)); do
       dir="$out/sequences/$source/$protocol/seed$seed"
-      [[ -f "$dir/gt_poses.json" ]] && continue
       if [[ ! -x "$tools/dsr_simulate" ]]; then
-        echo "elastix.sh: $dir is not cached and $tools/dsr_simulate is not built (bash scripts/build.sh)" >&2; exit 1
+        echo "elastix.sh: $tools/dsr_simulate is not built (bash scripts/build.sh)" >&2; exit 1
       fi
       source_flag=""
       if [[ "$source" == mni ]]; then
@@ -103,9 +102,8 @@ for source in "${source_list[@]}"; do
         source_flag="--source=$mni"
       fi
       # shellcheck disable=SC2086
-      "$tools/dsr_simulate" --out_dir="$dir" --seed="$seed" --mask_erosion=0 $source_flag $flags \
-        >/dev/null 2>"$out/simulate.log" || {
-        echo "elastix.sh: dsr_simulate failed for $dir: $(tail -n 1 "$out/simulate.log")" >&2; exit 1; }
+      simulate_sequence "$tools" "$dir" "$seed" $source_flag $flags || {
+        echo "elastix.sh: dsr_simulate failed for $dir: $(tail -n 1 "$dir.log")" >&2; exit 1; }
     done
     for mask in "${mask_list[@]}"; do
       run="$out/runs/elastix/$source-$protocol-$mask"
@@ -113,7 +111,9 @@ for source in "${source_list[@]}"; do
       echo "elastix.sh: $source $protocol masks=$mask seeds $first..$last" >&2
       for ((seed = first; seed <= last; ++seed)); do
         row="$run/rows/seed$seed.csv"
-        if [[ $rerun == 0 && -f "$row" && -f "$row.settings" && "$(cat "$row.settings")" == "$settings" ]]; then
+        # The row holds for these elastix settings on this very sequence.
+        row_settings="$settings $(cat "$out/sequences/$source/$protocol/seed$seed/simulate_flags.txt")"
+        if [[ $rerun == 0 && -f "$row" && -f "$row.settings" && "$(cat "$row.settings")" == "$row_settings" ]]; then
           continue
         fi
         rm -rf "$run/work/seed$seed"
@@ -127,7 +127,7 @@ for source in "${source_list[@]}"; do
           rm -f "$row.tmp"; exit 1
         fi
         mv "$row.tmp" "$row"
-        echo "$settings" > "$row.settings"
+        echo "$row_settings" > "$row.settings"
         echo "elastix.sh:   seed$seed: $(cut -d, -f3,7,12 "$row" | awk -F, '{printf "ok=%s mean TRE %s mm, %s s", $1, $2, $3}')" >&2
       done
       {
