@@ -1,4 +1,4 @@
-// The registration pipeline every mode runs (issues 3-6): load-independent, flag-free.
+// The registration pipeline every mode runs: load-independent, flag-free.
 //
 //   for each pyramid level, coarsest first (core/pyramid.h):
 //     frames <- the level's images and masks (core/frame.h)
@@ -52,7 +52,9 @@ enum class PhotometricModel {
 
 // The tools' --photometric default (dsr_register, dsr_compare). Note: the one place to
 // change it; with kAffine the tools fall back to kNone for the baseline modes unless
-// --photometric is given explicitly (then a baseline mode is refused).
+// --photometric is given explicitly (then a baseline mode is refused). None: on data
+// without brightness changes affine is not as accurate and far slower (its extra freedom
+// lets coarse solves slide, and recoveries follow; docs/accuracy_us.md).
 constexpr PhotometricModel kDefaultPhotometricModel = PhotometricModel::kNone;
 
 // "none" / "affine" (the tools' --photometric values).
