@@ -108,7 +108,7 @@ void BM_DsrEvaluation(benchmark::State& state) {
 }
 BENCHMARK(BM_DsrEvaluation)->ArgsProduct({{0, 1}, {1, 2}})->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// The same with photometric parameters (issue 21: 8 x 8 blocks per frame pair instead of
+// The same with photometric parameters (8 x 8 blocks per frame pair instead of
 // 6 x 6; the target is at most 1.5x BM_DsrEvaluation's time with the same arguments).
 // Gains 0.9-1.1 and offsets, so that no multiplication is by 1.
 void BM_DsrPhotometricEvaluation(benchmark::State& state) {
@@ -235,7 +235,7 @@ void BM_DsrEvaluationFrames(benchmark::State& state) {
 }
 BENCHMARK(BM_DsrEvaluationFrames)->DenseRange(3, 11, 2)->Unit(benchmark::kMillisecond)->UseRealTime();
 
-// Issue 6's clinical size: 11 frames of 176x176x200 at 0.6 mm (target: one evaluation with
+// The clinical size: 11 frames of 176x176x200 at 0.6 mm (target: one evaluation with
 // Jacobians under 1.5 s on 2 cores).
 const Problem& Clinical() {
   static const std::unique_ptr<Problem> p =

@@ -1,4 +1,4 @@
-// A frame's gain and offset against the panorama (issue 21, docs/design.md section 2.8).
+// A frame's gain and offset against the panorama (docs/design.md section 2.8).
 #ifndef DSR_CORE_PHOTOMETRIC_H_
 #define DSR_CORE_PHOTOMETRIC_H_
 

@@ -1,4 +1,4 @@
-// Gaussian image pyramid for coarse-to-fine registration (issue 6).
+// Gaussian image pyramid for coarse-to-fine registration.
 //
 // One level down: the image is smoothed with a Gaussian of standard deviation `sigma`
 // (fine voxels, per axis) by normalised convolution inside the field of view,

@@ -1,4 +1,4 @@
-// Robust losses for outlying intensities (shadows, reverberation; issue 21, item 5;
+// Robust losses for outlying intensities (shadows, reverberation;
 // docs/design.md section 4.7), shared by both solver modes.
 //
 // Ceres's convention: an observation with residual r contributes rho(s), s = r^2 (the

@@ -1,4 +1,4 @@
-// The divergence guard of the registration pipeline (issue 8).
+// The divergence guard of the registration pipeline.
 //
 // A direct method minimises a sum of squared intensity differences over the overlap. A
 // frame (or a group of frames) that slides out of the overlap takes its differences along,

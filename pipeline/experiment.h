@@ -1,4 +1,4 @@
-// Method comparisons (issue 5, the paper's Fig. 1): run registration methods on sequences
+// Method comparisons (the paper's Fig. 1): run registration methods on sequences
 // with ground truth and tabulate accuracy and cost. Each run happens in a child process
 // (fork), so that its peak memory is its own (wait4's ru_maxrss) and a crash in one run
 // cannot take the others down.

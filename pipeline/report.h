@@ -1,4 +1,4 @@
-// Pictures and a report folder that show whether a registration is right (issue 7, like
+// Pictures and a report folder that show whether a registration is right (like
 // the paper's Fig. 2 and Fig. 3), plus per-frame ITK transforms for other tools.
 //
 //   panorama_slices.png  three orthogonal slices through the panorama's centre with the

@@ -1,4 +1,4 @@
-// The bad-input catalogue (issue 8; 47 entries): every entry runs a tool on one bad input and expects
+// The bad-input catalogue: every entry runs a tool on one bad input and expects
 // exit code 2, exactly one error line that names the file or flag, and no output file left
 // in the output folder. Files are crafted here: MetaImage headers by hand (spacing,
 // direction, NaN/Inf, 2D/4D, vector pixels) and NIfTI files written by the tools

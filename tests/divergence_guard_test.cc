@@ -159,7 +159,7 @@ TEST(MisfitOutlier, SkipsExemptFrames) {
   EXPECT_EQ(MisfitOutliers(misfits, 2.0, &exempt_low), std::vector<int>({2, 4}));
 }
 
-// With photometric corrections the misfits compare corrected intensities (issue 21): frames
+// With photometric corrections the misfits compare corrected intensities: frames
 // seen through a gain and an offset, on lattice-aligned noise-free data, match exactly once
 // corrected back to frame 0's scale (up to float storage), while the raw intensities do not.
 TEST(FrameMisfits, CompareCorrectedIntensities) {

@@ -131,7 +131,7 @@ TEST_F(DsrRegisterCli, DbaModeAndMasksFromImages) {
   EXPECT_TRUE(fs::exists(Out("dba.json")));
 }
 
-// --loss=cauchy / huber (issue 21): both modes register the sequence; the pose uncertainty
+// --loss=cauchy / huber: both modes register the sequence; the pose uncertainty
 // says it does not model the loss.
 TEST_F(DsrRegisterCli, RobustLossesRegisterInBothModes) {
   for (const std::string& flags : {std::string("--loss=cauchy --loss_scale=20 --uncertainty"),
@@ -151,7 +151,7 @@ TEST_F(DsrRegisterCli, RobustLossesRegisterInBothModes) {
   }
 }
 
-// --photometric=affine (issue 21): frames with different gains and offsets; the poses file,
+// --photometric=affine: frames with different gains and offsets; the poses file,
 // the summary and the report carry each frame's estimate, on frame 0's scale like the
 // simulator's ground truth.
 TEST_F(DsrRegisterCli, PhotometricAffineWritesGainsAndOffsets) {

@@ -386,7 +386,7 @@ TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
 }
 
 // Noise-free frames seen through gains 0.85-1.2 and offsets: DSR's fast path recovers them
-// to well within 1 % (issue 21), from a start 0.6 mm and 1.2 degrees away, with the default
+// to well within 1 %, from a start 0.6 mm and 1.2 degrees away, with the default
 // stopping rules. Lattice-aligned frames, whose minimum is the truth (on generic ones of
 // this size, interpolation moves the minimum by ~0.15 mm with or without gains).
 TEST(ReducedCost, PhotometricFastPathRecoversSimulatedGains) {

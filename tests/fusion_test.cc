@@ -1,4 +1,4 @@
-// Fusion and interoperability (issue 7): the mean and feathered panoramas against a
+// Fusion and interoperability: the mean and feathered panoramas against a
 // brute-force reference, the field-of-view enlargement ratio, and per-frame ITK transform
 // files that ITK's own reader and resampler turn into the project's resampling.
 #include <gmock/gmock.h>

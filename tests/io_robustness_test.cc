@@ -1,4 +1,4 @@
-// Tests that the IO layer loses no data and never accepts an incomplete file (issue 24):
+// Tests that the IO layer loses no data and never accepts an incomplete file:
 // failed writes (file-size limit, i.e. disk full) never replace a previous file, NIfTI
 // sizes follow the datatype, NIfTI NaN/Inf are refused, MetaImage LIST and detached data
 // files are checked, and the files an image consists of or a write creates are listed.

@@ -121,7 +121,7 @@ TEST(PairMismatches, CatchesTwoGroupsOnSimulatedFrames) {
   for (size_t k = 0; k < one.size(); ++k) EXPECT_EQ(one[k].mismatch, two[k].mismatch);
 }
 
-// The checks guard the baselines too (issue 24, W01): the pairwise baseline on a 4-frame
+// The checks guard the baselines too: the pairwise baseline on a 4-frame
 // sequence of the paper's protocol chains into a wrong minimum (39 voxels off before the
 // checks guarded every mode); the registration is refused, not returned.
 TEST(Checks, RefuseTheWrongMinimumOfThePairwiseBaseline) {

@@ -1,6 +1,6 @@
 // The registration pipeline (pipeline/registration.h) against simulated ground truth:
 // sequences cut from the built-in phantom with the paper's protocol (sim/), registered from
-// identity initial poses through the pyramid, by DSR (issue 4, item 5) and by DBA (issue 3),
+// identity initial poses through the pyramid, by DSR and by DBA,
 // plus: every linear solver gives the same poses, and bad set-ups are refused.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// Report pictures (issue 7): each is written with the expected size and is not blank, and
+// Report pictures: each is written with the expected size and is not blank, and
 // the report folder holds the pictures, poses, transforms and an index linking them.
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// Robust losses (issue 21 item 5; core/robust_loss.h, docs/design.md section 4.7):
+// Robust losses (core/robust_loss.h, docs/design.md section 4.7):
 //  1. the losses themselves: weights = rho'(r^2) (numeric derivative and Ceres's rho[1]),
 //     parsing and validation, the robust location;
 //  2. DBA with a Ceres loss (cost, photometric blocks, bad input);

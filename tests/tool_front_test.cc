@@ -1,4 +1,4 @@
-// The front of every tool (tools/tool_util.h, issue 24): flagfiles are expanded and checked
+// The front of every tool (tools/tool_util.h): flagfiles are expanded and checked
 // before gflags sees them, memory is estimated before any work, std::bad_alloc ends in one
 // line and exit 1, and dsr_fuse matches --poses to --images by name and writes k_j with
 // --out_count. Each case runs a built tool binary (paths set by CMake) and checks the exit
