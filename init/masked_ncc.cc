@@ -193,21 +193,27 @@ MaskedNcc::ComplexBuffer MaskedNcc::AllocateComplex(int64_t n) {
 namespace {
 
 // Writes `value(l)` of a volume of size `size` (l its linear index) into the low corner of
-// the grid of size `padded` (same x-fastest layout). The rest of the grid is left as it is:
-// zero, written once per buffer (only r2c reads these buffers, and an out-of-place r2c
-// plan made with FFTW_PRESERVE_INPUT leaves its input unchanged).
+// the grid of size `padded` (same x-fastest layout) and zero into the rest of the grid: the
+// r2c plans may overwrite their input (planned without FFTW_PRESERVE_INPUT, which makes
+// FFTW copy every input), so every transform writes all of it.
 template <typename Real, typename ValueFn>
 void Embed(const Eigen::Vector3i& size,
            const Eigen::Vector3i& padded,
            const ValueFn& value,
            Real* out) {
   int64_t l = 0;
+  const int64_t row_length = padded[0];
+  const int64_t slab = row_length * padded[1];
   for (int k = 0; k < size[2]; ++k) {
+    Real* slab_start = out + slab * k;
     for (int j = 0; j < size[1]; ++j) {
-      Real* row = out + int64_t{padded[0]} * (j + int64_t{padded[1]} * k);
+      Real* row = slab_start + row_length * j;
       for (int i = 0; i < size[0]; ++i, ++l) row[i] = static_cast<Real>(value(l));
+      std::fill(row + size[0], row + row_length, Real{0});
     }
+    std::fill(slab_start + row_length * size[1], slab_start + slab, Real{0});
   }
+  std::fill(out + slab * size[2], out + slab * padded[2], Real{0});
 }
 
 }  // namespace
@@ -239,7 +245,7 @@ MaskedNcc::MaskedNcc(const Image& fixed,
                                            padded_size_[0],
                                            real.get(),
                                            reinterpret_cast<fftw_complex*>(complex.get()),
-                                           rigor | FFTW_PRESERVE_INPUT);
+                                           rigor);
     plans_->inverse = fftw_plan_dft_c2r_3d(padded_size_[2],
                                            padded_size_[1],
                                            padded_size_[0],
@@ -259,7 +265,6 @@ MaskedNcc::MaskedNcc(const Image& fixed,
   // The inverse FFT is unnormalised (it returns P_x P_y P_z times the correlation): fold
   // the 1 / (P_x P_y P_z) into the fixed spectra once.
   const Real scale = Real{1} / static_cast<Real>(num_real_);
-  std::fill(real.get(), real.get() + num_real_, Real{0});
   auto transform = [&](const auto& value, ComplexBuffer* spectrum) {
     Embed<Real>(fixed_size_, padded_size_, value, real.get());
     *spectrum = AllocateComplex(num_complex_);
@@ -303,7 +308,6 @@ std::unique_ptr<MaskedNcc::Workspace> MaskedNcc::AcquireWorkspace() const {
                         &workspace->sfg}) {
     *b = AllocateReal(num_real_);
   }
-  std::fill(workspace->input.get(), workspace->input.get() + num_real_, Real{0});
   workspace->spectrum = AllocateComplex(num_complex_);
   workspace->product = AllocateComplex(num_complex_);
   return workspace;

@@ -9,6 +9,7 @@
 
 #include "baselines/baselines.h"
 #include "core/parallel.h"
+#include "core/pyramid.h"
 #include "init/masked_ncc.h"
 #include "init/rotation_grid.h"
 
@@ -16,18 +17,68 @@ namespace dsr {
 namespace {
 
 constexpr double kDegree = M_PI / 180.0;
+// Fewest valid cells of a half-resolution volume for the coarse screen of the rotations
+// (below, the full-resolution search scores every rotation).
+constexpr int64_t kMinScreenCells = 64;
 
-// The volume's values and valid-cell map on its own grid (the NCC's image and mask).
-void ValuesAndValidCells(const Frame& frame, Image* values, Mask* valid) {
+// The volume's values and valid-cell map on the box of its valid cells (`lo` its first
+// voxel): the rest of the grid is outside the field of view and would only enlarge the
+// FFTs.
+void ValuesAndValidCells(const Frame& frame, Eigen::Vector3i* lo, Image* values, Mask* valid) {
   const ImageGeometry& g = frame.geometry();
-  *values = Image(g, 0.0f);
-  *valid = Mask(g, 0);
+  const Eigen::AlignedBox3d& box = frame.ValidIndexBox();  // [min cell, max cell + 1]
+  *lo = box.min().cast<int>();
+  ImageGeometry cropped = g;
+  cropped.size = (box.max() - box.min()).cast<int>().cwiseMax(1);
+  *values = Image(cropped, 0.0f);
+  *valid = Mask(cropped, 0);
   const float* data = frame.interleaved();
-  for (int64_t l = 0; l < g.NumVoxels(); ++l) {
-    if (!frame.IsValidCell(l)) continue;
-    values->voxels[l] = data[4 * l];
-    valid->voxels[l] = 1;
+  for (int k = 0; k < cropped.size[2]; ++k) {
+    for (int j = 0; j < cropped.size[1]; ++j) {
+      for (int i = 0; i < cropped.size[0]; ++i) {
+        const int64_t l = g.LinearIndex(i + (*lo)[0], j + (*lo)[1], k + (*lo)[2]);
+        if (!frame.IsValidCell(l)) continue;
+        const int64_t c = cropped.LinearIndex(i, j, k);
+        values->voxels[c] = data[4 * l];
+        valid->voxels[c] = 1;
+      }
+    }
   }
+}
+
+// Physical points whose convex hull holds every point a valid sample of `frame` can come
+// from: the corners of its valid cells that are not surrounded by other such corners.
+std::vector<Eigen::Vector3d> ValidHullCandidates(const Frame& frame) {
+  const ImageGeometry& g = frame.geometry();
+  const Eigen::Vector3i& n = g.size;
+  std::vector<uint8_t> corner(g.NumVoxels(), 0);
+  for (int k = 0; k + 1 < n[2]; ++k) {
+    for (int j = 0; j + 1 < n[1]; ++j) {
+      for (int i = 0; i + 1 < n[0]; ++i) {
+        if (!frame.IsValidCell(g.LinearIndex(i, j, k))) continue;
+        for (int c = 0; c < 8; ++c) {
+          corner[g.LinearIndex(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2))] = 1;
+        }
+      }
+    }
+  }
+  std::vector<Eigen::Vector3d> points;
+  for (int k = 0; k < n[2]; ++k) {
+    for (int j = 0; j < n[1]; ++j) {
+      for (int i = 0; i < n[0]; ++i) {
+        if (!corner[g.LinearIndex(i, j, k)]) continue;
+        const bool interior = i > 0 && j > 0 && k > 0 && i + 1 < n[0] && j + 1 < n[1] &&
+                              k + 1 < n[2] && corner[g.LinearIndex(i - 1, j, k)] &&
+                              corner[g.LinearIndex(i + 1, j, k)] &&
+                              corner[g.LinearIndex(i, j - 1, k)] &&
+                              corner[g.LinearIndex(i, j + 1, k)] &&
+                              corner[g.LinearIndex(i, j, k - 1)] &&
+                              corner[g.LinearIndex(i, j, k + 1)];
+        if (!interior) points.push_back(g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
+      }
+    }
+  }
+  return points;
 }
 
 // Physical centre of the frame's valid cells' bounding box.
@@ -83,6 +134,9 @@ bool PlacementSearchOptions::Validate(std::string* error) const {
   if (num_pair_rotations < 1 || num_pair_rotations > 100000) {
     return bad("--pair_search_rotations", num_pair_rotations, "must be in [1, 100000]");
   }
+  if (num_screened < 0 || num_screened > 100000) {
+    return bad("PlacementSearchOptions::num_screened", num_screened, "must be in [0, 100000]");
+  }
   if (num_refined < 1 || num_refined > 100) {
     return bad("PlacementSearchOptions::num_refined", num_refined, "must be in [1, 100]");
   }
@@ -128,39 +182,43 @@ Placement ScorePlacement(const Frame& fixed,
   return p;
 }
 
-std::vector<Placement> SearchPeaks(const Frame& fixed,
-                                   const Frame& moving,
-                                   const Eigen::Matrix3d& centre,
-                                   const PlacementSearchOptions& options) {
-  const std::vector<Eigen::Matrix3d> rotations =
-      RotationsInBall(centre, options.max_rotation_deg * kDegree, options.num_rotations);
+namespace {
+
+// The best translation of `moving` in `fixed` for each of `rotations` (the rotation parts
+// of moving_from_fixed), in their order; ncc -inf where no translation qualifies.
+std::vector<Placement> BestTranslations(const Frame& fixed,
+                                        const Frame& moving,
+                                        const std::vector<Eigen::Matrix3d>& rotations,
+                                        const PlacementSearchOptions& options) {
   const ImageGeometry& fg = fixed.geometry();
   const Eigen::Matrix3d fixed_index_from_physical = fg.PhysicalToIndexMatrix();
   const Eigen::Matrix3d fixed_physical_from_index = fg.IndexToPhysicalMatrix();
+  std::vector<Placement> peaks(rotations.size());
+  if (fixed.num_valid_cells() == 0 || moving.num_valid_cells() == 0) return peaks;
   const Eigen::Vector3d c_m = ValidCentre(moving);
 
   // One grid W for every rotation (MaskedNcc prepares the fixed side for one moving size):
-  // large enough for the moving valid box under any sampled rotation. W index q stands for
-  // the point y = D_f S_f (q - half) of the rotated moving frame, whose moving point is
-  // x = R y + c_m (R = the rotation of moving_from_fixed).
-  const Eigen::AlignedBox3d box = moving.ValidIndexBox();
+  // large enough for the moving field of view under any sampled rotation (the hull of its
+  // valid cells, tighter than their box). W index q stands for the point
+  // y = D_f S_f (q - half) of the rotated moving frame, whose moving point is x = R y + c_m
+  // (R = the rotation of moving_from_fixed).
+  const std::vector<Eigen::Vector3d> hull = ValidHullCandidates(moving);
   Eigen::Vector3d half = Eigen::Vector3d::Zero();
   for (const Eigen::Matrix3d& r : rotations) {
-    for (int corner = 0; corner < 8; ++corner) {
-      const Eigen::Vector3d x = moving.geometry().IndexToPhysical(
-          box.corner(static_cast<Eigen::AlignedBox3d::CornerType>(corner)));
-      const Eigen::Vector3d z = fixed_index_from_physical * (r.transpose() * (x - c_m));
-      half = half.cwiseMax(z.cwiseAbs());
-    }
+    const Eigen::Matrix3d to_w = fixed_index_from_physical * r.transpose();
+    for (const Eigen::Vector3d& x : hull) half = half.cwiseMax((to_w * (x - c_m)).cwiseAbs());
   }
   half = half.array().ceil();
   const Eigen::Vector3i w_size = (2.0 * half).cast<int>() + Eigen::Vector3i::Ones();
   ImageGeometry w_grid = fg;
   w_grid.size = w_size;
 
+  // The fixed side on the box of its valid cells: map shift s puts W voxel q on fixed
+  // voxel q + s + fixed_lo.
+  Eigen::Vector3i fixed_lo;
   Image fixed_values;
   Mask fixed_valid;
-  ValuesAndValidCells(fixed, &fixed_values, &fixed_valid);
+  ValuesAndValidCells(fixed, &fixed_lo, &fixed_values, &fixed_valid);
   const MaskedNcc ncc(fixed_values, fixed_valid, w_size);
   // Moving valid cells in fixed voxels (the NCC counts fixed-grid voxels).
   const double moving_fov_in_fixed_voxels = static_cast<double>(moving.num_valid_cells()) *
@@ -169,7 +227,6 @@ std::vector<Placement> SearchPeaks(const Frame& fixed,
   const int64_t min_overlap = std::max<int64_t>(
       8, std::llround(options.min_overlap_fraction * moving_fov_in_fixed_voxels));
 
-  std::vector<Placement> peaks(rotations.size());
   // Rotations in blocks, each block with its own resampling buffers (allocating them per
   // rotation cost a tenth of the search).
   const int64_t num_rotations = static_cast<int64_t>(rotations.size());
@@ -197,10 +254,12 @@ std::vector<Placement> SearchPeaks(const Frame& fixed,
         }
       }
       const NccPeak peak = ncc.Best(w, w_mask, min_overlap);
-      // Fixed voxel q + s holds W voxel q: p = o_f + D_f S_f (q + s) = t + y with
-      // t = o_f + D_f S_f (s + half), so fixed_from_moving = Translate(t) R^T Translate(-c_m).
+      // Fixed voxel q + s + lo holds W voxel q: p = o_f + D_f S_f (q + s + lo) = t + y with
+      // t = o_f + D_f S_f (s + lo + half), so fixed_from_moving = Translate(t) R^T
+      // Translate(-c_m).
       const Eigen::Vector3d t =
-          fg.origin_mm + fixed_physical_from_index * (peak.shift.cast<double>() + half);
+          fg.origin_mm +
+          fixed_physical_from_index * ((peak.shift + fixed_lo).cast<double>() + half);
       Eigen::Isometry3d fixed_from_moving = Eigen::Isometry3d::Identity();
       fixed_from_moving.linear() = rotation.transpose();
       fixed_from_moving.translation() = t - rotation.transpose() * c_m;
@@ -213,6 +272,80 @@ std::vector<Placement> SearchPeaks(const Frame& fixed,
                                : 0.0;
     }
   });
+  return peaks;
+}
+
+// `frame` downsampled once (the pyramid's rule: smoothing of sigma 1 voxel, then every
+// other voxel), its mask the corners of its valid cells. False when too little of the
+// field of view survives for an NCC to rank anything.
+bool HalfResolution(const Frame& frame, Frame* half) {
+  const ImageGeometry& g = frame.geometry();
+  if (g.size.minCoeff() < 8) return false;
+  Image values(g, 0.0f);
+  Mask mask(g, 0);
+  const float* data = frame.interleaved();
+  for (int k = 0; k + 1 < g.size[2]; ++k) {
+    for (int j = 0; j + 1 < g.size[1]; ++j) {
+      for (int i = 0; i + 1 < g.size[0]; ++i) {
+        if (!frame.IsValidCell(g.LinearIndex(i, j, k))) continue;
+        for (int c = 0; c < 8; ++c) {
+          const int64_t l = g.LinearIndex(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2));
+          mask.voxels[l] = 1;
+          values.voxels[l] = data[4 * l];
+        }
+      }
+    }
+  }
+  ImageLevel level = Downsample(values, mask, 1.0, 1);
+  // A Frame's valid cells lie one voxel inside its mask (their gradients' stencil), which
+  // at half resolution would take two fine voxels off every side of the field of view:
+  // the mask is grown by one coarse voxel first (the smoothed values reach that far).
+  const ImageGeometry& hg = level.mask.geometry;
+  Mask grown(hg, 0);
+  for (int k = 0; k < hg.size[2]; ++k) {
+    for (int j = 0; j < hg.size[1]; ++j) {
+      for (int i = 0; i < hg.size[0]; ++i) {
+        if (!level.mask.at(i, j, k)) continue;
+        for (int dk = std::max(0, k - 1); dk <= std::min(hg.size[2] - 1, k + 1); ++dk) {
+          for (int dj = std::max(0, j - 1); dj <= std::min(hg.size[1] - 1, j + 1); ++dj) {
+            for (int di = std::max(0, i - 1); di <= std::min(hg.size[0] - 1, i + 1); ++di) {
+              grown.at(di, dj, dk) = 1;
+            }
+          }
+        }
+      }
+    }
+  }
+  *half = Frame(level.image, grown);
+  return half->num_valid_cells() >= kMinScreenCells;
+}
+
+}  // namespace
+
+std::vector<Placement> SearchPeaks(const Frame& fixed,
+                                   const Frame& moving,
+                                   const Eigen::Matrix3d& centre,
+                                   const PlacementSearchOptions& options) {
+  std::vector<Eigen::Matrix3d> rotations =
+      RotationsInBall(centre, options.max_rotation_deg * kDegree, options.num_rotations);
+  // The coarse screen: every rotation on both volumes at half resolution (an eighth of the
+  // voxels, FFTs to match), then only the best num_screened rotations at this level.
+  Frame coarse_fixed, coarse_moving;
+  if (options.num_screened > 0 && options.num_screened < static_cast<int>(rotations.size()) &&
+      HalfResolution(fixed, &coarse_fixed) && HalfResolution(moving, &coarse_moving)) {
+    const std::vector<Placement> coarse =
+        BestTranslations(coarse_fixed, coarse_moving, rotations, options);
+    std::vector<int> order(rotations.size());
+    for (size_t r = 0; r < order.size(); ++r) order[r] = static_cast<int>(r);
+    std::stable_sort(order.begin(), order.end(),
+                     [&](int a, int b) { return coarse[a].ncc > coarse[b].ncc; });
+    order.resize(options.num_screened);
+    std::sort(order.begin(), order.end());  // the kept rotations in their grid order
+    std::vector<Eigen::Matrix3d> kept;
+    for (int r : order) kept.push_back(rotations[r]);
+    rotations = std::move(kept);
+  }
+  std::vector<Placement> peaks = BestTranslations(fixed, moving, rotations, options);
   // Best first; ties keep the rotation order (deterministic).
   std::stable_sort(peaks.begin(), peaks.end(),
                    [](const Placement& a, const Placement& b) { return a.ncc > b.ncc; });

@@ -2,7 +2,9 @@
 // another (a frame or a panorama), independent of any starting pose (docs/design.md
 // section 9, "Global initialisation").
 //
-//   for each rotation R within max_rotation of a centre (init/rotation_grid.h):
+//   screen the rotations within max_rotation of a centre (init/rotation_grid.h) by the
+//   steps below on both volumes at half resolution, and keep the best num_screened;
+//   for each kept rotation R:
 //     resample the moving field of view rotated by R^T about its centre onto a grid with
 //     the fixed volume's spacing and axes;
 //     the best integer translation by masked normalised cross-correlation over every
@@ -41,6 +43,10 @@ struct PlacementSearchOptions {
   // Rotations per pair of the pair graph (init/pair_graph.h), which searches m(m-1)/2 pairs:
   // fewer than num_rotations, about 11 degrees apart within 45 degrees.
   int num_pair_rotations = 60;
+  // The coarse screen: every sampled rotation is first scored with both volumes at half
+  // resolution (an eighth of the voxels), and only the best num_screened rotations are
+  // searched at the given level. 0: no screen, every rotation at the given level.
+  int num_screened = 12;
   // Two peaks are the same candidate when their rotations differ by less than this and
   // their translations by less than 3 fixed voxels.
   double distinct_rotation_deg = 15.0;
@@ -90,8 +96,9 @@ std::vector<Placement> SearchPlacement(const Frame& fixed,
                                        const std::vector<Eigen::Isometry3d>& extra_starts,
                                        const PlacementSearchOptions& options);
 
-// The search without refinement: the best translation for each sampled rotation, as
-// placements sorted best NCC first (for tests and measurements).
+// The search without refinement: the best translation for each sampled rotation that
+// passed the coarse screen (every rotation with num_screened = 0), as placements sorted
+// best NCC first (for tests and measurements).
 std::vector<Placement> SearchPeaks(const Frame& fixed,
                                    const Frame& moving,
                                    const Eigen::Matrix3d& centre,

@@ -110,46 +110,102 @@ SimulationOptions PairOptions() {
 }
 
 // Frame B is frame A turned by 40 degrees about an oblique axis through A's field of view
-// and shifted by 20 voxels: the search (centred on the identity, within 45 degrees) finds
-// B_from_A to within a voxel and a degree after refinement.
-TEST(PlacementSearch, FindsAFortyDegreeTwentyVoxelOffset) {
-  DSR_SKIP_HEAVY_UNDER_SANITIZER();
-  const Image& source = Phantom128();
-  const SimulationOptions o = PairOptions();
-  const ImageGeometry g = SimulatedFrameGeometry(source.geometry, o);
-  // A looks at the source centre; B's view is A's turned about a point inside A's field of
-  // view and shifted, so that about half of B's field of view is in A's.
-  const Eigen::Vector3d frame_centre = g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
-  const Eigen::Vector3d source_centre = source.geometry.IndexToPhysical(
-      0.5 * (source.geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
-  Eigen::Isometry3d a_from_world = Eigen::Isometry3d::Identity();
-  a_from_world.translation() = frame_centre - source_centre;
-  Eigen::Isometry3d b_from_a = Eigen::Isometry3d::Identity();
-  const Eigen::Vector3d pivot = frame_centre + Eigen::Vector3d(0, 0, 8);
-  b_from_a.linear() = ExpSO3(Eigen::Vector3d(1.0, -1.0, 0.5).normalized() * 40.0 * kDegree);
-  b_from_a.translation() = pivot - b_from_a.linear() * pivot + Eigen::Vector3d(12.0, -10.0, 12.5);
-  ASSERT_NEAR(Eigen::Vector3d(12.0, -10.0, 12.5).norm(), 20.0, 0.01);  // "20 voxels"
-  const CutFrame a = Cut(source, o, a_from_world);
-  const CutFrame b = Cut(source, o, b_from_a * a_from_world);
-  const Frame fixed = Coarse(a, 1), moving = Coarse(b, 1);
+// and shifted by 20 voxels, both at half resolution (2 mm voxels).
+struct FortyDegreePair {
+  Frame fixed, moving;
+  Eigen::Isometry3d b_from_a;
+  Eigen::Vector3d pivot;  // B's field-of-view centre (mm)
+};
 
+const FortyDegreePair& FortyDegreeTwentyVoxelPair() {
+  static const FortyDegreePair pair = [] {
+    const Image& source = Phantom128();
+    const SimulationOptions o = PairOptions();
+    const ImageGeometry g = SimulatedFrameGeometry(source.geometry, o);
+    // A looks at the source centre; B's view is A's turned about a point inside A's field
+    // of view and shifted, so that about half of B's field of view is in A's.
+    const Eigen::Vector3d frame_centre =
+        g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
+    const Eigen::Vector3d source_centre = source.geometry.IndexToPhysical(
+        0.5 * (source.geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
+    Eigen::Isometry3d a_from_world = Eigen::Isometry3d::Identity();
+    a_from_world.translation() = frame_centre - source_centre;
+    FortyDegreePair p;
+    p.b_from_a = Eigen::Isometry3d::Identity();
+    p.pivot = frame_centre + Eigen::Vector3d(0, 0, 8);
+    p.b_from_a.linear() = ExpSO3(Eigen::Vector3d(1.0, -1.0, 0.5).normalized() * 40.0 * kDegree);
+    p.b_from_a.translation() =
+        p.pivot - p.b_from_a.linear() * p.pivot + Eigen::Vector3d(12.0, -10.0, 12.5);
+    p.fixed = Coarse(Cut(source, o, a_from_world), 1);
+    p.moving = Coarse(Cut(source, o, p.b_from_a * a_from_world), 1);
+    return p;
+  }();
+  return pair;
+}
+
+PlacementSearchOptions FortyDegreeSearch() {
   PlacementSearchOptions search;
   search.max_rotation_deg = 45.0;
   search.num_rotations = 200;
   search.num_threads = 2;
   search.refine.log_progress = false;
+  return search;
+}
+
+// The search (centred on the identity, within 45 degrees) finds B_from_A to within a voxel
+// and a degree after refinement.
+TEST(PlacementSearch, FindsAFortyDegreeTwentyVoxelOffset) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const FortyDegreePair& p = FortyDegreeTwentyVoxelPair();
+  ASSERT_NEAR(Eigen::Vector3d(12.0, -10.0, 12.5).norm(), 20.0, 0.01);  // "20 voxels"
+  const PlacementSearchOptions search = FortyDegreeSearch();
   const std::vector<Placement> found =
-      SearchPlacement(fixed, moving, Eigen::Matrix3d::Identity(), {}, search);
+      SearchPlacement(p.fixed, p.moving, Eigen::Matrix3d::Identity(), {}, search);
   ASSERT_FALSE(found.empty());
-  const Eigen::Isometry3d error = found.front().moving_from_fixed * b_from_a.inverse();
+  const Eigen::Isometry3d error = found.front().moving_from_fixed * p.b_from_a.inverse();
   // At the field-of-view centre of B, in mm (1 mm voxels at the input, 2 mm searched).
-  EXPECT_LT((error * pivot - pivot).norm(), 1.0);
+  EXPECT_LT((error * p.pivot - p.pivot).norm(), 1.0);
   EXPECT_LT(LogSO3(error.linear()).norm(), 1.0 * kDegree);
   EXPECT_GT(found.front().ncc, 0.8);
   // Identity, where a local solver would start, is far worse.
-  const Placement at_identity =
-      ScorePlacement(fixed, moving, Eigen::Isometry3d::Identity(), search.min_overlap_fraction);
+  const Placement at_identity = ScorePlacement(p.fixed, p.moving, Eigen::Isometry3d::Identity(),
+                                               search.min_overlap_fraction);
   EXPECT_LT(at_identity.ncc, found.front().ncc - 0.2);
+}
+
+// The coarse screen only drops rotations: every placement it keeps is the unscreened
+// search's for that rotation (same translation, same NCC up to the FFTs' round-off on
+// another padded grid), and the unscreened search's best rotations are among the kept.
+TEST(PlacementSearch, CoarseScreenKeepsTheBestRotationsUnchanged) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const FortyDegreePair& p = FortyDegreeTwentyVoxelPair();
+  PlacementSearchOptions all = FortyDegreeSearch();
+  all.num_rotations = 100;
+  all.num_screened = 0;
+  PlacementSearchOptions screened = all;
+  screened.num_screened = 12;
+  const std::vector<Placement> every =
+      SearchPeaks(p.fixed, p.moving, Eigen::Matrix3d::Identity(), all);
+  const std::vector<Placement> kept =
+      SearchPeaks(p.fixed, p.moving, Eigen::Matrix3d::Identity(), screened);
+  ASSERT_GT(every.size(), 80u);
+  ASSERT_EQ(kept.size(), 12u);
+  const auto same_rotation = [](const Placement& a, const Placement& b) {
+    // (the angle's acos resolves about 1e-8 rad near 0)
+    return RotationAngleBetween(a.moving_from_fixed.linear(), b.moving_from_fixed.linear()) <
+           1e-6;
+  };
+  for (const Placement& k : kept) {
+    const auto twin = std::find_if(every.begin(), every.end(),
+                                   [&](const Placement& e) { return same_rotation(e, k); });
+    ASSERT_NE(twin, every.end());
+    EXPECT_NEAR(k.ncc, twin->ncc, 1e-9);
+    EXPECT_EQ(k.overlap, twin->overlap);
+    EXPECT_LT((k.moving_from_fixed.translation() - twin->moving_from_fixed.translation()).norm(),
+              1e-6);
+  }
+  // The unscreened best (the true rotation's neighbourhood) survived the screen.
+  EXPECT_TRUE(same_rotation(kept.front(), every.front()));
 }
 
 SimulatedSequence SmallSequence(uint64_t seed, int num_frames = 5) {
