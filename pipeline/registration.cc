@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <iomanip>
 #include <limits>
 #include <sstream>
 
@@ -406,6 +407,7 @@ bool SolveLevels(const std::vector<Image>& images,
     // The last solve's candidates and how far it moved the frames (for the checks).
     CandidateSet last_candidates;
     double last_motion = std::numeric_limits<double>::infinity();
+    std::vector<double> last_frame_motion(m, 0.0);
     bool solved = false;
     for (int rebuild = 0; rebuild <= max_rebuilds; ++rebuild) {
       LevelSolve record;
@@ -482,9 +484,10 @@ bool SolveLevels(const std::vector<Image>& images,
         return false;
       }
       const std::vector<Eigen::Isometry3d> next = RelativeToFrame0(record.report.frame_from_world);
+      std::vector<double> frame_motion(m, 0.0);
       for (int i = 1; i < m; ++i) {
-        record.max_motion_voxels =
-            std::max(record.max_motion_voxels, MaxCornerMotionVoxels(frames[i], poses[i], next[i]));
+        frame_motion[i] = MaxCornerMotionVoxels(frames[i], poses[i], next[i]);
+        record.max_motion_voxels = std::max(record.max_motion_voxels, frame_motion[i]);
       }
       result->total_iterations += record.report.num_iterations;
       const bool usable = record.report.usable;
@@ -518,6 +521,7 @@ bool SolveLevels(const std::vector<Image>& images,
       solved = true;
       last_candidates = std::move(candidates);
       last_motion = motion;
+      last_frame_motion = std::move(frame_motion);
       if (motion <= options.rebuild_tolerance_voxels) break;
     }
     if (level > 0) {
@@ -537,6 +541,23 @@ bool SolveLevels(const std::vector<Image>& images,
         if (PairDisagreement(PairMismatches(search_frames, poses, options.solve.num_threads), m,
                              options.max_pair_mismatch_ratio, &flagged, &why)) {
           return diverged(level, why, flagged);
+        }
+        // A coarse level whose every solve still moved frames has not found a minimum:
+        // on the benchmarks' wide protocol no such level was followed by a usable
+        // registration, and the finer levels then cost the most for nothing. The frames
+        // still moving are named (with more than a third, the pair graph places all).
+        if (last_motion > options.rebuild_tolerance_voxels) {
+          std::vector<int> moving;
+          for (int i = 1; i < m; ++i) {
+            if (last_frame_motion[i] > options.rebuild_tolerance_voxels) moving.push_back(i);
+          }
+          std::ostringstream unsettled;
+          unsettled << "pyramid level " << level << " did not settle: its last solve (of "
+                    << max_rebuilds + 1 << ") still moved " << moving.size()
+                    << " frames, by up to " << std::setprecision(3) << last_motion
+                    << " voxels (> --rebuild_tolerance=" << options.rebuild_tolerance_voxels
+                    << ")";
+          return diverged(level, unsettled.str(), moving);
         }
       }
       continue;

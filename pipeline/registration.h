@@ -79,7 +79,9 @@ struct RegistrationOptions {
   // pair graph, once) and the registration starts again from the coarsest level, at most
   // this many times
   // (0: a flagged frame ends the registration as not usable). With recovery on, the checks
-  // also run after every coarse level, so that a wrong minimum is caught early and cheaply.
+  // also run after every coarse level, so that a wrong minimum is caught early and cheaply,
+  // and a coarse level that did not settle (its last solve still moved a frame by more than
+  // rebuild_tolerance_voxels) is recovered at once (docs/design.md section 10).
   int max_recoveries = 0;
   // The global search of recovery and of InitialPoses::kGlobal. It runs on the coarsest
   // pyramid level, halved further until no axis of a frame is longer than

@@ -387,6 +387,37 @@ TEST(Recovery, AcceptsTheMisfitOfAFrameThatMatchesTheOthers) {
 }
 
 // Recovery changes nothing where nothing is flagged: the same poses, bit for bit.
+// A coarse level whose last solve still moved frames by more than the rebuild tolerance
+// has not settled: with recovery, the registration stops there and recovers (the still
+// moving frames named), instead of spending the finer levels on it. A tolerance no solve
+// can meet makes every coarse level unsettled: each round ends at the coarsest level, and
+// once the recoveries are spent the failure says why; without recovery the rule is off.
+TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
+  const SimulatedSequence s = SmallSequence(3);
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  RegistrationOptions o = SmallOptions();
+  o.max_rebuilds = 0;
+  o.rebuild_tolerance_voxels = 1e-12;
+  RegistrationResult plain;
+  std::string error;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &plain, &error)) << error;
+  ASSERT_TRUE(plain.usable) << plain.failure;
+  EXPECT_EQ(plain.solves.back().level, 0);
+
+  o.max_recoveries = 1;
+  RegistrationResult unsettled;
+  ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &unsettled, &error)) << error;
+  EXPECT_FALSE(unsettled.usable);
+  EXPECT_NE(unsettled.failure.find("pyramid level 1 did not settle"), std::string::npos)
+      << unsettled.failure;
+  ASSERT_EQ(unsettled.recoveries.size(), 1u);
+  EXPECT_NE(unsettled.recoveries[0].why.find("did not settle"), std::string::npos);
+  // Every solve was on the coarsest level (pyramid_levels = 2: level 1).
+  for (const LevelSolve& solve : unsettled.solves) EXPECT_EQ(solve.level, 1);
+  EXPECT_FALSE(unsettled.flagged_frames.empty());
+  for (int f : unsettled.flagged_frames) EXPECT_GT(f, 0);
+}
+
 TEST(Recovery, LeavesAGoodRegistrationAlone) {
   const SimulatedSequence s = SmallSequence(3);
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
