@@ -5,7 +5,9 @@ Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv [...]
 A run succeeds when dsr_compare reports it ok and its mean TRE is below 0.1 mm (1 mm on the
 ultrasound-like protocols us, us_flat and us_gain, whose speckle alone puts the poses 0.05-0.4 mm
 off: there success means the right basin, a wrong minimum being millimetres off); TRE and
-time medians are over the successful runs, the max TRE over every run that returned poses.
+time medians are over the successful runs, the max TRE over every run that returned poses;
+the max times are over every run, split by whether it needed a recovery round (with the
+run counts; dsr_compare's recoveries column).
 With us (or us_gain) and us_flat for the same source, masks and method, a brightness table
 compares them sequence by sequence (the same poses, noise and speckle, with and without the gains,
 offsets and attenuation): runs refused or unsuccessful on each, the median TREs and their
@@ -49,8 +51,8 @@ def main(argv):
           f"(< {SUCCESS_TRE_MM_BY_PROTOCOL['us']} mm on "
           f"{', '.join(SUCCESS_TRE_MM_BY_PROTOCOL)}).\n")
     print("| method | source | protocol | masks | success | median TRE (mm) | max TRE (mm) "
-          "| median time (s) | failures |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "| median time (s) | max time (s), runs without / with a recovery | failures |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     calibration = []
     head_to_head = []
     by_group = {}  # (source, protocol, masks) -> {method: [rows]}
@@ -68,10 +70,18 @@ def main(argv):
             tre_all = [float(r["tre_mean_mm"]) for r in runs if r["ok"] == "1"]
             times = [float(r["seconds"]) for r in ok]
             failed = sorted(r["sequence"] for r in runs if r not in ok)
+            # Every run's time, split by whether it needed a recovery round (columns of
+            # dsr_compare; other tools' rows have none).
+            plain = [float(r["seconds"]) for r in runs if r.get("recoveries", "") == "0"]
+            recovered = [float(r["seconds"]) for r in runs
+                         if r.get("recoveries", "") not in ("", "0")]
+            split = (f"{max(plain) if plain else float('nan'):.2f} ({len(plain)}) / "
+                     f"{max(recovered) if recovered else float('nan'):.2f} ({len(recovered)})"
+                     if plain or recovered else "-")
             print(f"| {method} | {source} | {protocol} | {masks} | {len(ok)}/{len(runs)} | "
                   f"{statistics.median(tre_ok) if tre_ok else float('nan'):.4f} | "
                   f"{max(tre_all) if tre_all else float('nan'):.3g} | "
-                  f"{statistics.median(times) if times else float('nan'):.2f} | "
+                  f"{statistics.median(times) if times else float('nan'):.2f} | {split} | "
                   f"{' '.join(failed) if failed else '-'} |")
             predicted = [float(r["predicted_tre_mm"]) for r in ok if r.get("predicted_tre_mm")]
             nees = [float(r["nees"]) for r in ok if r.get("nees")]

@@ -33,7 +33,7 @@ std::string Serialize(const ComparisonRow& row) {
   s.precision(17);
   s << row.ok << ' ' << row.mae_translation_voxels << ' ' << row.mae_translation_mm << ' '
     << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
-    << row.iterations << ' ' << row.seconds_per_iteration << ' '
+    << row.iterations << ' ' << row.recoveries << ' ' << row.seconds_per_iteration << ' '
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
@@ -53,7 +53,7 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   size_t poses = 0;
   s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
       row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
-      row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
+      row->recoveries >> row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
       row->added_memory_mb;
   std::string predicted, nees, mae_gain, mae_offset;
   s >> predicted >> nees >> mae_gain >> mae_offset >> poses;
@@ -110,6 +110,7 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   row.tre_mean_mm = errors.tre_mean_mm;
   row.tre_max_mm = errors.tre_max_mm;
   row.iterations = result.total_iterations;
+  row.recoveries = static_cast<int>(result.recoveries.size());
   double finest_seconds = 0.0, finest_differences = 0.0;
   int finest_iterations = 0, finest_solves = 0;
   for (const LevelSolve& solve : result.solves) {
@@ -236,7 +237,7 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
   s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
        "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
        "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
-       "predicted_tre_mm,nees,mae_gain,mae_offset,failure\n";
+       "predicted_tre_mm,nees,mae_gain,mae_offset,failure,recoveries\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
@@ -248,7 +249,7 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
       s << ',';
       if (!std::isnan(v)) s << v;
     }
-    s << ',' << CsvField(r.failure) << '\n';
+    s << ',' << CsvField(r.failure) << ',' << r.recoveries << '\n';
   }
   return s.str();
 }

@@ -35,6 +35,7 @@ struct ComparisonRow {
   double mae_translation_voxels = 0.0, mae_translation_mm = 0.0, mae_rotation_rad = 0.0;
   double tre_mean_mm = 0.0, tre_max_mm = 0.0;
   int iterations = 0;               // every solve of every level (initialiser excluded)
+  int recoveries = 0;               // recovery rounds (RegistrationResult::recoveries)
   double seconds_per_iteration = 0.0;   // finest level: solve time / iterations
   double differences_per_iteration = 0.0;  // finest level: intensity differences per evaluation
   double seconds = 0.0;             // the whole run (pyramid, initialiser, solves)
