@@ -71,15 +71,24 @@ void BM_MaskedNccBest(benchmark::State& state) {
 }
 BENCHMARK(BM_MaskedNccBest)->Unit(benchmark::kMillisecond);
 
-// The peaks of frame 1 against frame 0 over `rotations` rotations within 45 degrees.
+// The peaks of frame 1 against frame 0 over range(0) rotations within 45 degrees, the
+// best range(1) of them kept by the coarse screen (0: no screen, every rotation searched
+// at the search level).
 void BM_SearchPeaksPair(benchmark::State& state) {
   const std::vector<Frame>& frames = SearchLevelFrames();
-  const PlacementSearchOptions o = Options(static_cast<int>(state.range(0)));
+  PlacementSearchOptions o = Options(static_cast<int>(state.range(0)));
+  o.num_screened = static_cast<int>(state.range(1));
   for (auto _ : state) {
     benchmark::DoNotOptimize(SearchPeaks(frames[0], frames[1], Eigen::Matrix3d::Identity(), o));
   }
 }
-BENCHMARK(BM_SearchPeaksPair)->Arg(60)->Arg(200)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_SearchPeaksPair)
+    ->Args({60, 12})
+    ->Args({60, 0})
+    ->Args({200, 12})
+    ->Args({200, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // Frame 5 against the panorama of the ten others: recovery's search (200 rotations,
 // refinement of the best 3 peaks included).
@@ -98,13 +107,21 @@ void BM_SearchPlacementPanorama(benchmark::State& state) {
   const Frame panorama = PanoramaAsFrame(FusePanoramaMean(others, poses, grid, 1));
   PlacementSearchOptions o = Options(200);
   o.num_threads = static_cast<int>(state.range(0));
+  o.num_screened = static_cast<int>(state.range(1));
   o.refine.num_threads = o.num_threads;
   for (auto _ : state) {
     benchmark::DoNotOptimize(
         SearchPlacement(panorama, frames[5], Eigen::Matrix3d::Identity(), {}, o));
   }
 }
-BENCHMARK(BM_SearchPlacementPanorama)->Arg(1)->Arg(2)->Unit(benchmark::kMillisecond)->UseRealTime();
+// Threads, screened rotations (0: no screen).
+BENCHMARK(BM_SearchPlacementPanorama)
+    ->Args({1, 12})
+    ->Args({1, 0})
+    ->Args({2, 12})
+    ->Args({2, 0})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // The pipeline's pair check (pipeline/pair_check.h) of the 11 frames at their true poses:
 // what it adds after each level and at the final poses.
