@@ -97,6 +97,7 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
     return row;
   }
   row.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  row.recoveries = static_cast<int>(result.recoveries.size());
   if (!result.usable) {
     row.failure = result.failure;
     return row;
@@ -110,7 +111,6 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   row.tre_mean_mm = errors.tre_mean_mm;
   row.tre_max_mm = errors.tre_max_mm;
   row.iterations = result.total_iterations;
-  row.recoveries = static_cast<int>(result.recoveries.size());
   double finest_seconds = 0.0, finest_differences = 0.0;
   int finest_iterations = 0, finest_solves = 0;
   for (const LevelSolve& solve : result.solves) {

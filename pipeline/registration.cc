@@ -224,6 +224,11 @@ bool RegistrationOptions::Validate(std::string* error) const {
   if (!(rebuild_tolerance_voxels > 0.0)) {
     return bad("rebuild_tolerance", std::to_string(rebuild_tolerance_voxels), "must be > 0");
   }
+  if (!(unsettled_motion_voxels >= 0.0 && std::isfinite(unsettled_motion_voxels))) {
+    *error = "RegistrationOptions::unsettled_motion_voxels=" +
+             std::to_string(unsettled_motion_voxels) + ": must be finite and >= 0";
+    return false;
+  }
   if (!(min_kept_overlap >= 0.0 && min_kept_overlap < 1.0)) {
     return bad("min_kept_overlap", std::to_string(min_kept_overlap), "must be in [0, 1)");
   }
@@ -542,22 +547,26 @@ bool SolveLevels(const std::vector<Image>& images,
                              options.max_pair_mismatch_ratio, &flagged, &why)) {
           return diverged(level, why, flagged);
         }
-        // A coarse level whose every solve still moved frames has not found a minimum:
-        // on the benchmarks' wide protocol no such level was followed by a usable
-        // registration, and the finer levels then cost the most for nothing. The frames
-        // still moving are named (with more than a third, the pair graph places all).
-        if (last_motion > options.rebuild_tolerance_voxels) {
-          std::vector<int> moving;
+        // A coarse level whose last solve (every rebuild used) still slid frames by more
+        // than unsettled_motion_voxels has found no minimum: on the benchmarks' wide
+        // protocol no such level was followed by a usable registration, and the finer
+        // levels then cost the most for nothing. The sliding frames are named (with more
+        // than a third, the pair graph places all). Creeping by less (photometric
+        // parameters make coarse levels converge slowly) goes on to the finer levels.
+        const double unsettled_voxels =
+            std::max(options.rebuild_tolerance_voxels, options.unsettled_motion_voxels);
+        if (last_motion > unsettled_voxels) {
+          std::vector<int> sliding;
           for (int i = 1; i < m; ++i) {
-            if (last_frame_motion[i] > options.rebuild_tolerance_voxels) moving.push_back(i);
+            if (last_frame_motion[i] > unsettled_voxels) sliding.push_back(i);
           }
           std::ostringstream unsettled;
           unsettled << "pyramid level " << level << " did not settle: its last solve (of "
-                    << max_rebuilds + 1 << ") still moved " << moving.size()
-                    << " frames, by up to " << std::setprecision(3) << last_motion
-                    << " voxels (> --rebuild_tolerance=" << options.rebuild_tolerance_voxels
-                    << ")";
-          return diverged(level, unsettled.str(), moving);
+                    << max_rebuilds + 1 << ") still moved " << sliding.size()
+                    << (sliding.size() == 1 ? " frame" : " frames") << " by up to "
+                    << std::setprecision(3) << last_motion << " voxels (more than "
+                    << unsettled_voxels << ")";
+          return diverged(level, unsettled.str(), sliding);
         }
       }
       continue;

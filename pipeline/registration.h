@@ -80,9 +80,11 @@ struct RegistrationOptions {
   // this many times
   // (0: a flagged frame ends the registration as not usable). With recovery on, the checks
   // also run after every coarse level, so that a wrong minimum is caught early and cheaply,
-  // and a coarse level that did not settle (its last solve still moved a frame by more than
+  // and a coarse level that did not settle (its last solve, every rebuild used, still moved
+  // a frame by more than unsettled_motion_voxels, in the level's voxels, and by more than
   // rebuild_tolerance_voxels) is recovered at once (docs/design.md section 10).
   int max_recoveries = 0;
+  double unsettled_motion_voxels = 1.0;
   // The global search of recovery and of InitialPoses::kGlobal. It runs on the coarsest
   // pyramid level, halved further until no axis of a frame is longer than
   // search_max_axis_voxels.

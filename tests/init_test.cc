@@ -390,7 +390,7 @@ TEST(Recovery, AcceptsTheMisfitOfAFrameThatMatchesTheOthers) {
 // A coarse level whose last solve still moved frames by more than the rebuild tolerance
 // has not settled: with recovery, the registration stops there and recovers (the still
 // moving frames named), instead of spending the finer levels on it. A tolerance no solve
-// can meet makes every coarse level unsettled: each round ends at the coarsest level, and
+// can meet (and no sliding threshold) makes every coarse level unsettled: each round ends at the coarsest level, and
 // once the recoveries are spent the failure says why; without recovery the rule is off.
 TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
   const SimulatedSequence s = SmallSequence(3);
@@ -398,6 +398,7 @@ TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
   RegistrationOptions o = SmallOptions();
   o.max_rebuilds = 0;
   o.rebuild_tolerance_voxels = 1e-12;
+  o.unsettled_motion_voxels = 0.0;
   RegistrationResult plain;
   std::string error;
   ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &plain, &error)) << error;
