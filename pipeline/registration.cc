@@ -555,7 +555,9 @@ bool SolveLevels(const std::vector<Image>& images,
         // parameters make coarse levels converge slowly) goes on to the finer levels.
         const double unsettled_voxels =
             std::max(options.rebuild_tolerance_voxels, options.unsettled_motion_voxels);
-        if (last_motion > unsettled_voxels) {
+        // (Only where rebuilds were allowed: the pair-based baselines solve once per level
+        // and move their frames by whole voxels in that one solve.)
+        if (max_rebuilds > 0 && last_motion > unsettled_voxels) {
           std::vector<int> sliding;
           for (int i = 1; i < m; ++i) {
             if (last_frame_motion[i] > unsettled_voxels) sliding.push_back(i);

@@ -396,7 +396,7 @@ TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
   const SimulatedSequence s = SmallSequence(3);
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
   RegistrationOptions o = SmallOptions();
-  o.max_rebuilds = 0;
+  o.max_rebuilds = 1;
   o.rebuild_tolerance_voxels = 1e-12;
   o.unsettled_motion_voxels = 0.0;
   RegistrationResult plain;
