@@ -46,34 +46,42 @@ void ValuesAndValidCells(const Frame& frame, Eigen::Vector3i* lo, Image* values,
   }
 }
 
-// Physical points whose convex hull holds every point a valid sample of `frame` can come
-// from: the corners of its valid cells that are not surrounded by other such corners.
-std::vector<Eigen::Vector3d> ValidHullCandidates(const Frame& frame) {
+// The voxels that are a corner of some valid cell of `frame` (every point a valid sample
+// can come from lies in a cell spanned by them).
+Mask ValidCellCorners(const Frame& frame) {
   const ImageGeometry& g = frame.geometry();
-  const Eigen::Vector3i& n = g.size;
-  std::vector<uint8_t> corner(g.NumVoxels(), 0);
-  for (int k = 0; k + 1 < n[2]; ++k) {
-    for (int j = 0; j + 1 < n[1]; ++j) {
-      for (int i = 0; i + 1 < n[0]; ++i) {
+  Mask corners(g, 0);
+  for (int k = 0; k + 1 < g.size[2]; ++k) {
+    for (int j = 0; j + 1 < g.size[1]; ++j) {
+      for (int i = 0; i + 1 < g.size[0]; ++i) {
         if (!frame.IsValidCell(g.LinearIndex(i, j, k))) continue;
         for (int c = 0; c < 8; ++c) {
-          corner[g.LinearIndex(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2))] = 1;
+          corners.voxels[g.LinearIndex(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2))] = 1;
         }
       }
     }
   }
+  return corners;
+}
+
+// Physical points whose convex hull holds every point a valid sample of `frame` can come
+// from: the valid cells' corners that are not surrounded by other such corners.
+std::vector<Eigen::Vector3d> ValidHullCandidates(const Frame& frame) {
+  const ImageGeometry& g = frame.geometry();
+  const Eigen::Vector3i& n = g.size;
+  const Mask corners = ValidCellCorners(frame);
+  const auto corner = [&](int i, int j, int k) {
+    return corners.voxels[g.LinearIndex(i, j, k)] != 0;
+  };
   std::vector<Eigen::Vector3d> points;
   for (int k = 0; k < n[2]; ++k) {
     for (int j = 0; j < n[1]; ++j) {
       for (int i = 0; i < n[0]; ++i) {
-        if (!corner[g.LinearIndex(i, j, k)]) continue;
+        if (!corner(i, j, k)) continue;
         const bool interior = i > 0 && j > 0 && k > 0 && i + 1 < n[0] && j + 1 < n[1] &&
-                              k + 1 < n[2] && corner[g.LinearIndex(i - 1, j, k)] &&
-                              corner[g.LinearIndex(i + 1, j, k)] &&
-                              corner[g.LinearIndex(i, j - 1, k)] &&
-                              corner[g.LinearIndex(i, j + 1, k)] &&
-                              corner[g.LinearIndex(i, j, k - 1)] &&
-                              corner[g.LinearIndex(i, j, k + 1)];
+                              k + 1 < n[2] && corner(i - 1, j, k) && corner(i + 1, j, k) &&
+                              corner(i, j - 1, k) && corner(i, j + 1, k) &&
+                              corner(i, j, k - 1) && corner(i, j, k + 1);
         if (!interior) points.push_back(g.IndexToPhysical(Eigen::Vector3d(i, j, k)));
       }
     }
@@ -281,20 +289,11 @@ std::vector<Placement> BestTranslations(const Frame& fixed,
 bool HalfResolution(const Frame& frame, Frame* half) {
   const ImageGeometry& g = frame.geometry();
   if (g.size.minCoeff() < 8) return false;
+  const Mask mask = ValidCellCorners(frame);
   Image values(g, 0.0f);
-  Mask mask(g, 0);
   const float* data = frame.interleaved();
-  for (int k = 0; k + 1 < g.size[2]; ++k) {
-    for (int j = 0; j + 1 < g.size[1]; ++j) {
-      for (int i = 0; i + 1 < g.size[0]; ++i) {
-        if (!frame.IsValidCell(g.LinearIndex(i, j, k))) continue;
-        for (int c = 0; c < 8; ++c) {
-          const int64_t l = g.LinearIndex(i + (c & 1), j + ((c >> 1) & 1), k + (c >> 2));
-          mask.voxels[l] = 1;
-          values.voxels[l] = data[4 * l];
-        }
-      }
-    }
+  for (int64_t l = 0; l < g.NumVoxels(); ++l) {
+    if (mask.voxels[l]) values.voxels[l] = data[4 * l];
   }
   ImageLevel level = Downsample(values, mask, 1.0, 1);
   // A Frame's valid cells lie one voxel inside its mask (their gradients' stencil), which
