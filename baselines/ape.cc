@@ -4,7 +4,7 @@
 
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
+#include "dsr/baselines/baselines.h"
 
 namespace dsr {
 namespace {

@@ -19,7 +19,7 @@
 // pair term is (a_A - a_B)^2, sampled on the pair's panorama grid (the shared grid rule)
 // at the voxels both observe, and divided by their number (mean squared difference: with
 // two frames a plain sum would reward shrinking the overlap; see pair_methods.cc). APE
-// and the pair solves use the streamed normal equations of core/voxel_stream.h (nothing
+// and the pair solves use the streamed normal equations of stream/voxel_stream.h (nothing
 // per observation is stored).
 #ifndef DSR_BASELINES_BASELINES_H_
 #define DSR_BASELINES_BASELINES_H_
@@ -30,11 +30,11 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/solve_options.h"
-#include "core/streamed_cost.h"
-#include "core/voxel_stream.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/solve/solve_options.h"
+#include "dsr/stream/streamed_cost.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -65,7 +65,7 @@ void AccumulateApeSystem(const std::vector<Frame>& frames,
                          NormalEquations* out,
                          bool batched_hessian = false);
 
-// Streamed APE block (core/streamed_cost.h) over voxels [begin, end).
+// Streamed APE block (stream/streamed_cost.h) over voxels [begin, end).
 class ApeChunkCost final : public StreamedPoseCost {
  public:
   ApeChunkCost(const std::vector<Frame>* frames,

@@ -1,5 +1,5 @@
 // SE(3) logarithm on a unit quaternion and translation, templated for ceres::Jet
-// (autodiff of Lie normalisation's pose graph). Same map as core/se3.h's LogSE3 on
+// (autodiff of Lie normalisation's pose graph). Same map as geometry/se3.h's LogSE3 on
 // doubles, which tests compare it with: [rho; phi] with phi the rotation vector and
 // rho = V(phi)^-1 t.
 #ifndef DSR_BASELINES_LIE_LOG_H_

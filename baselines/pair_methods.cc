@@ -6,8 +6,8 @@
 
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
-#include "core/panorama.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/model/panorama.h"
 
 namespace dsr {
 namespace {

@@ -5,14 +5,14 @@
 #include <ceres/rotation.h>
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
-#include "baselines/lie_log.h"
-#include "core/se3.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/baselines/lie_log.h"
+#include "dsr/geometry/se3.h"
 
 namespace dsr {
 namespace {
 
-// Residual Log(Z^-1 T_k T_i^-1) for pose blocks [qx qy qz qw tx ty tz] (core/se3.h).
+// Residual Log(Z^-1 T_k T_i^-1) for pose blocks [qx qy qz qw tx ty tz] (geometry/se3.h).
 struct RelativePoseResidual {
   RelativePoseResidual(const Eigen::Isometry3d& k_from_i, const Vector6d& sqrt_information)
       : sqrt_information_(sqrt_information) {

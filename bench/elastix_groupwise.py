@@ -6,7 +6,7 @@ groupwise rigid registration (EulerStackTransform + VarianceOverLastDimensionMet
 same 4D image as fixed and moving image), converts elastix's per-frame Euler transforms
 into dsr poses (frame_from_world, world = frame 0; docs/design.md section 1), writes them
 as a dsr poses file and measures them against the folder's gt_poses.json exactly as dsr
-does (core/eval.cc, ComparePoses). Prints one CSV row with dsr_compare's results.csv
+does (eval/eval.cc, ComparePoses). Prints one CSV row with dsr_compare's results.csv
 columns (method "elastix"); columns elastix has no equivalent for are left empty.
 
 Usage (from the repository root; the venv has numpy and SimpleITK):
@@ -151,7 +151,7 @@ def read_image(path):
 
 
 def mask_from_nonzero(volume, erosion_voxels):
-    """dsr's MaskFromNonZero (core/volume.cc) on a [k, j, i] float array: 1 except the zero
+    """dsr's MaskFromNonZero (geometry/volume.cc) on a [k, j, i] float array: 1 except the zero
     voxels connected to the grid border through zero voxels (6-neighbour), then eroded by
     `erosion_voxels` along each axis in turn with the grid border counting as outside."""
     zero = (volume == 0.0).astype(np.uint8)
@@ -209,7 +209,7 @@ def load_sequence(frames, masks, use_masks):
 # ----------------------------------------------------------------------------------------
 
 def read_poses(path, frame_paths):
-    """dsr poses file (core/io_poses.h) -> list of 4x4 frame_from_world, in frame order.
+    """dsr poses file (io/io_poses.h) -> list of 4x4 frame_from_world, in frame order.
     Entries are matched to the frames by their "image" names when every entry has one that
     names a frame (as dsr_register matches --gt_poses), else taken in order."""
     try:
@@ -325,7 +325,7 @@ def rigid_inverse(t):
 
 
 # ----------------------------------------------------------------------------------------
-# Evaluation: core/eval.cc ComparePoses, reproduced
+# Evaluation: eval/eval.cc ComparePoses, reproduced
 # ----------------------------------------------------------------------------------------
 
 def euler_zyx_angles(r):

@@ -7,13 +7,13 @@
 
 #include <memory>
 
-#include "core/panorama.h"
-#include "core/pyramid.h"
-#include "init/masked_ncc.h"
-#include "init/placement_search.h"
-#include "pipeline/pair_check.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/init/masked_ncc.h"
+#include "dsr/init/placement_search.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/pair_check.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

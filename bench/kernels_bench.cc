@@ -1,6 +1,6 @@
 // Google Benchmark of the hot kernels on the paper-sized sequence (11 frames of 96x96x80,
 // sigma 25, ground-truth poses, full resolution):
-//   BM_SampleValueAndGradient                    one trilinear gather (core/voxel_stream.h)
+//   BM_SampleValueAndGradient                    one trilinear gather (stream/voxel_stream.h)
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
@@ -14,20 +14,20 @@
 //   BM_DbaEvaluation                             Ceres Problem::Evaluate of DBA with
 //                                                Jacobians, 6 frames of 48x48x40
 // Counters: ns per observation (an intensity difference the objective evaluates). The
-// kernel path is the best this CPU has (core/voxel_stream.h) unless named.
+// kernel path is the best this CPU has (stream/voxel_stream.h) unless named.
 #include <benchmark/benchmark.h>
 
 #include <memory>
 #include <random>
 
-#include "baselines/baselines.h"
-#include "core/hessian_batch.h"
-#include "core/panorama.h"
-#include "core/voxel_stream.h"
-#include "dba/dba_problem.h"
-#include "dsr_reduced/reduced_cost.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/dba/dba_problem.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/model/panorama.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
+#include "dsr/stream/hessian_batch.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 namespace {

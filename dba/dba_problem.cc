@@ -1,5 +1,5 @@
 // Direct bundle adjustment in Ceres (docs/design.md section 3).
-#include "dba/dba_problem.h"
+#include "dsr/dba/dba_problem.h"
 
 #include <cmath>
 #include <cstring>
@@ -7,9 +7,9 @@
 
 #include <glog/logging.h>
 
-#include "core/convergence.h"
+#include "dsr/solve/convergence.h"
 
-#include "core/parallel.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 

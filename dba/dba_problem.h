@@ -4,21 +4,21 @@
 //
 // One SE(3) parameter block per frame (PoseManifold, layout [qx qy qz qw tx ty tz], left
 // perturbation, tangent [rho; phi]; frame 0 constant = the gauge), one 1-D block per
-// candidate panorama voxel (the CandidateSet of core/observation.h, the rule shared with
+// candidate panorama voxel (the CandidateSet of model/observation.h, the rule shared with
 // DSR), one residual block per candidate observation (i, j):
 //   e_ij = M_j - I_i(p_ij),  d e / d delta_i = -J_ij,  d e / d M_j = 1,
 // zero residual and zero Jacobian while sigma_ij = 0. Solved by Ceres's Schur solvers with
 // every intensity block in elimination group 0 and the poses in group 1.
 //
 // With photometric parameters (DbaOptions::photometric), each frame also has a 2-D block
-// [log_gain, offset] (core/photometric.h, Photometric; frame 0 constant, the gauge) beside
+// [log_gain, offset] (model/photometric.h, Photometric; frame 0 constant, the gauge) beside
 // its pose, in group 1: frame i sees M_j as a_i I_i + b_i, and its residual is in its own
 // grey levels (docs/design.md 2.8), with a_i = exp(log_gain_i) and u_i = 1 / a_i,
 //   e_ij = u_i (M_j - b_i) - I_i(p_ij),
 //   d e / d delta_i = -J_ij,  d e / d M_j = u_i,
 //   d e / d log_gain_i = -u_i (M_j - b_i),  d e / d b_i = -u_i.
 //
-// With a robust loss (DbaOptions::loss, core/robust_loss.h; docs/design.md section 4.7)
+// With a robust loss (DbaOptions::loss, model/robust_loss.h; docs/design.md section 4.7)
 // every residual block gets the matching ceres::LossFunction: the objective becomes
 // sum_j sum_i rho(e_ij^2).
 #ifndef DSR_DBA_DBA_PROBLEM_H_
@@ -31,12 +31,12 @@
 
 #include <ceres/ceres.h>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/photometric.h"
-#include "core/robust_loss.h"
-#include "core/se3.h"
-#include "core/solve_options.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
+#include "dsr/model/robust_loss.h"
+#include "dsr/solve/solve_options.h"
 
 namespace dsr {
 

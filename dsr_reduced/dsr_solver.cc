@@ -1,14 +1,14 @@
 // DSR solve in Ceres: LM or dogleg with a dense solver over the pose parameters.
-#include "dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
 
 #include <algorithm>
 #include <cmath>
 
 #include <glog/logging.h>
 
-#include "core/convergence.h"
+#include "dsr/solve/convergence.h"
 
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
 
 namespace dsr {
 
@@ -157,7 +157,7 @@ bool SolveOnce(const std::vector<Frame>& frames,
                std::string* error) {
   DsrProblem dsr(frames, candidates, initial_frame_from_world, options, weights);
   // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
-  // it is set for this solve only (core/streamed_cost.h).
+  // it is set for this solve only (stream/streamed_cost.h).
   dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
   ceres::Solver::Options solver_options;
   options.solve.ToCeres(options.reference_cost ? "SPARSE_NORMAL_CHOLESKY" : "DENSE_QR",

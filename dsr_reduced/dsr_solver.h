@@ -11,10 +11,10 @@
 
 #include <ceres/ceres.h>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/solve_options.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/solve/solve_options.h"
 
 namespace dsr {
 
@@ -31,7 +31,7 @@ struct DsrOptions {
   // With photometric: the start, one per frame (frame 0's must be the gauge, 0 and 0);
   // empty: every gain 1 and offset 0.
   std::vector<Photometric> initial_photometric;
-  // The loss (core/robust_loss.h). Squared: one solve of f. Huber or Cauchy: iteratively
+  // The loss (model/robust_loss.h). Squared: one solve of f. Huber or Cauchy: iteratively
   // reweighted solves of the weighted cost f_w (dsr_reduced/reduced_cost.h), with either cost.
   RobustLoss loss;
   bool Validate(std::string* error) const;
@@ -69,7 +69,7 @@ class DsrProblem {
   int64_t LastObservations() const;
   // The fast path's blocks (empty for the reference cost).
   const std::vector<ReducedChunkCost*>& chunks() const { return chunks_; }
-  // How the fast path's blocks reuse their passes (core/streamed_cost.h); none by
+  // How the fast path's blocks reuse their passes (stream/streamed_cost.h); none by
   // default, so that evaluations outside a solve are plain ones.
   void SetEvaluationPolicy(const StreamedEvaluationPolicy& policy);
 
@@ -85,7 +85,7 @@ class DsrProblem {
 // weights w_ij = rho'(r_ij^2) from the robust location of each voxel at the start
 // (UpdateObservationWeights), then repeatedly one Ceres solve of f_w with the weights fixed
 // and new weights at its poses, until a solve moves no field of view by
-// solve.step_tolerance_voxels (core/convergence.h) or, with that tolerance 0, until no
+// solve.step_tolerance_voxels (solve/convergence.h) or, with that tolerance 0, until no
 // weight changes by more than kWeightChangeTolerance or the poses stay put; at most
 // kMaxReweightings solves. The report then sums iterations, times and passes over the
 // solves (iteration records concatenated and renumbered; each record's cost is 1/2 f_w of

@@ -1,5 +1,5 @@
 // Reduced DSR cost: per-voxel reference and streaming chunk cost (docs/design.md section 4).
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
 
 #include <algorithm>
 #include <cfloat>
@@ -69,7 +69,7 @@ struct DsrVoxelTerm {
 // Jacobian of r with the intensity eliminated (DBA's Schur complement at M = mu) is
 //   d r_a / d x_b = (delta_ab - u_a u_b / S) R_b,
 //   cost += sum_a r_a^2,  g_b += R_b^T r_b,  H_ab += (delta_ab - u_a u_b / S) R_a^T R_b,
-// batched by the stream with the projection factors u (core/hessian_batch.h).
+// batched by the stream with the projection factors u (stream/hessian_batch.h).
 struct DsrPhotometricVoxelTerm {
   static constexpr int kFrameParameters = kWideJacobianSize;
   bool batched_hessian = true;

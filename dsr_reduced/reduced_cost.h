@@ -6,7 +6,7 @@
 //     d r_ij / d delta_a = sigma_aj (delta_ia - 1/k_j) J_aj,
 //     H_ab = sum_j (delta_ab - 1/k_j) J_aj^T J_bj,   g_a = sum_j J_aj^T r_aj,
 // over voxels with k_j >= 2 (others contribute nothing). Candidates follow the rule of
-// core/observation.h, shared with DBA, so both modes minimise the same function.
+// model/observation.h, shared with DBA, so both modes minimise the same function.
 //
 // Two cost functions:
 //  * VoxelReducedCost: the faithful per-voxel reference (one residual per candidate
@@ -41,13 +41,13 @@
 
 #include <ceres/ceres.h>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/photometric.h"
-#include "core/robust_loss.h"
-#include "core/se3.h"
-#include "core/streamed_cost.h"
-#include "core/voxel_stream.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
+#include "dsr/model/robust_loss.h"
+#include "dsr/stream/streamed_cost.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -116,10 +116,10 @@ class VoxelReducedPhotometricCost final : public ceres::CostFunction {
 // `observations` counts sum of k_j over voxels with k_j >= 2.
 using ReducedSystem = NormalEquations;
 
-// Streams voxels [begin, end) of `candidates` at the given poses (core/voxel_stream.h):
+// Streams voxels [begin, end) of `candidates` at the given poses (stream/voxel_stream.h):
 // bit-identical for any `num_threads`. With `with_jacobian` false only the cost (and
 // observation count) is computed; hessian/gradient are left empty. `batched_hessian`
-// false adds H and g voxel by voxel instead of in batches (core/hessian_batch.h): the
+// false adds H and g voxel by voxel instead of in batches (stream/hessian_batch.h): the
 // slow twin tests compare the fast path with.
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
@@ -149,7 +149,7 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
 // The weighted system (the normal equations of f_w above; p = 6 per frame, or 8 with
 // `photometric`, one per frame, non-empty) with the weights of `weights` (built for
 // `candidates`), added voxel by voxel: H's per-voxel form (delta_ab w_a - w_a w_b / W) is
-// not the batched (delta_ab d + s) of core/hessian_batch.h. The per-frame costs are the
+// not the batched (delta_ab d + s) of stream/hessian_batch.h. The per-frame costs are the
 // weighted ones, sum_j w_ij r_ij^2.
 void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
                                      const CandidateSet& candidates,
@@ -181,7 +181,7 @@ constexpr int kLocationIterations = 10;
 // of its corrected observations (RobustLocation under `loss`, starting from the weighted
 // mean with the current weights, at most kLocationIterations steps) and the weights
 // w_ij = rho'(r_ij^2) there; every other candidate observation (sigma_ij = 0 now, or k_j
-// < 2) gets weight 1. Streams the voxels like the cost (core/voxel_stream.h); the result is
+// < 2) gets weight 1. Streams the voxels like the cost (stream/voxel_stream.h); the result is
 // identical for any `num_threads`. Weights are stored as floats, at least FLT_MIN.
 void UpdateObservationWeights(const std::vector<Frame>& frames,
                               const CandidateSet& candidates,
@@ -193,7 +193,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
                               ReweightStats* stats);
 
 // Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
-// poses (frames 1..m-1, in order; core/streamed_cost.h) and, with `photometric`, their
+// poses (frames 1..m-1, in order; stream/streamed_cost.h) and, with `photometric`, their
 // photometric blocks after them. Frame 0's pose is the constant `frame0_from_world`, its
 // photometric parameters the gauge. num_residuals = p (m - 1) + 1, p = 6 or 8. With
 // `weights` (not owned; must not change while the block lives, since its passes are

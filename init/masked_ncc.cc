@@ -1,4 +1,4 @@
-#include "init/masked_ncc.h"
+#include "dsr/init/masked_ncc.h"
 
 #include <algorithm>
 #include <cmath>

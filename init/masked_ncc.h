@@ -39,7 +39,7 @@
 
 #include <Eigen/Core>
 
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
 
 namespace dsr {
 

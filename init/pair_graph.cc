@@ -1,4 +1,4 @@
-#include "init/pair_graph.h"
+#include "dsr/init/pair_graph.h"
 
 #include <algorithm>
 #include <chrono>
@@ -7,10 +7,10 @@
 
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
-#include "core/observation.h"
-#include "core/se3.h"
-#include "init/rotation_grid.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/init/rotation_grid.h"
+#include "dsr/model/observation.h"
 
 namespace dsr {
 namespace {

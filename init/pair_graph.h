@@ -19,8 +19,8 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "init/placement_search.h"
+#include "dsr/image/frame.h"
+#include "dsr/init/placement_search.h"
 
 namespace dsr {
 

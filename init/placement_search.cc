@@ -1,4 +1,4 @@
-#include "init/placement_search.h"
+#include "dsr/init/placement_search.h"
 
 #include <algorithm>
 #include <cmath>
@@ -7,11 +7,11 @@
 
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
-#include "core/parallel.h"
-#include "core/pyramid.h"
-#include "init/masked_ncc.h"
-#include "init/rotation_grid.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/init/masked_ncc.h"
+#include "dsr/init/rotation_grid.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {

@@ -27,9 +27,9 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "core/solve_options.h"
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/image/frame.h"
+#include "dsr/solve/solve_options.h"
 
 namespace dsr {
 

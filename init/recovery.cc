@@ -1,4 +1,4 @@
-#include "init/recovery.h"
+#include "dsr/init/recovery.h"
 
 #include <algorithm>
 #include <cmath>
@@ -6,8 +6,8 @@
 
 #include <glog/logging.h>
 
-#include "core/panorama.h"
-#include "init/rotation_grid.h"
+#include "dsr/init/rotation_grid.h"
+#include "dsr/model/panorama.h"
 
 namespace dsr {
 

@@ -1,4 +1,4 @@
-#include "init/rotation_grid.h"
+#include "dsr/init/rotation_grid.h"
 
 #include <algorithm>
 #include <cmath>

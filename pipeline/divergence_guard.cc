@@ -1,4 +1,4 @@
-#include "pipeline/divergence_guard.h"
+#include "dsr/pipeline/divergence_guard.h"
 
 #include <algorithm>
 #include <cmath>
@@ -7,8 +7,8 @@
 
 #include <Eigen/Core>
 
-#include "core/voxel_stream.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 

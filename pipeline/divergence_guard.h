@@ -21,9 +21,9 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/photometric.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
 
 namespace dsr {
 

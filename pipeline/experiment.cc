@@ -1,4 +1,4 @@
-#include "pipeline/experiment.h"
+#include "dsr/pipeline/experiment.h"
 
 #include <sys/resource.h>
 #include <sys/wait.h>
@@ -13,7 +13,7 @@
 #include <map>
 #include <sstream>
 
-#include "core/eval.h"
+#include "dsr/eval/eval.h"
 
 namespace dsr {
 namespace {

@@ -11,9 +11,9 @@
 
 #include <Eigen/Geometry>
 
-#include "core/photometric.h"
-#include "core/volume.h"
-#include "pipeline/registration.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/model/photometric.h"
+#include "dsr/pipeline/registration.h"
 
 namespace dsr {
 
@@ -22,7 +22,7 @@ struct ExperimentSequence {
   std::vector<Image> frames;
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world (any world)
-  // The frames' true intensity corrections on frame 0's scale (core/io_poses.h, "gain" and
+  // The frames' true intensity corrections on frame 0's scale (io/io_poses.h, "gain" and
   // "offset"), one per frame; empty when unknown.
   std::vector<Photometric> ground_truth_photometric;
 };

@@ -1,11 +1,11 @@
-#include "pipeline/input_checks.h"
+#include "dsr/pipeline/input_checks.h"
 
 #include <algorithm>
 #include <cmath>
 #include <sstream>
 
-#include "core/panorama.h"
-#include "pipeline/registration.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/registration.h"
 
 namespace dsr {
 namespace {

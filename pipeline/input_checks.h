@@ -15,7 +15,7 @@
 
 #include <Eigen/Geometry>
 
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
 
 namespace dsr {
 

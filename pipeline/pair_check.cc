@@ -1,4 +1,4 @@
-#include "pipeline/pair_check.h"
+#include "dsr/pipeline/pair_check.h"
 
 #include <algorithm>
 #include <cmath>
@@ -7,9 +7,9 @@
 
 #include <glog/logging.h>
 
-#include "core/parallel.h"
-#include "init/placement_search.h"
-#include "pipeline/divergence_guard.h"
+#include "dsr/init/placement_search.h"
+#include "dsr/pipeline/divergence_guard.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 

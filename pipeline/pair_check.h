@@ -28,7 +28,7 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
+#include "dsr/image/frame.h"
 
 namespace dsr {
 

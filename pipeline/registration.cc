@@ -1,4 +1,4 @@
-#include "pipeline/registration.h"
+#include "dsr/pipeline/registration.h"
 
 #include <algorithm>
 #include <chrono>
@@ -9,19 +9,19 @@
 
 #include <glog/logging.h>
 
-#include "baselines/baselines.h"
-#include "core/convergence.h"
-#include "core/panorama.h"
-#include "core/parallel.h"
-#include "core/pyramid.h"
-#include "dba/dba_problem.h"
-#include "dsr_reduced/dsr_solver.h"
-#include "dsr_reduced/reduced_cost.h"
-#include "init/pair_graph.h"
-#include "init/recovery.h"
-#include "pipeline/divergence_guard.h"
-#include "pipeline/input_checks.h"
-#include "pipeline/pair_check.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/dba/dba_problem.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/init/pair_graph.h"
+#include "dsr/init/recovery.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/divergence_guard.h"
+#include "dsr/pipeline/input_checks.h"
+#include "dsr/pipeline/pair_check.h"
+#include "dsr/solve/convergence.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {
@@ -594,7 +594,7 @@ bool SolveLevels(const std::vector<Image>& images,
       return diverged(0, why, slid);
     }
     // DSR's last pass was at the final poses over these candidates when the solve kept it
-    // (core/streamed_cost.h): its per-frame costs are the misfits' sums. With photometric
+    // (stream/streamed_cost.h): its per-frame costs are the misfits' sums. With photometric
     // parameters the misfits are always measured here, on corrected intensities.
     const SolveReport& last = result->solves.back().report;
     const bool reuse_last_pass = options.mode == "dsr" && !affine &&

@@ -1,7 +1,7 @@
 // The registration pipeline every mode runs: load-independent, flag-free.
 //
-//   for each pyramid level, coarsest first (core/pyramid.h):
-//     frames <- the level's images and masks (core/frame.h)
+//   for each pyramid level, coarsest first (image/pyramid.h):
+//     frames <- the level's images and masks (image/frame.h)
 //     repeat (at most max_rebuilds + 1 times):
 //       grid       <- BuildPanoramaGrid at the current poses (spacing: frame 0's spacing at
 //                     this level times panorama_spacing)
@@ -22,15 +22,15 @@
 
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/photometric.h"
-#include "core/robust_loss.h"
-#include "core/solve_options.h"
-#include "core/volume.h"
-#include "init/placement_search.h"
-#include "init/recovery.h"
-#include "pipeline/uncertainty.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/image/frame.h"
+#include "dsr/init/placement_search.h"
+#include "dsr/init/recovery.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
+#include "dsr/model/robust_loss.h"
+#include "dsr/pipeline/uncertainty.h"
+#include "dsr/solve/solve_options.h"
 
 namespace dsr {
 
@@ -93,7 +93,7 @@ struct RegistrationOptions {
   SolveOptions solve;             // per solve; max_iterations is the finest level's limit
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
 
-  // Pyramid (core/pyramid.h). Level 0 is the input resolution.
+  // Pyramid (image/pyramid.h). Level 0 is the input resolution.
   int pyramid_levels = 3;
   double pyramid_sigma_voxels = 1.0;   // smoothing before each halving
   double finest_sigma_voxels = 0.0;    // smoothing of the finest level itself
@@ -143,7 +143,7 @@ struct RegistrationOptions {
   // kNone; the tools' is kDefaultPhotometricModel.
   PhotometricModel photometric = PhotometricModel::kNone;
 
-  // The loss of the intensity differences (modes dsr and dba; core/robust_loss.h):
+  // The loss of the intensity differences (modes dsr and dba; model/robust_loss.h):
   // squared (default), or huber / cauchy with a scale in the input's grey levels, for
   // outliers such as shadows and reverberation. DBA applies it through Ceres; DSR by
   // iteratively reweighted solves (docs/design.md 4.7). The pose uncertainty is then not
@@ -174,7 +174,7 @@ struct RegistrationResult {
   // With RegistrationOptions::photometric kAffine, the final gain and offset of every frame
   // (frame 0: 1 and 0; offsets in the input's intensity units): frame i's corrected
   // intensity gain * I_i + offset is on frame 0's scale, the convention of the poses file's
-  // "gain" and "offset" (core/io_poses.h). Empty otherwise. When the registration is not
+  // "gain" and "offset" (io/io_poses.h). Empty otherwise. When the registration is not
   // usable, the estimate at the poses it ended at (empty if no solve ran).
   std::vector<Photometric> photometric;
   std::vector<LevelSolve> solves;

@@ -1,4 +1,4 @@
-#include "pipeline/report.h"
+#include "dsr/pipeline/report.h"
 
 #include <algorithm>
 #include <cmath>
@@ -8,11 +8,11 @@
 
 #include <glog/logging.h>
 
-#include "core/atomic_file.h"
-#include "core/io_picture.h"
-#include "core/io_poses.h"
-#include "core/io_transform.h"
-#include "pipeline/uncertainty.h"
+#include "dsr/io/io_picture.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/io/io_transform.h"
+#include "dsr/pipeline/uncertainty.h"
+#include "dsr/util/atomic_file.h"
 
 namespace dsr {
 namespace {

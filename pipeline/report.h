@@ -16,13 +16,13 @@
 
 #include <Eigen/Geometry>
 
-#include "core/eval.h"
-#include "core/frame.h"
-#include "core/io_poses.h"
-#include "core/photometric.h"
-#include "core/picture.h"
-#include "core/volume.h"
-#include "pipeline/registration.h"
+#include "dsr/eval/eval.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/image/frame.h"
+#include "dsr/image/picture.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/model/photometric.h"
+#include "dsr/pipeline/registration.h"
 
 namespace dsr {
 
@@ -68,7 +68,7 @@ struct ReportInputs {
 
 // Fills poses->gain and ->offset from per-frame photometric parameters (both emptied when
 // `photometric` is empty): the poses file's convention is the pipeline's, frame i's
-// corrected intensity gain * I_i + offset on frame 0's scale (core/io_poses.h).
+// corrected intensity gain * I_i + offset on frame 0's scale (io/io_poses.h).
 void PhotometricToPoses(const std::vector<Photometric>& photometric, PosesFile* poses);
 
 // The files WriteReport writes, relative to its folder, in the order it writes them (the

@@ -1,4 +1,4 @@
-#include "pipeline/uncertainty.h"
+#include "dsr/pipeline/uncertainty.h"
 
 #include <algorithm>
 #include <cmath>
@@ -10,8 +10,8 @@
 #include <Eigen/LU>
 #include <Eigen/Eigenvalues>
 
-#include "core/parallel.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {

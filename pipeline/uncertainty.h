@@ -17,7 +17,7 @@
 //
 // A frame's predicted TRE is the expected mean, over the centres x of its field-of-view
 // voxels (frame mm), of the displacement |rho + phi x x| = |[I, -[x]x] delta| that a pose
-// error delta ~ N(0, Cov_i) causes (the TRE of core/eval.h to first order), estimated from
+// error delta ~ N(0, Cov_i) causes (the TRE of eval/eval.h to first order), estimated from
 // a fixed set of draws.
 //
 // What it does not cover: a wrong local minimum, intensities that do not follow the model
@@ -30,10 +30,10 @@
 #include <string>
 #include <vector>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/se3.h"
-#include "core/volume.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
 
 namespace dsr {
 

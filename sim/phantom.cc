@@ -1,7 +1,7 @@
 // Procedural heart-like phantom (see phantom.h). Built in passes over one float volume:
 // background and pericardium, myocardial walls, blood pools, muscle blobs, valve sheets,
 // then texture. Each structure pass only visits the bounding box of its structure.
-#include "sim/phantom.h"
+#include "dsr/sim/phantom.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,7 +11,7 @@
 
 #include <glog/logging.h>
 
-#include "core/parallel.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {

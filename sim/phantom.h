@@ -26,7 +26,7 @@
 #include <cstdint>
 #include <string>
 
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
 
 namespace dsr {
 

@@ -1,5 +1,5 @@
 // The paper's simulation protocol (docs/design.md section 6); conventions in simulate.h.
-#include "sim/simulate.h"
+#include "dsr/sim/simulate.h"
 
 #include <algorithm>
 #include <cmath>
@@ -11,8 +11,8 @@
 
 #include <glog/logging.h>
 
-#include "core/frame.h"
-#include "core/parallel.h"
+#include "dsr/image/frame.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {

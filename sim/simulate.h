@@ -84,7 +84,7 @@
 // Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
 // field of view. The registration's gradients read mask voxels only whatever the mask
-// (core/frame.h: a valid cell's corners need their 6 neighbours inside the mask), so for
+// (image/frame.h: a valid cell's corners need their 6 neighbours inside the mask), so for
 // this project erosion only shrinks the data; 1 suits registrations that read one voxel
 // past their mask.
 #ifndef DSR_SIM_SIMULATE_H_
@@ -97,7 +97,7 @@
 #include <Eigen/Core>
 #include <Eigen/Geometry>
 
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
 
 namespace dsr {
 

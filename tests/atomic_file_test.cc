@@ -1,6 +1,6 @@
-// Atomic output (core/atomic_file.h): complete files or none, no temporary files left
+// Atomic output (util/atomic_file.h): complete files or none, no temporary files left
 // behind, the old file kept on every failure, and one-line errors naming the output.
-#include "core/atomic_file.h"
+#include "dsr/util/atomic_file.h"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -17,7 +17,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "tests/scoped_temp_dir.h"
+#include "dsr/tests/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

@@ -16,8 +16,8 @@
 #include <gtest/gtest.h>
 
 #include "cli_run.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
 
 namespace dsr {
 namespace {

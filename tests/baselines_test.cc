@@ -2,7 +2,7 @@
 //  1. APE's per-voxel identity with DSR: cost, gradient and Gauss-Newton matrix of a voxel
 //     seen k_j times are k_j times DSR's;
 //  2. APE's streamed normal equations equal its per-pair reference cost through Ceres;
-//  3. Lie normalisation's templated SE(3) log equals core's LogSE3, and its pose graph
+//  3. Lie normalisation's templated SE(3) log equals geometry/'s LogSE3, and its pose graph
 //     recovers consistent measurements exactly;
 //  4. every baseline recovers ground truth on small noise-free sequences (pipeline).
 #include <ceres/ceres.h>
@@ -11,13 +11,13 @@
 #include <cstdlib>
 #include <random>
 
-#include "baselines/baselines.h"
-#include "baselines/lie_log.h"
-#include "core/eval.h"
-#include "dsr_reduced/reduced_cost.h"
-#include "pipeline/registration.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/baselines/lie_log.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/eval/eval.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 #include "test_problems.h"
 
 namespace dsr {

@@ -1,6 +1,6 @@
 // DBA (docs/design.md section 3): analytic Jacobians, elimination ordering, ground-truth
 // recovery, the closed-form panorama at convergence, linear solvers, memory guard.
-#include "dba/dba_problem.h"
+#include "dsr/dba/dba_problem.h"
 
 #include <ceres/gradient_checker.h>
 #include <gtest/gtest.h>
@@ -172,7 +172,7 @@ TEST(Dba, PanoramaAtConvergenceIsThePerVoxelMean) {
   options.solve.function_tolerance = 1e-14;
   options.solve.parameter_tolerance = 1e-14;
   options.solve.gradient_tolerance = 1e-16;
-  options.solve.step_tolerance_voxels = 0.0;  // converge fully (core/convergence.h off)
+  options.solve.step_tolerance_voxels = 0.0;  // converge fully (solve/convergence.h off)
   options.solve.max_rejected_steps = 0;
   SolveReport report;
   std::vector<float> intensities;

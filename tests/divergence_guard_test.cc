@@ -4,8 +4,8 @@
 
 #include <cmath>
 
-#include "core/panorama.h"
-#include "pipeline/divergence_guard.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/divergence_guard.h"
 #include "test_problems.h"
 
 namespace dsr {

@@ -14,9 +14,9 @@
 #include <gtest/gtest.h>
 
 #include "cli_run.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "sim/simulate.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

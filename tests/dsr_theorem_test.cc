@@ -15,9 +15,9 @@
 #include <random>
 #include <utility>
 
-#include "dba/dba_problem.h"
-#include "dsr_reduced/dsr_solver.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dba/dba_problem.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
 #include "kernel_paths.h"
 #include "test_problems.h"
 #include "sanitizer.h"

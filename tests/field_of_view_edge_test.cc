@@ -1,15 +1,15 @@
 // DSR at field-of-view edges that cut through structure (frames 0 outside a ball, masks
 // equal to that ball: test_problems.h `ball_field_of_view`), where the gradient rule of
-// core/frame.h matters (docs/design.md section 2.3): the gradient g and Gauss-Newton
+// image/frame.h matters (docs/design.md section 2.3): the gradient g and Gauss-Newton
 // matrix H the solver uses are the derivatives of the cost it evaluates, and a noise-free
 // solve reaches the ground truth. Both tests fail under the former rule (sigma_ij from the
 // 8 corners alone, so central differences at the edge read the zero background): see the
 // tolerances below, and solves that stopped 0.15-0.6 mm (mean TRE) off the ground truth.
 #include <gtest/gtest.h>
 
-#include "core/eval.h"
-#include "dsr_reduced/dsr_solver.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/eval/eval.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -43,7 +43,7 @@ constexpr double kGaussNewtonTolerance = 0.25;
 constexpr double kInsetCells = 0.05;
 constexpr double kTranslationStepMm = 1e-3;
 constexpr double kRotationStepRad = 1e-4;
-// TRE bound (core/eval.h; mm, at every field-of-view voxel): on noise-free lattice
+// TRE bound (eval/eval.h; mm, at every field-of-view voxel): on noise-free lattice
 // problems every residual vanishes at the ground truth, so a solve ends there up to
 // rounding.
 constexpr double kGroundTruthTreMm = 1e-3;
@@ -66,7 +66,7 @@ Eigen::MatrixXd Free(const Eigen::MatrixXd& h) {
 }
 
 // Poses with frame 1 + c / 6 moved by `sign` steps along tangent axis c % 6 (left
-// perturbation Exp(delta) T, tangent [rho; phi]; core/se3.h). Returns the step.
+// perturbation Exp(delta) T, tangent [rho; phi]; geometry/se3.h). Returns the step.
 double Moved(int c, double sign, std::vector<Eigen::Isometry3d>* poses) {
   const int axis = c % 6;
   const double h = axis < 3 ? kTranslationStepMm : kRotationStepRad;

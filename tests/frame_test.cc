@@ -1,16 +1,16 @@
 // Sampler (docs/design.md section 2): on a volume whose intensity is linear in physical space,
 // trilinear interpolation and central differences are exact, so values and physical
 // gradients must be reproduced up to float storage rounding, wherever the sample is valid,
-// whatever the image holds outside the mask (the gradient rule of core/frame.h).
-#include "core/frame.h"
+// whatever the image holds outside the mask (the gradient rule of image/frame.h).
+#include "dsr/image/frame.h"
 
 #include <random>
 
 #include <gtest/gtest.h>
 
-#include "core/observation.h"
-#include "core/se3.h"
-#include "core/volume.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/model/observation.h"
 
 namespace dsr {
 namespace {

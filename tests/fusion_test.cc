@@ -8,11 +8,11 @@
 #include <cstdlib>
 #include <filesystem>
 
-#include "core/frame.h"
-#include "core/io_image.h"
-#include "core/io_transform.h"
-#include "core/panorama.h"
-#include "tests/io_image_test_itk.h"
+#include "dsr/image/frame.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_transform.h"
+#include "dsr/model/panorama.h"
+#include "dsr/tests/io_image_test_itk.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -164,7 +164,7 @@ TEST(Fusion, DistanceMapIsCityBlockDistanceToTheInvalidRegion) {
   Image image(g, 1.0f);
   Mask mask(g, 1);
   // Valid cells: 1..8 on each axis (the grid border has no central difference inside the
-  // mask, so no valid cell has a corner there; core/frame.h).
+  // mask, so no valid cell has a corner there; image/frame.h).
   const Frame frame(image, mask);
   const Volume<float> d = ValidCellDistance(frame);
   EXPECT_EQ(d.at(9, 5, 5), 0.0f);  // last corner: not a valid cell

@@ -1,4 +1,4 @@
-// AddBatchHessian (core/hessian_batch.h) against the voxel-by-voxel AddOuter and
+// AddBatchHessian (stream/hessian_batch.h) against the voxel-by-voxel AddOuter and
 // AddGradient twins, on random Jacobians, residuals and observer sets, for every kernel
 // path this CPU has: a batch with one voxel, batches with one observer set, with many
 // interleaved sets, and with the largest frame count; for 6 parameters per frame and for
@@ -10,8 +10,8 @@
 #include <random>
 #include <vector>
 
-#include "core/hessian_batch.h"
-#include "core/voxel_stream.h"
+#include "dsr/stream/hessian_batch.h"
+#include "dsr/stream/voxel_stream.h"
 #include "kernel_paths.h"
 
 namespace dsr {

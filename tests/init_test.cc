@@ -8,17 +8,17 @@
 
 #include <gtest/gtest.h>
 
-#include "core/eval.h"
-#include "core/frame.h"
-#include "core/pyramid.h"
-#include "core/se3.h"
-#include "init/pair_graph.h"
-#include "init/placement_search.h"
-#include "init/recovery.h"
-#include "init/rotation_grid.h"
-#include "pipeline/registration.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/eval/eval.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/image/frame.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/init/pair_graph.h"
+#include "dsr/init/placement_search.h"
+#include "dsr/init/recovery.h"
+#include "dsr/init/rotation_grid.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 #include "sanitizer.h"
 
 namespace dsr {

@@ -5,12 +5,12 @@
 
 #include <gtest/gtest.h>
 
-#include "core/eval.h"
-#include "core/se3.h"
-#include "pipeline/input_checks.h"
-#include "pipeline/registration.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/eval/eval.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/pipeline/input_checks.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

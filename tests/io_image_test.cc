@@ -1,6 +1,6 @@
-// Image and mask IO (core/io_image.h): exact round trips in every supported format,
+// Image and mask IO (io/io_image.h): exact round trips in every supported format,
 // integer pixels read as float, and one-line errors naming the file for every bad input.
-#include "core/io_image.h"
+#include "dsr/io/io_image.h"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -18,8 +18,8 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "tests/io_image_test_itk.h"
-#include "tests/scoped_temp_dir.h"
+#include "dsr/tests/io_image_test_itk.h"
+#include "dsr/tests/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

@@ -1,7 +1,7 @@
-// Poses file IO (core/io_poses.h): exact round trips (the optional gain and offset too), the
+// Poses file IO (io/io_poses.h): exact round trips (the optional gain and offset too), the
 // JSON layout, and a one-line error naming the file, the frame and the rule for every
 // malformed input.
-#include "core/io_poses.h"
+#include "dsr/io/io_poses.h"
 
 #include <cmath>
 #include <fstream>
@@ -14,8 +14,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "core/se3.h"
-#include "tests/scoped_temp_dir.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/tests/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

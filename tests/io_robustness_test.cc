@@ -26,10 +26,10 @@
 #include <gtest/gtest.h>
 #include <zlib.h>
 
-#include "core/atomic_file.h"
-#include "core/io_image.h"
-#include "core/io_itk.h"
-#include "tests/scoped_temp_dir.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_itk.h"
+#include "dsr/tests/scoped_temp_dir.h"
+#include "dsr/util/atomic_file.h"
 
 namespace dsr {
 namespace {

@@ -1,11 +1,11 @@
-// Test helpers for the kernel paths of core/voxel_stream.h: every path this CPU runs, and
+// Test helpers for the kernel paths of stream/voxel_stream.h: every path this CPU runs, and
 // a scope that selects one and restores the previous choice.
 #ifndef DSR_TESTS_KERNEL_PATHS_H_
 #define DSR_TESTS_KERNEL_PATHS_H_
 
 #include <vector>
 
-#include "core/voxel_stream.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 namespace testing_kernels {

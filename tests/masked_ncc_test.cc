@@ -1,6 +1,6 @@
 // Tests of init/masked_ncc.h: the FFT masked NCC against its brute-force twin, recovery of a
 // known shift between two fields of view, invariances, the overlap floor and thread safety.
-#include "init/masked_ncc.h"
+#include "dsr/init/masked_ncc.h"
 
 #include <cmath>
 #include <limits>

@@ -1,9 +1,9 @@
 // Panorama grid, candidate rule and closed-form panorama (docs/design.md section 2).
-#include "core/observation.h"
+#include "dsr/model/observation.h"
 
 #include <gtest/gtest.h>
 
-#include "core/panorama.h"
+#include "dsr/model/panorama.h"
 
 namespace dsr {
 namespace {
@@ -15,7 +15,7 @@ ImageGeometry Cube(int n) {
 }
 
 // A frame of constant `value` whose valid cells span physical [0, 9]^3 mm: its mask is
-// [-1, 10]^3 (a valid cell's corners need their 6 neighbours inside; core/frame.h), in a
+// [-1, 10]^3 (a valid cell's corners need their 6 neighbours inside; image/frame.h), in a
 // grid with one more voxel of room on each side, so that cells within a margin of 1 of
 // the valid region are inside the grid.
 Frame UniformFrame(float value) {

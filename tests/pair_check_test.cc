@@ -5,13 +5,13 @@
 
 #include <gtest/gtest.h>
 
-#include "core/frame.h"
-#include "core/pyramid.h"
-#include "core/se3.h"
-#include "pipeline/pair_check.h"
-#include "pipeline/registration.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/image/frame.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/pipeline/pair_check.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

@@ -8,7 +8,7 @@
 
 #include <gtest/gtest.h>
 
-#include "sim/phantom.h"
+#include "dsr/sim/phantom.h"
 
 namespace dsr {
 namespace {

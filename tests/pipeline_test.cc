@@ -7,10 +7,10 @@
 #include <cmath>
 #include <cstdlib>
 
-#include "core/eval.h"
-#include "pipeline/registration.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/eval/eval.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 #include "test_problems.h"
 #include "sanitizer.h"
 
@@ -39,7 +39,7 @@ SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
   options.max_translation_voxels = setup.max_translation_voxels;
   options.max_rotation_deg = setup.max_rotation_deg;
   options.min_depth_voxels = 2.0;
-  // Masks equal to the field of view: Frame keeps gradients inside them (core/frame.h).
+  // Masks equal to the field of view: Frame keeps gradients inside them (image/frame.h).
   options.mask_erosion_voxels = 0;
   options.seed = setup.seed;
   SimulatedSequence sequence;

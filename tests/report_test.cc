@@ -9,13 +9,13 @@
 #include <set>
 #include <sstream>
 
-#include "core/io_picture.h"
-#include "core/io_transform.h"
-#include "core/panorama.h"
-#include "pipeline/registration.h"
-#include "pipeline/report.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/io/io_picture.h"
+#include "dsr/io/io_transform.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/report.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

@@ -1,4 +1,4 @@
-// Robust losses (core/robust_loss.h, docs/design.md section 4.7):
+// Robust losses (model/robust_loss.h, docs/design.md section 4.7):
 //  1. the losses themselves: weights = rho'(r^2) (numeric derivative and Ceres's rho[1]),
 //     parsing and validation, the robust location;
 //  2. DBA with a Ceres loss (cost, photometric blocks, bad input);
@@ -21,11 +21,11 @@
 #include <string>
 #include <vector>
 
-#include "core/convergence.h"
-#include "core/robust_loss.h"
-#include "dba/dba_problem.h"
-#include "dsr_reduced/dsr_solver.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dba/dba_problem.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/model/robust_loss.h"
+#include "dsr/solve/convergence.h"
 #include "test_problems.h"
 #include "sanitizer.h"
 
@@ -95,7 +95,7 @@ TEST(RobustLoss, MatchesCeresLossFunction) {
       // The weights follow Ceres's formulas operation for operation: bit for bit.
       EXPECT_EQ(loss.Weight(r), rho[1]) << loss.ToString() << " r=" << r;
       // rho'' <= 0 everywhere: Ceres's corrector then only scales by sqrt(rho') (the IRLS
-      // step that DSR takes; core/robust_loss.cc).
+      // step that DSR takes; model/robust_loss.cc).
       EXPECT_LE(rho[2], 0.0);
     }
   }

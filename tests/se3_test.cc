@@ -1,5 +1,5 @@
 // SE(3) exponential/logarithm and the left-perturbation PoseManifold (docs/design.md section 1).
-#include "core/se3.h"
+#include "dsr/geometry/se3.h"
 
 #include <random>
 

@@ -16,9 +16,9 @@
 
 #include <gtest/gtest.h>
 
-#include "core/frame.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/image/frame.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 
 namespace dsr {
 namespace {

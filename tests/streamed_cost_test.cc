@@ -1,12 +1,12 @@
-// Reuse of streamed passes (core/streamed_cost.h: speculative Jacobians at trial points,
+// Reuse of streamed passes (stream/streamed_cost.h: speculative Jacobians at trial points,
 // no Jacobians at the point that ends the solve) changes how often the voxels are
 // streamed, never what Ceres sees: DSR (several chunks) and APE solves with and without
 // it take the same steps, reach bit-identical poses and costs, and stop for the same
 // reason, with fewer passes.
 #include <gtest/gtest.h>
 
-#include "baselines/baselines.h"
-#include "dsr_reduced/dsr_solver.h"
+#include "dsr/baselines/baselines.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
 #include "test_problems.h"
 
 namespace dsr {

@@ -14,10 +14,10 @@
 #include <ceres/gradient_checker.h>
 #include <Eigen/Geometry>
 
-#include "core/frame.h"
-#include "core/observation.h"
-#include "core/panorama.h"
-#include "core/se3.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/panorama.h"
 
 namespace dsr {
 namespace testing_problems {
@@ -45,7 +45,7 @@ struct SequenceOptions {
   // Valid cells' corners fill the box eroded by this many voxels (at least 1: the grid
   // border is never a corner). The mask is the box eroded by one voxel less: a corner's
   // central differences read its 6 neighbours, which must lie inside the mask
-  // (core/frame.h).
+  // (image/frame.h).
   int erosion = 1;
   // Fields of view that cut through the structure, as exported ultrasound volumes have:
   // each frame is 0 outside a ball (radius 0.45 size, about the frame's centre) and its

@@ -15,9 +15,9 @@
 #include <nlohmann/json.hpp>
 
 #include "cli_run.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "core/observation.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/model/observation.h"
 #include "sanitizer.h"
 
 namespace dsr {

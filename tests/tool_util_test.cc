@@ -1,9 +1,9 @@
 // Helpers shared by the tools (tools/tool_util.h).
-#include "tools/tool_util.h"
+#include "dsr/tools/tool_util.h"
 
 #include <gtest/gtest.h>
 
-#include "core/io_poses.h"
+#include "dsr/io/io_poses.h"
 
 namespace dsr {
 namespace {

@@ -6,15 +6,15 @@
 #include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
-#include "core/se3.h"
-#include "core/observation.h"
-#include "core/panorama.h"
-#include "dsr_reduced/reduced_cost.h"
-#include "pipeline/experiment.h"
-#include "pipeline/registration.h"
-#include "pipeline/uncertainty.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/experiment.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/uncertainty.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
 #include "sanitizer.h"
 
 namespace dsr {

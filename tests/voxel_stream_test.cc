@@ -1,5 +1,5 @@
-// The batch sampler of the voxel stream (core/voxel_stream.h), each kernel path against
-// the obviously-correct per-observation twin ObserveSample (core/observation.h): the same
+// The batch sampler of the voxel stream (stream/voxel_stream.h), each kernel path against
+// the obviously-correct per-observation twin ObserveSample (model/observation.h): the same
 // observers kept (sigma_ij), values and Jacobians to rounding; and the kernel
 // paths against each other through whole DSR evaluations. Also the rule the solver's
 // evaluation cache relies on: a cost-only pass gives bit-for-bit the cost of a pass with
@@ -10,9 +10,9 @@
 #include <limits>
 #include <memory>
 
-#include "core/voxel_stream.h"
+#include "dsr/stream/voxel_stream.h"
 #include "kernel_paths.h"
-#include "dsr_reduced/reduced_cost.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
 #include "test_problems.h"
 
 namespace dsr {

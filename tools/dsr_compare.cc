@@ -12,16 +12,16 @@
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
-#include "core/atomic_file.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "pipeline/experiment.h"
-#include "pipeline/registration.h"
-#include "pipeline/report.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
-#include "tools/output_plan.h"
-#include "tools/tool_util.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/pipeline/experiment.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/report.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
+#include "dsr/tools/output_plan.h"
+#include "dsr/tools/tool_util.h"
+#include "dsr/util/atomic_file.h"
 
 DEFINE_string(methods, "dsr,ape,sequential,lie_normalization,pairwise",
               "Comma-separated methods: dsr, dba, ape, sequential, lie_normalization, pairwise.");

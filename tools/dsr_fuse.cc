@@ -11,14 +11,14 @@
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
-#include "core/frame.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "core/observation.h"
-#include "core/panorama.h"
-#include "core/parallel.h"
-#include "tools/output_plan.h"
-#include "tools/tool_util.h"
+#include "dsr/image/frame.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/panorama.h"
+#include "dsr/tools/output_plan.h"
+#include "dsr/tools/tool_util.h"
+#include "dsr/util/parallel.h"
 
 DEFINE_string(images, "", "Frame images, frame 0 first (as registered), at most 32 "
               "(kMaxFrames): comma-separated, or @LIST: the file LIST with one path per line "

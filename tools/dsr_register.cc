@@ -1,6 +1,6 @@
 // dsr_register: registers several 3D images simultaneously (pipeline/registration.h) and
 // writes the poses (docs/design.md section 1), optionally the panorama, and, with
-// --gt_poses, prints per-frame errors against ground truth (core/eval.h).
+// --gt_poses, prints per-frame errors against ground truth (eval/eval.h).
 #include <chrono>
 #include <cinttypes>
 #include <cmath>
@@ -13,18 +13,18 @@
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
-#include "core/eval.h"
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "core/io_transform.h"
-#include "core/panorama.h"
-#include "core/parallel.h"
-#include "core/solve_options.h"
-#include "pipeline/input_checks.h"
-#include "pipeline/registration.h"
-#include "pipeline/report.h"
-#include "tools/output_plan.h"
-#include "tools/tool_util.h"
+#include "dsr/eval/eval.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/io/io_transform.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/input_checks.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/report.h"
+#include "dsr/solve/solve_options.h"
+#include "dsr/tools/output_plan.h"
+#include "dsr/tools/tool_util.h"
+#include "dsr/util/parallel.h"
 
 DEFINE_string(images, "", "Frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr), frame 0 "
               "first (it fixes the world): comma-separated, or @LIST: the file LIST with one "

@@ -15,12 +15,12 @@
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
-#include "core/io_image.h"
-#include "core/io_poses.h"
-#include "sim/phantom.h"
-#include "sim/simulate.h"
-#include "tools/output_plan.h"
-#include "tools/tool_util.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
+#include "dsr/tools/output_plan.h"
+#include "dsr/tools/tool_util.h"
 
 DEFINE_string(out_dir,
               "",

@@ -1,4 +1,4 @@
-#include "tools/output_plan.h"
+#include "dsr/tools/output_plan.h"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -9,8 +9,8 @@
 #include <system_error>
 #include <utility>
 
-#include "core/io_image.h"
-#include "tools/tool_util.h"
+#include "dsr/io/io_image.h"
+#include "dsr/tools/tool_util.h"
 
 namespace dsr {
 namespace {

@@ -1,8 +1,8 @@
-#include "tools/tool_util.h"
+#include "dsr/tools/tool_util.h"
 
-#include "core/parallel.h"
+#include "dsr/util/parallel.h"
 
-#include "core/io_image.h"
+#include "dsr/io/io_image.h"
 
 #include <algorithm>
 #include <cerrno>

@@ -13,9 +13,9 @@
 
 #include <Eigen/Core>
 
-#include "core/io_poses.h"
-#include "core/photometric.h"
-#include "core/volume.h"
+#include "dsr/geometry/volume.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/model/photometric.h"
 
 namespace dsr {
 

@@ -1,4 +1,4 @@
-// libFuzzer target: the image-loading wrapper (core/io_image.h ReadImage and ReadMask,
+// libFuzzer target: the image-loading wrapper (io/io_image.h ReadImage and ReadMask,
 // ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
 // .mha, .nrrd); the rest is the file. Any outcome but a crash, a sanitizer report or a leak
 // is fine; an accepted image must have a valid grid and finite voxels.
@@ -10,7 +10,7 @@
 #include <cstdlib>
 #include <string>
 
-#include "core/io_image.h"
+#include "dsr/io/io_image.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;

@@ -1,4 +1,4 @@
-// libFuzzer target: the poses-JSON reader (core/io_poses.h) on arbitrary bytes. The bytes
+// libFuzzer target: the poses-JSON reader (io/io_poses.h) on arbitrary bytes. The bytes
 // are written to a file in /dev/shm (or /tmp) because ReadPoses reads a path, as users call
 // it. Any outcome but a crash, a sanitizer report or a leak is fine; when the reader
 // accepts a file, its poses (and optional gains and offsets) must be finite and rigid (gains
@@ -12,7 +12,7 @@
 #include <string>
 #include <vector>
 
-#include "core/io_poses.h"
+#include "dsr/io/io_poses.h"
 
 namespace {
 

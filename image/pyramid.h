@@ -1,0 +1,51 @@
+// Gaussian image pyramid for coarse-to-fine registration.
+//
+// One level down: the image is smoothed with a Gaussian of standard deviation `sigma`
+// (fine voxels, per axis) by normalised convolution inside the field of view,
+//   I_s = G * (I M) / G * M,
+// so that the field-of-view edge does not darken, then sampled at every second voxel:
+// coarse voxel c sits at fine index 2c (same origin and direction, spacing doubled,
+// size = floor((n - 1) / 2) + 1). The coarse image keeps the smoothed values wherever the
+// smoothed mask is positive (a few voxels past the field of view, for resampling). The
+// coarse mask is the fine mask at 2c: a coarse voxel is in the field of view when the fine
+// voxel it sits on is, and its value is then a normalised average of field-of-view voxels.
+// No erosion is added: Frame keeps every gradient, and so every valid cell, one voxel
+// inside the mask at each level (image/frame.h), and an erosion here would compound level
+// by level and cut the coarse levels' overlap. An axis with a single voxel is neither
+// smoothed nor halved.
+#ifndef DSR_IMAGE_PYRAMID_H_
+#define DSR_IMAGE_PYRAMID_H_
+
+#include <vector>
+
+#include "dsr/geometry/volume.h"
+
+namespace dsr {
+
+struct ImageLevel {
+  Image image;
+  Mask mask;
+};
+
+// Smooths `image` inside `mask` by normalised convolution (see above) without
+// resampling; voxels where the smoothed mask is 0 become 0. `sigma_voxels` <= 0 copies.
+Image SmoothInsideMask(const Image& image, const Mask& mask, double sigma_voxels, int num_threads);
+
+// One level down (see above).
+ImageLevel Downsample(const Image& image, const Mask& mask, double sigma_voxels, int num_threads);
+
+// Levels finest first: levels[0] = the input smoothed by `finest_sigma_voxels` when > 0,
+// else empty (the input itself is the finest level: no copy of it is made);
+// levels[l] = Downsample(level l-1). Stops early when an axis would drop below
+// `min_size` voxels; returns at least one level.
+std::vector<ImageLevel> BuildPyramid(const Image& image,
+                                     const Mask& mask,
+                                     int num_levels,
+                                     double sigma_voxels,
+                                     double finest_sigma_voxels,
+                                     int min_size,
+                                     int num_threads);
+
+}  // namespace dsr
+
+#endif  // DSR_IMAGE_PYRAMID_H_

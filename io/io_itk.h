@@ -1,0 +1,74 @@
+// The ITK side of image IO, kept free of Eigen: ITK 5.2 bundles its own Eigen 3.3, which
+// cannot share a translation unit with the system Eigen 3.4 the rest of dsr uses. Only
+// io_itk.cc includes ITK; io_image.cc converts RawVolume to and from dsr::Volume and owns
+// the rules that need Eigen (geometry validation, masks, atomic writes).
+#ifndef DSR_IO_IO_ITK_H_
+#define DSR_IO_IO_ITK_H_
+
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace dsr {
+namespace itk_io {
+
+// A 3D scalar volume in plain arrays. Geometry follows ITK: x = origin + D S index, with
+// index[0] = i varying fastest in `voxels`.
+struct RawVolume {
+  int size[3] = {0, 0, 0};
+  double origin[3] = {0, 0, 0};
+  double spacing[3] = {1, 1, 1};
+  double direction[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major D, columns = index axes
+  std::vector<float> voxels;                          // x fastest
+};
+
+// Called with the header (voxels still empty) before any voxel is read; returns false with
+// an error to stop the read.
+using HeaderCheck = std::function<bool(const RawVolume& header, std::string* error)>;
+
+// Reads a scalar 3D image (or a 4D one whose 4th size is 1) and converts its voxels to
+// float. The header is inspected first: a missing file, an unreadable or corrupt header,
+// non-scalar pixels, a dimension other than 3 (or 4 with one volume) and a failing
+// `check_header` are reported before the voxels are read. Errors are one line naming `path`.
+bool Read(const std::string& path,
+          const HeaderCheck& check_header,
+          RawVolume* volume,
+          std::string* error);
+
+enum class PixelType { kFloat, kUint8 };
+
+// Writes `volume` to `path` (format from the extension) with voxels cast to `pixel_type`,
+// then checks the result with VerifyWritten. Not atomic by itself: callers write to a
+// temporary path and publish it only on success. Errors are one line naming `path`.
+bool Write(const RawVolume& volume,
+           const std::string& path,
+           PixelType pixel_type,
+           bool compress,
+           std::string* error);
+
+// Reads back what Write put at `path` and checks that it is complete: the header parses and
+// describes `volume` (size, `pixel_type`), and the voxel data has exactly the size it must
+// have: header + voxels x bytes per voxel for uncompressed data (in the data file for
+// .mhd/.nhdr), a full decompression that ends cleanly with exactly that many bytes for
+// compressed data. Failed writes (disk full, file-size limit) show up here even where the
+// ITK writer reports success. The error names `path` and says "write failed".
+bool VerifyWritten(const RawVolume& volume,
+                   const std::string& path,
+                   PixelType pixel_type,
+                   std::string* error);
+
+// `path` followed by the data files its header names (see io_image.h, ImageDataFiles).
+bool DataFiles(const std::string& path, std::vector<std::string>* files, std::string* error);
+
+// ITK transform files (.tfm, .txt; .h5 where ITK has HDF5): a 3D affine transform
+// x_moving = A x_fixed + b, `matrix` = row-major [A | b] (12 numbers), written as ITK's
+// AffineTransform_double_3_3 with centre 0. Not atomic by itself. Errors name `path`.
+bool WriteAffineTransform(const std::string& path, const double matrix[12], std::string* error);
+// Reads the first transform of a file: an AffineTransform, Euler3DTransform,
+// VersorRigid3DTransform or any other matrix-offset transform of dimension 3.
+bool ReadAffineTransform(const std::string& path, double matrix[12], std::string* error);
+
+}  // namespace itk_io
+}  // namespace dsr
+
+#endif  // DSR_IO_IO_ITK_H_

@@ -1,0 +1,92 @@
+#include "dsr/io/io_picture.h"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "dsr/util/atomic_file.h"
+
+namespace dsr {
+namespace {
+
+// A BGR view of the picture's RGB memory is not possible (channel order), so drawing goes
+// through a converted copy.
+cv::Mat ToBgr(const Picture& picture) {
+  cv::Mat rgb(picture.height, picture.width, CV_8UC3, const_cast<uint8_t*>(picture.rgb.data()));
+  cv::Mat bgr;
+  cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+  return bgr;
+}
+
+void FromBgr(const cv::Mat& bgr, Picture* picture) {
+  cv::Mat rgb;
+  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+  picture->width = rgb.cols;
+  picture->height = rgb.rows;
+  picture->rgb.assign(rgb.data, rgb.data + 3 * size_t(rgb.cols) * rgb.rows);
+}
+
+cv::Scalar Bgr(Rgb c) { return cv::Scalar(c[2], c[1], c[0]); }
+
+}  // namespace
+
+void DrawPolyline(const std::vector<std::pair<double, double>>& points,
+                  Rgb color,
+                  int thickness,
+                  Picture* picture) {
+  if (points.size() < 2 || picture->width == 0) return;
+  cv::Mat bgr = ToBgr(*picture);
+  constexpr int kShift = 4;  // sub-pixel precision
+  std::vector<cv::Point> pts;
+  for (const auto& [x, y] : points) {
+    pts.emplace_back(cvRound(x * (1 << kShift)), cvRound(y * (1 << kShift)));
+  }
+  cv::polylines(bgr, pts, false, Bgr(color), thickness, cv::LINE_AA, kShift);
+  FromBgr(bgr, picture);
+}
+
+void DrawText(const std::string& text, int x, int y, double scale, Rgb color, Picture* picture) {
+  if (picture->width == 0) return;
+  cv::Mat bgr = ToBgr(*picture);
+  cv::putText(bgr, text, cv::Point(x, y), cv::FONT_HERSHEY_SIMPLEX, scale, Bgr(color), 1,
+              cv::LINE_AA);
+  FromBgr(bgr, picture);
+}
+
+bool WritePng(const Picture& picture, const std::string& path, std::string* error) {
+  if (picture.width <= 0 || picture.height <= 0) {
+    *error = path + ": empty picture";
+    return false;
+  }
+  const cv::Mat bgr = ToBgr(picture);
+  return WriteViaTemporaryFile(
+      path,
+      [&](const std::string& temp, std::string* e) {
+        try {
+          if (cv::imwrite(temp, bgr)) return true;
+          *e = temp + ": cannot write the PNG";
+        } catch (const cv::Exception& ex) {
+          *e = temp + ": cannot write the PNG (" + ex.msg + ")";
+        }
+        return false;
+      },
+      error);
+}
+
+bool ReadPng(const std::string& path, Picture* picture, std::string* error) {
+  cv::Mat bgr;
+  try {
+    bgr = cv::imread(path, cv::IMREAD_COLOR);
+  } catch (const cv::Exception& ex) {
+    *error = path + ": cannot read the picture (" + ex.msg + ")";
+    return false;
+  }
+  if (bgr.empty()) {
+    *error = path + ": cannot read the picture";
+    return false;
+  }
+  FromBgr(bgr, picture);
+  return true;
+}
+
+}  // namespace dsr

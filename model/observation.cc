@@ -1,0 +1,202 @@
+// Candidate observations and overlap connectivity (docs/design.md section 2).
+#include "dsr/model/observation.h"
+
+#include "dsr/util/parallel.h"
+
+#include <algorithm>
+#include <cmath>
+#include <queue>
+#include <sstream>
+
+#include <glog/logging.h>
+
+namespace dsr {
+
+int64_t CandidateSet::NumObservations() const {
+  int64_t total = 0;
+  for (uint32_t o : observers) total += __builtin_popcount(o);
+  return total;
+}
+
+Eigen::Vector3d CandidateSet::VoxelCenter(int64_t v) const {
+  const int64_t l = voxel[v];
+  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
+  const Eigen::Vector3d ijk(static_cast<double>(l % nx), static_cast<double>((l % nxy) / nx),
+                            static_cast<double>(l / nxy));
+  return grid.IndexToPhysical(ijk);
+}
+
+CandidateSet BuildCandidates(const std::vector<Frame>& frames,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const ImageGeometry& grid,
+                             int margin_cells) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_LE(m, kMaxFrames);
+  CHECK_EQ(frame_from_world.size(), frames.size());
+  CandidateSet out;
+  out.grid = grid;
+  out.num_frames = m;
+  // Cells within the margin of each frame's valid region: the valid-cell bits themselves
+  // (margin 0), else a dilated byte map.
+  std::vector<std::vector<uint8_t>> dilated(m);
+  std::vector<Eigen::Matrix3d> a(m);  // index_i = a p_j + b
+  std::vector<Eigen::Vector3d> b(m);
+  for (int i = 0; i < m; ++i) {
+    if (margin_cells > 0) dilated[i] = frames[i].DilatedValidCells(margin_cells);
+    const Eigen::Matrix3d index_from_physical = frames[i].index_from_physical();
+    a[i] = index_from_physical * frame_from_world[i].linear();
+    b[i] = index_from_physical *
+           (frame_from_world[i].translation() - frames[i].geometry().origin_mm);
+  }
+  const Eigen::Vector3i n = grid.size;
+  const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
+  // Slices in parallel, each into its own lists, concatenated in slice order (the result
+  // does not depend on the thread count). Along a panorama row the continuous index in
+  // frame f is u(i) = u(0) + i * step_f; each frame only visits the i whose cell can lie
+  // within the margin of its grid (a conservative clip of that line), then tests its map.
+  std::vector<std::vector<int64_t>> slice_voxels(n[2]);
+  std::vector<std::vector<uint32_t>> slice_observers(n[2]);
+  ParallelFor(0, n[2], 0, [&](int64_t k) {
+    std::vector<uint32_t> row(n[0]);
+    for (int j = 0; j < n[1]; ++j) {
+      std::fill(row.begin(), row.end(), 0u);
+      const Eigen::Vector3d p0 = grid.origin_mm + to_world * Eigen::Vector3d(0, j, k);
+      for (int f = 0; f < m; ++f) {
+        const Eigen::Vector3i& fs = frames[f].geometry().size;
+        const Eigen::Vector3d u0 = a[f] * p0 + b[f];
+        const Eigen::Vector3d step = a[f] * to_world.col(0);
+        // i range where every axis stays within [-margin - 1, n - 1 + margin] (one cell
+        // of slack on each side; the exact test follows).
+        double lo = 0.0, hi = n[0] - 1.0;
+        for (int ax = 0; ax < 3 && lo <= hi; ++ax) {
+          const double low = -margin_cells - 1.0, high = fs[ax] - 1.0 + margin_cells;
+          if (step[ax] == 0.0) {
+            if (!(u0[ax] >= low && u0[ax] <= high)) lo = hi + 1.0;
+            continue;
+          }
+          double t0 = (low - u0[ax]) / step[ax], t1 = (high - u0[ax]) / step[ax];
+          if (t0 > t1) std::swap(t0, t1);
+          lo = std::max(lo, std::floor(t0));
+          hi = std::min(hi, std::ceil(t1));
+        }
+        if (!(lo <= hi)) continue;  // also false for NaN
+        const uint32_t bit = 1u << f;
+        const Frame& frame = frames[f];
+        const uint8_t* near = margin_cells > 0 ? dilated[f].data() : nullptr;
+        const int64_t sy = fs[0], sz = int64_t{fs[0]} * fs[1];
+        if (near == nullptr) {  // margin 0: the cell itself must be a valid one
+          const double max_cell[3] = {fs[0] - 2.0, fs[1] - 2.0, fs[2] - 2.0};
+          for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
+            const double fx = std::floor(u0[0] + i * step[0]);
+            const double fy = std::floor(u0[1] + i * step[1]);
+            const double fz = std::floor(u0[2] + i * step[2]);
+            if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0 && fx <= max_cell[0] && fy <= max_cell[1] &&
+                  fz <= max_cell[2])) {
+              continue;
+            }
+            const int64_t cell = static_cast<int64_t>(fx) + sy * static_cast<int64_t>(fy) +
+                                 sz * static_cast<int64_t>(fz);
+            if (frame.IsValidCell(cell)) row[i] |= bit;
+          }
+          continue;
+        }
+        for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
+          // Cell containing u, clamped into the grid when within the margin outside it.
+          int64_t cell = 0;
+          bool inside = true;
+          for (int ax = 0; ax < 3; ++ax) {
+            const double fl = std::floor(u0[ax] + i * step[ax]);
+            if (!(fl >= -margin_cells && fl <= fs[ax] - 2 + margin_cells)) {
+              inside = false;
+              break;
+            }
+            const int64_t c = static_cast<int64_t>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
+            cell += c * (ax == 0 ? 1 : (ax == 1 ? sy : sz));
+          }
+          if (inside && near[cell] != 0) row[i] |= bit;
+        }
+      }
+      for (int i = 0; i < n[0]; ++i) {
+        if ((row[i] & (row[i] - 1)) != 0) {  // at least two candidate observers
+          slice_voxels[k].push_back(grid.LinearIndex(i, j, static_cast<int>(k)));
+          slice_observers[k].push_back(row[i]);
+        }
+      }
+    }
+  });
+  size_t total = 0;
+  for (const auto& v : slice_voxels) total += v.size();
+  out.voxel.reserve(total);
+  out.observers.reserve(total);
+  for (int k = 0; k < n[2]; ++k) {
+    out.voxel.insert(out.voxel.end(), slice_voxels[k].begin(), slice_voxels[k].end());
+    out.observers.insert(out.observers.end(), slice_observers[k].begin(), slice_observers[k].end());
+  }
+  return out;
+}
+
+Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
+  const int m = candidates.num_frames;
+  Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);
+  for (uint32_t bits : candidates.observers) {
+    for (uint32_t as = bits; as != 0; as &= as - 1) {  // set bits only
+      const int a = __builtin_ctz(as);
+      for (uint32_t bs = as; bs != 0; bs &= bs - 1) ++overlap(a, __builtin_ctz(bs));
+    }
+  }
+  overlap.triangularView<Eigen::StrictlyLower>() = overlap.transpose();
+  return overlap;
+}
+
+bool CheckConnected(const CandidateSet& candidates,
+                    int64_t min_shared_voxels,
+                    std::string* error) {
+  return CheckConnected(CandidateOverlap(candidates), min_shared_voxels, error);
+}
+
+bool CheckConnected(const Eigen::MatrixXi& overlap,
+                    int64_t min_shared_voxels,
+                    std::string* error) {
+  const int m = static_cast<int>(overlap.rows());
+  std::vector<bool> reached(m, false);
+  std::queue<int> todo;
+  reached[0] = true;
+  todo.push(0);
+  while (!todo.empty()) {
+    const int a = todo.front();
+    todo.pop();
+    for (int b = 0; b < m; ++b) {
+      if (!reached[b] && b != a && overlap(a, b) >= min_shared_voxels) {
+        reached[b] = true;
+        todo.push(b);
+      }
+    }
+  }
+  std::ostringstream missing;
+  int num_missing = 0;
+  for (int i = 0; i < m; ++i) {
+    if (!reached[i]) missing << (num_missing++ ? "," : "") << i;
+  }
+  if (num_missing == 0) return true;
+  if (error) {
+    *error = (num_missing == 1 ? "frame " + missing.str() + " does not"
+                               : "frames " + missing.str() + " do not") +
+             std::string(" overlap frame 0 or the frames connected to it at the initial poses "
+                         "(fewer than ") +
+             std::to_string(min_shared_voxels) +
+             " shared panorama voxels); give better initial poses with --init";
+  }
+  return false;
+}
+
+std::vector<Eigen::Isometry3d> RelativeToFrame0(
+    const std::vector<Eigen::Isometry3d>& frame_from_world) {
+  std::vector<Eigen::Isometry3d> out;
+  if (frame_from_world.empty()) return out;
+  const Eigen::Isometry3d world_from_frame0 = frame_from_world[0].inverse();
+  for (const auto& t : frame_from_world) out.push_back(t * world_from_frame0);
+  out[0] = Eigen::Isometry3d::Identity();
+  return out;
+}
+
+}  // namespace dsr

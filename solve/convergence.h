@@ -1,0 +1,61 @@
+// A stopping rule in image units, shared by every mode: a solve has converged when an
+// accepted step moves no frame's field of view by more than a tolerance (in voxels), or
+// when Levenberg-Marquardt / dogleg rejects several steps in a row (the cost no longer
+// decreases measurably: at the noise floor, the Gauss-Newton model built from the
+// interpolated gradient volumes no longer predicts the trilinear cost's change).
+//
+// Ceres's own tolerances stay active; they are relative to the cost and to the parameter
+// vector, whose size depends on where the world origin lies, so they are poor rules for
+// poses. This one measures what a user cares about: how far the frames still move.
+#ifndef DSR_SOLVE_CONVERGENCE_H_
+#define DSR_SOLVE_CONVERGENCE_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <ceres/iteration_callback.h>
+#include <ceres/solver.h>
+
+#include "dsr/image/frame.h"
+
+namespace dsr {
+
+// Largest motion, in voxels of `frame`'s grid, of the corners of the frame's valid
+// bounding box between two world->frame poses: max over corners x of |a (b^-1 x) - x|
+// measured in index units (0 for a frame without valid cells).
+double MaxCornerMotionVoxels(const Frame& frame,
+                             const Eigen::Isometry3d& a,
+                             const Eigen::Isometry3d& b);
+
+// Terminates a Ceres solve by the rule above. `pose_blocks[i]` points to frame i's
+// ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for a frame that is
+// not a parameter (frame 0). Requires Solver::Options::update_state_every_iteration.
+class PoseStepCallback final : public ceres::IterationCallback {
+ public:
+  PoseStepCallback(const std::vector<Frame>* frames,
+                   std::vector<const double*> pose_blocks,
+                   double tolerance_voxels,
+                   int max_rejected_steps);
+  ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override;
+  // Adds this callback to `options` when the rule is on (a tolerance > 0 or a rejection
+  // limit > 0), with update_state_every_iteration, which the rule needs.
+  void AddTo(ceres::Solver::Options* options);
+  // Why it stopped the solve; empty when it did not.
+  const std::string& reason() const { return reason_; }
+
+ private:
+  std::vector<Eigen::Isometry3d> Current() const;
+
+  const std::vector<Frame>* frames_;
+  std::vector<const double*> pose_blocks_;
+  double tolerance_voxels_;
+  int max_rejected_steps_;
+  std::vector<Eigen::Isometry3d> previous_;
+  int rejected_in_a_row_ = 0;
+  std::string reason_;
+};
+
+}  // namespace dsr
+
+#endif  // DSR_SOLVE_CONVERGENCE_H_

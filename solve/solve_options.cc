@@ -1,0 +1,128 @@
+#include "dsr/solve/solve_options.h"
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <unistd.h>
+
+#include <ceres/types.h>
+
+namespace dsr {
+
+bool SolveOptions::Validate(std::string* error) const {
+  ceres::TrustRegionStrategyType tr;
+  if (!ceres::StringToTrustRegionStrategyType(trust_region, &tr)) {
+    *error = "--trust_region=" + trust_region + ": must be LEVENBERG_MARQUARDT or DOGLEG";
+    return false;
+  }
+  ceres::LinearSolverType ls;
+  if (!linear_solver.empty() && !ceres::StringToLinearSolverType(linear_solver, &ls)) {
+    *error = "--linear_solver=" + linear_solver + ": not a Ceres linear solver name";
+    return false;
+  }
+  if (max_iterations < 1) {
+    *error = "--max_iterations=" + std::to_string(max_iterations) + ": must be >= 1";
+    return false;
+  }
+  const std::pair<const char*, double> tolerances[] = {
+      {"--function_tolerance", function_tolerance},
+      {"--gradient_tolerance", gradient_tolerance},
+      {"--parameter_tolerance", parameter_tolerance}};
+  for (const auto& [name, value] : tolerances) {
+    if (!std::isfinite(value) || value < 0.0) {
+      std::ostringstream s;
+      s << name << "=" << value << ": must be finite and >= 0";
+      *error = s.str();
+      return false;
+    }
+  }
+  if (!std::isfinite(step_tolerance_voxels) || step_tolerance_voxels < 0.0) {
+    std::ostringstream s;
+    s << "--step_tolerance=" << step_tolerance_voxels << ": must be finite and >= 0";
+    *error = s.str();
+    return false;
+  }
+  if (max_rejected_steps < 0) {
+    *error = "--max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
+    return false;
+  }
+  return true;
+}
+
+void SolveOptions::ToCeres(const std::string& default_linear_solver,
+                           ceres::Solver::Options* out) const {
+  CHECK(ceres::StringToTrustRegionStrategyType(trust_region, &out->trust_region_strategy_type));
+  const std::string& ls = linear_solver.empty() ? default_linear_solver : linear_solver;
+  CHECK(ceres::StringToLinearSolverType(ls, &out->linear_solver_type)) << ls;
+  out->max_num_iterations = max_iterations;
+  out->function_tolerance = function_tolerance;
+  out->gradient_tolerance = gradient_tolerance;
+  out->parameter_tolerance = parameter_tolerance;
+  out->num_threads = num_threads > 0 ? num_threads
+                                     : static_cast<int>(std::max(1L, sysconf(_SC_NPROCESSORS_ONLN)));
+  out->min_relative_decrease = min_relative_decrease;
+  out->minimizer_progress_to_stdout = false;
+  out->logging_type = ceres::SILENT;
+  out->update_state_every_iteration = false;
+}
+
+ceres::CallbackReturnType ProgressCallback::operator()(const ceres::IterationSummary& s) {
+  IterationRecord r;
+  r.iteration = s.iteration;
+  r.cost = s.cost;
+  r.step_norm = s.step_norm;
+  r.seconds = s.cumulative_time_in_seconds;
+  r.step_accepted = s.step_is_successful;
+  records_.push_back(r);
+  if (log_) {
+    std::fprintf(stderr, "%s iter %3d  cost % .9e  step %.3e  radius %.1e  %s  %.3f s\n",
+                 label_.c_str(), s.iteration, s.cost, s.step_norm, s.trust_region_radius,
+                 s.step_is_successful ? "accepted" : "rejected", s.cumulative_time_in_seconds);
+  }
+  return ceres::SOLVER_CONTINUE;
+}
+
+void FillReport(const ceres::Solver::Summary& summary,
+                const ProgressCallback& progress,
+                SolveReport* report) {
+  report->iterations = progress.records();
+  report->termination = summary.message;
+  report->usable = summary.IsSolutionUsable() && std::isfinite(summary.final_cost);
+  report->initial_cost = summary.initial_cost;
+  report->final_cost = summary.final_cost;
+  report->num_iterations = static_cast<int>(summary.iterations.size()) - 1;
+  report->seconds = summary.total_time_in_seconds;
+  report->seconds_per_iteration =
+      summary.minimizer_time_in_seconds / std::max(1, report->num_iterations);
+}
+
+namespace {
+
+// A "Vm...:  N kB" line of /proc/self/status in bytes, 0 when absent.
+int64_t StatusBytes(const std::string& key) {
+  std::ifstream status("/proc/self/status");
+  std::string line;
+  while (std::getline(status, line)) {
+    if (line.rfind(key, 0) == 0) {
+      std::istringstream s(line.substr(key.size()));
+      int64_t kb = 0;
+      s >> kb;
+      return kb * 1024;
+    }
+  }
+  return 0;
+}
+
+}  // namespace
+
+int64_t PeakResidentBytes() { return StatusBytes("VmHWM:"); }
+
+int64_t CurrentResidentBytes() { return StatusBytes("VmRSS:"); }
+
+int64_t PhysicalMemoryBytes() {
+  const long pages = sysconf(_SC_PHYS_PAGES), page_size = sysconf(_SC_PAGE_SIZE);
+  return pages > 0 && page_size > 0 ? int64_t{pages} * page_size : 0;
+}
+
+}  // namespace dsr

@@ -1,0 +1,151 @@
+// A Ceres residual block over every free pose whose normal equations are streamed, not
+// stored (docs/design.md section 4.6, the fast path): shared by DSR's chunk cost and APE's.
+//
+// Evaluate() asks the subclass for the normal equations (H, g, f) of its voxels at the
+// current poses (stream/voxel_stream.h) and returns a compressed residual r' with Jacobian R
+// such that R^T R = H, R^T r' = g and |r'|^2 = f: R from the symmetric eigen-decomposition
+// of H, plus one residual sqrt(max(0, f - |r'|^2)) with a zero Jacobian row. The
+// Gauss-Newton / Levenberg-Marquardt model Ceres builds is then exactly the uncompressed
+// one, and nothing per observation is kept (the idea of square-root bundle adjustment's
+// landmark marginalisation).
+//
+// Parameter blocks: the poses of frames 1..m-1 in order (7 ambient each, geometry/se3.h);
+// frame 0 is the constant pose given at construction (the gauge). With photometric
+// parameters (docs/design.md section 2.8), then the [log_gain, offset] blocks of frames
+// 1..m-1 (frame 0's: the gauge, 0 and 0), and the subclass's normal equations have 8
+// parameters per frame (the pose tangent, log gain, offset). num_residuals = p (m - 1) + 1,
+// p = 6 or 8.
+#ifndef DSR_STREAM_STREAMED_COST_H_
+#define DSR_STREAM_STREAMED_COST_H_
+
+#include <cstdint>
+#include <functional>
+#include <string>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <ceres/ceres.h>
+
+#include "dsr/image/frame.h"
+#include "dsr/model/photometric.h"
+#include "dsr/solve/solve_options.h"
+#include "dsr/stream/voxel_stream.h"
+
+namespace dsr {
+
+// r' (n + 1) and R ((n + 1) x n) for normal equations over n tangent parameters.
+void CompressNormalEquations(const Eigen::MatrixXd& hessian,
+                             const Eigen::VectorXd& gradient,
+                             double cost,
+                             Eigen::VectorXd* residual,
+                             Eigen::MatrixXd* jacobian);
+
+// How a streamed block reuses its passes over the voxels (each pass is the expensive part
+// of an iteration). Ceres's trust-region loop evaluates the cost alone at a trial point
+// and, when the step is accepted, the cost with Jacobians at the same point. So:
+//  * speculate: a trial point's pass also computes the Jacobians (it reads the same data;
+//    about 2x a cost-only pass) and keeps them; an accepted step then costs one pass, not
+//    two. After a rejected step the next trial is evaluated cost-only, and speculation
+//    resumes after the next accepted step.
+//  * lazy final Jacobian (when `frames` is set and step_tolerance_voxels > 0): a trial
+//    point whose step moves no field of view by `step_tolerance_voxels` or more ends the
+//    solve if it is accepted (the rule of solve/convergence.h, which then stops Ceres before
+//    it uses the Jacobians again). Its pass is cost-only, and the Jacobians Ceres asks for
+//    there are those of the previous point with the new point's exact cost.
+// Neither changes any cost Ceres sees or any pose it reaches (the cost-only and the
+// Jacobian passes give bit-identical costs); tests compare solves with and without.
+struct StreamedEvaluationPolicy {
+  bool speculate = false;
+  const std::vector<Frame>* frames = nullptr;  // frame 0 first; not owned
+  double step_tolerance_voxels = 0.0;
+};
+
+// Passes over the voxels a block made.
+struct StreamedPassCounts {
+  int jacobian_passes = 0;
+  int cost_passes = 0;
+};
+
+// The policy the solvers give their blocks: speculate and lazy final Jacobians when
+// solve.reuse_evaluations, with the solve's pose step tolerance.
+StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
+                                             const SolveOptions& solve);
+
+class StreamedPoseCost : public ceres::CostFunction {
+ public:
+  StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world,
+                   bool photometric = false);
+  bool Evaluate(double const* const* parameters,
+                double* residuals,
+                double** jacobians) const final;
+  // Intensity differences of the latest evaluation (NormalEquations::observations). Ceres
+  // evaluates the few streamed blocks from one thread (the solvers set num_threads = 1 and
+  // thread inside the stream), so plain members are safe.
+  int64_t last_observations() const { return last_observations_; }
+  void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
+  const StreamedPassCounts& pass_counts() const { return counts_; }
+  // The latest pass when it was made at exactly these free parameters (the poses of
+  // frames 1..m-1, 7 each, and with photometric parameters their 2 each), else null: e.g.
+  // the pass at the final poses of a solve, whose per-frame costs the caller may reuse.
+  const NormalEquations* PassAt(const std::vector<const double*>& free_blocks,
+                                const std::vector<const double*>& photometric_blocks = {}) const;
+  bool photometric() const { return photometric_; }
+
+ protected:
+  // Normal equations over all m frames (p m x p m; p = 6, or 8 with photometric
+  // parameters) at `frame_from_world` and `photometric` (frame 0 first; empty without
+  // photometric parameters).
+  virtual void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                          const std::vector<Photometric>& photometric,
+                          bool with_jacobian,
+                          NormalEquations* out) const = 0;
+
+ private:
+  // Writes the compressed residual and Jacobians of `system`; with `exact_cost`, |r'|^2
+  // is its cost even when its model comes from another point.
+  bool WriteJacobianEvaluation(const NormalEquations& system,
+                               bool exact_cost,
+                               double const* const* parameters,
+                               double* residuals,
+                               double** jacobians) const;
+
+  int num_frames_;
+  Eigen::Isometry3d frame0_from_world_;
+  bool photometric_;
+  StreamedEvaluationPolicy policy_;
+  mutable int64_t last_observations_ = 0;
+  mutable StreamedPassCounts counts_;
+  // The latest pass: its parameters, its system, whether it holds Jacobians, and whether
+  // it was a lazy final trial point.
+  mutable std::vector<double> pass_parameters_;
+  mutable NormalEquations pass_;
+  mutable bool pass_has_jacobian_ = false;
+  mutable bool pass_is_final_ = false;
+  // The latest evaluation with Jacobians (the current accepted point) and its poses.
+  mutable NormalEquations accepted_;
+  mutable std::vector<Eigen::Isometry3d> accepted_poses_;
+  mutable bool last_was_cost_only_ = false;
+  mutable bool speculate_next_ = true;
+};
+
+// Solves min over the poses of frames 1..m-1 (frame 0 constant) of the sum of the
+// streamed blocks `make_block(begin, end)` returns for `num_blocks` equal ranges of
+// [0, num_voxels): Ceres with a dense linear solver (or solve.linear_solver), the progress
+// line labelled `label`, and the shared pose stopping rule (solve/convergence.h). A solve
+// that runs but is not usable returns true with report->usable = false. The blocks get the
+// evaluation policy above when solve.reuse_evaluations.
+using StreamedBlockFactory = std::function<StreamedPoseCost*(int64_t begin, int64_t end)>;
+bool SolveStreamedPoses(const std::vector<Frame>& frames,
+                        const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                        int64_t num_voxels,
+                        int num_blocks,
+                        const StreamedBlockFactory& make_block,
+                        const SolveOptions& solve,
+                        const std::string& label,
+                        SolveReport* report,
+                        std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_STREAM_STREAMED_COST_H_

@@ -1,0 +1,350 @@
+// Streaming normal equations over panorama voxels: the hot loop every image-based solver
+// shares (DSR in dsr_reduced/, APE and the pair registrations in baselines/).
+//
+// For each candidate voxel j (model/observation.h) the stream samples every candidate
+// observer i at p_ij = T_i p_j with the observation model of model/observation.h (value
+// and gradient in one trilinear gather of the interleaved frame data), keeps those with
+// sigma_ij = 1, and, when at least two frames observe the voxel, builds their Jacobians
+// J_ij and hands them to a per-voxel term that adds its cost, gradient and Gauss-Newton
+// matrix to an accumulator. Nothing per observation is kept beyond a batch of up to
+// 2048 voxels.
+//
+// Work is done in batches (VoxelBatch): the sampler fills one with the observations of
+// consecutive candidate voxels, the term consumes them voxel by voxel, and for terms whose
+// Gauss-Newton matrix has the per-voxel form (delta_ab d + s) J_a^T J_b the stream adds it
+// for the whole batch at once, voxels with the same observers together
+// (stream/hessian_batch.h), and likewise their gradient g_a += r_a J_a when the term hands
+// over its residuals r_a. Larger batches make larger groups: 2048 voxels (8192
+// observations, about 0.6 MB, within the L2 cache) took an evaluation with Jacobians
+// from 116 to 105 ms (1 thread) where 512 voxels were the limit. The sampler and those
+// kernels have SIMD implementations (AVX2+FMA, and AVX-512 for the Gauss-Newton matrix)
+// where the CPU has them, and portable ones (the twins tests compare with; KernelPath).
+//
+// Determinism: a voxel range is split into a fixed number of blocks (independent of the
+// thread count), each block accumulated on its own and the blocks summed in order, so the
+// result is bit-identical for any number of threads (for a given kernel path).
+//
+// The slow, obviously-correct twin of the sampling is ObserveSample (model/observation.h);
+// tests compare the two through the per-voxel reference costs.
+#ifndef DSR_STREAM_VOXEL_STREAM_H_
+#define DSR_STREAM_VOXEL_STREAM_H_
+
+#include <algorithm>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <type_traits>
+#include <vector>
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+#include <glog/logging.h>
+
+#include "dsr/image/frame.h"
+#include "dsr/model/observation.h"
+#include "dsr/stream/hessian_batch.h"
+#include "dsr/util/parallel.h"
+
+namespace dsr {
+
+// Normal equations of a sum of squares over all m frames (p m x p m, frame 0's rows
+// included; p = 6 pose parameters per frame, or 8 with photometric parameters: the pose
+// tangent, then log gain and offset): H = J^T J (full square), g = J^T r, cost = sum r^2.
+struct NormalEquations {
+  Eigen::MatrixXd hessian;
+  Eigen::VectorXd gradient;
+  double cost = 0.0;
+  // Intensity differences the objective evaluated (e.g. sum of k_j for DSR, sum of
+  // k_j (k_j - 1) / 2 for APE), over voxels with k_j >= 2.
+  int64_t observations = 0;
+  // Voxels with k_j >= 2 (the panorama intensities DSR eliminates: one degree of freedom
+  // each, for the noise estimate of pipeline/uncertainty.h).
+  int64_t voxels = 0;
+  // Per frame (m entries), for terms that split their cost by frame (DSR: frame i's sum
+  // of squared residuals and its number of residuals); zero otherwise.
+  std::vector<double> frame_cost;
+  std::vector<int64_t> frame_observations;
+};
+
+// A frame's pose folded into its index map (u = A p + b), with the raw sampler data, so
+// that the hot loop samples without calls: one validity bit and one gather of 8 float4
+// [I, gu, gv, gw] per observation. Vectors are stored as 4 lanes (x, y, z, 0) so that the
+// AVX2 path loads them whole.
+struct PosedFrame {
+  const float* data;           // interleaved float4 per voxel (image/frame.h)
+  const uint8_t* valid_bits;   // valid-cell bit map (image/frame.h)
+  int64_t stride_y, stride_z;  // in voxels
+  double a[4][4];              // columns of A, then b: u = A p + b (index units)
+  double max_cell[4];          // n - 2 per axis (last valid cell index), 0 in lane 3
+  double r[4][4];              // columns of R, then t: p_ij = R p + t (frame mm)
+  double g[3][4];              // columns of (D S)^-T: index gradient -> physical gradient
+  double strides[4];           // 1, stride_y, stride_z, 0: a cell's linear index as a dot product
+};
+
+std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
+                                   const std::vector<Eigen::Isometry3d>& frame_from_world);
+
+// Which implementation of the sampler and of the batched Gauss-Newton kernel runs.
+// kAvx2: both in AVX2 + FMA; kAvx512: the AVX2 sampler with an AVX-512 Gauss-Newton
+// kernel (stream/kernels/kernels_avx512.h); kPortable: plain C++, the twin tests compare with. The
+// default is the widest the CPU runs (checked at run time; the rest of the build stays
+// baseline x86-64); DSR_KERNELS=avx2 or =portable caps it. All evaluate the same
+// formulas; results agree to rounding (about 1e-15 relative).
+enum class KernelPath { kPortable, kAvx2, kAvx512 };
+bool KernelPathAvailable(KernelPath path);
+KernelPath ActiveKernelPath();
+// For tests and benchmarks; CHECKs that `path` is available. Not thread-safe: call it
+// while no stream runs.
+void SetKernelPath(KernelPath path);
+const char* KernelPathName(KernelPath path);
+
+// Jacobian layout in a batch: J_ij = [d/d rho (3), d/d phi (3)], 6 doubles, the k
+// Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
+// Gauss-Newton kernel reads as 6k consecutive doubles).
+constexpr int kJacobianSize = 6;
+// With photometric parameters (docs/design.md section 2.8) a term works with wide
+// Jacobians J'_ij = [a_i J_ij, a_i I_i(p_ij), 1] (pose, log gain, offset of frame i).
+constexpr int kWideJacobianSize = 8;
+
+// Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
+// else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
+bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
+// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p,
+// portable.
+void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]);
+
+// The observations of consecutive candidate voxels with at least two observers. Voxel t
+// has k_t = begin[t + 1] - begin[t] observations, in increasing frame order.
+struct VoxelBatch {
+  static constexpr int kMaxObservations = 8192;
+  static constexpr int kMaxVoxels = 2048;
+  int num_voxels = 0;
+  int num_observations = 0;
+  int begin[kMaxVoxels + 1];
+  uint32_t observers[kMaxVoxels];  // bit f: frame f observes voxel t (sigma = 1)
+  int64_t voxel[kMaxVoxels];       // voxel t's index in the CandidateSet
+  int frame[kMaxObservations];
+  double value[kMaxObservations];
+  // Only with Jacobians.
+  alignas(64) double jac[kMaxObservations][kJacobianSize];
+  // Only with Jacobians, for terms with a batched gradient: the observations' residuals
+  // r, written by the term (g_{frame} += r J is added a batch at a time).
+  double residual[kMaxObservations];
+  // Only with Jacobians, for terms with 8 parameters per frame: their wide Jacobians,
+  // written by the term from jac and value (the batched kernels read these instead).
+  alignas(64) double wide_jac[kMaxObservations][kWideJacobianSize];
+};
+
+// Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
+// or when the batch is full) that at least two frames observe at `posed`; Jacobians only
+// when `with_jacobian`. Returns the first voxel not consumed. Uses ActiveKernelPath().
+int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
+                         const CandidateSet& candidates,
+                         int64_t v,
+                         int64_t end,
+                         bool with_jacobian,
+                         VoxelBatch* batch);
+
+// The observers of one voxel, as the stream hands them to a term: k >= 2 frames
+// `frame[a]` with value `value[a]` and, when Jacobians are wanted, J in `jac[a]`.
+struct VoxelObservations {
+  int k = 0;
+  int64_t voxel = -1;  // the voxel's index in the CandidateSet
+  const int* frame = nullptr;
+  const double* value = nullptr;
+  const double (*jac)[kJacobianSize] = nullptr;
+  // Set (with Jacobians) for terms with batched_gradient: the term writes its residual
+  // r_a of each observation here instead of adding g_{frame[a]} += r_a J_a itself.
+  double* residual = nullptr;
+  // Set (with Jacobians) for terms with 8 parameters per frame: the term writes each
+  // observation's wide Jacobian here (the stream's batched kernels read it).
+  double (*wide_jac)[kWideJacobianSize] = nullptr;
+};
+
+// Per-block accumulator: H (row-major, n x n with n = p m, p the term's parameters per
+// frame; terms fill at least the upper block triangle, see StreamNormalEquations), g (n),
+// cost.
+struct VoxelAccumulator {
+  int n = 0;
+  std::vector<double> hessian, gradient;
+  double cost = 0.0;
+  int64_t observations = 0;
+  int64_t voxels = 0;
+  double frame_cost[kMaxFrames] = {};
+  int64_t frame_observations[kMaxFrames] = {};
+};
+
+// g_a += s J_a (6 tangent entries of frame fa).
+// (Eigen's fixed-size maps: three 2-lane packets; a plain loop stayed scalar here.)
+inline void AddGradient(double* g, int fa, const double* ja, double s) {
+  Eigen::Map<Eigen::Matrix<double, 6, 1>>(g + 6 * static_cast<ptrdiff_t>(fa)) +=
+      s * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(ja);
+}
+
+// Adds J_a^T s J_b (6 entries each) to the (frame fa, frame fb) block of a row-major
+// n x n matrix; only the upper triangle of the block when fa == fb.
+inline void AddOuter(double* h, int n, int fa, int fb, const double* ja, const double* jb, double s) {
+  if (fa == fb) {
+    for (int i = 0; i < 6; ++i) {
+      const double si = s * ja[i];
+      double* row = h + (6 * fa + i) * n + 6 * fa;
+      for (int j = i; j < 6; ++j) row[j] += si * jb[j];
+    }
+    return;
+  }
+  for (int i = 0; i < 6; ++i) {
+    const double si = s * ja[i];
+    double* row = h + (6 * fa + i) * n + 6 * fb;
+    for (int j = 0; j < 6; ++j) row[j] += si * jb[j];
+  }
+}
+
+namespace internal {
+
+// A term's parameters per frame: Term::kFrameParameters when it declares it, else 6.
+template <class Term, class = void>
+struct FrameParametersOf {
+  static constexpr int value = kJacobianSize;
+};
+template <class Term>
+struct FrameParametersOf<Term, std::void_t<decltype(Term::kFrameParameters)>> {
+  static constexpr int value = Term::kFrameParameters;
+};
+
+// A term's projection factors (one per frame, for the batched H of a weighted mean:
+// stream/hessian_batch.h) when it has a member `const double* projection_factors`, else none.
+template <class Term, class = void>
+struct ProjectionFactorsOf {
+  static const double* Get(const Term&) { return nullptr; }
+};
+template <class Term>
+struct ProjectionFactorsOf<Term, std::void_t<decltype(Term::projection_factors)>> {
+  static const double* Get(const Term& term) { return term.projection_factors; }
+};
+
+// Fixed number of accumulation blocks per voxel range: results do not depend on threads.
+constexpr int64_t kStreamBlocks = 64;
+
+template <class Term>
+void StreamBlock(const std::vector<PosedFrame>& posed,
+                 const CandidateSet& candidates,
+                 int64_t b0,
+                 int64_t b1,
+                 bool with_jacobian,
+                 const Term& term,
+                 VoxelBatch* batch,
+                 VoxelAccumulator* acc) {
+  constexpr int kWidth = FrameParametersOf<Term>::value;
+  static_assert(kWidth == kJacobianSize || kWidth == kWideJacobianSize, "6 or 8 per frame");
+  const bool batched = with_jacobian && term.batched_hessian;
+  const bool batched_gradient = batched && term.batched_gradient;
+  HessianWeights weights[kMaxFrames + 1];
+  if (batched) {
+    for (int k = 2; k <= kMaxFrames; ++k) weights[k] = term.Weights(k);
+  }
+  for (int64_t v = b0; v < b1;) {
+    v = SampleVoxelBatch(posed, candidates, v, b1, with_jacobian, batch);
+    acc->voxels += batch->num_voxels;
+    for (int t = 0; t < batch->num_voxels; ++t) {
+      VoxelObservations obs;
+      const int first = batch->begin[t];
+      obs.k = batch->begin[t + 1] - first;
+      obs.voxel = batch->voxel[t];
+      obs.frame = batch->frame + first;
+      obs.value = batch->value + first;
+      obs.jac = batch->jac + first;
+      if (batched_gradient) obs.residual = batch->residual + first;
+      if (with_jacobian && kWidth == kWideJacobianSize) obs.wide_jac = batch->wide_jac + first;
+      term(obs, with_jacobian, acc);
+    }
+    if (batched) {
+      AddBatchHessian(*batch, weights, acc->hessian.data(), acc->n,
+                      batched_gradient ? acc->gradient.data() : nullptr, kWidth,
+                      ProjectionFactorsOf<Term>::Get(term));
+    }
+  }
+}
+
+}  // namespace internal
+
+// Streams candidate voxels [begin, end) at the given poses through `term`, a callable
+// `void(const VoxelObservations&, bool with_jacobian, VoxelAccumulator*)` that adds the
+// voxel's cost and observation count and, when with_jacobian, its gradient and its
+// Gauss-Newton terms to at least the upper block triangle (frame a <= frame b) of the
+// row-major H, the diagonal blocks at least on and above their diagonal (AddOuter does
+// this). The result's H is made symmetric from that upper triangle. Without Jacobians
+// only cost and observations are filled.
+// The term may declare `static constexpr int kFrameParameters` (6, the default: the pose;
+// 8: the pose and photometric parameters, the term then writing
+// VoxelObservations::wide_jac, which the batched kernels read). It has `bool batched_hessian`, `bool batched_gradient` and
+// `HessianWeights Weights(int k)`: when batched_hessian is true, the term adds no
+// Gauss-Newton terms itself and the stream adds H_ab += (delta_ab * diagonal + shared)
+// J_a^T J_b for it, a batch at a time (stream/hessian_batch.h), or, when the term has a
+// member `const double* projection_factors` (u_f per frame, not null), H_ab +=
+// (delta_ab - u_a u_b / sum_c u_c^2) J_a^T J_b (Weights is then not read); when batched_gradient is
+// also true, the term writes its residuals to VoxelObservations::residual instead of
+// adding its gradient, and the stream adds g_{frame[a]} += r_a J_a the same way.
+template <class Term>
+void StreamNormalEquations(const std::vector<Frame>& frames,
+                           const CandidateSet& candidates,
+                           const std::vector<Eigen::Isometry3d>& frame_from_world,
+                           int64_t begin,
+                           int64_t end,
+                           bool with_jacobian,
+                           int num_threads,
+                           const Term& term,
+                           NormalEquations* out) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK_LE(0, begin);
+  CHECK_LE(end, candidates.num_voxels());
+  const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
+  const int64_t count = std::max<int64_t>(0, end - begin);
+  const int64_t num_blocks = std::max<int64_t>(1, std::min(internal::kStreamBlocks, count));
+  const int64_t block_size = (count + num_blocks - 1) / num_blocks;
+  const int n = internal::FrameParametersOf<Term>::value * m;
+  std::vector<VoxelAccumulator> partial(num_blocks);
+  ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
+    VoxelAccumulator& acc = partial[block];
+    acc.n = n;
+    if (with_jacobian) {
+      acc.hessian.assign(static_cast<size_t>(n) * n, 0.0);
+      acc.gradient.assign(n, 0.0);
+    }
+    const int64_t b0 = begin + block * block_size, b1 = std::min(end, b0 + block_size);
+    // One batch per thread, reused, so that it stays in the caches (a new 0.6 MB batch per
+    // block measured slower: a cost-only evaluation 61 against 69 ms at best, 1 thread).
+    thread_local std::unique_ptr<VoxelBatch> batch;
+    if (batch == nullptr) batch.reset(new VoxelBatch);
+    internal::StreamBlock(posed, candidates, b0, b1, with_jacobian, term, batch.get(), &acc);
+  });
+  *out = NormalEquations();
+  if (with_jacobian) {
+    out->hessian.setZero(n, n);
+    out->gradient.setZero(n);
+  }
+  out->frame_cost.assign(m, 0.0);
+  out->frame_observations.assign(m, 0);
+  for (const VoxelAccumulator& acc : partial) {  // fixed order: deterministic
+    out->cost += acc.cost;
+    out->observations += acc.observations;
+    out->voxels += acc.voxels;
+    for (int i = 0; i < m; ++i) {
+      out->frame_cost[i] += acc.frame_cost[i];
+      out->frame_observations[i] += acc.frame_observations[i];
+    }
+    if (with_jacobian) {
+      // Row-major accumulator into the column-major matrix: transpose while adding.
+      out->hessian += Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic,
+                                                     Eigen::RowMajor>>(acc.hessian.data(), n, n);
+      out->gradient += Eigen::Map<const Eigen::VectorXd>(acc.gradient.data(), n);
+    }
+  }
+  if (with_jacobian) {
+    out->hessian.triangularView<Eigen::StrictlyLower>() = out->hessian.transpose();
+  }
+}
+
+}  // namespace dsr
+
+#endif  // DSR_STREAM_VOXEL_STREAM_H_

@@ -1,0 +1,35 @@
+// Large buffers (frame data, pyramid levels) on transparent huge pages where the kernel
+// gives them on request (THP "madvise" mode, Debian's default): the first write of a
+// fresh 2 MiB page is one page fault instead of 512, which took about 0.4 s of a
+// clinical-size registration (11 frames of 176x176x200) in page faults alone.
+#ifndef DSR_UTIL_HUGE_PAGES_H_
+#define DSR_UTIL_HUGE_PAGES_H_
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace dsr {
+
+// Asks for huge pages on the 2 MiB-aligned interior of [data, data + bytes). A hint: no
+// effect where unsupported.
+void AdviseHugePages(void* data, size_t bytes);
+
+// v = n copies of `value`, the storage advised for huge pages before it is first written
+// (when it is large enough to hold one).
+template <class T>
+void AssignWithHugePages(std::vector<T>* v, size_t n, const T& value) {
+  constexpr size_t kHugePage = size_t{2} << 20;
+  if (n * sizeof(T) < 2 * kHugePage) {
+    v->assign(n, value);
+    return;
+  }
+  std::vector<T>().swap(*v);  // fresh, untouched storage
+  v->reserve(n);
+  AdviseHugePages(v->data(), n * sizeof(T));
+  v->assign(n, value);
+}
+
+}  // namespace dsr
+
+#endif  // DSR_UTIL_HUGE_PAGES_H_
