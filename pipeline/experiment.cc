@@ -222,7 +222,7 @@ ComparisonRow RunMethod(const ExperimentSequence& sequence, const RegistrationOp
 }
 
 std::string MethodLabel(const RegistrationOptions& options) {
-  return options.mode +
+  return std::string(ModeToString(options.mode)) +
          (options.init == InitialPoses::kPairwise ? "+pairwise_init"
           : options.init == InitialPoses::kGlobal ? "+global_init"
           : options.max_recoveries > 0            ? "+auto"

@@ -1,19 +1,18 @@
 // The registration pipeline every mode runs: load-independent, flag-free.
 //
-//   for each pyramid level, coarsest first (image/pyramid.h):
-//     frames <- the level's images and masks (image/frame.h)
-//     repeat (at most max_rebuilds + 1 times):
-//       grid       <- BuildPanoramaGrid at the current poses (spacing: frame 0's spacing at
-//                     this level times panorama_spacing)
-//       candidates <- BuildCandidates at the current poses (margin 0; the shared rule)
-//       check that the overlap graph connects every frame
-//       poses      <- the mode's solver from the current poses (candidates fixed)
-//       stop when that solve moved no field-of-view corner by more than
-//       rebuild_tolerance_voxels (in the level's voxels)
+//   Register
+//     scale intensities far from a usual range by a power of two (pipeline/input_checks.h)
+//     start        the given poses, the pairwise baseline's, or the pair graph's (init/)
+//     pyramids     of every frame (image/pyramid.h) and the coarse search level
+//     rounds       CoarseToFine (pipeline/coarse_to_fine.h): every level's solves, coarse to
+//                  fine, with candidate rebuilds and the checks; when the checks flag frames,
+//                  Recover re-places them (init/recovery.h) and the next round starts again
+//                  from the coarsest level, at most max_recoveries times
 //
 // The candidate set is fixed during one solve (so each solve minimises one function of
 // the poses, the same for every mode); rebuilding it between solves lets frames that
-// moved into or out of each other's field of view enter or leave.
+// moved into or out of each other's field of view enter or leave. The mode's solver comes
+// from one factory (pipeline/modes.h).
 #ifndef DSR_PIPELINE_REGISTRATION_H_
 #define DSR_PIPELINE_REGISTRATION_H_
 
@@ -29,6 +28,7 @@
 #include "dsr/model/observation.h"
 #include "dsr/model/photometric.h"
 #include "dsr/model/robust_loss.h"
+#include "dsr/pipeline/modes.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/solve_options.h"
 
@@ -63,14 +63,11 @@ constexpr const char* PhotometricModelToString(PhotometricModel model) {
 }
 // The inverse of PhotometricModelToString; false (and *model untouched) for any other text.
 bool StringToPhotometricModel(const std::string& name, PhotometricModel* model);
-// Whether `mode` (RegistrationOptions::mode) can estimate photometric parameters: dsr and dba.
-bool ModeEstimatesPhotometric(const std::string& mode);
-
 struct RegistrationOptions {
-  // "dsr" (reduced problem, default), "dba" (full bundle adjustment) or a baseline of
-  // baselines/baselines.h: "pairwise", "lie_normalization", "sequential", "ape".
-  std::string mode = "dsr";
-  // kPairwise runs the whole pipeline once with mode "pairwise" from the given poses and
+  // The solver of every level (pipeline/modes.h): the reduced problem (default), full
+  // bundle adjustment, or a baseline of baselines/baselines.h.
+  Mode mode = Mode::kDsr;
+  // kPairwise runs the whole pipeline once with Mode::kPairwise from the given poses and
   // starts from its result.
   InitialPoses init = InitialPoses::kGiven;
   // Recovery (init/recovery.h): when the checks below flag frames after a level's solves,
@@ -150,10 +147,16 @@ struct RegistrationOptions {
   // estimated (a note says so).
   RobustLoss loss;
 
-  // Mode-specific.
-  int dsr_num_chunks = 1;
-  bool dsr_reference_cost = false;
-  double dba_memory_budget_bytes = 0.0;  // <= 0: half the machine's RAM
+  // Mode-specific (the rest of DsrOptions and DbaOptions comes from the fields above).
+  struct DsrSettings {
+    int num_chunks = 1;           // streamed residual blocks (DSR's fast path, and APE's)
+    bool reference_cost = false;  // the per-voxel reference cost instead of the fast path
+  };
+  struct DbaSettings {
+    double memory_budget_bytes = 0.0;  // <= 0: half the machine's RAM
+  };
+  DsrSettings dsr;
+  DbaSettings dba;
 
   bool Validate(std::string* error) const;
 };
@@ -219,9 +222,6 @@ struct RegistrationResult {
   ImageGeometry grid;
   Image dba_intensities;
 };
-
-// Names accepted by RegistrationOptions::mode.
-std::vector<std::string> ModeNames();
 
 // Recoveries of the tools' --init=auto, global and FILE starts (--max_recoveries default).
 constexpr int kDefaultMaxRecoveries = 2;

@@ -268,7 +268,7 @@ SimulatedSequence SmallSequence() {
 PoseErrorSummary RegisterWith(const std::string& mode, RegistrationResult* result) {
   static const SimulatedSequence sequence = SmallSequence();
   RegistrationOptions o;
-  o.mode = mode;
+  EXPECT_TRUE(StringToMode(mode, &o.mode)) << mode;
   o.solve.log_progress = getenv("DSR_TEST_LOG") != nullptr;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
@@ -306,7 +306,7 @@ INSTANTIATE_TEST_SUITE_P(Modes,
 TEST(Baselines, PairwiseInitialiserFeedsTheMode) {
   static const SimulatedSequence sequence = SmallSequence();
   RegistrationOptions o;
-  o.mode = "dsr";
+  o.mode = dsr::Mode::kDsr;
   o.init = InitialPoses::kPairwise;
   o.solve.log_progress = false;
   o.solve.num_threads = 2;

@@ -133,7 +133,7 @@ TEST(Checks, RefuseTheWrongMinimumOfThePairwiseBaseline) {
   std::string error;
   ASSERT_TRUE(Simulate(MakePhantom(PhantomOptions()), o, &s, &error)) << error;
   RegistrationOptions r;
-  r.mode = "pairwise";
+  r.mode = dsr::Mode::kPairwise;
   r.solve.log_progress = false;
   r.solve.num_threads = 2;
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());

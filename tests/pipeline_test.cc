@@ -50,7 +50,7 @@ SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
 
 RegistrationOptions Options(const std::string& mode) {
   RegistrationOptions o;
-  o.mode = mode;
+  EXPECT_TRUE(StringToMode(mode, &o.mode)) << mode;
   o.solve.log_progress = getenv("DSR_TEST_LOG") != nullptr;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
@@ -279,10 +279,14 @@ TEST(Pipeline, RefusesBadSetups) {
   const std::vector<Eigen::Isometry3d> identity(3, Eigen::Isometry3d::Identity());
   RegistrationResult result;
   std::string error;
-  // Unknown mode, names the flag.
-  RegistrationOptions o = Options("bundle");
+  // Unknown mode: no name converts to it, and a value that names no mode is refused.
+  Mode mode = Mode::kDba;
+  EXPECT_FALSE(StringToMode("bundle", &mode));
+  EXPECT_EQ(mode, Mode::kDba);
+  RegistrationOptions o = Options("dsr");
+  o.mode = static_cast<Mode>(17);
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
-  EXPECT_NE(error.find("--mode=bundle"), std::string::npos) << error;
+  EXPECT_NE(error.find("mode=17: unknown mode"), std::string::npos) << error;
   // One frame.
   o = Options("dsr");
   EXPECT_FALSE(Register({sequence.frames[0]}, {sequence.masks[0]},
@@ -323,7 +327,7 @@ TEST(Pipeline, RefusesBadSetups) {
   EXPECT_NE(error.find("--mode=ape"), std::string::npos) << error;
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
   EXPECT_NE(error.find("--photometric=affine"), std::string::npos) << error;
-  o.mode = "dba";
+  o.mode = dsr::Mode::kDba;
   EXPECT_TRUE(o.Validate(&error)) << error;
   PhotometricModel model = PhotometricModel::kNone;
   EXPECT_TRUE(StringToPhotometricModel("affine", &model));
@@ -332,7 +336,7 @@ TEST(Pipeline, RefusesBadSetups) {
   EXPECT_EQ(model, PhotometricModel::kAffine);
   // DBA over a tiny memory budget.
   o = Options("dba");
-  o.dba_memory_budget_bytes = 1024.0;
+  o.dba.memory_budget_bytes = 1024.0;
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
   EXPECT_NE(error.find("--panorama_spacing"), std::string::npos) << error;
   EXPECT_NE(error.find("--mode=dsr"), std::string::npos) << error;

@@ -223,7 +223,7 @@ TEST(PoseUncertainty, ComparisonRowsCarryIt) {
   o.pyramid_min_size = 8;
   o.estimate_uncertainty = true;
   ComparisonRow dsr = RunMethod(sequence, o);
-  o.mode = "ape";
+  o.mode = dsr::Mode::kApe;
   ComparisonRow ape = RunMethod(sequence, o);
   ASSERT_TRUE(dsr.ok) << dsr.failure;
   ASSERT_TRUE(ape.ok) << ape.failure;

@@ -263,13 +263,13 @@ int Main(int argc, char** argv) {
   // baseline itself; photometric parameters for the modes that have them.
   const auto options_for = [&](const std::string& method) {
     dsr::RegistrationOptions o = base;
-    o.mode = method;
+    CHECK(dsr::StringToMode(method, &o.mode)) << method;  // checked against ModeNames
     dsr::SetInitialisation(
         method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init,
         dsr::kDefaultMaxRecoveries, &o);
     o.photometric =
-        dsr::ModeEstimatesPhotometric(method) ? photometric : dsr::PhotometricModel::kNone;
-    if (dsr::ModeEstimatesPhotometric(method)) o.loss = loss;  // the baselines: squared
+        dsr::ModeEstimatesPhotometric(o.mode) ? photometric : dsr::PhotometricModel::kNone;
+    if (dsr::ModeEstimatesPhotometric(o.mode)) o.loss = loss;  // the baselines: squared
     return o;
   };
   for (const std::string& m : methods) {

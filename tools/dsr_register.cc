@@ -246,7 +246,11 @@ int Main(int argc, char** argv) {
 
   // Options first, so that flag errors come before any file is read.
   dsr::RegistrationOptions options;
-  options.mode = FLAGS_mode;
+  if (!dsr::StringToMode(FLAGS_mode, &options.mode)) {
+    std::string names;
+    for (const std::string& name : dsr::ModeNames()) names += (names.empty() ? "" : "|") + name;
+    return Fail("--mode=" + FLAGS_mode + ": unknown mode (one of " + names + ")");
+  }
   options.solve.trust_region = FLAGS_trust_region;
   options.solve.linear_solver = FLAGS_linear_solver;
   options.solve.max_iterations = FLAGS_max_iterations;
@@ -268,8 +272,8 @@ int Main(int argc, char** argv) {
   options.min_kept_overlap = FLAGS_min_kept_overlap;
   options.max_misfit_ratio = FLAGS_max_misfit_ratio;
   options.max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
-  options.dsr_num_chunks = FLAGS_num_chunks;
-  options.dsr_reference_cost = FLAGS_reference_cost;
+  options.dsr.num_chunks = FLAGS_num_chunks;
+  options.dsr.reference_cost = FLAGS_reference_cost;
   options.estimate_uncertainty = FLAGS_uncertainty;
   // The default applies to the modes that estimate photometric parameters; a baseline mode
   // runs without them unless --photometric is given (then Validate refuses it).
@@ -281,7 +285,7 @@ int Main(int argc, char** argv) {
   if (!dsr::MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options.loss, &error)) {
     return Fail(error);
   }
-  if (FLAGS_uncertainty && FLAGS_mode != "dsr" && FLAGS_mode != "dba") {
+  if (FLAGS_uncertainty && !dsr::ModeEstimatesPhotometric(options.mode)) {
     return Fail("--uncertainty: needs --mode=dsr or dba (got --mode=" + FLAGS_mode + ")");
   }
   const bool init_from_file = !dsr::SetInitialisation(FLAGS_init, FLAGS_max_recoveries, &options);
@@ -294,7 +298,7 @@ int Main(int argc, char** argv) {
   if (!(FLAGS_memory_budget_mb >= 0.0) || !std::isfinite(FLAGS_memory_budget_mb)) {
     return Fail("--memory_budget_mb=" + std::to_string(FLAGS_memory_budget_mb) + ": must be >= 0");
   }
-  options.dba_memory_budget_bytes = FLAGS_memory_budget_mb * 1048576.0;
+  options.dba.memory_budget_bytes = FLAGS_memory_budget_mb * 1048576.0;
   if (FLAGS_num_threads < 0) {
     return Fail("--num_threads=" + std::to_string(FLAGS_num_threads) + ": must be >= 0");
   }
@@ -470,7 +474,7 @@ int Main(int argc, char** argv) {
             : dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
                                     options.solve.num_threads, result.photometric);
     enlargement = fused.EnlargementRatio();
-    panorama = options.mode == "dba" && FLAGS_blend == "mean" ? result.dba_intensities : fused.mean;
+    panorama = options.mode == dsr::Mode::kDba && FLAGS_blend == "mean" ? result.dba_intensities : fused.mean;
   }
   if (!FLAGS_out_panorama.empty() && !dsr::WriteImage(panorama, FLAGS_out_panorama, &error)) {
     return Fail(error, dsr::kExitFailed);
@@ -512,7 +516,7 @@ int Main(int argc, char** argv) {
     report.pair_a = pair[0];
     report.pair_b = pair[1];
     report.errors = FLAGS_gt_poses.empty() ? nullptr : &gt_errors;
-    report.mode = options.mode;
+    report.mode = dsr::ModeToString(options.mode);
     if (!dsr::WriteReport(FLAGS_report_dir, report, &report_index, &error)) {
       return Fail(error, dsr::kExitFailed);
     }
@@ -534,7 +538,7 @@ int Main(int argc, char** argv) {
   const dsr::LevelSolve& last = result.solves.back();
   std::printf("dsr_register: %s, %d frames, %zu solves over %d pyramid levels, %d iterations, "
               "final cost %.6e (%" PRId64 " voxels, %" PRId64 " observations), %s\n",
-              options.mode.c_str(), m, result.solves.size(), result.solves.front().level + 1,
+              dsr::ModeToString(options.mode), m, result.solves.size(), result.solves.front().level + 1,
               result.total_iterations, last.report.final_cost, last.candidate_voxels,
               last.candidate_observations, last.report.termination.c_str());
   std::printf("dsr_register: time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s), peak "

@@ -1,0 +1,481 @@
+#include "dsr/pipeline/coarse_to_fine.h"
+
+#include <algorithm>
+#include <cmath>
+#include <iomanip>
+#include <limits>
+#include <sstream>
+
+#include <glog/logging.h>
+
+#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/model/panorama.h"
+#include "dsr/pipeline/pair_check.h"
+#include "dsr/pipeline/uncertainty.h"
+#include "dsr/solve/convergence.h"
+#include "dsr/util/parallel.h"
+
+namespace dsr {
+namespace {
+
+// Frames of one pyramid level. When `release` is set, the level's images are freed once
+// the frames hold their copies (no recovery can come back to them).
+std::vector<Frame> LevelFrames(const std::vector<Image>& images,
+                               const std::vector<Mask>& masks,
+                               Pyramids* pyramids,
+                               int level,
+                               bool release,
+                               int num_threads) {
+  const int m = static_cast<int>(images.size());
+  std::vector<Frame> frames(m);
+  ParallelFor(0, m, num_threads, [&](int64_t i) {
+    ImageLevel& stored = pyramids->levels[i][level];
+    const bool input_is_level = level == 0 && stored.image.empty();
+    frames[i] = input_is_level ? Frame(images[i], masks[i]) : Frame(stored.image, stored.mask);
+    if (release) stored = ImageLevel();
+  });
+  return frames;
+}
+
+// Checks that the overlap determines every free pose: the Gauss-Newton matrix of the
+// shared cost at `poses`, Jacobi-scaled (so millimetres and radians compare), must not be
+// numerically singular. Otherwise `why` names the frame the weakest direction moves most.
+bool PosesDetermined(const std::vector<Frame>& frames,
+                     const CandidateSet& candidates,
+                     const std::vector<Eigen::Isometry3d>& poses,
+                     int num_threads,
+                     double* conditioning,
+                     std::string* why) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 6 * (m - 1);
+  ReducedSystem system;
+  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true,
+                          num_threads, &system);
+  const Eigen::MatrixXd h = system.hessian.bottomRightCorner(n, n);
+  Eigen::VectorXd scale(n);
+  for (int c = 0; c < n; ++c) {
+    if (!(h(c, c) > 0.0)) {
+      *why = "the overlap is too small or too featureless to determine all 6 degrees of "
+             "freedom of frame " + std::to_string(1 + c / 6) +
+             " (no image gradient along one of them)";
+      *conditioning = 0.0;
+      return false;
+    }
+    scale[c] = 1.0 / std::sqrt(h(c, c));
+  }
+  const Eigen::MatrixXd scaled = scale.asDiagonal() * h * scale.asDiagonal();
+  const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(scaled);
+  const double ratio = eig.eigenvalues()[0] / std::max(1e-300, eig.eigenvalues()[n - 1]);
+  *conditioning = ratio;
+  // Well-posed problems sit many orders of magnitude above this (see the log at --v=1).
+  constexpr double kMinRatio = 1e-10;
+  if (ratio >= kMinRatio) return true;
+  const Eigen::VectorXd weakest = eig.eigenvectors().col(0);
+  int frame = 1;
+  double largest = -1.0;
+  for (int i = 1; i < m; ++i) {
+    const double norm = weakest.segment<6>(6 * (i - 1)).norm();
+    if (norm > largest) {
+      largest = norm;
+      frame = i;
+    }
+  }
+  std::ostringstream s;
+  s << "the overlap is too small or too featureless to determine all 6 degrees of freedom "
+       "of frame "
+    << frame << " (scaled Gauss-Newton matrix conditioning " << ratio << " < " << kMinRatio
+    << ")";
+  *why = s.str();
+  return false;
+}
+
+}  // namespace
+
+Pyramids BuildPyramids(const std::vector<Image>& images,
+                       const std::vector<Mask>& masks,
+                       const RegistrationOptions& options) {
+  const int m = static_cast<int>(images.size());
+  Pyramids pyramids;
+  pyramids.levels.resize(m);
+  pyramids.num_levels = options.pyramid_levels;
+  for (int i = 0; i < m; ++i) {
+    pyramids.levels[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
+                                      options.pyramid_sigma_voxels, options.finest_sigma_voxels,
+                                      options.pyramid_min_size, options.solve.num_threads);
+    pyramids.num_levels =
+        std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
+  }
+  return pyramids;
+}
+
+std::vector<Frame> SearchFrames(const std::vector<Image>& images,
+                                const std::vector<Mask>& masks,
+                                const Pyramids& pyramids,
+                                const RegistrationOptions& options) {
+  const int m = static_cast<int>(images.size());
+  const int coarsest = pyramids.num_levels - 1;
+  std::vector<Frame> frames(m);
+  ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
+    const ImageLevel& stored = pyramids.levels[i][coarsest];
+    ImageLevel level = stored.image.empty() ? ImageLevel{images[i], masks[i]} : stored;
+    while (level.image.geometry.size.maxCoeff() > options.search_max_axis_voxels &&
+           level.image.geometry.size.minCoeff() >= 8) {
+      ImageLevel next = Downsample(level.image, level.mask, options.pyramid_sigma_voxels, 1);
+      if (CountInside(next.mask) == 0) break;
+      level = std::move(next);
+    }
+    frames[i] = Frame(level.image, level.mask);
+  });
+  return frames;
+}
+
+CoarseToFine::CoarseToFine(const std::vector<Image>& images,
+                           const std::vector<Mask>& masks,
+                           const RegistrationOptions& options,
+                           bool check_every_level,
+                           const std::vector<bool>& misfit_exempt,
+                           const std::vector<Frame>& search_frames,
+                           Pyramids* pyramids)
+    : images_(images),
+      masks_(masks),
+      options_(options),
+      check_every_level_(check_every_level),
+      misfit_exempt_(misfit_exempt),
+      search_frames_(search_frames),
+      pyramids_(pyramids),
+      solver_(MakeLevelSolver(options)),
+      m_(static_cast<int>(images.size())),
+      affine_(options.photometric == PhotometricModel::kAffine),
+      guard_(options.min_kept_overlap) {}
+
+bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
+                       RegistrationResult* result,
+                       std::string* error) {
+  result_ = result;
+  error_ = error;
+  poses_ = start_poses;
+  photometric_.clear();
+  result->photometric.clear();
+  result->usable = true;
+  result->flagged_frames.clear();
+  result->flagged_by_misfit = false;
+  result->failure.clear();
+  for (int level = pyramids_->num_levels - 1; level >= 0; --level) {
+    std::vector<Frame> frames;
+    Next next = BuildLevelFrames(level, &frames);
+    if (next == Next::kSkipLevel) continue;
+    if (next == Next::kGoOn) next = SolveLevel(level, frames);
+    // A level skipped after some of its solves still has its checks (of the poses it
+    // started from, with its last solve's candidates).
+    if (next == Next::kGoOn || next == Next::kSkipLevel) {
+      next = level > 0 ? CheckCoarseLevel(level, frames) : CheckFinalPoses(frames);
+    }
+    if (next == Next::kEnd) return true;
+    if (next == Next::kError) return false;
+  }
+  result->frame_from_world = poses_;
+  result->photometric = photometric_;
+  return true;
+}
+
+CoarseToFine::Next CoarseToFine::Diverged(int level,
+                                          const std::string& why,
+                                          std::vector<int> flagged) {
+  result_->usable = false;
+  result_->failure =
+      "not usable after the solve at pyramid level " + std::to_string(level) + ": " + why;
+  result_->flagged_frames = std::move(flagged);
+  result_->frame_from_world = poses_;
+  result_->photometric = photometric_;
+  return Next::kEnd;
+}
+
+CoarseToFine::Next CoarseToFine::BuildLevelFrames(int level, std::vector<Frame>* frames) {
+  const bool release = options_.max_recoveries == 0;
+  *frames = LevelFrames(images_, masks_, pyramids_, level, release, options_.solve.num_threads);
+  int empty_frame = -1;
+  for (int i = m_ - 1; i >= 0; --i) {
+    if ((*frames)[i].num_valid_cells() == 0) empty_frame = i;
+  }
+  if (empty_frame < 0) return Next::kGoOn;
+  if (level > 0) {
+    LOG(INFO) << "skipping pyramid level " << level << ": frame " << empty_frame
+              << " has no valid cell at this resolution";
+    return Next::kSkipLevel;
+  }
+  *error_ = "frame " + std::to_string(empty_frame) +
+            " has no valid voxel (a cell whose 8 corners are inside the field-of-view "
+            "mask): the mask is too small";
+  return Next::kError;
+}
+
+CoarseToFine::Next CoarseToFine::SolveLevel(int level, const std::vector<Frame>& frames) {
+  level_solve_ = options_.solve;
+  if (level > 0) {
+    level_solve_.max_iterations =
+        std::min(level_solve_.max_iterations, options_.coarse_max_iterations);
+  }
+  const std::vector<Eigen::Isometry3d> level_start = poses_;
+  const std::vector<Photometric> level_start_photometric = photometric_;
+  // The pair-based baselines build their own pair grids and candidates in every solve:
+  // rebuilding the shared candidates between their solves would only repeat them.
+  max_rebuilds_ = ModeIsPairBased(options_.mode) ? 0 : options_.max_rebuilds;
+  last_candidates_ = CandidateSet();
+  last_motion_ = std::numeric_limits<double>::infinity();
+  last_frame_motion_.assign(m_, 0.0);
+  solved_ = false;
+  for (int rebuild = 0; rebuild <= max_rebuilds_; ++rebuild) {
+    LevelSolve record;
+    record.level = level;
+    record.rebuild = rebuild;
+    CandidateSet candidates;
+    ImageGeometry grid;
+    Next next = BuildLevelProblem(level, rebuild, frames, &record, &candidates, &grid);
+    if (next == Next::kSkipLevel) {
+      poses_ = level_start;
+      photometric_ = level_start_photometric;
+      return Next::kSkipLevel;
+    }
+    if (next != Next::kGoOn) return next;
+    next = SolveOnce(level, frames, grid, std::move(candidates), std::move(record));
+    if (next != Next::kGoOn) return next;
+    if (last_motion_ <= options_.rebuild_tolerance_voxels) break;
+  }
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
+                                                   int rebuild,
+                                                   const std::vector<Frame>& frames,
+                                                   LevelSolve* record,
+                                                   CandidateSet* candidates,
+                                                   ImageGeometry* grid) {
+  const int last_level = result_->solves.empty() ? level : result_->solves.back().level;
+  if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, grid, error_)) {
+    if (result_->solves.empty()) return Next::kError;  // the initial poses: bad input
+    // The poses a solve reached spread the frames over a space no panorama can hold.
+    const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
+    error_->clear();
+    return Diverged(last_level, why, {});
+  }
+  record->panorama_spacing_mm = grid->spacing_mm;
+  *candidates = BuildCandidates(frames, poses_, *grid, /*margin_cells=*/0);
+  record->candidate_voxels = candidates->num_voxels();
+  record->candidate_observations = candidates->NumObservations();
+  const Eigen::MatrixXi overlap = CandidateOverlap(*candidates);
+  std::string why;
+  std::vector<int> slid;
+  if (options_.min_kept_overlap > 0.0 &&
+      guard_.Diverged(frames, overlap, grid->spacing_mm, &why, &slid)) {
+    // With recovery, frames in a wrong minimum that did not slide are named too, so that
+    // one recovery re-places them all (else the next solve finds them, and by then the
+    // pair graph is the only remedy left).
+    if (check_every_level_) {
+      const std::vector<double> misfits =
+          FrameMisfits(frames, *candidates, poses_, options_.solve.num_threads, photometric_);
+      for (int f : MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_)) {
+        if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
+      }
+    }
+    return Diverged(last_level, why, slid);
+  }
+  std::string connect_error;
+  if (!CheckConnected(overlap, options_.min_shared_voxels, &connect_error)) {
+    if (level > 0) {
+      // Coarse levels have few voxels: a small overlap may only be countable at finer
+      // levels, and a coarse solve on a thin overlap may have drifted. Skip the level and
+      // start the next one from the poses this level started from.
+      LOG(INFO) << "skipping pyramid level " << level << ": " << connect_error;
+      return Next::kSkipLevel;
+    }
+    *error_ = connect_error + " (pyramid level " + std::to_string(level) + ")";
+    return Next::kError;
+  }
+  // Checked once, on the coarsest level that has a usable overlap (cheap there); finer
+  // levels see the same overlap with more detail.
+  if (rebuild == 0 && !determined_checked_) {
+    double conditioning = 0.0;
+    if (!PosesDetermined(frames, *candidates, poses_, options_.solve.num_threads, &conditioning,
+                         &why)) {
+      if (level > 0) {
+        LOG(INFO) << "skipping pyramid level " << level << ": " << why;
+        return Next::kSkipLevel;
+      }
+      *error_ = why + " at the initial poses of the finest level";
+      return Next::kError;
+    }
+    VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
+    determined_checked_ = true;
+  }
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::SolveOnce(int level,
+                                           const std::vector<Frame>& frames,
+                                           const ImageGeometry& grid,
+                                           CandidateSet candidates,
+                                           LevelSolve record) {
+  std::ostringstream prefix;
+  prefix << "level " << level << "." << record.rebuild << " ";
+  level_solve_.progress_prefix = options_.solve.progress_prefix + prefix.str();
+  std::vector<float> intensities;
+  const bool want_intensities = options_.mode == Mode::kDba && level == 0;
+  if (!solver_(level_solve_, frames, candidates, poses_, photometric_, &record.report,
+               want_intensities ? &intensities : nullptr, error_)) {
+    return Next::kError;
+  }
+  const std::vector<Eigen::Isometry3d> next = RelativeToFrame0(record.report.frame_from_world);
+  std::vector<double> frame_motion(m_, 0.0);
+  for (int i = 1; i < m_; ++i) {
+    frame_motion[i] = MaxCornerMotionVoxels(frames[i], poses_[i], next[i]);
+    record.max_motion_voxels = std::max(record.max_motion_voxels, frame_motion[i]);
+  }
+  result_->total_iterations += record.report.num_iterations;
+  const bool usable = record.report.usable;
+  if (usable) {
+    poses_ = next;
+    if (affine_) {
+      CHECK_EQ(static_cast<int>(record.report.photometric.size()), m_)
+          << "a photometric solve returned no estimate";
+      photometric_ = record.report.photometric;
+    }
+  }
+  if (level == 0) {
+    result_->grid = grid;
+    if (!intensities.empty()) {
+      result_->dba_intensities = Image(grid, 0.0f);
+      for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+        result_->dba_intensities.voxels[candidates.voxel[v]] = intensities[v];
+      }
+    }
+  }
+  const double motion = record.max_motion_voxels;
+  result_->solves.push_back(std::move(record));
+  if (!usable) {
+    result_->usable = false;
+    result_->failure = "the solve at pyramid level " + std::to_string(level) +
+                       " is not usable: " + result_->solves.back().report.termination;
+    result_->frame_from_world = poses_;
+    result_->photometric = photometric_;
+    return Next::kEnd;
+  }
+  solved_ = true;
+  last_candidates_ = std::move(candidates);
+  last_motion_ = motion;
+  last_frame_motion_ = std::move(frame_motion);
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<Frame>& frames) {
+  // With recovery, a frame in a wrong minimum is caught here, on a coarse level, where
+  // re-placing it and starting again costs little. The misfits are those of the last
+  // solve's candidates (at the poses it reached, up to the rebuild tolerance).
+  if (!check_every_level_ || !solved_) return Next::kGoOn;
+  const std::vector<double> misfits =
+      FrameMisfits(frames, last_candidates_, poses_, options_.solve.num_threads, photometric_);
+  std::string why;
+  if (MisfitOutlier(misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
+    result_->flagged_by_misfit = true;
+    return Diverged(level, why, MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_));
+  }
+  std::vector<int> flagged;
+  if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
+                       options_.max_pair_mismatch_ratio, &flagged, &why)) {
+    return Diverged(level, why, flagged);
+  }
+  // A coarse level whose last solve (every rebuild used) still slid frames by more than
+  // unsettled_motion_voxels has found no minimum: on the benchmarks' wide protocol no such
+  // level was followed by a usable registration, and the finer levels then cost the most
+  // for nothing. The sliding frames are named (with more than a third, the pair graph
+  // places all). Creeping by less (photometric parameters make coarse levels converge
+  // slowly) goes on to the finer levels. Only where rebuilds were allowed: the pair-based
+  // baselines solve once per level and move their frames by whole voxels in that one solve.
+  const double unsettled_voxels =
+      std::max(options_.rebuild_tolerance_voxels, options_.unsettled_motion_voxels);
+  if (max_rebuilds_ > 0 && last_motion_ > unsettled_voxels) {
+    std::vector<int> sliding;
+    for (int i = 1; i < m_; ++i) {
+      if (last_frame_motion_[i] > unsettled_voxels) sliding.push_back(i);
+    }
+    std::ostringstream unsettled;
+    unsettled << "pyramid level " << level << " did not settle: its last solve (of "
+              << max_rebuilds_ + 1 << ") still moved " << sliding.size()
+              << (sliding.size() == 1 ? " frame" : " frames") << " by up to "
+              << std::setprecision(3) << last_motion_ << " voxels (more than "
+              << unsettled_voxels << ")";
+    return Diverged(level, unsettled.str(), sliding);
+  }
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frames) {
+  // When the last solve moved no field-of-view corner by more than the rebuild tolerance,
+  // its candidates stand for the final poses' (as the rebuild rule has it); otherwise
+  // candidates are built at the final poses.
+  CandidateSet final_candidates;
+  if (last_motion_ <= options_.rebuild_tolerance_voxels) {
+    final_candidates = std::move(last_candidates_);
+  } else {
+    ImageGeometry final_grid;
+    if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, &final_grid, error_)) {
+      const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
+      error_->clear();
+      return Diverged(0, why, {});
+    }
+    final_candidates = BuildCandidates(frames, poses_, final_grid, 0);
+  }
+  std::string why;
+  std::vector<int> slid;
+  if (options_.min_kept_overlap > 0.0 && guard_.Diverged(frames, final_candidates, &why, &slid)) {
+    return Diverged(0, why, slid);
+  }
+  // DSR's last pass was at the final poses over these candidates when the solve kept it
+  // (stream/streamed_cost.h): its per-frame costs are the misfits' sums. With photometric
+  // parameters the misfits are always measured here, on corrected intensities.
+  const SolveReport& last = result_->solves.back().report;
+  const bool reuse_last_pass = options_.mode == Mode::kDsr && !affine_ &&
+                               last_motion_ <= options_.rebuild_tolerance_voxels &&
+                               static_cast<int>(last.final_frame_cost.size()) == m_;
+  if (reuse_last_pass) {
+    result_->frame_misfits =
+        MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
+  } else {
+    result_->frame_misfits =
+        FrameMisfits(frames, final_candidates, poses_, options_.solve.num_threads, photometric_);
+  }
+  if (MisfitOutlier(result_->frame_misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
+    result_->flagged_by_misfit = true;
+    return Diverged(0, why, MisfitOutliers(result_->frame_misfits, options_.max_misfit_ratio,
+                                           &misfit_exempt_));
+  }
+  std::vector<int> flagged;
+  if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
+                       options_.max_pair_mismatch_ratio, &flagged, &why)) {
+    return Diverged(0, why, flagged);
+  }
+  EstimateUncertainty(frames, final_candidates);
+  return Next::kGoOn;
+}
+
+void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
+                                       const CandidateSet& candidates) {
+  if (!options_.estimate_uncertainty) return;
+  if (affine_) {
+    // The estimate linearises the poses' stopping rule alone (pipeline/uncertainty.h); the
+    // gains and offsets solved with them would change both its gradient and its derivative.
+    result_->uncertainty_note =
+        "the pose uncertainty does not model the photometric parameters "
+        "(--photometric=affine)";
+  } else if (!options_.loss.IsSquared()) {
+    // Its noise model is the squared differences' (pipeline/uncertainty.h).
+    result_->uncertainty_note = "the pose uncertainty does not model the robust loss (--loss=" +
+                                std::string(RobustLossKindName(options_.loss.kind)) + ")";
+  } else if (options_.mode == Mode::kDsr || options_.mode == Mode::kDba) {
+    if (!EstimatePoseUncertainty(frames, candidates, poses_, masks_, options_.solve.num_threads,
+                                 &result_->uncertainty, &result_->uncertainty_note)) {
+      result_->uncertainty = PoseUncertainty();
+    }
+  }
+}
+
+}  // namespace dsr

@@ -1,0 +1,139 @@
+// One round of the registration: the coarse-to-fine solves from given poses, with their
+// checks (pipeline/registration.h has the whole pipeline, its options and the recovery
+// between rounds).
+//
+//   for each pyramid level, coarsest first:
+//     BuildLevelFrames     the level's frames; a level where a frame has no valid cell is
+//                          skipped (an error at the finest)
+//     SolveLevel           repeat at most max_rebuilds + 1 times:
+//       BuildLevelProblem    panorama grid and candidates at the current poses, the
+//                            divergence guard, the overlap's connectivity, and (once) that
+//                            the overlap determines every pose
+//       SolveOnce            the mode's solver (pipeline/modes.h) with the candidates fixed
+//                          until a solve moves no field-of-view corner by more than
+//                          rebuild_tolerance_voxels
+//     CheckCoarseLevel     (with check_every_level) misfit, pair and settling checks
+//   CheckFinalPoses        the guard, misfit and pair checks of the final poses, and the
+//                          pose uncertainty
+// A check that fails ends the round as not usable, naming the frames it flagged, so that
+// the pipeline can recover them.
+#ifndef DSR_PIPELINE_COARSE_TO_FINE_H_
+#define DSR_PIPELINE_COARSE_TO_FINE_H_
+
+#include <string>
+#include <vector>
+
+#include <Eigen/Geometry>
+
+#include "dsr/geometry/volume.h"
+#include "dsr/image/frame.h"
+#include "dsr/image/pyramid.h"
+#include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
+#include "dsr/pipeline/divergence_guard.h"
+#include "dsr/pipeline/modes.h"
+#include "dsr/pipeline/registration.h"
+
+namespace dsr {
+
+// The pyramids of every frame, finest level first (level 0 empty: the input itself).
+struct Pyramids {
+  std::vector<std::vector<ImageLevel>> levels;  // [frame][level]
+  int num_levels = 0;                           // common to every frame
+};
+
+// The pyramids of `images` for options' levels and smoothing.
+Pyramids BuildPyramids(const std::vector<Image>& images,
+                       const std::vector<Mask>& masks,
+                       const RegistrationOptions& options);
+
+// The frames the global search works on: the coarsest pyramid level, halved further until
+// no axis is longer than options.search_max_axis_voxels.
+std::vector<Frame> SearchFrames(const std::vector<Image>& images,
+                                const std::vector<Mask>& masks,
+                                const Pyramids& pyramids,
+                                const RegistrationOptions& options);
+
+class CoarseToFine {
+ public:
+  // With `check_every_level`, the checks also run after each coarse level; frames marked
+  // in `misfit_exempt` are never the misfit check's outlier; `search_frames` are the pair
+  // check's. Everything passed must outlive the object.
+  CoarseToFine(const std::vector<Image>& images,
+               const std::vector<Mask>& masks,
+               const RegistrationOptions& options,
+               bool check_every_level,
+               const std::vector<bool>& misfit_exempt,
+               const std::vector<Frame>& search_frames,
+               Pyramids* pyramids);
+
+  // Runs the round from `start_poses` (frame 0 = identity). With photometric parameters
+  // they start at gain 1 and offset 0, each solve from the previous one's estimate, and end
+  // in result->photometric. Returns false for bad input or set-up problems; a round that is
+  // not usable returns true with result->usable = false, result->failure and
+  // result->flagged_frames. Solves are appended to result->solves.
+  bool Run(const std::vector<Eigen::Isometry3d>& start_poses,
+           RegistrationResult* result,
+           std::string* error);
+
+ private:
+  // What a step tells the level loop.
+  enum class Next {
+    kGoOn,       // the step passed
+    kSkipLevel,  // skip this level: the next starts from the poses this one started from
+    kEnd,        // the round ended as not usable (result->failure says why)
+    kError,      // bad input or a set-up problem (*error says why)
+  };
+
+  Next BuildLevelFrames(int level, std::vector<Frame>* frames);
+  Next SolveLevel(int level, const std::vector<Frame>& frames);
+  Next BuildLevelProblem(int level,
+                         int rebuild,
+                         const std::vector<Frame>& frames,
+                         LevelSolve* record,
+                         CandidateSet* candidates,
+                         ImageGeometry* grid);
+  Next SolveOnce(int level,
+                 const std::vector<Frame>& frames,
+                 const ImageGeometry& grid,
+                 CandidateSet candidates,
+                 LevelSolve record);
+  Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
+  Next CheckFinalPoses(const std::vector<Frame>& frames);
+  void EstimateUncertainty(const std::vector<Frame>& frames, const CandidateSet& candidates);
+  // Ends the round as not usable after the solves of `level`, naming `flagged`.
+  Next Diverged(int level, const std::string& why, std::vector<int> flagged);
+
+  const std::vector<Image>& images_;
+  const std::vector<Mask>& masks_;
+  const RegistrationOptions& options_;
+  const bool check_every_level_;
+  const std::vector<bool>& misfit_exempt_;
+  const std::vector<Frame>& search_frames_;
+  Pyramids* pyramids_;
+  const LevelSolver solver_;
+  const int m_;
+  const bool affine_;
+
+  // The round's state.
+  RegistrationResult* result_ = nullptr;
+  std::string* error_ = nullptr;
+  std::vector<Eigen::Isometry3d> poses_;
+  // The current gains and offsets (empty: 1 and 0, or no photometric parameters). The
+  // checks compare frames on frame 0's intensity scale through them (FrameMisfits).
+  std::vector<Photometric> photometric_;
+  DivergenceGuard guard_;
+  bool determined_checked_ = false;
+  // The current level's solve options, and its last solve: candidates, how far it moved
+  // the frames (largest, and per frame), whether any solve ran, and the rebuilds allowed.
+  SolveOptions level_solve_;
+  CandidateSet last_candidates_;
+  double last_motion_ = 0.0;
+  std::vector<double> last_frame_motion_;
+  bool solved_ = false;
+  int max_rebuilds_ = 0;
+};
+
+}  // namespace dsr
+
+#endif  // DSR_PIPELINE_COARSE_TO_FINE_H_
