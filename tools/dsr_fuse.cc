@@ -17,16 +17,10 @@
 #include "dsr/model/observation.h"
 #include "dsr/model/panorama.h"
 #include "dsr/tools/output_plan.h"
+#include "dsr/tools/flags/flags.h"
 #include "dsr/tools/tool_util.h"
 #include "dsr/util/parallel.h"
 
-DEFINE_string(images, "", "Frame images, frame 0 first (as registered), at most 32 "
-              "(kMaxFrames): comma-separated, or @LIST: the file LIST with one path per line "
-              "(for names that contain commas). Required.");
-DEFINE_string(masks, "", "Field-of-view masks, one per image, comma-separated or @LIST as "
-              "--images; empty: each image's non-zero voxels eroded by --mask_erosion voxels.");
-DEFINE_int32(mask_erosion, 1, "Erosion (voxels) of the non-zero region when no --masks are "
-             "given, in [0, 50].");
 DEFINE_string(poses, "", "Poses JSON (dsr_register --out_poses), one entry per image. Its "
               "entries are matched to --images by their \"image\" names (the image's path as "
               "given, its file name, or its file name without the extension) and reordered "
@@ -36,23 +30,10 @@ DEFINE_string(poses, "", "Poses JSON (dsr_register --out_poses), one entry per i
               "--photometric=affine), each frame's samples are corrected to gain * value + "
               "offset (frame 0's intensity scale) before they are fused. Required.");
 DEFINE_string(out, "", "Output panorama image (.nii, .nii.gz, .mha, .nrrd). Required.");
-DEFINE_string(blend, "mean", "mean (paper eq. 10: per-voxel mean of the observations) or "
-              "feather (weights fall off towards each field-of-view edge, so seams vanish).");
-DEFINE_double(feather_voxels, 8.0, "--blend=feather: depth (frame voxels) over which a frame's "
-              "weight rises from 0 at its field-of-view edge to 1, > 0.");
-DEFINE_double(panorama_spacing, 1.0, "Panorama spacing as a multiple of frame 0's spacing, in "
-              "[0.001, 1000], and at most an eighth of frame 0's shortest extent; a panorama "
-              "that would not fit in memory is refused.");
 DEFINE_string(out_count, "", "Optional output image of k_j, the number of frames observing "
               "each panorama voxel (integer values 0..frames, stored as float voxels).");
-DEFINE_int32(num_threads, 0, "Threads, 0 = all hardware threads.");
 
 namespace {
-
-// Panorama spacing factors outside this range are typos: a grid a thousand times finer or
-// coarser than the frames' is no panorama of them.
-constexpr double kMinPanoramaSpacing = 1e-3;
-constexpr double kMaxPanoramaSpacing = 1e3;
 
 std::string Number(double value) {
   std::ostringstream s;
@@ -69,22 +50,6 @@ int Main(int argc, char** argv) {
       {"images", "poses", "out"}, &argc, &argv);
   using dsr::Fail;
   std::string error;
-  if (FLAGS_blend != "mean" && FLAGS_blend != "feather") {
-    return Fail("--blend=" + FLAGS_blend + ": must be mean or feather");
-  }
-  if (!(FLAGS_feather_voxels > 0.0) || !std::isfinite(FLAGS_feather_voxels)) {
-    return Fail("--feather_voxels=" + std::to_string(FLAGS_feather_voxels) + ": must be > 0");
-  }
-  if (!(FLAGS_panorama_spacing >= kMinPanoramaSpacing &&
-        FLAGS_panorama_spacing <= kMaxPanoramaSpacing)) {
-    return Fail("--panorama_spacing=" + Number(FLAGS_panorama_spacing) + ": must be in [" +
-                Number(kMinPanoramaSpacing) + ", " + Number(kMaxPanoramaSpacing) +
-                "] (a multiple of frame 0's spacing)");
-  }
-  if (FLAGS_mask_erosion < 0 || FLAGS_mask_erosion > 50) {
-    return Fail("--mask_erosion=" + std::to_string(FLAGS_mask_erosion) + ": must be in [0, 50]");
-  }
-  if (FLAGS_num_threads < 0) return Fail("--num_threads: must be >= 0");
   std::vector<std::string> image_paths, mask_paths;
   if (!dsr::ParseInputList("images", FLAGS_images, &image_paths, &error) ||
       !dsr::ParseInputList("masks", FLAGS_masks, &mask_paths, &error)) {
@@ -157,7 +122,7 @@ int Main(int argc, char** argv) {
   // The file's gains and offsets (re-gauged to frame 0 by MatchPosesToImages), if any.
   const std::vector<dsr::Photometric> photometric = dsr::PhotometricFromPoses(poses);
   const dsr::PanoramaImages fused =
-      FLAGS_blend == "feather"
+      dsr::FeatherBlend()
           ? dsr::FusePanoramaFeather(frames, frame_from_world, grid, FLAGS_feather_voxels,
                                      FLAGS_num_threads, photometric)
           : dsr::FusePanoramaMean(frames, frame_from_world, grid, FLAGS_num_threads, photometric);

@@ -359,6 +359,24 @@ void InitTool(const char* usage,
   GFLAGS_NAMESPACE::gflags_exitfunc = &ExitWithBadInput;
   gflags::ParseCommandLineNonHelpFlags(argc, argv, /*remove_flags=*/true);
   GFLAGS_NAMESPACE::gflags_exitfunc = &ExitAfterHelp;
+  // gflags' --helpshort lists the flags of the file named as the program only; a tool's
+  // flags are also the shared ones of tools/flags/ it links.
+  std::string helpshort;
+  if (gflags::GetCommandLineOption("helpshort", &helpshort) && helpshort == "true") {
+    std::printf("%s: %s\n", ToolName().c_str(), gflags::ProgramUsage());
+    std::vector<gflags::CommandLineFlagInfo> flags;
+    gflags::GetAllFlags(&flags);  // sorted by file, then name
+    std::string file;
+    for (const gflags::CommandLineFlagInfo& flag : flags) {
+      if (flag.filename.find("/tools/") == std::string::npos) continue;
+      if (flag.filename != file) {
+        file = flag.filename;
+        std::printf("\n  Flags from %s:\n", file.c_str());
+      }
+      std::printf("%s", gflags::DescribeOneFlag(flag).c_str());
+    }
+    std::exit(EXIT_SUCCESS);
+  }
   gflags::HandleCommandLineHelpFlags();
   GFLAGS_NAMESPACE::gflags_exitfunc = previous_exit;
 

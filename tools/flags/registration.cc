@@ -1,0 +1,164 @@
+// The registration's options as flags (tools/flags/flags.h): dsr_register's, and
+// dsr_compare's for every method it runs.
+#include <cmath>
+
+#include "dsr/tools/flags/flags.h"
+#include "dsr/tools/tool_util.h"
+
+DEFINE_string(init, "auto", "Initial poses: 'auto' (identity; frames the checks flag after a "
+              "level are re-placed by a global search against the others and the "
+              "registration starts again, at most --max_recoveries times), 'identity' "
+              "(no recovery; dsr_compare's default, the paper's comparison), 'pairwise' (the "
+              "pairwise baseline's poses, itself started from identity: the paper's "
+              "initialisation; no recovery), 'global' (every pair searched globally, frames "
+              "placed along the most confident pairs, then recovery as auto) or, in "
+              "dsr_register, a poses JSON file (docs/design.md) with one entry per image, "
+              "matched to --images by its image names as dsr_fuse --poses does (then "
+              "recovery as auto).");
+DEFINE_int32(max_recoveries, dsr::kDefaultMaxRecoveries, "--init=auto, global or FILE: how "
+             "many times flagged frames may be re-placed, in [0, 10] (0 = a flagged frame is "
+             "a failure, exit 1).");
+DEFINE_string(loss, "squared",
+              "Loss of the intensity differences (modes dsr and dba; docs/design.md 4.7): "
+              "squared, or huber / cauchy with --loss_scale (grey levels of the input) for "
+              "outliers such as shadows and reverberation. DBA applies it through Ceres, DSR "
+              "by iteratively reweighted solves. --uncertainty is then not estimated.");
+DEFINE_double(loss_scale, 0.0, "Scale of --loss=huber or cauchy, in grey levels of the input "
+              "(residuals larger than about this are down-weighted); > 0.");
+DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
+              "Photometric model of the modes dsr and dba (docs/design.md section 2.8): none, "
+              "or affine: every solve also estimates each frame's gain and offset against "
+              "frame 0 (frame i's intensities on frame 0's scale are gain * I_i + offset), "
+              "for frames whose brightness differs. The baselines have none: the default "
+              "runs them without, an explicit affine with a baseline mode is refused. With "
+              "affine, the poses files carry each frame's \"gain\" and \"offset\", the "
+              "panorama and the report's pictures use the corrected intensities, the misfit "
+              "check compares them, and --uncertainty is not estimated; dsr_compare names "
+              "the rows METHOD+affine and adds the mean absolute gain and offset errors "
+              "(mae_gain, mae_offset) when the ground truth has them.");
+DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
+              "within this angle of frame 0's orientation, in (0, 180].");
+DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
+             "[1, 100000] (more: finer, slower).");
+DEFINE_int32(pair_search_rotations, 60, "Global search of --init=global and of a recovery "
+             "that places every frame: about this many rotations per pair of frames, in "
+             "[1, 100000].");
+DEFINE_int32(search_max_axis, 32, "Global search: on the coarsest pyramid level, halved further "
+             "until no frame axis is longer than this many voxels, >= 8 (larger: finer, slower).");
+DEFINE_string(linear_solver, "", "Ceres linear solver. dba: DENSE_SCHUR (default), "
+              "SPARSE_SCHUR, ITERATIVE_SCHUR, DENSE_QR, SPARSE_NORMAL_CHOLESKY. dsr: DENSE_QR "
+              "(default), DENSE_NORMAL_CHOLESKY.");
+DEFINE_string(trust_region, "LEVENBERG_MARQUARDT", "LEVENBERG_MARQUARDT or DOGLEG.");
+DEFINE_int32(max_iterations, 100, "Iteration limit of each solve on the finest level, >= 1.");
+DEFINE_int32(coarse_max_iterations, 50, "Iteration limit of each solve on coarser levels, >= 1.");
+DEFINE_double(function_tolerance, 1e-8, "Ceres function tolerance (relative cost change).");
+DEFINE_double(gradient_tolerance, 1e-12, "Ceres gradient tolerance.");
+DEFINE_double(parameter_tolerance, 1e-10, "Ceres parameter tolerance (relative step).");
+DEFINE_double(step_tolerance, 5e-3, "A solve stops when an accepted step moves no frame's field "
+              "of view by more than this many voxels (0 = off), >= 0.");
+DEFINE_int32(max_rejected_steps, 5, "A solve stops after this many rejected steps in a row "
+             "(0 = off), >= 0.");
+DEFINE_int32(pyramid_levels, 3, "Pyramid levels (1 = full resolution only), in 1..8.");
+DEFINE_int32(pyramid_min_size, 12, "No pyramid level has an axis shorter than this many voxels "
+             "(levels are dropped instead), >= 4.");
+DEFINE_double(pyramid_sigma, 1.0, "Gaussian sigma (voxels) before each halving, >= 0.");
+DEFINE_double(smoothing, 0.0, "Gaussian sigma (voxels) applied to the finest level, >= 0.");
+DEFINE_int32(max_rebuilds, 4, "Candidate-set rebuilds per level after the first solve, >= 0.");
+DEFINE_double(rebuild_tolerance, 0.05, "A level stops rebuilding when its last solve moved "
+              "no field-of-view corner by more than this many voxels, > 0.");
+DEFINE_double(min_kept_overlap, 0.25, "Divergence guard: poses at which a frame's best chain "
+              "of overlapping frames to frame 0 covers less than this fraction of what it "
+              "covered at the initial poses (the frame slid out of the overlap) are a failure "
+              "(exit 1), not a result; in [0, 1), 0 = off. dsr_compare: off by default (every "
+              "method's poses are measured, diverged or not), 0.25 with --init=auto or global "
+              "unless any of the three checks is set.");
+DEFINE_double(max_misfit_ratio, 2.0, "Misfit check: final poses at which a frame's RMS "
+              "difference to the panorama exceeds this multiple of the frames' lower quartile "
+              "(a frame stuck in a wrong minimum) are a failure (exit 1), not a result; 0 = off "
+              "or > 1. dsr_compare: as --min_kept_overlap (2 with --init=auto or global).");
+DEFINE_double(max_pair_mismatch_ratio, 5.0, "Pair check: poses at which two overlapping "
+              "frames match each other (1 - NCC over their overlap, on the coarsest level) "
+              "worse than this multiple of the pairs' lower quartile (frames split into groups "
+              "that disagree) are a failure (exit 1), not a result; 0 = off or > 1. "
+              "dsr_compare: as --min_kept_overlap (5 with --init=auto or global).");
+DEFINE_int32(num_chunks, 1, "dsr and ape: residual blocks the candidate voxels are split into, "
+             ">= 1.");
+DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
+            "small problems only).");
+DEFINE_double(memory_budget_mb, 0.0, "dba: refuse problems estimated above this many MiB; "
+              "0 = half the machine's RAM.");
+DEFINE_bool(progress, true, "Print one line per solver iteration on stderr (dsr_compare: off "
+            "by default).");
+DEFINE_bool(uncertainty, false, "Estimate each frame's pose covariance and predicted TRE "
+            "(modes dsr and dba; docs/design.md section 8.6). dsr_register writes them into "
+            "--out_poses (\"covariance\", \"predicted_tre_mm\"), the summary and the report; "
+            "dsr_compare adds the mean predicted TRE and the mean normalised squared pose "
+            "error (6 when calibrated) to results.csv (predicted_tre_mm, nees). Noise only: "
+            "not a wrong minimum, brightness changes or interpolation bias.");
+
+namespace {
+bool ValidatePhotometric(const char* flag, const std::string& v) {
+  dsr::PhotometricModel model;
+  return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
+                        "must be none or affine");
+}
+bool ValidateMemoryBudget(const char* flag, double v) {
+  return dsr::CheckFlag(v >= 0.0 && std::isfinite(v), flag, v, "must be >= 0");
+}
+}  // namespace
+DEFINE_validator(photometric, &ValidatePhotometric);
+DEFINE_validator(memory_budget_mb, &ValidateMemoryBudget);
+
+namespace dsr {
+
+PhotometricModel PhotometricFromFlags(Mode mode) {
+  PhotometricModel model = PhotometricModel::kNone;
+  StringToPhotometricModel(FLAGS_photometric, &model);  // validated
+  if (FlagIsDefault("photometric") && !ModeEstimatesPhotometric(mode)) {
+    model = PhotometricModel::kNone;
+  }
+  return model;
+}
+
+bool RegistrationOptionsFromFlags(RegistrationOptions* options,
+                                  std::string* init_file,
+                                  std::string* error) {
+  SolveOptions& solve = options->solve;
+  solve.trust_region = FLAGS_trust_region;
+  solve.linear_solver = FLAGS_linear_solver;
+  solve.max_iterations = FLAGS_max_iterations;
+  solve.function_tolerance = FLAGS_function_tolerance;
+  solve.gradient_tolerance = FLAGS_gradient_tolerance;
+  solve.parameter_tolerance = FLAGS_parameter_tolerance;
+  solve.num_threads = FLAGS_num_threads;
+  solve.step_tolerance_voxels = FLAGS_step_tolerance;
+  solve.max_rejected_steps = FLAGS_max_rejected_steps;
+  solve.log_progress = FLAGS_progress;
+  options->panorama_spacing = FLAGS_panorama_spacing;
+  options->pyramid_levels = FLAGS_pyramid_levels;
+  options->pyramid_sigma_voxels = FLAGS_pyramid_sigma;
+  options->pyramid_min_size = FLAGS_pyramid_min_size;
+  options->finest_sigma_voxels = FLAGS_smoothing;
+  options->coarse_max_iterations = FLAGS_coarse_max_iterations;
+  options->max_rebuilds = FLAGS_max_rebuilds;
+  options->rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
+  options->min_kept_overlap = FLAGS_min_kept_overlap;
+  options->max_misfit_ratio = FLAGS_max_misfit_ratio;
+  options->max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
+  options->dsr.num_chunks = FLAGS_num_chunks;
+  options->dsr.reference_cost = FLAGS_reference_cost;
+  options->dba.memory_budget_bytes = FLAGS_memory_budget_mb * 1048576.0;
+  options->estimate_uncertainty = FLAGS_uncertainty;
+  if (!MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options->loss, error)) return false;
+  init_file->clear();
+  if (!SetInitialisation(FLAGS_init, FLAGS_max_recoveries, options)) *init_file = FLAGS_init;
+  options->search.max_rotation_deg = FLAGS_search_rotation_deg;
+  options->search.num_rotations = FLAGS_search_rotations;
+  options->search_max_axis_voxels = FLAGS_search_max_axis;
+  options->search.num_pair_rotations = FLAGS_pair_search_rotations;
+  options->search.num_threads = FLAGS_num_threads;
+  options->search.refine.log_progress = false;
+  return true;
+}
+
+}  // namespace dsr
