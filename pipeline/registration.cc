@@ -57,66 +57,88 @@ bool SetInitialisation(const std::string& name, int max_recoveries, Registration
   return std::find(names.begin(), names.end(), name) != names.end();
 }
 
+namespace {
+
+// A function that writes "--flag=value: rule" into *error and returns false.
+auto BadFlag(std::string* error) {
+  return [error](const std::string& flag, const std::string& value, const std::string& rule) {
+    *error = "--" + flag + "=" + value + ": " + rule;
+    return false;
+  };
+}
+
+// The pyramid's and the candidate rebuilds' rules of RegistrationOptions::Validate.
+bool ValidateLevels(const RegistrationOptions& o, std::string* error) {
+  const auto bad = BadFlag(error);
+  if (!(o.panorama_spacing > 0.0) || !std::isfinite(o.panorama_spacing)) {
+    return bad("panorama_spacing", std::to_string(o.panorama_spacing), "must be a positive number");
+  }
+  if (o.pyramid_levels < 1 || o.pyramid_levels > 8) {
+    return bad("pyramid_levels", std::to_string(o.pyramid_levels), "must be in 1..8");
+  }
+  if (!(o.pyramid_sigma_voxels >= 0.0) || !std::isfinite(o.pyramid_sigma_voxels)) {
+    return bad("pyramid_sigma", std::to_string(o.pyramid_sigma_voxels), "must be >= 0");
+  }
+  if (!(o.finest_sigma_voxels >= 0.0) || !std::isfinite(o.finest_sigma_voxels)) {
+    return bad("smoothing", std::to_string(o.finest_sigma_voxels), "must be >= 0");
+  }
+  if (o.pyramid_min_size < 4) {
+    return bad("pyramid_min_size", std::to_string(o.pyramid_min_size), "must be >= 4");
+  }
+  if (o.coarse_max_iterations < 1) {
+    return bad("coarse_max_iterations", std::to_string(o.coarse_max_iterations), "must be >= 1");
+  }
+  if (o.max_rebuilds < 0) return bad("max_rebuilds", std::to_string(o.max_rebuilds), "must be >= 0");
+  if (!(o.rebuild_tolerance_voxels > 0.0)) {
+    return bad("rebuild_tolerance", std::to_string(o.rebuild_tolerance_voxels), "must be > 0");
+  }
+  if (!(o.unsettled_motion_voxels >= 0.0 && std::isfinite(o.unsettled_motion_voxels))) {
+    *error = "RegistrationOptions::o.unsettled_motion_voxels=" +
+             std::to_string(o.unsettled_motion_voxels) + ": must be finite and >= 0";
+    return false;
+  }
+  return true;
+}
+
+// The checks' and the recovery's rules of RegistrationOptions::Validate.
+bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
+  const auto bad = BadFlag(error);
+  if (!(o.min_kept_overlap >= 0.0 && o.min_kept_overlap < 1.0)) {
+    return bad("min_kept_overlap", std::to_string(o.min_kept_overlap), "must be in [0, 1)");
+  }
+  if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
+    return bad("max_misfit_ratio", std::to_string(o.max_misfit_ratio), "must be 0 (off) or > 1");
+  }
+  if (!(o.max_pair_mismatch_ratio == 0.0 ||
+        (o.max_pair_mismatch_ratio > 1.0 && std::isfinite(o.max_pair_mismatch_ratio)))) {
+    return bad("max_pair_mismatch_ratio", std::to_string(o.max_pair_mismatch_ratio),
+               "must be 0 (off) or > 1");
+  }
+  if (o.min_shared_voxels < 1) {
+    return bad("min_shared_voxels", std::to_string(o.min_shared_voxels), "must be >= 1");
+  }
+  if (o.max_recoveries < 0 || o.max_recoveries > 10) {
+    return bad("max_recoveries", std::to_string(o.max_recoveries), "must be in [0, 10]");
+  }
+  if (o.max_recoveries > 0 && o.max_misfit_ratio == 0.0 && o.min_kept_overlap == 0.0 &&
+      o.max_pair_mismatch_ratio == 0.0) {
+    return bad("max_recoveries", std::to_string(o.max_recoveries),
+               "recovery needs a check that flags frames: --o.max_misfit_ratio, "
+               "--o.max_pair_mismatch_ratio or --o.min_kept_overlap must not be 0");
+  }
+  return true;
+}
+
+}  // namespace
+
 bool RegistrationOptions::Validate(std::string* error) const {
   if (ModeToString(mode)[0] == '\0') {
     *error = "RegistrationOptions::mode=" + std::to_string(static_cast<int>(mode)) + ": unknown mode";
     return false;
   }
   if (!solve.Validate(error)) return false;
-  auto bad = [&](const std::string& flag, const std::string& value, const std::string& rule) {
-    *error = "--" + flag + "=" + value + ": " + rule;
-    return false;
-  };
-  if (!(panorama_spacing > 0.0) || !std::isfinite(panorama_spacing)) {
-    return bad("panorama_spacing", std::to_string(panorama_spacing), "must be a positive number");
-  }
-  if (pyramid_levels < 1 || pyramid_levels > 8) {
-    return bad("pyramid_levels", std::to_string(pyramid_levels), "must be in 1..8");
-  }
-  if (!(pyramid_sigma_voxels >= 0.0) || !std::isfinite(pyramid_sigma_voxels)) {
-    return bad("pyramid_sigma", std::to_string(pyramid_sigma_voxels), "must be >= 0");
-  }
-  if (!(finest_sigma_voxels >= 0.0) || !std::isfinite(finest_sigma_voxels)) {
-    return bad("smoothing", std::to_string(finest_sigma_voxels), "must be >= 0");
-  }
-  if (pyramid_min_size < 4) {
-    return bad("pyramid_min_size", std::to_string(pyramid_min_size), "must be >= 4");
-  }
-  if (coarse_max_iterations < 1) {
-    return bad("coarse_max_iterations", std::to_string(coarse_max_iterations), "must be >= 1");
-  }
-  if (max_rebuilds < 0) return bad("max_rebuilds", std::to_string(max_rebuilds), "must be >= 0");
-  if (!(rebuild_tolerance_voxels > 0.0)) {
-    return bad("rebuild_tolerance", std::to_string(rebuild_tolerance_voxels), "must be > 0");
-  }
-  if (!(unsettled_motion_voxels >= 0.0 && std::isfinite(unsettled_motion_voxels))) {
-    *error = "RegistrationOptions::unsettled_motion_voxels=" +
-             std::to_string(unsettled_motion_voxels) + ": must be finite and >= 0";
-    return false;
-  }
-  if (!(min_kept_overlap >= 0.0 && min_kept_overlap < 1.0)) {
-    return bad("min_kept_overlap", std::to_string(min_kept_overlap), "must be in [0, 1)");
-  }
-  if (!(max_misfit_ratio == 0.0 || (max_misfit_ratio > 1.0 && std::isfinite(max_misfit_ratio)))) {
-    return bad("max_misfit_ratio", std::to_string(max_misfit_ratio), "must be 0 (off) or > 1");
-  }
-  if (!(max_pair_mismatch_ratio == 0.0 ||
-        (max_pair_mismatch_ratio > 1.0 && std::isfinite(max_pair_mismatch_ratio)))) {
-    return bad("max_pair_mismatch_ratio", std::to_string(max_pair_mismatch_ratio),
-               "must be 0 (off) or > 1");
-  }
-  if (min_shared_voxels < 1) {
-    return bad("min_shared_voxels", std::to_string(min_shared_voxels), "must be >= 1");
-  }
-  if (max_recoveries < 0 || max_recoveries > 10) {
-    return bad("max_recoveries", std::to_string(max_recoveries), "must be in [0, 10]");
-  }
-  if (max_recoveries > 0 && max_misfit_ratio == 0.0 && min_kept_overlap == 0.0 &&
-      max_pair_mismatch_ratio == 0.0) {
-    return bad("max_recoveries", std::to_string(max_recoveries),
-               "recovery needs a check that flags frames: --max_misfit_ratio, "
-               "--max_pair_mismatch_ratio or --min_kept_overlap must not be 0");
-  }
+  if (!ValidateLevels(*this, error) || !ValidateChecks(*this, error)) return false;
+  const auto bad = BadFlag(error);
   if (search_max_axis_voxels < 8) {
     return bad("search_max_axis", std::to_string(search_max_axis_voxels), "must be >= 8");
   }

@@ -296,45 +296,14 @@ std::vector<std::string> ReportFiles(int num_frames, int pair_a, int pair_b) {
   return files;
 }
 
-bool WriteReport(const std::string& dir,
-                 const ReportInputs& in,
-                 std::string* index_path,
-                 std::string* error) {
-  namespace fs = std::filesystem;
-  std::error_code ec;
-  fs::create_directories(fs::path(dir) / "transforms", ec);
-  if (ec) {
-    *error = "--report_dir=" + dir + ": cannot create the folder (" + ec.message() + ")";
-    return false;
-  }
+namespace {
+
+// The report's index.md: the pictures, the poses table and the errors.
+std::string ReportIndex(const ReportInputs& in, const std::string& pair_picture) {
   const RegistrationResult& r = *in.result;
   const int m = static_cast<int>(in.frames.size());
-  auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
-  if (!WritePng(RenderPanoramaSlices(in.panorama, in.frames, r.frame_from_world, in.outlined),
-                file("panorama_slices.png"), error)) {
-    return false;
-  }
-  const std::vector<std::string> names = ReportFiles(m, in.pair_a, in.pair_b);
-  if (!WritePng(RenderPairComparison(in.frames, in.pair_a, in.pair_b, in.initial,
-                                     r.frame_from_world, r.grid, r.photometric),
-                file(names[1]), error) ||
-      !WritePng(RenderConvergence(r.solves), file("convergence.png"), error)) {
-    return false;
-  }
-  PosesFile poses;
-  poses.images = in.image_names;
-  poses.frame_from_world = r.frame_from_world;
   const bool uncertainty = !r.uncertainty.covariance.empty();
-  if (uncertainty) {
-    poses.covariance = r.uncertainty.covariance;
-    poses.predicted_tre_mm = r.uncertainty.predicted_tre_mm;
-  }
   const bool photometric = !r.photometric.empty();
-  PhotometricToPoses(r.photometric, &poses);
-  if (!WritePoses(poses, file("poses.json"), error)) return false;
-  for (int i = 0; i < m; ++i) {
-    if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
-  }
   std::ostringstream md;
   md << "# Registration report\n\n"
      << "Mode `" << in.mode << "`, " << m << " frames, " << r.total_iterations
@@ -342,7 +311,7 @@ bool WriteReport(const std::string& dir,
      << "## Panorama with fields of view\n\n![panorama slices](panorama_slices.png)\n\n"
      << "Outlined: the field of view of each listed frame, in its colour.\n\n"
      << "## Frames " << in.pair_a << " and " << in.pair_b << ", before and after\n\n![pair]("
-     << names[1] << ")\n\n"
+     << pair_picture << ")\n\n"
      << "## Convergence\n\n![convergence](convergence.png)\n\n"
      << "## Poses\n\n`poses.json` (T maps world = frame 0 to each frame) and ITK transforms "
         "`transforms/frame_XX.tfm` (world -> frame, LPS: resampling frame XX with its file "
@@ -381,8 +350,50 @@ bool WriteReport(const std::string& dir,
     md << "\n## Errors against ground truth (frame-0-relative)\n\n```\n" << in.errors->Table()
        << "```\n";
   }
+  return md.str();
+}
+
+}  // namespace
+
+bool WriteReport(const std::string& dir,
+                 const ReportInputs& in,
+                 std::string* index_path,
+                 std::string* error) {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  fs::create_directories(fs::path(dir) / "transforms", ec);
+  if (ec) {
+    *error = "--report_dir=" + dir + ": cannot create the folder (" + ec.message() + ")";
+    return false;
+  }
+  const RegistrationResult& r = *in.result;
+  const int m = static_cast<int>(in.frames.size());
+  auto file = [&](const std::string& name) { return (fs::path(dir) / name).string(); };
+  if (!WritePng(RenderPanoramaSlices(in.panorama, in.frames, r.frame_from_world, in.outlined),
+                file("panorama_slices.png"), error)) {
+    return false;
+  }
+  const std::vector<std::string> names = ReportFiles(m, in.pair_a, in.pair_b);
+  if (!WritePng(RenderPairComparison(in.frames, in.pair_a, in.pair_b, in.initial,
+                                     r.frame_from_world, r.grid, r.photometric),
+                file(names[1]), error) ||
+      !WritePng(RenderConvergence(r.solves), file("convergence.png"), error)) {
+    return false;
+  }
+  PosesFile poses;
+  poses.images = in.image_names;
+  poses.frame_from_world = r.frame_from_world;
+  if (!r.uncertainty.covariance.empty()) {
+    poses.covariance = r.uncertainty.covariance;
+    poses.predicted_tre_mm = r.uncertainty.predicted_tre_mm;
+  }
+  PhotometricToPoses(r.photometric, &poses);
+  if (!WritePoses(poses, file("poses.json"), error)) return false;
+  for (int i = 0; i < m; ++i) {
+    if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
+  }
   *index_path = file("index.md");
-  return WriteFileAtomically(*index_path, md.str(), error);
+  return WriteFileAtomically(*index_path, ReportIndex(in, names[1]), error);
 }
 
 }  // namespace dsr
