@@ -1,9 +1,14 @@
-// Minimal fork-join parallelism over an index range with std::thread.
+// Minimal fork-join parallelism over an index range, on a persistent pool of threads.
 //
 // ParallelFor hands out indices dynamically (an atomic counter), so it is deterministic
 // only when each index writes its own outputs. Reductions that must be bit-identical for
 // any thread count partition the range into fixed blocks, let ParallelFor fill one
 // accumulator per block, and reduce the blocks in block order.
+//
+// The threads are started once, on first use, and kept for the process (a solve calls
+// ParallelFor several times per iteration; starting threads each time cost more than some
+// of the loops). A ParallelFor inside another one's body, or one called while another
+// thread's runs, runs on its caller's thread alone: the pool is never waited for.
 #ifndef DSR_UTIL_PARALLEL_H_
 #define DSR_UTIL_PARALLEL_H_
 
@@ -14,7 +19,6 @@
 #include <functional>
 #include <mutex>
 #include <thread>
-#include <vector>
 
 #include <glog/logging.h>
 
@@ -26,6 +30,13 @@ inline int ResolveThreads(int requested) {
   return std::max(1u, std::thread::hardware_concurrency());
 }
 
+// Runs `worker` on `threads` threads at once, the caller's among them, and returns when
+// every call has returned; `worker` must not throw. The other threads come from the pool;
+// when it is busy (see above) only the caller's call runs, so a worker must share out the
+// work itself (as ParallelFor's do). Throws std::system_error, before any call, when the
+// pool cannot start a thread it needs (the tools report it as out of memory, one line).
+void RunOnThreads(int threads, const std::function<void()>& worker);
+
 template <typename Fn>
 void ParallelFor(int64_t begin, int64_t end, int num_threads, const Fn& fn) {
   if (end <= begin) return;
@@ -35,14 +46,13 @@ void ParallelFor(int64_t begin, int64_t end, int num_threads, const Fn& fn) {
     for (int64_t i = begin; i < end; ++i) fn(i);
     return;
   }
-  // An exception (std::bad_alloc) in any thread, or a thread that cannot be started, stops
-  // handing out indices; every started thread is joined and the first exception is
-  // rethrown in the caller's thread. (Escaping a std::thread, or unwinding past joinable
-  // threads, would std::terminate the process.)
+  // An exception (std::bad_alloc) in any thread stops handing out indices; every call
+  // returns and the first exception is rethrown in the caller's thread. A thread that
+  // cannot start throws from RunOnThreads itself.
   std::atomic<int64_t> next{begin};
   std::mutex failure_mutex;
   std::exception_ptr failure;
-  auto worker = [&]() {
+  RunOnThreads(threads, [&]() {
     try {
       for (int64_t i = next.fetch_add(1); i < end; i = next.fetch_add(1)) fn(i);
     } catch (...) {
@@ -50,18 +60,7 @@ void ParallelFor(int64_t begin, int64_t end, int num_threads, const Fn& fn) {
       std::lock_guard<std::mutex> lock(failure_mutex);
       if (!failure) failure = std::current_exception();
     }
-  };
-  std::vector<std::thread> pool;
-  try {
-    pool.reserve(threads - 1);
-    for (int t = 1; t < threads; ++t) pool.emplace_back(worker);
-  } catch (...) {
-    next = end;
-    std::lock_guard<std::mutex> lock(failure_mutex);
-    if (!failure) failure = std::current_exception();
-  }
-  worker();
-  for (auto& t : pool) t.join();
+  });
   if (failure) std::rethrow_exception(failure);
 }
 
