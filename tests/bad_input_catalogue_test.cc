@@ -3,8 +3,6 @@
 // in the output folder. Files are crafted here: MetaImage headers by hand (spacing,
 // direction, NaN/Inf, 2D/4D, vector pixels) and NIfTI files written by the tools
 // themselves and then damaged (truncated, corrupt header).
-#include <unistd.h>
-
 #include <cmath>
 #include <cstring>
 #include <filesystem>
@@ -18,6 +16,7 @@
 #include "cli_run.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {
@@ -58,16 +57,14 @@ void WriteMha(const fs::path& path, const MhaOptions& o) {
 class BadInputCatalogue : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = new fs::path(fs::temp_directory_path() /
-                         ("dsr_catalogue_test_" + std::to_string(getpid())));
-    fs::remove_all(*root_);
-    fs::create_directories(*root_ / "in");
+    temp_ = new ScopedTempDir("dsr_catalogue_test");
+    fs::create_directories(Root() / "in");
     const ToolRun sim = RunTool(DSR_SIMULATE_BIN,
                                 "--out_dir=" + In("") +
                                     " --phantom_size=48 --frame_size=20,20,16 --num_frames=3 "
                                     "--max_rotation_deg=4 --max_translation_voxels=1 "
                                     "--min_depth_voxels=2 --sigma=5",
-                                *root_);
+                                Root());
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
     // Damaged copies of frame_01.
     const std::string bytes = testing_cli::ReadText(In("frame_01.nii.gz"));
@@ -156,10 +153,10 @@ class BadInputCatalogue : public ::testing::Test {
     ASSERT_TRUE(WriteImage(ramp, In("ramp_b.nii.gz"), &error)) << error;
   }
   static void TearDownTestSuite() {
-    fs::remove_all(*root_);
-    delete root_;
+    delete temp_;
+    temp_ = nullptr;
   }
-  static std::string In(const std::string& name) { return (*root_ / "in" / name).string(); }
+  static std::string In(const std::string& name) { return (Root() / "in" / name).string(); }
   static std::string Frames() {
     return In("frame_00.nii.gz") + "," + In("frame_01.nii.gz") + "," + In("frame_02.nii.gz");
   }
@@ -169,11 +166,11 @@ class BadInputCatalogue : public ::testing::Test {
   // Runs one catalogue entry in a fresh, empty output folder.
   void Expect(const std::string& binary, const std::string& args_with_out,
               const std::string& must_name) {
-    const fs::path out = *root_ / ("out_" + std::to_string(++entry_));
+    const fs::path out = Root() / ("out_" + std::to_string(++entry_));
     fs::create_directories(out);
     std::string args = args_with_out;
     for (size_t at; (at = args.find("@OUT")) != std::string::npos;) args.replace(at, 4, out.string());
-    const ToolRun run = RunTool(binary, args, *root_);
+    const ToolRun run = RunTool(binary, args, Root());
     SCOPED_TRACE(binary + " " + args);
     if (getenv("DSR_TEST_LOG") != nullptr) {
       std::printf("%s\n", run.error_lines.empty() ? "(no error line)" : run.error_lines[0].c_str());
@@ -191,17 +188,20 @@ class BadInputCatalogue : public ::testing::Test {
            must_name);
   }
 
-  static fs::path* root_;
+  // The suite's folder: its inputs, and the work of each test.
+  static fs::path Root() { return temp_->dir(); }
+
+  static ScopedTempDir* temp_;
   static int entry_;
 };
 
-fs::path* BadInputCatalogue::root_ = nullptr;
+ScopedTempDir* BadInputCatalogue::temp_ = nullptr;
 int BadInputCatalogue::entry_ = 0;
 
 TEST_F(BadInputCatalogue, ImageFiles) {
   const std::string f0 = In("frame_00.nii.gz") + ",";
   Register("--images=" + f0 + In("missing.nii.gz"), "missing.nii.gz");
-  Register("--images=" + f0 + (*root_ / "in").string(), "in");  // a folder
+  Register("--images=" + f0 + (Root() / "in").string(), "in");  // a folder
   Register("--images=" + f0 + In("empty.nii"), "empty.nii");
   Register("--images=" + f0 + In("corrupt.nii.gz"), "corrupt.nii.gz");
   Register("--images=" + f0 + In("truncated.nii.gz"), "truncated.nii.gz");

@@ -6,6 +6,7 @@
 //     recovers consistent measurements exactly;
 //  4. every baseline recovers ground truth on small noise-free sequences (pipeline).
 #include <ceres/ceres.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <cstdlib>
@@ -18,6 +19,8 @@
 #include "dsr/pipeline/registration.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
+#include "dsr/tests/support/pose_matchers.h"
+#include "dsr/tests/support/tolerances.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -26,12 +29,10 @@ namespace {
 using testing_problems::Candidates;
 using testing_problems::DenseJacobian;
 using testing_problems::MakeSequence;
-using testing_problems::MaxPoseDifference;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
-
-// Same sums in a different order: agreement to rounding.
-constexpr double kSystemRelativeTolerance = 1e-10;
+using testing_poses::FramesFromWorldNear;
+using testing_tolerances::kSystemRelativeTolerance;
 
 double Relative(const Eigen::MatrixXd& a, const Eigen::MatrixXd& b) {
   return (a - b).norm() / std::max(1e-300, b.norm());
@@ -228,9 +229,7 @@ TEST(LieNormalization, PoseGraphRecoversConsistentMeasurementsExactly) {
   std::string error;
   ASSERT_TRUE(SolvePoseGraph(measurements, start, solve, &poses, &report, &error)) << error;
   EXPECT_TRUE(report.usable);
-  const auto [rotation, translation] = MaxPoseDifference(poses, truth);
-  EXPECT_LT(rotation, 1e-9);
-  EXPECT_LT(translation, 1e-8);
+  EXPECT_THAT(poses, FramesFromWorldNear(truth, 1e-9, 1e-8));
   // One inconsistent measurement: the graph spreads it instead of following it alone.
   measurements[0].k_from_i = ExpSE3((Vector6d() << 1.0, 0, 0, 0, 0, 0).finished()) *
                              measurements[0].k_from_i;

@@ -3,10 +3,13 @@
 #include "dsr/dba/dba_problem.h"
 
 #include <ceres/gradient_checker.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "test_problems.h"
+#include "dsr/tests/support/pose_matchers.h"
+#include "dsr/tests/support/tolerances.h"
 #include "sanitizer.h"
+#include "test_problems.h"
 
 namespace dsr {
 namespace {
@@ -15,6 +18,7 @@ using testing_problems::Candidates;
 using testing_problems::MakeSequence;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
+using testing_poses::FramesFromWorldNear;
 
 // Tangent-space central differences through PoseManifold::Plus on a linear field agree
 // with the analytic Jacobian to ~1e-7 (float voxels).
@@ -239,10 +243,8 @@ TEST(Dba, PhotometricBlocksRecoverGainsAndOffsets) {
     EXPECT_NEAR(report.photometric[i].gain(), 1.0 / g[i], 1e-6 / g[i]) << i;
     EXPECT_NEAR(report.photometric[i].offset, -o[i] / g[i], 1e-6 * std::abs(o[i] / g[i])) << i;
   }
-  const auto [rotation, translation] =
-      testing_problems::MaxPoseDifference(report.frame_from_world, s.ground_truth);
-  EXPECT_LT(translation, 1e-3);
-  EXPECT_LT(rotation, 1e-5);
+  EXPECT_THAT(report.frame_from_world,
+              FramesFromWorldNear(s.ground_truth, 1e-5, testing_tolerances::kNoiseFreeAccuracyMm));
   // Without them, the same solve does not reach the truth.
   options.photometric = false;
   ASSERT_TRUE(SolveDba(frames, c, init, options, &report, nullptr, &error)) << error;
@@ -299,10 +301,8 @@ TEST(Dba, EveryLinearSolverReachesTheSamePoses) {
     std::string error;
     ASSERT_TRUE(SolveDba(s.frames, c, init, options, &report, nullptr, &error)) << error;
     ASSERT_TRUE(report.usable) << solver << ": " << report.termination;
-    const auto [rotation, translation] =
-        testing_problems::MaxPoseDifference(report.frame_from_world, s.ground_truth);
-    EXPECT_LT(rotation, 1e-8) << solver << ": " << report.termination;
-    EXPECT_LT(translation, 1e-7) << solver << ": " << report.termination;
+    EXPECT_THAT(report.frame_from_world, FramesFromWorldNear(s.ground_truth, 1e-8, 1e-7))
+        << solver << ": " << report.termination;
   }
 }
 

@@ -2,8 +2,6 @@
 // by dsr_simulate: the happy path (poses, panorama, per-frame errors), --photometric, and
 // bad inputs (one error line naming the file or flag, exit code 2, no output written); and
 // dsr_fuse and dsr_compare with gains and offsets.
-#include <unistd.h>
-
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -15,6 +13,7 @@
 #include "cli_run.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {
@@ -26,32 +25,29 @@ using testing_cli::ToolRun;
 class DsrRegisterCli : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    dir_ = new fs::path(fs::temp_directory_path() /
-                        ("dsr_register_cli_test_" + std::to_string(getpid())));
-    fs::remove_all(*dir_);
-    fs::create_directories(*dir_);
+    temp_ = new ScopedTempDir("dsr_register_cli_test");
     const ToolRun sim = RunTool(DSR_SIMULATE_BIN,
-                                "--out_dir=" + (*dir_ / "seq").string() +
+                                "--out_dir=" + (Dir() / "seq").string() +
                                     " --phantom_size=64 --frame_size=32,32,28 --num_frames=3 "
                                     "--max_rotation_deg=6 --max_translation_voxels=3 "
                                     "--min_depth_voxels=2 --sigma=10",
-                                *dir_);
+                                Dir());
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
     // The same with per-frame gains and offsets (gt_poses.json carries them).
     const ToolRun gain = RunTool(DSR_SIMULATE_BIN,
-                                 "--out_dir=" + (*dir_ / "seq_gain").string() +
+                                 "--out_dir=" + (Dir() / "seq_gain").string() +
                                      " --phantom_size=64 --frame_size=32,32,28 --num_frames=3 "
                                      "--max_rotation_deg=6 --max_translation_voxels=3 "
                                      "--min_depth_voxels=2 --sigma=10 --gain_range=0.2 "
                                      "--offset_range=8",
-                                 *dir_);
+                                 Dir());
     ASSERT_EQ(gain.exit_code, 0) << gain.err;
   }
   static void TearDownTestSuite() {
-    fs::remove_all(*dir_);
-    delete dir_;
+    delete temp_;
+    temp_ = nullptr;
   }
-  static std::string Seq(const std::string& name) { return (*dir_ / "seq" / name).string(); }
+  static std::string Seq(const std::string& name) { return (Dir() / "seq" / name).string(); }
   static std::string Images() {
     return Seq("frame_00.nii.gz") + "," + Seq("frame_01.nii.gz") + "," + Seq("frame_02.nii.gz");
   }
@@ -59,7 +55,7 @@ class DsrRegisterCli : public ::testing::Test {
     return Seq("mask_00.nii.gz") + "," + Seq("mask_01.nii.gz") + "," + Seq("mask_02.nii.gz");
   }
   static std::string GainSeq(const std::string& name) {
-    return (*dir_ / "seq_gain" / name).string();
+    return (Dir() / "seq_gain" / name).string();
   }
   static std::string GainImages() {
     return GainSeq("frame_00.nii.gz") + "," + GainSeq("frame_01.nii.gz") + "," +
@@ -69,9 +65,9 @@ class DsrRegisterCli : public ::testing::Test {
     return GainSeq("mask_00.nii.gz") + "," + GainSeq("mask_01.nii.gz") + "," +
            GainSeq("mask_02.nii.gz");
   }
-  static std::string Out(const std::string& name) { return (*dir_ / name).string(); }
+  static std::string Out(const std::string& name) { return (Dir() / name).string(); }
   ToolRun Register(const std::string& args) {
-    return RunTool(DSR_REGISTER_BIN, "--pyramid_levels=2 --pyramid_min_size=8 " + args, *dir_);
+    return RunTool(DSR_REGISTER_BIN, "--pyramid_levels=2 --pyramid_min_size=8 " + args, Dir());
   }
   // A bad input: exit 2, exactly one error line containing `needle`, no poses written.
   void ExpectBadInput(const std::string& args, const std::string& needle) {
@@ -84,10 +80,13 @@ class DsrRegisterCli : public ::testing::Test {
     EXPECT_FALSE(fs::exists(out)) << args;
   }
 
-  static fs::path* dir_;
+  // The suite's folder: its inputs, and the work of each test.
+  static fs::path Dir() { return temp_->dir(); }
+
+  static ScopedTempDir* temp_;
 };
 
-fs::path* DsrRegisterCli::dir_ = nullptr;
+ScopedTempDir* DsrRegisterCli::temp_ = nullptr;
 
 TEST_F(DsrRegisterCli, RegistersWritesPosesPanoramaAndPrintsErrors) {
   const std::string poses_path = Out("poses.json"), panorama_path = Out("panorama.nii.gz");
@@ -241,7 +240,7 @@ TEST_F(DsrRegisterCli, FuseAppliesThePosesFilesGainsAndOffsets) {
                                 "--images=" + Out("fuse_a.nii.gz") + "," + Out(second) +
                                     " --mask_erosion=0 --poses=" + Out(poses_file) +
                                     " --out=" + Out(out),
-                                *dir_);
+                                Dir());
     EXPECT_EQ(run.exit_code, 0) << run.err;
     Image panorama;
     EXPECT_TRUE(ReadImage(Out(out), &panorama, &error)) << error;
@@ -274,10 +273,10 @@ TEST_F(DsrRegisterCli, FuseAppliesThePosesFilesGainsAndOffsets) {
 TEST_F(DsrRegisterCli, CompareCarriesGainsAndOffsets) {
   const std::string out = Out("compare");
   const ToolRun run = RunTool(DSR_COMPARE_BIN,
-                              "--sequences=" + (*dir_ / "seq_gain").string() +
+                              "--sequences=" + (Dir() / "seq_gain").string() +
                                   " --methods=dba,ape --photometric=affine --pyramid_levels=2"
                                   " --out_dir=" + out,
-                              *dir_);
+                              Dir());
   ASSERT_EQ(run.exit_code, 0) << run.err;
   PosesFile poses;
   std::string error;
@@ -295,7 +294,7 @@ TEST_F(DsrRegisterCli, CompareCarriesGainsAndOffsets) {
   EXPECT_NE(line.find(",,,0.0"), std::string::npos) << line;
   EXPECT_NE(csv.find("\nape,seq_gain,1,"), std::string::npos) << csv;
   const ToolRun bad = RunTool(DSR_COMPARE_BIN, "--photometric=linear --out_dir=" + Out("bad"),
-                              *dir_);
+                              Dir());
   EXPECT_EQ(bad.exit_code, 2);
   ASSERT_EQ(bad.error_lines.size(), 1u) << bad.err;
   EXPECT_NE(bad.error_lines[0].find("--photometric=linear: must be none or affine"),

@@ -1,7 +1,6 @@
 // dsr_simulate's command line (tools/dsr_simulate.cc): runs the built binary
 // (DSR_SIMULATE_BIN, set by CMake) and checks its files, exit codes and error lines.
 #include <sys/wait.h>
-#include <unistd.h>
 
 #include <cmath>
 #include <cstdlib>
@@ -17,6 +16,7 @@
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/sim/simulate.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {
@@ -29,15 +29,6 @@ using testing_cli::ToolRun;
 
 class DsrSimulateCli : public ::testing::Test {
  protected:
-  void SetUp() override {
-    const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() /
-           ("dsr_simulate_cli_test_" + std::to_string(getpid()) + "_" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-
   // Runs the binary with `args` (each a single shell word, no quoting needed here).
   ToolRun Simulate(const std::string& args) { return RunTool(DSR_SIMULATE_BIN, args, dir_); }
 
@@ -58,7 +49,9 @@ class DsrSimulateCli : public ::testing::Test {
     return o;
   }
 
-  fs::path dir_;
+  // A folder per test (the fixture is made anew for each).
+  const ScopedTempDir temp_{"dsr_simulate_cli_test"};
+  const fs::path dir_ = temp_.dir();
 };
 
 TEST_F(DsrSimulateCli, TinyRunWritesFramesMasksAndPoses) {

@@ -9,6 +9,7 @@
 //     the intensity blocks makes their intermediate iterates differ.
 #include <ceres/ceres.h>
 #include <ceres/gradient_checker.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <array>
@@ -18,9 +19,11 @@
 #include "dsr/dba/dba_problem.h"
 #include "dsr/dsr_reduced/dsr_solver.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/tests/support/pose_matchers.h"
+#include "dsr/tests/support/tolerances.h"
 #include "kernel_paths.h"
-#include "test_problems.h"
 #include "sanitizer.h"
+#include "test_problems.h"
 
 namespace dsr {
 namespace {
@@ -32,11 +35,11 @@ using testing_problems::MakeSequence;
 using testing_problems::MaxPoseDifference;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
-
-// Two exact linear-algebra routes to the same step: agreement to rounding.
-constexpr double kStepRelativeTolerance = 1e-9;
-// Same sums accumulated in a different order (blocks vs residual blocks).
-constexpr double kSystemRelativeTolerance = 1e-10;
+using testing_poses::FramesFromWorldNear;
+using testing_tolerances::kFixedPointRotationRad;
+using testing_tolerances::kFixedPointTranslationMm;
+using testing_tolerances::kStepRelativeTolerance;
+using testing_tolerances::kSystemRelativeTolerance;
 
 struct Case {
   int num_frames, size;
@@ -285,17 +288,16 @@ TEST(Theorem, FullSolvesOfBothModesConvergeToTheSamePoses) {
     // DSR needs up to ~600 iterations here (DBA took 571 on the second case): the Gauss-Newton
     // model of interpolated central differences converges only linearly on the exact cost.
     const ModePoses converged = SolveAllModes(s, cand, init, 1000);
-    // Frames are 1 mm voxels: 1e-6 voxel = 1e-6 mm.
     for (const auto* other : {&converged.dsr_fast, &converged.dsr_reference}) {
-      const auto [rotation, translation] = MaxPoseDifference(converged.dba, *other);
-      EXPECT_LT(rotation, 1e-8) << "m=" << c.num_frames;
-      EXPECT_LT(translation, 1e-6) << "m=" << c.num_frames;
+      EXPECT_THAT(*other, FramesFromWorldNear(converged.dba, kFixedPointRotationRad,
+                                              kFixedPointTranslationMm))
+          << "m=" << c.num_frames;
     }
     // On these problems the shared fixed point is the ground truth itself.
     for (const auto* poses : {&converged.dba, &converged.dsr_fast, &converged.dsr_reference}) {
-      const auto [rotation_gt, translation_gt] = MaxPoseDifference(*poses, s.ground_truth);
-      EXPECT_LT(rotation_gt, 1e-8) << "m=" << c.num_frames << " mode " << (poses - &converged.dba);
-      EXPECT_LT(translation_gt, 1e-6) << "m=" << c.num_frames << " mode " << (poses - &converged.dba);
+      EXPECT_THAT(*poses, FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
+                                              kFixedPointTranslationMm))
+          << "m=" << c.num_frames << " mode " << (poses - &converged.dba);
     }
     // The solve moved the poses far more than that: the agreement is not the start's.
     EXPECT_GT(MaxPoseDifference(converged.dba, init).second, 0.1);
@@ -315,14 +317,11 @@ TEST(Theorem, DampedIteratesDifferButTheFixedPointIsShared) {
   EXPECT_GT(std::max(rotation_1, translation_1), 1e-6)
       << "one damped step: DBA and DSR iterates should differ";
   // Both DSR costs take the same damped step: they are one model.
-  const auto [rotation_ref, translation_ref] = MaxPoseDifference(first.dsr_reference, first.dsr_fast);
-  EXPECT_LT(rotation_ref, 1e-10);
-  EXPECT_LT(translation_ref, 1e-8);
+  EXPECT_THAT(first.dsr_reference, FramesFromWorldNear(first.dsr_fast, 1e-10, 1e-8));
   // Converged, they agree (as in the test above).
   const ModePoses converged = SolveAllModes(s, cand, init, 200);
-  const auto [rotation, translation] = MaxPoseDifference(converged.dba, converged.dsr_fast);
-  EXPECT_LT(rotation, 1e-8);
-  EXPECT_LT(translation, 1e-6);
+  EXPECT_THAT(converged.dsr_fast,
+              FramesFromWorldNear(converged.dba, kFixedPointRotationRad, kFixedPointTranslationMm));
 }
 
 // The theorem with photometric parameters (docs/design.md section 2.8): frames seen through
@@ -356,10 +355,9 @@ TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
   dsr.solve = FixedPointOptions(1000);
   ASSERT_TRUE(SolveDsr(s.frames, cand, init, dsr, &dsr_report, &error)) << error;
   ASSERT_TRUE(dsr_report.usable) << dsr_report.termination;
-  const auto [rotation, translation] =
-      MaxPoseDifference(dba_report.frame_from_world, dsr_report.frame_from_world);
-  EXPECT_LT(rotation, 1e-8);
-  EXPECT_LT(translation, 1e-6);
+  EXPECT_THAT(dsr_report.frame_from_world,
+              FramesFromWorldNear(dba_report.frame_from_world, kFixedPointRotationRad,
+                                  kFixedPointTranslationMm));
   ASSERT_EQ(dba_report.photometric.size(), 4u);
   ASSERT_EQ(dsr_report.photometric.size(), 4u);
   for (int i = 0; i < c.num_frames; ++i) {
@@ -368,16 +366,16 @@ TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
     EXPECT_NEAR(dsr_report.photometric[i].gain(), 1.0 / g[i], 1e-6) << i;
     EXPECT_NEAR(dsr_report.photometric[i].offset, -o[i] / g[i], 1e-5) << i;
   }
-  EXPECT_LT(MaxPoseDifference(dsr_report.frame_from_world, s.ground_truth).second, 1e-6);
+  EXPECT_LT(MaxPoseDifference(dsr_report.frame_from_world, s.ground_truth).second,
+            kFixedPointTranslationMm);
   // DSR's fast path (8 x 8 blocks, streamed) reaches the same point.
   dsr.reference_cost = false;
   SolveReport fast_report;
   ASSERT_TRUE(SolveDsr(s.frames, cand, init, dsr, &fast_report, &error)) << error;
   ASSERT_TRUE(fast_report.usable) << fast_report.termination;
-  const auto [fast_rotation, fast_translation] =
-      MaxPoseDifference(dba_report.frame_from_world, fast_report.frame_from_world);
-  EXPECT_LT(fast_rotation, 1e-8);
-  EXPECT_LT(fast_translation, 1e-6);
+  EXPECT_THAT(fast_report.frame_from_world,
+              FramesFromWorldNear(dba_report.frame_from_world, kFixedPointRotationRad,
+                                  kFixedPointTranslationMm));
   ASSERT_EQ(fast_report.photometric.size(), 4u);
   for (int i = 0; i < c.num_frames; ++i) {
     EXPECT_NEAR(fast_report.photometric[i].log_gain, dba_report.photometric[i].log_gain, 1e-8);
@@ -413,9 +411,7 @@ TEST(ReducedCost, PhotometricFastPathRecoversSimulatedGains) {
     EXPECT_NEAR(report.photometric[i].gain() * g[i], 1.0, 0.01) << i;
     EXPECT_NEAR(report.photometric[i].gain() * o[i] + report.photometric[i].offset, 0.0, 1.0) << i;
   }
-  const auto [rotation, translation] = MaxPoseDifference(report.frame_from_world, s.ground_truth);
-  EXPECT_LT(translation, 0.01);
-  EXPECT_LT(rotation, 1e-4);
+  EXPECT_THAT(report.frame_from_world, FramesFromWorldNear(s.ground_truth, 1e-4, 0.01));
   // The per-frame costs of the final pass, as the misfit check reads them (near 0 here).
   ASSERT_EQ(report.final_frame_cost.size(), 4u);
   for (int i = 0; i < c.num_frames; ++i) {

@@ -10,6 +10,8 @@
 #include "dsr/dsr_reduced/dsr_solver.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/eval/eval.h"
+#include "dsr/tests/support/tolerances.h"
+#include "sanitizer.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -46,7 +48,7 @@ constexpr double kRotationStepRad = 1e-4;
 // TRE bound (eval/eval.h; mm, at every field-of-view voxel): on noise-free lattice
 // problems every residual vanishes at the ground truth, so a solve ends there up to
 // rounding.
-constexpr double kGroundTruthTreMm = 1e-3;
+using testing_tolerances::kNoiseFreeAccuracyMm;
 
 SequenceOptions EdgeOptions(int num_frames, bool lattice, uint64_t seed) {
   SequenceOptions o;
@@ -78,7 +80,9 @@ double Moved(int c, double sign, std::vector<Eigen::Isometry3d>* poses) {
 
 TEST(FieldOfViewEdge, GradientAndGaussNewtonMatrixMatchCentralDifferences) {
   uint64_t seed = 101;
-  for (int trial = 0; trial < 8; ++trial) {
+  // Under the sanitizers 2 trials: the same code, not the spread over many problems.
+  const int trials = testing_support::FullUnlessSanitized(8, 2);
+  for (int trial = 0; trial < trials; ++trial) {
     const TestSequence s = MakeSequence(EdgeOptions(3, false, seed++));
     const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, seed++);
     const CandidateSet cand = InteriorCandidates(s, poses, kInsetCells);
@@ -163,7 +167,7 @@ TEST(FieldOfViewEdge, NoiseFreeSolveReachesGroundTruth) {
       poses = report.frame_from_world;
     }
     const PoseErrorSummary error = ComparePoses(poses, s.ground_truth, s.masks, 1);
-    EXPECT_LT(error.tre_max_mm, kGroundTruthTreMm) << "m=" << num_frames << "\n" << error.Table();
+    EXPECT_LT(error.tre_max_mm, kNoiseFreeAccuracyMm) << "m=" << num_frames << "\n" << error.Table();
     // The start was far from it.
     EXPECT_GT(ComparePoses(Perturbed(s.ground_truth, 0.02, 0.5, seed - 1), s.ground_truth,
                            s.masks, 1)

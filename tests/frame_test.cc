@@ -11,12 +11,13 @@
 #include "dsr/geometry/se3.h"
 #include "dsr/geometry/volume.h"
 #include "dsr/model/observation.h"
+#include "dsr/tests/support/tolerances.h"
 
 namespace dsr {
 namespace {
 
 // Voxels are stored as float: values up to ~300 carry ~2e-5 absolute rounding error.
-constexpr double kFloatValueTolerance = 1e-3;
+using testing_tolerances::kFloatValueTolerance;
 constexpr double kFloatGradientTolerance = 1e-4;
 
 ImageGeometry ObliqueAnisotropicGeometry() {

@@ -5,14 +5,13 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <cstdlib>
-#include <filesystem>
 
 #include "dsr/image/frame.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_transform.h"
 #include "dsr/model/panorama.h"
 #include "dsr/tests/io_image_test_itk.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -21,16 +20,6 @@ namespace {
 using testing_problems::MakeSequence;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
-
-struct TempDir {
-  TempDir() {
-    char pattern[] = "/tmp/dsr_fusion_test_XXXXXX";
-    path = mkdtemp(pattern);
-  }
-  ~TempDir() { std::filesystem::remove_all(path); }
-  std::string File(const std::string& name) const { return path + "/" + name; }
-  std::string path;
-};
 
 TEST(Fusion, MeanAndFeatherMatchBruteForce) {
   SequenceOptions o;
@@ -211,7 +200,7 @@ TEST(Fusion, PanoramaAsFrameLeavesUnobservedGapsOutside) {
 }
 
 TEST(ItkTransform, FilesRoundTripAndResampleLikeTheProject) {
-  TempDir dir;
+  const ScopedTempDir dir("dsr_fusion_test");
   SequenceOptions o;
   o.num_frames = 2;
   o.size = 14;

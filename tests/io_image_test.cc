@@ -19,7 +19,7 @@
 #include <gtest/gtest.h>
 
 #include "dsr/tests/io_image_test_itk.h"
-#include "dsr/tests/scoped_temp_dir.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

@@ -15,7 +15,7 @@
 #include <nlohmann/json.hpp>
 
 #include "dsr/geometry/se3.h"
-#include "dsr/tests/scoped_temp_dir.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

@@ -28,7 +28,7 @@
 
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_itk.h"
-#include "dsr/tests/scoped_temp_dir.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 #include "dsr/util/atomic_file.h"
 
 namespace dsr {

@@ -5,8 +5,6 @@
 // exit 2, one error line naming both flags, the input byte-identical and nothing written
 // (no folder created either). Plus the order of dsr_register's writes (the poses file
 // last) and dsr_compare's up-front checks of its sequence folders and methods.
-#include <unistd.h>
-
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -18,6 +16,7 @@
 #include "cli_run.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {
@@ -47,34 +46,31 @@ class OutputPlanTest : public ::testing::Test {
  protected:
   // One small simulated sequence for every test (3 frames of 20x20x16 voxels).
   static void SetUpTestSuite() {
-    root_ = new fs::path(fs::temp_directory_path() /
-                         ("dsr_output_plan_test_" + std::to_string(getpid())));
-    fs::remove_all(*root_);
-    fs::create_directories(*root_);
+    temp_ = new ScopedTempDir("dsr_output_plan_test");
     const ToolRun sim = RunTool(DSR_SIMULATE_BIN,
                                 "--out_dir=" + Seq("") +
                                     " --phantom_size=48 --frame_size=20,20,16 --num_frames=3 "
                                     "--max_rotation_deg=4 --max_translation_voxels=1 "
                                     "--min_depth_voxels=2 --sigma=5",
-                                *root_);
+                                Root());
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
     PosesFile identity;
     identity.images = {"frame_00.nii.gz", "frame_01.nii.gz", "frame_02.nii.gz"};
     identity.frame_from_world.assign(3, Eigen::Isometry3d::Identity());
     std::string error;
-    ASSERT_TRUE(WritePoses(identity, (*root_ / "identity.json").string(), &error)) << error;
+    ASSERT_TRUE(WritePoses(identity, (Root() / "identity.json").string(), &error)) << error;
   }
   static void TearDownTestSuite() {
-    fs::remove_all(*root_);
-    delete root_;
+    delete temp_;
+    temp_ = nullptr;
   }
 
   void SetUp() override {
-    work_ = *root_ / ::testing::UnitTest::GetInstance()->current_test_info()->name();
+    work_ = Root() / ::testing::UnitTest::GetInstance()->current_test_info()->name();
     fs::create_directories(work_);
   }
 
-  static std::string Seq(const std::string& name) { return (*root_ / "seq" / name).string(); }
+  static std::string Seq(const std::string& name) { return (Root() / "seq" / name).string(); }
   static std::string Frames() {
     return Seq("frame_00.nii.gz") + "," + Seq("frame_01.nii.gz") + "," + Seq("frame_02.nii.gz");
   }
@@ -93,7 +89,7 @@ class OutputPlanTest : public ::testing::Test {
                      const std::vector<std::string>& must_name) {
     SCOPED_TRACE(args);
     const std::map<std::string, std::string> before = Snapshot(work_);
-    const ToolRun run = RunTool(binary, args, *root_);
+    const ToolRun run = RunTool(binary, args, Root());
     EXPECT_EQ(run.exit_code, 2) << run.err;
     ASSERT_EQ(run.error_lines.size(), 1u) << run.err;
     for (const std::string& name : must_name) {
@@ -105,11 +101,14 @@ class OutputPlanTest : public ::testing::Test {
     EXPECT_TRUE(after == before) << "a file was changed";
   }
 
-  static fs::path* root_;
+  // The suite's folder: its inputs, and the work of each test.
+  static fs::path Root() { return temp_->dir(); }
+
+  static ScopedTempDir* temp_;
   fs::path work_;
 };
 
-fs::path* OutputPlanTest::root_ = nullptr;
+ScopedTempDir* OutputPlanTest::temp_ = nullptr;
 
 // O03: one file spelled two ways (".", "..", a symlinked folder).
 TEST_F(OutputPlanTest, TwoSpellingsOfOneOutputFile) {
@@ -228,7 +227,7 @@ TEST_F(OutputPlanTest, DetachedHeaderDataFileIsAnInput) {
 // U04: dsr_fuse --out and --out_count one file; and dsr_simulate's frames over its source.
 TEST_F(OutputPlanTest, FuseAndSimulateOutputs) {
   const std::string fuse = "--images=" + Frames() + " --masks=" + Masks() + " --poses=" +
-                           (*root_ / "identity.json").string();
+                           (Root() / "identity.json").string();
   ExpectRefused(DSR_FUSE_BIN,
                 fuse + " --out=" + W("p.nii.gz") + " --out_count=" + W("./p.nii.gz"),
                 {"--out=" + W("p.nii.gz"), "--out_count"});
@@ -252,7 +251,7 @@ TEST_F(OutputPlanTest, PosesFileIsWrittenLast) {
   const ToolRun run = RunTool(limited,
                               RegisterArgs() + "--out_poses=" + W("p.json") +
                                   " --out_panorama=" + W("pan.nii") + " --out_tfm_dir=" + W("t"),
-                              *root_);
+                              Root());
   EXPECT_EQ(run.exit_code, 1) << run.err;
   // The tool's own error line (the NIfTI library may print one of its own before it).
   ASSERT_FALSE(run.error_lines.empty()) << run.err;
@@ -264,7 +263,7 @@ TEST_F(OutputPlanTest, PosesFileIsWrittenLast) {
   const ToolRun ok = RunTool(DSR_REGISTER_BIN,
                              RegisterArgs() + "--out_poses=" + W("p.json") + " --out_panorama=" +
                                  W("pan.nii") + " --out_tfm_dir=" + W("t"),
-                             *root_);
+                             Root());
   ASSERT_EQ(ok.exit_code, 0) << ok.err;
   EXPECT_NE(ReadText(W("p.json")), "previous\n");
   EXPECT_TRUE(fs::exists(W("t/frame_02.tfm")));
@@ -288,7 +287,7 @@ TEST_F(OutputPlanTest, CompareChecksEverySequenceFirst) {
   ExpectRefused(DSR_COMPARE_BIN, compare + W("nomasks"), {"--sequences", "nomasks", "mask"});
   // Without --sequence_masks the masks are not needed: the comparison runs.
   const ToolRun run = RunTool(DSR_COMPARE_BIN, compare + W("nomasks") + " --sequence_masks=false",
-                              *root_);
+                              Root());
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_TRUE(fs::exists(W("c/poses/seq_dsr.json")));
   EXPECT_TRUE(fs::exists(W("c/poses/nomasks_dsr.json")));

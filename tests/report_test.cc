@@ -16,6 +16,7 @@
 #include "dsr/pipeline/report.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {
@@ -111,8 +112,8 @@ TEST(Report, PicturesHaveTheExpectedSizeAndContent) {
 
 TEST(Report, FolderHoldsPicturesPosesTransformsAndIndex) {
   const Registered& r = Small();
-  char pattern[] = "/tmp/dsr_report_test_XXXXXX";
-  const std::string dir = mkdtemp(pattern);
+  const ScopedTempDir temp("dsr_report_test");
+  const std::string& dir = temp.path();
   ReportInputs in;
   in.image_names = {"a.nii.gz", "b.nii.gz", "c.nii.gz"};
   in.frames = r.frames;
@@ -139,7 +140,6 @@ TEST(Report, FolderHoldsPicturesPosesTransformsAndIndex) {
   ASSERT_TRUE(ReadItkTransform(dir + "/transforms/frame_02.tfm", &t, &error)) << error;
   EXPECT_LT((t.matrix() - r.result.frame_from_world[2].matrix()).norm(), 1e-12);
   EXPECT_TRUE(std::filesystem::exists(dir + "/poses.json"));
-  std::filesystem::remove_all(dir);
 }
 
 }  // namespace

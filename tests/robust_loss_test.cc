@@ -11,6 +11,7 @@
 //  5. with outliers, Huber and Cauchy poses are closer to the truth than squared ones.
 #include <ceres/ceres.h>
 #include <ceres/gradient_checker.h>
+#include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
 #include <array>
@@ -26,8 +27,10 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/solve/convergence.h"
-#include "test_problems.h"
+#include "dsr/tests/support/pose_matchers.h"
+#include "dsr/tests/support/tolerances.h"
 #include "sanitizer.h"
+#include "test_problems.h"
 
 namespace dsr {
 namespace {
@@ -40,11 +43,10 @@ using testing_problems::MaxPoseDifference;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
 using testing_problems::TestSequence;
+using testing_poses::FramesFromWorldNear;
+using testing_tolerances::kStepRelativeTolerance;
+using testing_tolerances::kSystemRelativeTolerance;
 
-// Two exact linear-algebra routes to the same step: agreement to rounding.
-constexpr double kStepRelativeTolerance = 1e-9;
-// Same sums accumulated in a different order (blocks vs residual blocks).
-constexpr double kSystemRelativeTolerance = 1e-10;
 // The frames hold floats: numeric derivatives of their interpolant agree to ~1e-4.
 constexpr double kGradientCheckPrecision = 1e-3;
 
@@ -855,9 +857,9 @@ void ExpectSharedRobustFixedPoint(const RobustLoss& loss, double rotation, doubl
   ASSERT_GT(overlap(1, 1), 1000) << "frame 1 keeps enough observations outside B";
   const RobustSolves solves = SolveAllModes(p, loss);
   for (const SolveReport* dsr : {&solves.fast, &solves.reference}) {
-    const auto [dr, dt] = MaxPoseDifference(solves.dba.frame_from_world, dsr->frame_from_world);
-    EXPECT_LT(dr, rotation) << loss.ToString() << (dsr == &solves.fast ? " fast" : " reference");
-    EXPECT_LT(dt, translation) << loss.ToString() << (dsr == &solves.fast ? " fast" : " reference");
+    EXPECT_THAT(dsr->frame_from_world,
+                FramesFromWorldNear(solves.dba.frame_from_world, rotation, translation))
+        << loss.ToString() << (dsr == &solves.fast ? " fast" : " reference");
     // The reported robust cost 1/2 sum rho(r^2) is DBA's at the shared fixed point.
     EXPECT_NEAR(dsr->final_cost, solves.dba.final_cost, 1e-7 * solves.dba.final_cost);
     EXPECT_TRUE(dsr->final_frame_cost.empty());
@@ -865,10 +867,8 @@ void ExpectSharedRobustFixedPoint(const RobustLoss& loss, double rotation, doubl
         << dsr->termination;
   }
   // Both DSR costs are one model and take the same path.
-  const auto [fr, ft] = MaxPoseDifference(solves.fast.frame_from_world,
-                                          solves.reference.frame_from_world);
-  EXPECT_LT(fr, 1e-8);
-  EXPECT_LT(ft, 1e-7);
+  EXPECT_THAT(solves.reference.frame_from_world,
+              FramesFromWorldNear(solves.fast.frame_from_world, 1e-8, 1e-7));
   // The loss decides the fixed point: the squared one is far from the truth, the robust
   // one much closer, and the modes' disagreement is far below that difference.
   const std::vector<Eigen::Isometry3d> squared = SquaredPoses(p);
@@ -943,16 +943,12 @@ TEST(RobustTheorem, PhotometricCauchySolvesOfBothModesAgree) {
   reference.reference_cost = true;
   ASSERT_TRUE(SolveDsr(p.s.frames, p.cand, p.init, reference, &reference_report, &error)) << error;
   ASSERT_TRUE(reference_report.usable) << reference_report.termination;
-  const auto [fr, ft] =
-      MaxPoseDifference(fast_report.frame_from_world, reference_report.frame_from_world);
-  EXPECT_LT(fr, 1e-8);
-  EXPECT_LT(ft, 1e-7);
+  EXPECT_THAT(reference_report.frame_from_world,
+              FramesFromWorldNear(fast_report.frame_from_world, 1e-8, 1e-7));
   ASSERT_EQ(fast_report.photometric.size(), 3u);
   ASSERT_EQ(dba_report.photometric.size(), 3u);
-  const auto [rotation, translation] =
-      MaxPoseDifference(dba_report.frame_from_world, fast_report.frame_from_world);
-  EXPECT_LT(rotation, 2e-4);
-  EXPECT_LT(translation, 3e-3);
+  EXPECT_THAT(fast_report.frame_from_world,
+              FramesFromWorldNear(dba_report.frame_from_world, 2e-4, 3e-3));
   EXPECT_NEAR(fast_report.final_cost, dba_report.final_cost, 1e-5 * dba_report.final_cost);
   for (int i = 1; i < 3; ++i) {
     EXPECT_NEAR(fast_report.photometric[i].log_gain, reference_report.photometric[i].log_gain,

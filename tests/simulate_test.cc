@@ -19,6 +19,8 @@
 #include "dsr/image/frame.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
+#include "dsr/tests/support/tolerances.h"
+#include "sanitizer.h"
 
 namespace dsr {
 namespace {
@@ -475,6 +477,8 @@ TEST(Simulate, LargerMotionsFitWhereTheHelpSaysTheyFit) {
     int phantom_size;
     double max_rotation_deg, max_translation_voxels;
   };
+  // Under the sanitizers 10 seeds: the same poses and checks, not the search for a rare one.
+  const uint64_t seeds = testing_support::FullUnlessSanitized<uint64_t>(200, 10);
   for (const Case& c : {Case{192, 45.0, 10.0}, Case{208, 25.0, 20.0}}) {
     ImageGeometry phantom;
     phantom.size = Eigen::Vector3i::Constant(c.phantom_size);
@@ -487,7 +491,7 @@ TEST(Simulate, LargerMotionsFitWhereTheHelpSaysTheyFit) {
       const ImageGeometry frame = SimulatedFrameGeometry(phantom, o);
       const std::vector<Eigen::Vector3d> corners =
           FieldOfViewCorners(PyramidFieldOfView(frame, o));
-      for (uint64_t seed = 1; seed <= 200; ++seed) {
+      for (uint64_t seed = 1; seed <= seeds; ++seed) {
         o.seed = seed;
         const std::vector<Eigen::Isometry3d> poses = SimulatedPoses(phantom, o);
         for (size_t f = 0; f < poses.size(); ++f) {
@@ -769,8 +773,11 @@ struct SmoothSource {
 
 TEST(Simulate, CubicFramesSampleASmoothSourceWithinTheDerivedBound) {
   const SmoothSource f;
-  for (const Eigen::Vector3d& spacing :
-       {Eigen::Vector3d(1.0, 1.0, 1.0), Eigen::Vector3d(1.0, 1.25, 0.8)}) {
+  std::vector<Eigen::Vector3d> spacings = {Eigen::Vector3d(1.0, 1.0, 1.0),
+                                           Eigen::Vector3d(1.0, 1.25, 0.8)};
+  // Under the sanitizers the anisotropic spacing only: the same code on half the voxels.
+  if (testing_support::kUnderAddressSanitizer) spacings.erase(spacings.begin());
+  for (const Eigen::Vector3d& spacing : spacings) {
     ImageGeometry g;
     g.size = Eigen::Vector3i(80, 80, 80);
     g.spacing_mm = spacing;
@@ -952,7 +959,7 @@ TEST(Simulate, ValidateRejectsNonsense) {
 // --- Ultrasound-like effects (docs/design.md section 6.6) ---
 
 // Float storage of frame values below ~400 (ulp <= 3e-5) and of the speckle field.
-constexpr double kFloatValueTolerance = 1e-3;
+using testing_tolerances::kFloatValueTolerance;
 
 SimulationOptions WithAllEffects(SimulationOptions o) {
   o.gain_range = 0.3;
@@ -1456,7 +1463,9 @@ TEST(SimulateWorldSpeckle, ZeroWorldFractionIsBitIdenticalToBefore) {
 }
 
 TEST(SimulateWorldSpeckle, WorldGridCoversEveryFieldOfViewOnTheWorldLattice) {
-  const ImageGeometry g = WorldSpeckleGrid();
+  // Under the sanitizers a 32^3 frame grid: the same rule checked on an eighth of the voxels.
+  ImageGeometry g = WorldSpeckleGrid();
+  g.size = Eigen::Vector3i::Constant(testing_support::FullUnlessSanitized(64, 32));
   const std::vector<Eigen::Isometry3d> poses = WorldSpecklePoses(g);
   for (const SimulationOptions& o : {WorldSpeckleOptions(1, 0.5), SmallOptions()}) {
     const ImageGeometry world = SpeckleWorldGrid(g, poses, o);

@@ -6,7 +6,7 @@
 #include <gtest/gtest.h>
 
 #include "dsr/tests/cli_run.h"
-#include "dsr/tests/scoped_temp_dir.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
 namespace {

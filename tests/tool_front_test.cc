@@ -3,8 +3,6 @@
 // line and exit 1, and dsr_fuse matches --poses to --images by name and writes k_j with
 // --out_count. Each case runs a built tool binary (paths set by CMake) and checks the exit
 // code, the single error line (it names the flag or file) and that nothing was written.
-#include <unistd.h>
-
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
@@ -18,6 +16,7 @@
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/observation.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
 #include "sanitizer.h"
 
 namespace dsr {
@@ -46,30 +45,28 @@ std::string Join(const std::vector<std::string>& items) {
 class ToolFront : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
-    root_ = new fs::path(fs::temp_directory_path() /
-                         ("dsr_tool_front_test_" + std::to_string(getpid())));
-    fs::remove_all(*root_);
-    fs::create_directories(*root_ / "in");
+    temp_ = new ScopedTempDir("dsr_tool_front_test");
+    fs::create_directories(Root() / "in");
     const ToolRun sim = RunTool(DSR_SIMULATE_BIN,
                                 "--out_dir=" + In("") +
                                     " --phantom_size=48 --frame_size=20,20,16 --num_frames=3 "
                                     "--max_rotation_deg=4 --max_translation_voxels=1 "
                                     "--min_depth_voxels=2 --sigma=5",
-                                *root_);
+                                Root());
     ASSERT_EQ(sim.exit_code, 0) << sim.err;
   }
   static void TearDownTestSuite() {
-    fs::remove_all(*root_);
-    delete root_;
+    delete temp_;
+    temp_ = nullptr;
   }
 
   void SetUp() override {
     const ::testing::TestInfo* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    out_ = *root_ / ("out_" + std::string(info->name()));
+    out_ = Root() / ("out_" + std::string(info->name()));
     fs::create_directories(out_);
   }
 
-  static std::string In(const std::string& name) { return (*root_ / "in" / name).string(); }
+  static std::string In(const std::string& name) { return (Root() / "in" / name).string(); }
   std::string Out(const std::string& name) const { return (out_ / name).string(); }
   static std::vector<std::string> FramePaths() {
     return {In("frame_00.nii.gz"), In("frame_01.nii.gz"), In("frame_02.nii.gz")};
@@ -86,7 +83,7 @@ class ToolFront : public ::testing::Test {
   ToolRun Fuse(const std::string& args, const std::string& prefix = "") const {
     return RunTool(prefix + DSR_FUSE_BIN,
                    "--images=" + Frames() + " --masks=" + Masks() + " " + args,
-                   *root_);
+                   Root());
   }
   // Files in the output folder that are not `kept` (inputs the test wrote there).
   std::vector<std::string> Written(const std::vector<std::string>& kept = {}) const {
@@ -111,11 +108,14 @@ class ToolFront : public ::testing::Test {
     }
   }
 
-  static fs::path* root_;
+  // The suite's folder: its inputs, and the work of each test.
+  static fs::path Root() { return temp_->dir(); }
+
+  static ScopedTempDir* temp_;
   fs::path out_;
 };
 
-fs::path* ToolFront::root_ = nullptr;
+ScopedTempDir* ToolFront::temp_ = nullptr;
 
 const std::vector<std::string>& AllTools() {
   static const std::vector<std::string> tools = {DSR_REGISTER_BIN, DSR_FUSE_BIN, DSR_SIMULATE_BIN,
@@ -131,9 +131,9 @@ TEST_F(ToolFront, FlagfileThatIncludesItselfIsRefused) {
   Write("b.flags", "--flagfile=" + a + "\n");
   for (const std::string& tool : AllTools()) {
     SCOPED_TRACE(tool);
-    ExpectOneError(RunTool(tool, "--flagfile=" + self, *root_), 2,
+    ExpectOneError(RunTool(tool, "--flagfile=" + self, Root()), 2,
                    {"self.flags", "includes itself"});
-    ExpectOneError(RunTool(tool, "--flagfile " + a, *root_), 2, {"a.flags -> ", "b.flags -> "});
+    ExpectOneError(RunTool(tool, "--flagfile " + a, Root()), 2, {"a.flags -> ", "b.flags -> "});
   }
   EXPECT_EQ(Written({"self.flags", "a.flags", "b.flags"}).size(), 0u);
 }
@@ -142,15 +142,15 @@ TEST_F(ToolFront, FlagfileThatIncludesItselfIsRefused) {
 TEST_F(ToolFront, UnknownFlagInFlagfileIsRefusedLikeOnTheCommandLine) {
   const std::string typo = Write("typo.flags", "--mode=ape\n\n# a comment\n--pyramid_level=1\n");
   const std::string args = "--images=" + Frames() + " --out_poses=" + Out("poses.json");
-  ExpectOneError(RunTool(DSR_REGISTER_BIN, args + " --flagfile=" + typo, *root_), 2,
+  ExpectOneError(RunTool(DSR_REGISTER_BIN, args + " --flagfile=" + typo, Root()), 2,
                  {"typo.flags", "line 4", "--pyramid_level"});
-  const ToolRun command_line = RunTool(DSR_REGISTER_BIN, args + " --pyramid_level=1", *root_);
+  const ToolRun command_line = RunTool(DSR_REGISTER_BIN, args + " --pyramid_level=1", Root());
   EXPECT_EQ(command_line.exit_code, 2);
   EXPECT_NE(command_line.err.find("pyramid_level"), std::string::npos) << command_line.err;
   // A string flag without a value would take the next line as its value.
   const std::string no_value = Write("no_value.flags", "--out_poses\n--mode=ape\n");
   ExpectOneError(
-      RunTool(DSR_REGISTER_BIN, "--images=" + Frames() + " --flagfile=" + no_value, *root_), 2,
+      RunTool(DSR_REGISTER_BIN, "--images=" + Frames() + " --flagfile=" + no_value, Root()), 2,
       {"no_value.flags", "line 1", "--out_poses"});
   EXPECT_EQ(Written({"typo.flags", "no_value.flags"}).size(), 0u);
 }
@@ -159,7 +159,7 @@ TEST_F(ToolFront, UnknownFlagInFlagfileIsRefusedLikeOnTheCommandLine) {
 TEST_F(ToolFront, FlagfileLineThatIsNoFlagIsRefused) {
   const std::string junk = Write("junk.flags", "dsr_simulate\n--num_frames=2\n");
   ExpectOneError(
-      RunTool(DSR_SIMULATE_BIN, "--out_dir=" + Out("sim") + " --flagfile=" + junk, *root_), 2,
+      RunTool(DSR_SIMULATE_BIN, "--out_dir=" + Out("sim") + " --flagfile=" + junk, Root()), 2,
       {"junk.flags", "line 1", "dsr_simulate"});
   EXPECT_FALSE(fs::exists(Out("sim")));
 }
@@ -182,7 +182,7 @@ TEST_F(ToolFront, FlagfileThatIsNoSmallRegularFileIsRefused) {
                                                         {huge, "bytes"}}) {
     SCOPED_TRACE(flagfile);
     const ToolRun run =
-        RunTool(limited, "--out_poses=" + Out("p.json") + " --flagfile=" + flagfile, *root_);
+        RunTool(limited, "--out_poses=" + Out("p.json") + " --flagfile=" + flagfile, Root());
     ExpectOneError(run, 2, {"--flagfile=" + flagfile, rule});
     EXPECT_EQ(run.error_lines[0].rfind("dsr_register: error: --flagfile=", 0), 0u)
         << run.error_lines[0];
@@ -202,7 +202,7 @@ TEST_F(ToolFront, FlagfileStillWorksAsDocumented) {
   const ToolRun run = RunTool(
       DSR_SIMULATE_BIN,
       "--num_frames=4 --flagfile=" + sim + " --num_frames=2 --out_dir=" + Out("seq"),
-      *root_);
+      Root());
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_TRUE(fs::exists(Out("seq/frame_01.nii.gz")));
   EXPECT_FALSE(fs::exists(Out("seq/frame_02.nii.gz"))) << "--num_frames=2 after the flagfile wins";
@@ -215,7 +215,7 @@ TEST_F(ToolFront, SimulateRefusesFramesThatCannotFitInMemory) {
   const ToolRun run = RunTool(
       "ulimit -v " + std::to_string(kAddressSpaceKiB) + "; exec " + std::string(DSR_SIMULATE_BIN),
       "--out_dir=" + Out("s10") + " --frame_size=2048,2048,2048 --num_frames=2 --phantom_size=16",
-      *root_);
+      Root());
   ExpectOneError(run, 2, {"--frame_size=2048,2048,2048", "needs about", "GiB"});
   EXPECT_EQ(Written().size(), 0u);
 }
@@ -238,7 +238,7 @@ TEST_F(ToolFront, RegisterRefusesPanoramaThatCannotFitInMemory) {
       "ulimit -v 1500000; exec " + std::string(DSR_REGISTER_BIN),
       "--images=" + Frames() + " --masks=" + Masks() + " --out_poses=" + Out("p.json") +
           " --panorama_spacing=0.02 --pyramid_levels=1 --progress=false",
-      *root_);
+      Root());
   ExpectOneError(run, 2, {"--panorama_spacing=0.02", "needs about"});
   EXPECT_EQ(Written().size(), 0u);
 }
@@ -335,16 +335,16 @@ TEST_F(ToolFront, FrameLimitNamesImagesAndIsDocumented) {
   ExpectOneError(
       RunTool(DSR_REGISTER_BIN,
               "--images=" + Join(images) + " --out_poses=" + Out("p.json"),
-              *root_),
+              Root()),
       2, {"--images", limit, got});
   const std::string poses = Write("poses.json", R"({"frames":[]})");
   ExpectOneError(RunTool(DSR_FUSE_BIN,
                          "--images=" + Join(images) + " --poses=" + poses + " --out=" +
                              Out("p.nii.gz"),
-                         *root_),
+                         Root()),
                  2, {"--images", limit, got});
   for (const char* tool : {DSR_REGISTER_BIN, DSR_FUSE_BIN}) {
-    const ToolRun help = RunTool(tool, "--helpshort", *root_);
+    const ToolRun help = RunTool(tool, "--helpshort", Root());
     EXPECT_EQ(help.exit_code, 0);
     EXPECT_NE(help.out.find("most 32"), std::string::npos) << help.out;
   }
@@ -358,7 +358,7 @@ TEST_F(ToolFront, CommaInFileNameIsExplainedAndListFileTakesIt) {
   fs::copy_file(In("frame_01.nii.gz"), comma);
   const std::string args = " --poses=" + In("gt_poses.json") + " --out=" + Out("p.nii.gz");
   ExpectOneError(
-      RunTool(DSR_FUSE_BIN, "--images=" + In("frame_00.nii.gz") + "," + comma + args, *root_), 2,
+      RunTool(DSR_FUSE_BIN, "--images=" + In("frame_00.nii.gz") + "," + comma + args, Root()), 2,
       {"--images", "split at commas", "@LIST"});
   const std::string list = Write("list.txt", "# frames\n" + In("frame_00.nii.gz") + "\n" + comma +
                                                  "\n\n" + In("frame_02.nii.gz") + "\n");
@@ -370,10 +370,10 @@ TEST_F(ToolFront, CommaInFileNameIsExplainedAndListFileTakesIt) {
   const ToolRun run = RunTool(
       DSR_FUSE_BIN,
       "--images=@" + list + " --poses=" + Out("unnamed.json") + " --out=" + Out("p.nii.gz"),
-      *root_);
+      Root());
   EXPECT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.out.find("3 frames"), std::string::npos) << run.out;
-  ExpectOneError(RunTool(DSR_FUSE_BIN, "--images=@" + Out("nolist.txt") + args, *root_), 2,
+  ExpectOneError(RunTool(DSR_FUSE_BIN, "--images=@" + Out("nolist.txt") + args, Root()), 2,
                  {"--images=@" + Out("nolist.txt"), "no such file"});
 }
 
@@ -384,10 +384,10 @@ TEST_F(ToolFront, FrameSpacingIsValidatedUpFront) {
     ExpectOneError(RunTool(DSR_SIMULATE_BIN,
                            "--out_dir=" + Out("s4") + " --frame_size=24,24,20 --num_frames=2 "
                            "--phantom_size=64 --frame_spacing=" + spacing,
-                           *root_),
+                           Root()),
                    2, {"--frame_spacing=" + spacing});
     ExpectOneError(
-        RunTool(DSR_COMPARE_BIN, "--out_dir=" + Out("c4") + " --frame_spacing=" + spacing, *root_),
+        RunTool(DSR_COMPARE_BIN, "--out_dir=" + Out("c4") + " --frame_spacing=" + spacing, Root()),
         2, {"--frame_spacing=" + spacing});
   }
   EXPECT_EQ(Written().size(), 0u);
@@ -400,14 +400,14 @@ TEST_F(ToolFront, BadInputCreatesNoOutputFolder) {
       "--images=" + In("frame_00.nii.gz") + "," + In("missing.nii.gz") + " --out_poses=" +
           Out("p.json") + " --out_tfm_dir=" + Out("tfm") + " --report_dir=" + Out("report") +
           " --out_resampled_dir=" + Out("resampled"),
-      *root_);
+      Root());
   ExpectOneError(run, 2, {"--images", "missing.nii.gz"});
   const ToolRun corrupt = RunTool(
       DSR_REGISTER_BIN,
       "--images=" + In("frame_00.nii.gz") + "," + Write("corrupt.nii.gz", "not an image") +
           " --out_poses=" + Out("p.json") + " --out_tfm_dir=" + Out("tfm") + " --report_dir=" +
           Out("report"),
-      *root_);
+      Root());
   ExpectOneError(corrupt, 2, {"corrupt.nii.gz"});
   EXPECT_EQ(Written({"corrupt.nii.gz"}).size(), 0u);
 }
@@ -419,7 +419,7 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
   ExpectOneError(RunTool(DSR_REGISTER_BIN,
                          "--images=" + Frames() + " --out_poses=" + Out("ape.json") +
                              " --mode=ape --uncertainty",
-                         *root_),
+                         Root()),
                  2, {"--uncertainty", "--mode=ape"});
   EXPECT_FALSE(fs::exists(Out("ape.json")));
   // A sequence with enough overlap for the estimate (2 cubes of 8^3 per free parameter).
@@ -427,7 +427,7 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
   ASSERT_EQ(RunTool(DSR_SIMULATE_BIN,
                     "--out_dir=" + seq + " --phantom_size=96 --frame_size=40,40,32 "
                     "--num_frames=3 --max_rotation_deg=3 --max_translation_voxels=2 --sigma=5",
-                    *root_)
+                    Root())
                 .exit_code,
             0);
   const std::string frames = Join({seq + "/frame_00.nii.gz", seq + "/frame_01.nii.gz",
@@ -435,7 +435,7 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
   const ToolRun run = RunTool(DSR_REGISTER_BIN,
                               "--images=" + frames + " --out_poses=" + Out("p.json") +
                                   " --uncertainty --progress=false --report_dir=" + Out("report"),
-                              *root_);
+                              Root());
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.out.find("dsr_register: pose uncertainty (noise only"), std::string::npos)
       << run.out;
@@ -469,7 +469,7 @@ TEST_F(ToolFront, RegisterUncertaintyIsWrittenWhereAsked) {
   const ToolRun fuse = RunTool(DSR_FUSE_BIN,
                                "--images=" + frames + " --poses=" + Out("p.json") + " --out=" +
                                    Out("fused.nii.gz"),
-                               *root_);
+                               Root());
   EXPECT_EQ(fuse.exit_code, 0) << fuse.err;
 }
 

@@ -1,7 +1,8 @@
-// A fresh, private folder under testing::TempDir() for one test, removed with its contents
-// when the object goes out of scope. Used by the IO tests so they never share files.
-#ifndef DSR_TESTS_SCOPED_TEMP_DIR_H_
-#define DSR_TESTS_SCOPED_TEMP_DIR_H_
+// A fresh, private folder under testing::TempDir() (mkdtemp) for one test or one test
+// suite, removed with its contents when the object goes out of scope. Every test that
+// writes files uses one, so tests never share files and nothing is left behind.
+#ifndef DSR_TESTS_SUPPORT_SCOPED_TEMP_DIR_H_
+#define DSR_TESTS_SUPPORT_SCOPED_TEMP_DIR_H_
 
 #include <stdlib.h>
 
@@ -17,8 +18,12 @@ namespace dsr {
 
 class ScopedTempDir {
  public:
-  ScopedTempDir() {
-    std::string pattern = ::testing::TempDir() + "/dsr_io_XXXXXX";
+  // The folder is <TempDir>/<prefix>_XXXXXX: the prefix says which test left a folder
+  // behind after a crash.
+  explicit ScopedTempDir(const std::string& prefix = "dsr_test") {
+    std::string root = ::testing::TempDir();
+    while (root.size() > 1 && root.back() == '/') root.pop_back();
+    std::string pattern = root + "/" + prefix + "_XXXXXX";
     if (::mkdtemp(pattern.data()) == nullptr) {
       ADD_FAILURE() << "mkdtemp failed for " << pattern;
     }
@@ -26,6 +31,7 @@ class ScopedTempDir {
   }
   ~ScopedTempDir() {
     std::error_code ignored;
+    // Tests may have made the folder read-only; its owner may always remove it again.
     std::filesystem::permissions(
         path_, std::filesystem::perms::owner_all, std::filesystem::perm_options::add, ignored);
     std::filesystem::remove_all(path_, ignored);
@@ -34,6 +40,8 @@ class ScopedTempDir {
   ScopedTempDir& operator=(const ScopedTempDir&) = delete;
 
   const std::string& path() const { return path_; }
+  // The folder as a std::filesystem::path, to build paths with `/`.
+  std::filesystem::path dir() const { return path_; }
   std::string File(const std::string& name) const { return path_ + "/" + name; }
 
   // Names of the entries in the folder (hidden ones included), sorted.
@@ -52,4 +60,4 @@ class ScopedTempDir {
 
 }  // namespace dsr
 
-#endif  // DSR_TESTS_SCOPED_TEMP_DIR_H_
+#endif  // DSR_TESTS_SUPPORT_SCOPED_TEMP_DIR_H_
