@@ -74,45 +74,34 @@ DbaOptions ToDbaOptions(const RegistrationOptions& options, const SolveOptions& 
 }
 
 LevelSolver MakeLevelSolver(const RegistrationOptions& options) {
-  // The solvers copy what they need of `options` (the returned function may outlive it).
-  switch (options.mode) {
-    case Mode::kDsr:
-      return [options](const SolveOptions& solve, const std::vector<Frame>& frames,
-                       const CandidateSet& candidates, const std::vector<Eigen::Isometry3d>& initial,
-                       const std::vector<Photometric>& photometric, SolveReport* report,
-                       std::vector<float>*, std::string* error) {
+  // The solver copies `options` (the returned function may outlive it).
+  return [options](const SolveOptions& solve, const std::vector<Frame>& frames,
+                   const CandidateSet& candidates, const std::vector<Eigen::Isometry3d>& initial,
+                   const std::vector<Photometric>& photometric, SolveReport* report,
+                   std::vector<float>* dba_intensities, std::string* error) {
+    switch (options.mode) {
+      case Mode::kDsr: {
         DsrOptions dsr = ToDsrOptions(options, solve);
         if (dsr.photometric) dsr.initial_photometric = photometric;
         return SolveDsr(frames, candidates, initial, dsr, report, error);
-      };
-    case Mode::kDba:
-      return [options](const SolveOptions& solve, const std::vector<Frame>& frames,
-                       const CandidateSet& candidates, const std::vector<Eigen::Isometry3d>& initial,
-                       const std::vector<Photometric>& photometric, SolveReport* report,
-                       std::vector<float>* dba_intensities, std::string* error) {
+      }
+      case Mode::kDba: {
         DbaOptions dba = ToDbaOptions(options, solve);
         if (dba.photometric) dba.initial_photometric = photometric;
         return SolveDba(frames, candidates, initial, dba, report, dba_intensities, error);
-      };
-    default:
-      break;
-  }
-  const Mode mode = options.mode;
-  return [options, mode](const SolveOptions& solve, const std::vector<Frame>& frames,
-                         const CandidateSet& candidates,
-                         const std::vector<Eigen::Isometry3d>& initial,
-                         const std::vector<Photometric>&, SolveReport* report,
-                         std::vector<float>*, std::string* error) {
-    const BaselineOptions baseline = ToBaselineOptions(options, solve);
-    switch (mode) {
-      case Mode::kApe: return SolveApe(frames, candidates, initial, baseline, report, error);
-      case Mode::kPairwise: return SolvePairwise(frames, initial, baseline, report, error);
+      }
+      case Mode::kApe:
+        return SolveApe(frames, candidates, initial, ToBaselineOptions(options, solve), report,
+                        error);
+      case Mode::kPairwise:
+        return SolvePairwise(frames, initial, ToBaselineOptions(options, solve), report, error);
       case Mode::kLieNormalization:
-        return SolveLieNormalization(frames, candidates, initial, baseline, report, error);
-      case Mode::kSequential: return SolveSequential(frames, initial, baseline, report, error);
-      default: break;
+        return SolveLieNormalization(frames, candidates, initial,
+                                     ToBaselineOptions(options, solve), report, error);
+      case Mode::kSequential:
+        return SolveSequential(frames, initial, ToBaselineOptions(options, solve), report, error);
     }
-    LOG(FATAL) << "no solver for mode " << ModeToString(mode);
+    LOG(FATAL) << "no solver for mode " << static_cast<int>(options.mode);
     return false;
   };
 }

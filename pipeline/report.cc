@@ -355,6 +355,19 @@ std::string ReportIndex(const ReportInputs& in, const std::string& pair_picture)
 
 }  // namespace
 
+PosesFile ResultPoses(const RegistrationResult& result, const std::vector<std::string>& image_names) {
+  PosesFile poses;
+  poses.images = image_names;
+  poses.frame_from_world = result.frame_from_world;
+  if (!result.uncertainty.covariance.empty()) {
+    poses.covariance = result.uncertainty.covariance;
+    poses.predicted_tre_mm = result.uncertainty.predicted_tre_mm;
+  }
+  // The pipeline's gains and offsets are relative to frame 0, as the file's are.
+  PhotometricToPoses(result.photometric, &poses);
+  return poses;
+}
+
 bool WriteReport(const std::string& dir,
                  const ReportInputs& in,
                  std::string* index_path,
@@ -380,15 +393,7 @@ bool WriteReport(const std::string& dir,
       !WritePng(RenderConvergence(r.solves), file("convergence.png"), error)) {
     return false;
   }
-  PosesFile poses;
-  poses.images = in.image_names;
-  poses.frame_from_world = r.frame_from_world;
-  if (!r.uncertainty.covariance.empty()) {
-    poses.covariance = r.uncertainty.covariance;
-    poses.predicted_tre_mm = r.uncertainty.predicted_tre_mm;
-  }
-  PhotometricToPoses(r.photometric, &poses);
-  if (!WritePoses(poses, file("poses.json"), error)) return false;
+  if (!WritePoses(ResultPoses(r, in.image_names), file("poses.json"), error)) return false;
   for (int i = 0; i < m; ++i) {
     if (!WriteItkTransform(r.frame_from_world[i], file(names[4 + i]), error)) return false;
   }

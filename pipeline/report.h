@@ -71,6 +71,10 @@ struct ReportInputs {
 // corrected intensity gain * I_i + offset on frame 0's scale (io/io_poses.h).
 void PhotometricToPoses(const std::vector<Photometric>& photometric, PosesFile* poses);
 
+// The poses file of a registration: its poses under `image_names`, the pose covariance and
+// predicted TRE when estimated, and the gains and offsets when estimated.
+PosesFile ResultPoses(const RegistrationResult& result, const std::vector<std::string>& image_names);
+
 // The files WriteReport writes, relative to its folder, in the order it writes them (the
 // tools plan their outputs with it): panorama_slices.png, pair_AA_BB.png, convergence.png,
 // poses.json, transforms/frame_XX.tfm for each of `num_frames` frames, index.md.

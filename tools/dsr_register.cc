@@ -364,11 +364,13 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
   if (!FLAGS_gt_poses.empty()) {
     written->gt_errors = dsr::ComparePoses(result.frame_from_world, gt.frame_from_world, masks);
   }
+  std::vector<std::string> image_names;
+  for (const std::string& p : in.image_paths) {
+    image_names.push_back(std::filesystem::path(p).filename().string());
+  }
   if (!FLAGS_report_dir.empty()) {
     dsr::ReportInputs report;
-    for (const std::string& p : in.image_paths) {
-      report.image_names.push_back(std::filesystem::path(p).filename().string());
-    }
+    report.image_names = image_names;
     report.frames = frames;
     report.initial = result.init_frame_from_world.empty() ? dsr::RelativeToFrame0(initial)
                                                           : result.init_frame_from_world;
@@ -381,18 +383,7 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
     report.mode = dsr::ModeToString(options.mode);
     if (!dsr::WriteReport(FLAGS_report_dir, report, &written->report_index, error)) return false;
   }
-  dsr::PosesFile out;
-  out.frame_from_world = result.frame_from_world;
-  for (const std::string& p : in.image_paths) {
-    out.images.push_back(std::filesystem::path(p).filename().string());
-  }
-  if (!result.uncertainty.covariance.empty()) {
-    out.covariance = result.uncertainty.covariance;
-    out.predicted_tre_mm = result.uncertainty.predicted_tre_mm;
-  }
-  // The pipeline's gains and offsets are relative to frame 0, as the file's are.
-  dsr::PhotometricToPoses(result.photometric, &out);
-  return dsr::WritePoses(out, FLAGS_out_poses, error);
+  return dsr::WritePoses(dsr::ResultPoses(result, image_names), FLAGS_out_poses, error);
 }
 
 void PrintSummary(const dsr::RegistrationOptions& options, const dsr::RegistrationResult& result,
