@@ -5,7 +5,6 @@
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
-#include <set>
 #include <sstream>
 
 #include <gflags/gflags.h>
@@ -51,24 +50,8 @@ int Main(int argc, char** argv) {
   using dsr::Fail;
   std::string error;
   std::vector<std::string> image_paths, mask_paths;
-  if (!dsr::ParseInputList("images", FLAGS_images, &image_paths, &error) ||
-      !dsr::ParseInputList("masks", FLAGS_masks, &mask_paths, &error)) {
-    return Fail(error);
-  }
+  if (!dsr::FrameFilesFromFlags(1, &image_paths, &mask_paths, &error)) return Fail(error);
   const int m = static_cast<int>(image_paths.size());
-  if (m < 1) return Fail("--images: no image given");
-  if (m > dsr::kMaxFrames) {
-    return Fail("--images: at most " + std::to_string(dsr::kMaxFrames) + " frames, got " +
-                std::to_string(m));
-  }
-  if (!mask_paths.empty() && static_cast<int>(mask_paths.size()) != m) {
-    return Fail("--masks: " + std::to_string(mask_paths.size()) + " masks for " +
-                std::to_string(m) + " images");
-  }
-  std::set<std::string> unique;
-  for (const std::string& p : image_paths) {
-    if (!unique.insert(dsr::CanonicalPath(p)).second) return Fail("--images: " + p + " is given twice");
-  }
   for (const auto& [flag, path] : {std::pair<std::string, std::string>{"out", FLAGS_out},
                                    {"out_count", FLAGS_out_count}}) {
     if (!path.empty() && !dsr::HasSupportedImageExtension(path)) {

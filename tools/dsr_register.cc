@@ -7,7 +7,6 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
-#include <set>
 #include <tuple>
 
 #include <gflags/gflags.h>
@@ -156,20 +155,8 @@ struct Inputs {
 };
 
 bool ParseInputs(Inputs* in, std::string* error) {
-  if (!dsr::ParseInputList("images", FLAGS_images, &in->image_paths, error) ||
-      !dsr::ParseInputList("masks", FLAGS_masks, &in->mask_paths, error)) {
-    return false;
-  }
+  if (!dsr::FrameFilesFromFlags(2, &in->image_paths, &in->mask_paths, error)) return false;
   const int m = static_cast<int>(in->image_paths.size());
-  if (m < 2) {
-    *error = "--images: need at least 2 images, got " + std::to_string(m);
-    return false;
-  }
-  if (m > dsr::kMaxFrames) {
-    *error = "--images: at most " + std::to_string(dsr::kMaxFrames) + " frames, got " +
-             std::to_string(m);
-    return false;
-  }
   for (const auto& [flag, text, list] :
        {std::tuple<const char*, std::string, std::vector<int>*>{"report_frames", FLAGS_report_frames, &in->outlined},
         {"report_pair", FLAGS_report_pair, &in->pair}}) {
@@ -190,18 +177,6 @@ bool ParseInputs(Inputs* in, std::string* error) {
   if (in->pair.size() != 2 || in->pair[0] == in->pair[1]) {
     *error = "--report_pair=" + FLAGS_report_pair + ": must be two different frame indices 'a,b'";
     return false;
-  }
-  if (!in->mask_paths.empty() && static_cast<int>(in->mask_paths.size()) != m) {
-    *error = "--masks: " + std::to_string(in->mask_paths.size()) + " masks for " +
-             std::to_string(m) + " images";
-    return false;
-  }
-  std::set<std::string> unique_images;
-  for (const std::string& p : in->image_paths) {
-    if (!unique_images.insert(dsr::CanonicalPath(p)).second) {
-      *error = "--images: " + p + " is given twice";
-      return false;
-    }
   }
   if (!FLAGS_out_panorama.empty() && !dsr::HasSupportedImageExtension(FLAGS_out_panorama)) {
     *error = "--out_panorama=" + FLAGS_out_panorama +

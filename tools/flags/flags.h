@@ -16,6 +16,7 @@
 #define DSR_TOOLS_FLAGS_FLAGS_H_
 
 #include <string>
+#include <vector>
 
 #include <gflags/gflags.h>
 
@@ -101,6 +102,14 @@ void SetFlagDefault(const char* flag, const std::string& value);
 
 // Whether the flag kept its default (not given on the command line or in a flagfile).
 bool FlagIsDefault(const char* flag);
+
+// The files of --images and --masks: parsed (ParseInputList), between min_frames and
+// kMaxFrames images, one mask per image or none, no image given twice. False with a
+// one-line `error` naming the flag.
+bool FrameFilesFromFlags(int min_frames,
+                         std::vector<std::string>* image_paths,
+                         std::vector<std::string>* mask_paths,
+                         std::string* error);
 
 // --blend: the panorama's fusion, and whether it is feathered.
 bool FeatherBlend();

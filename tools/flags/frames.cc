@@ -1,6 +1,7 @@
 // The frames a registration or a fusion reads, and how the panorama blends them
 // (tools/flags/flags.h).
 #include <cmath>
+#include <set>
 
 #include "dsr/tools/flags/flags.h"
 #include "dsr/tools/tool_util.h"
@@ -30,5 +31,42 @@ DEFINE_validator(blend, &ValidateBlend);
 DEFINE_validator(feather_voxels, &ValidateFeatherVoxels);
 
 namespace dsr {
+
+bool FrameFilesFromFlags(int min_frames,
+                         std::vector<std::string>* image_paths,
+                         std::vector<std::string>* mask_paths,
+                         std::string* error) {
+  if (!ParseInputList("images", FLAGS_images, image_paths, error) ||
+      !ParseInputList("masks", FLAGS_masks, mask_paths, error)) {
+    return false;
+  }
+  const int m = static_cast<int>(image_paths->size());
+  if (m < min_frames) {
+    *error = m == 0 && min_frames == 1 ? "--images: no image given"
+                                       : "--images: need at least " + std::to_string(min_frames) +
+                                             " images, got " + std::to_string(m);
+    return false;
+  }
+  if (m > kMaxFrames) {
+    *error = "--images: at most " + std::to_string(kMaxFrames) + " frames, got " +
+             std::to_string(m);
+    return false;
+  }
+  if (!mask_paths->empty() && static_cast<int>(mask_paths->size()) != m) {
+    *error = "--masks: " + std::to_string(mask_paths->size()) + " masks for " +
+             std::to_string(m) + " images";
+    return false;
+  }
+  std::set<std::string> unique;
+  for (const std::string& p : *image_paths) {
+    if (!unique.insert(CanonicalPath(p)).second) {
+      *error = "--images: " + p + " is given twice";
+      return false;
+    }
+  }
+  return true;
+}
+
 bool FeatherBlend() { return FLAGS_blend == "feather"; }
+
 }  // namespace dsr
