@@ -55,13 +55,13 @@ void AccumulateApeSystem(const std::vector<Frame>& frames,
                          int64_t begin,
                          int64_t end,
                          bool with_jacobian,
-                         int num_threads,
+                         const StreamContext& context,
                          NormalEquations* out,
                          bool batched_hessian) {
   ApeVoxelTerm term;
   term.batched_hessian = batched_hessian;
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, term, out);
+                        context, term, out);
 }
 
 ApeChunkCost::ApeChunkCost(const std::vector<Frame>* frames,
@@ -69,20 +69,20 @@ ApeChunkCost::ApeChunkCost(const std::vector<Frame>* frames,
                            const Eigen::Isometry3d& frame0_from_world,
                            int64_t begin,
                            int64_t end,
-                           int num_threads)
+                           const StreamContext& context)
     : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world),
       frames_(frames),
       candidates_(candidates),
       begin_(begin),
       end_(end),
-      num_threads_(num_threads) {}
+      context_(context) {}
 
 void ApeChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
                               const std::vector<Photometric>& /*photometric: none*/,
                               bool with_jacobian,
                               NormalEquations* out) const {
   AccumulateApeSystem(*frames_, *candidates_, frame_from_world, begin_, end_, with_jacobian,
-                      num_threads_, out);
+                      context_, out);
 }
 
 VoxelApeCost::VoxelApeCost(std::vector<const Frame*> observers,
@@ -135,12 +135,12 @@ bool SolveApe(const std::vector<Frame>& frames,
               const BaselineOptions& options,
               SolveReport* report,
               std::string* error) {
-  const int threads = options.solve.num_threads;
+  const StreamContext context = StreamContextFor(options.solve);
   const Eigen::Isometry3d frame0 = initial_frame_from_world[0];
   return SolveStreamedPoses(
       frames, initial_frame_from_world, candidates.num_voxels(), options.num_chunks,
       [&](int64_t begin, int64_t end) {
-        return new ApeChunkCost(&frames, &candidates, frame0, begin, end, threads);
+        return new ApeChunkCost(&frames, &candidates, frame0, begin, end, context);
       },
       options.solve, "ape", report, error);
 }

@@ -61,7 +61,7 @@ void AccumulateApeSystem(const std::vector<Frame>& frames,
                          int64_t begin,
                          int64_t end,
                          bool with_jacobian,
-                         int num_threads,
+                         const StreamContext& context,
                          NormalEquations* out,
                          bool batched_hessian = false);
 
@@ -73,7 +73,7 @@ class ApeChunkCost final : public StreamedPoseCost {
                const Eigen::Isometry3d& frame0_from_world,
                int64_t begin,
                int64_t end,
-               int num_threads);
+               const StreamContext& context);
 
  private:
   void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -83,7 +83,7 @@ class ApeChunkCost final : public StreamedPoseCost {
   const std::vector<Frame>* frames_;  // not owned
   const CandidateSet* candidates_;    // not owned
   int64_t begin_, end_;
-  int num_threads_;
+  StreamContext context_;
 };
 
 // Reference (slow twin): one residual a_i - a_k per candidate pair of one voxel, through

@@ -73,13 +73,13 @@ class PairMeanSquaresCost final : public StreamedPoseCost {
                       const Eigen::Isometry3d& fixed_from_world,
                       int64_t begin,
                       int64_t end,
-                      int num_threads)
+                      const StreamContext& context)
       : StreamedPoseCost(2, fixed_from_world),
         pair_(pair),
         candidates_(candidates),
         begin_(begin),
         end_(end),
-        num_threads_(num_threads) {}
+        context_(context) {}
 
  private:
   void Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -87,7 +87,7 @@ class PairMeanSquaresCost final : public StreamedPoseCost {
                   bool with_jacobian,
                   NormalEquations* out) const override {
     AccumulateApeSystem(*pair_, *candidates_, frame_from_world, begin_, end_, with_jacobian,
-                        num_threads_, out);
+                        context_, out);
     if (out->observations == 0) return;
     const double scale = 1.0 / static_cast<double>(out->observations);
     out->cost *= scale;
@@ -100,7 +100,7 @@ class PairMeanSquaresCost final : public StreamedPoseCost {
   const std::vector<Frame>* pair_;
   const CandidateSet* candidates_;
   int64_t begin_, end_;
-  int num_threads_;
+  StreamContext context_;
 };
 
 BaselineOptions WithPrefix(const BaselineOptions& options, const std::string& prefix) {
@@ -154,13 +154,13 @@ bool RegisterPair(const Frame& fixed,
              std::to_string(options.min_shared_voxels);
     return false;
   }
-  const int threads = options.solve.num_threads;
+  const StreamContext context = StreamContextFor(options.solve);
   // One block: the mean is over the whole overlap.
   if (!SolveStreamedPoses(
           pair, poses, candidates.num_voxels(), 1,
           [&](int64_t begin, int64_t end) {
             return new PairMeanSquaresCost(&pair, &candidates, fixed_from_world, begin, end,
-                                           threads);
+                                           context);
           },
           options.solve, "pair", report, error)) {
     return false;

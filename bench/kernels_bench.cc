@@ -32,6 +32,9 @@
 namespace dsr {
 namespace {
 
+// `n` threads with the default (widest) kernels.
+StreamContext Threads(int64_t n) { return {static_cast<int>(n), KernelPath::kAuto}; }
+
 struct Problem {
   std::vector<Frame> frames;
   std::vector<Eigen::Isometry3d> poses;
@@ -101,7 +104,7 @@ void BM_DsrEvaluation(benchmark::State& state) {
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
-                            state.range(0) != 0, static_cast<int>(state.range(1)), &system);
+                            state.range(0) != 0, Threads(state.range(1)), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -121,7 +124,7 @@ void BM_DsrPhotometricEvaluation(benchmark::State& state) {
   for (auto _ : state) {
     AccumulateReducedPhotometricSystem(p.frames, p.candidates, p.poses, photometric, 0,
                                        p.candidates.num_voxels(), state.range(0) != 0,
-                                       static_cast<int>(state.range(1)), &system);
+                                       Threads(state.range(1)), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -136,7 +139,7 @@ void BM_ApeEvaluation(benchmark::State& state) {
   NormalEquations system;
   for (auto _ : state) {
     AccumulateApeSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
-                        state.range(0) != 0, static_cast<int>(state.range(1)), &system);
+                        state.range(0) != 0, Threads(state.range(1)), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -149,8 +152,8 @@ void BM_ApeEvaluationBatchedHessian(benchmark::State& state) {
   const Problem& p = Paper();
   NormalEquations system;
   for (auto _ : state) {
-    AccumulateApeSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), true, 2,
-                        &system, /*batched_hessian=*/true);
+    AccumulateApeSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), true,
+                        Threads(2), &system, /*batched_hessian=*/true);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -171,19 +174,16 @@ void BM_GaussNewtonBatch(benchmark::State& state) {
   const std::vector<PosedFrame> posed = PoseFrames(p.frames, p.poses);
   const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
   const int64_t end = p.candidates.num_voxels();
-  SampleVoxelBatch(posed, p.candidates, end / 2, end, true, batch.get());
+  SampleVoxelBatch(path, posed, p.candidates, end / 2, end, true, batch.get());
   for (int o = 0; o < batch->num_observations; ++o) batch->residual[o] = batch->value[o];
   HessianWeights weights[kMaxFrames + 1];
   for (int k = 2; k <= kMaxFrames; ++k) weights[k] = {1.0, -1.0 / k};
   const int n = 6 * static_cast<int>(p.frames.size());
   std::vector<double> h(static_cast<size_t>(n) * n, 0.0), g(n, 0.0);
-  const KernelPath saved = ActiveKernelPath();
-  SetKernelPath(path);
   for (auto _ : state) {
-    AddBatchHessian(*batch, weights, h.data(), n, g.data());
+    AddBatchHessian(path, *batch, weights, h.data(), n, g.data());
     benchmark::DoNotOptimize(h.data());
   }
-  SetKernelPath(saved);
   SetObservationCounter(state, batch->num_observations);
   state.counters["voxels"] = batch->num_voxels;
 }
@@ -200,15 +200,12 @@ void DsrEvaluationOnPath(benchmark::State& state, KernelPath path) {
     return;
   }
   const Problem& p = Paper();
-  const KernelPath saved = ActiveKernelPath();
-  SetKernelPath(path);
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
-                            state.range(0) != 0, 2, &system);
+                            state.range(0) != 0, StreamContext{2, path}, &system);
     benchmark::DoNotOptimize(system.cost);
   }
-  SetKernelPath(saved);
   SetObservationCounter(state, system.observations);
 }
 
@@ -228,7 +225,7 @@ void BM_DsrEvaluationFrames(benchmark::State& state) {
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p->frames, p->candidates, p->poses, 0, p->candidates.num_voxels(),
-                            true, 2, &system);
+                            true, Threads(2), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -248,7 +245,7 @@ void BM_DsrEvaluationClinical(benchmark::State& state) {
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(),
-                            state.range(0) != 0, 2, &system);
+                            state.range(0) != 0, Threads(2), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);
@@ -284,8 +281,8 @@ void BM_DbaEvaluation(benchmark::State& state) {
     benchmark::DoNotOptimize(cost);
   }
   NormalEquations counts;
-  AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), false, 2,
-                          &counts);
+  AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), false,
+                          Threads(2), &counts);
   SetObservationCounter(state, counts.observations);
 }
 BENCHMARK(BM_DbaEvaluation)->Unit(benchmark::kMillisecond)->UseRealTime();
@@ -295,7 +292,7 @@ void BM_DsrEvaluationSmall(benchmark::State& state) {
   NormalEquations system;
   for (auto _ : state) {
     AccumulateReducedSystem(p.frames, p.candidates, p.poses, 0, p.candidates.num_voxels(), true,
-                            2, &system);
+                            Threads(2), &system);
     benchmark::DoNotOptimize(system.cost);
   }
   SetObservationCounter(state, system.observations);

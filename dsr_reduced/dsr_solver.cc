@@ -116,7 +116,8 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   for (int64_t c = 0; c < chunks; ++c) {
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
-                                       options.solve.num_threads, options.photometric, weights);
+                                       StreamContextFor(options.solve), options.photometric,
+                                       weights);
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -213,7 +214,8 @@ bool SolveOnce(const std::vector<Frame>& frames,
   if (report->observations_per_iteration < 0) {  // reference cost: count once (small problems)
     ReducedSystem counts;
     AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,
-                            candidates.num_voxels(), false, options.solve.num_threads, &counts);
+                            candidates.num_voxels(), false, StreamContextFor(options.solve),
+                            &counts);
     report->observations_per_iteration = counts.observations;
   }
   return true;
@@ -227,7 +229,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
                      SolveReport* report,
                      std::string* error) {
   const int m = static_cast<int>(frames.size());
-  const int threads = options.solve.num_threads;
+  const StreamContext context = StreamContextFor(options.solve);
   std::vector<Eigen::Isometry3d> poses = initial_frame_from_world;
   std::vector<Photometric> photometric;
   if (options.photometric) {
@@ -236,7 +238,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   }
   ObservationWeights weights(candidates);
   ReweightStats stats;
-  UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, threads, &weights,
+  UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
                            &stats);
   *report = SolveReport();
   report->initial_cost = 0.5 * stats.robust_cost;
@@ -274,7 +276,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
     }
     poses = part.frame_from_world;
     if (options.photometric) photometric = part.photometric;
-    UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, threads,
+    UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, context,
                              &weights, &stats);
     if (tolerance > 0.0 ? motion < tolerance
                         : (stats.max_weight_change <= kWeightChangeTolerance || motion == 0.0)) {

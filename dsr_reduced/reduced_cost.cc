@@ -398,14 +398,14 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              int64_t begin,
                              int64_t end,
                              bool with_jacobian,
-                             int num_threads,
+                             const StreamContext& context,
                              ReducedSystem* out,
                              bool batched_hessian) {
   DsrVoxelTerm term;
   term.batched_hessian = batched_hessian;
   term.batched_gradient = batched_hessian;
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, term, out);
+                        context, term, out);
 }
 
 void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
@@ -415,7 +415,7 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
                                         int64_t begin,
                                         int64_t end,
                                         bool with_jacobian,
-                                        int num_threads,
+                                        const StreamContext& context,
                                         ReducedSystem* out,
                                         bool batched_hessian) {
   CHECK_EQ(photometric.size(), frames.size());
@@ -428,7 +428,7 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
     term.unit[i] = photometric[i].unit();
   }
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, term, out);
+                        context, term, out);
 }
 
 void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
@@ -439,7 +439,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
                                      int64_t begin,
                                      int64_t end,
                                      bool with_jacobian,
-                                     int num_threads,
+                                     const StreamContext& context,
                                      ReducedSystem* out) {
   CHECK_EQ(static_cast<int64_t>(weights.offset.size()), candidates.num_voxels() + 1)
       << "weights built for another candidate set";
@@ -448,7 +448,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
     term.observers = candidates.observers.data();
     term.weights = &weights;
     StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                          num_threads, term, out);
+                          context, term, out);
     return;
   }
   CHECK_EQ(photometric.size(), frames.size());
@@ -461,7 +461,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
     term.unit[i] = photometric[i].unit();
   }
   StreamNormalEquations(frames, candidates, frame_from_world, begin, end, with_jacobian,
-                        num_threads, term, out);
+                        context, term, out);
 }
 
 void UpdateObservationWeights(const std::vector<Frame>& frames,
@@ -469,7 +469,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
                               const std::vector<Eigen::Isometry3d>& frame_from_world,
                               const std::vector<Photometric>& photometric,
                               const RobustLoss& loss,
-                              int num_threads,
+                              const StreamContext& context,
                               ObservationWeights* weights,
                               ReweightStats* stats) {
   const int m = static_cast<int>(frames.size());
@@ -483,6 +483,8 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
     offset[i] = photometric.empty() ? 0.0 : photometric[i].offset;
     unit[i] = photometric.empty() ? 1.0 : photometric[i].unit();
   }
+  const KernelPath path = ResolveKernelPath(context.kernels);
+  CHECK(KernelPathAvailable(path)) << KernelPathToString(path) << " kernels are not available here";
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
   // Fixed blocks summed in order, as in StreamNormalEquations: identical for any thread
   // count. Each voxel's weights are written by its block only.
@@ -492,7 +494,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
   std::vector<ReweightStats> partial(num_blocks);
   float* w_all = weights->weight.data();
   const int64_t* offsets = weights->offset.data();
-  ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
+  ParallelFor(0, num_blocks, context.num_threads, [&](int64_t block) {
     ReweightStats& out = partial[block];
     // Candidate observations the sampler does not hand over get weight 1.
     const auto reset = [&](int64_t v0, int64_t v1) {
@@ -505,7 +507,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
     if (batch == nullptr) batch.reset(new VoxelBatch);
     const int64_t b0 = std::min(n, block * block_size), b1 = std::min(n, b0 + block_size);
     for (int64_t v = b0; v < b1;) {
-      const int64_t next = SampleVoxelBatch(posed, candidates, v, b1, false, batch.get());
+      const int64_t next = SampleVoxelBatch(path, posed, candidates, v, b1, false, batch.get());
       int64_t done = v;
       for (int t = 0; t < batch->num_voxels; ++t) {
         const int64_t voxel = batch->voxel[t];
@@ -570,7 +572,7 @@ ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    const Eigen::Isometry3d& frame0_from_world,
                                    int64_t begin,
                                    int64_t end,
-                                   int num_threads,
+                                   const StreamContext& context,
                                    bool photometric,
                                    const ObservationWeights* weights)
     : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric),
@@ -578,7 +580,7 @@ ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
       candidates_(candidates),
       begin_(begin),
       end_(end),
-      num_threads_(num_threads),
+      context_(context),
       weights_(weights) {}
 
 void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -587,16 +589,16 @@ void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_fr
                                   NormalEquations* out) const {
   if (weights_ != nullptr) {
     AccumulateWeightedReducedSystem(*frames_, *candidates_, frame_from_world, photometric,
-                                    *weights_, begin_, end_, with_jacobian, num_threads_, out);
+                                    *weights_, begin_, end_, with_jacobian, context_, out);
     return;
   }
   if (!photometric.empty()) {
     AccumulateReducedPhotometricSystem(*frames_, *candidates_, frame_from_world, photometric,
-                                       begin_, end_, with_jacobian, num_threads_, out);
+                                       begin_, end_, with_jacobian, context_, out);
     return;
   }
   AccumulateReducedSystem(*frames_, *candidates_, frame_from_world, begin_, end_, with_jacobian,
-                          num_threads_, out);
+                          context_, out);
 }
 
 }  // namespace dsr

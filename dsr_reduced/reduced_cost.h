@@ -117,7 +117,7 @@ class VoxelReducedPhotometricCost final : public ceres::CostFunction {
 using ReducedSystem = NormalEquations;
 
 // Streams voxels [begin, end) of `candidates` at the given poses (stream/voxel_stream.h):
-// bit-identical for any `num_threads`. With `with_jacobian` false only the cost (and
+// bit-identical for any `context.num_threads`. With `with_jacobian` false only the cost (and
 // observation count) is computed; hessian/gradient are left empty. `batched_hessian`
 // false adds H and g voxel by voxel instead of in batches (stream/hessian_batch.h): the
 // slow twin tests compare the fast path with.
@@ -127,7 +127,7 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              int64_t begin,
                              int64_t end,
                              bool with_jacobian,
-                             int num_threads,
+                             const StreamContext& context,
                              ReducedSystem* out,
                              bool batched_hessian = true);
 
@@ -142,7 +142,7 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
                                         int64_t begin,
                                         int64_t end,
                                         bool with_jacobian,
-                                        int num_threads,
+                                        const StreamContext& context,
                                         ReducedSystem* out,
                                         bool batched_hessian = true);
 
@@ -159,7 +159,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
                                      int64_t begin,
                                      int64_t end,
                                      bool with_jacobian,
-                                     int num_threads,
+                                     const StreamContext& context,
                                      ReducedSystem* out);
 
 // What a reweighting pass measured at its poses.
@@ -182,13 +182,13 @@ constexpr int kLocationIterations = 10;
 // mean with the current weights, at most kLocationIterations steps) and the weights
 // w_ij = rho'(r_ij^2) there; every other candidate observation (sigma_ij = 0 now, or k_j
 // < 2) gets weight 1. Streams the voxels like the cost (stream/voxel_stream.h); the result is
-// identical for any `num_threads`. Weights are stored as floats, at least FLT_MIN.
+// identical for any `context.num_threads`. Weights are stored as floats, at least FLT_MIN.
 void UpdateObservationWeights(const std::vector<Frame>& frames,
                               const CandidateSet& candidates,
                               const std::vector<Eigen::Isometry3d>& frame_from_world,
                               const std::vector<Photometric>& photometric,
                               const RobustLoss& loss,
-                              int num_threads,
+                              const StreamContext& context,
                               ObservationWeights* weights,
                               ReweightStats* stats);
 
@@ -205,7 +205,7 @@ class ReducedChunkCost final : public StreamedPoseCost {
                    const Eigen::Isometry3d& frame0_from_world,
                    int64_t begin,
                    int64_t end,
-                   int num_threads,
+                   const StreamContext& context,
                    bool photometric = false,
                    const ObservationWeights* weights = nullptr);
 
@@ -227,7 +227,7 @@ class ReducedChunkCost final : public StreamedPoseCost {
   const std::vector<Frame>* frames_;  // not owned
   const CandidateSet* candidates_;    // not owned
   int64_t begin_, end_;
-  int num_threads_;
+  StreamContext context_;
   const ObservationWeights* weights_;  // not owned; null: unweighted
 };
 

@@ -13,6 +13,7 @@
 #include "dsr/pipeline/pair_check.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/convergence.h"
+#include "dsr/stream/streamed_cost.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -43,14 +44,14 @@ std::vector<Frame> LevelFrames(const std::vector<Image>& images,
 bool PosesDetermined(const std::vector<Frame>& frames,
                      const CandidateSet& candidates,
                      const std::vector<Eigen::Isometry3d>& poses,
-                     int num_threads,
+                     const StreamContext& context,
                      double* conditioning,
                      std::string* why) {
   const int m = static_cast<int>(frames.size());
   const int n = 6 * (m - 1);
   ReducedSystem system;
-  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true,
-                          num_threads, &system);
+  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true, context,
+                          &system);
   const Eigen::MatrixXd h = system.hessian.bottomRightCorner(n, n);
   Eigen::VectorXd scale(n);
   for (int c = 0; c < n; ++c) {
@@ -139,6 +140,7 @@ CoarseToFine::CoarseToFine(const std::vector<Image>& images,
     : images_(images),
       masks_(masks),
       options_(options),
+      stream_(StreamContextFor(options.solve)),
       check_every_level_(check_every_level),
       misfit_exempt_(misfit_exempt),
       search_frames_(search_frames),
@@ -272,7 +274,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     // pair graph is the only remedy left).
     if (check_every_level_) {
       const std::vector<double> misfits =
-          FrameMisfits(frames, *candidates, poses_, options_.solve.num_threads, photometric_);
+          FrameMisfits(frames, *candidates, poses_, stream_, photometric_);
       for (int f : MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_)) {
         if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
       }
@@ -295,7 +297,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
   // levels see the same overlap with more detail.
   if (rebuild == 0 && !determined_checked_) {
     double conditioning = 0.0;
-    if (!PosesDetermined(frames, *candidates, poses_, options_.solve.num_threads, &conditioning,
+    if (!PosesDetermined(frames, *candidates, poses_, stream_, &conditioning,
                          &why)) {
       if (level > 0) {
         LOG(INFO) << "skipping pyramid level " << level << ": " << why;
@@ -372,7 +374,7 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   // solve's candidates (at the poses it reached, up to the rebuild tolerance).
   if (!check_every_level_ || !solved_) return Next::kGoOn;
   const std::vector<double> misfits =
-      FrameMisfits(frames, last_candidates_, poses_, options_.solve.num_threads, photometric_);
+      FrameMisfits(frames, last_candidates_, poses_, stream_, photometric_);
   std::string why;
   if (MisfitOutlier(misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
     result_->flagged_by_misfit = true;
@@ -441,7 +443,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
         MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
   } else {
     result_->frame_misfits =
-        FrameMisfits(frames, final_candidates, poses_, options_.solve.num_threads, photometric_);
+        FrameMisfits(frames, final_candidates, poses_, stream_, photometric_);
   }
   if (MisfitOutlier(result_->frame_misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
     result_->flagged_by_misfit = true;
@@ -471,7 +473,7 @@ void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
     result_->uncertainty_note = "the pose uncertainty does not model the robust loss (--loss=" +
                                 std::string(RobustLossKindName(options_.loss.kind)) + ")";
   } else if (options_.mode == Mode::kDsr || options_.mode == Mode::kDba) {
-    if (!EstimatePoseUncertainty(frames, candidates, poses_, masks_, options_.solve.num_threads,
+    if (!EstimatePoseUncertainty(frames, candidates, poses_, masks_, stream_,
                                  &result_->uncertainty, &result_->uncertainty_note)) {
       result_->uncertainty = PoseUncertainty();
     }

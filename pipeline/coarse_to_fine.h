@@ -33,6 +33,7 @@
 #include "dsr/pipeline/divergence_guard.h"
 #include "dsr/pipeline/modes.h"
 #include "dsr/pipeline/registration.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -107,6 +108,7 @@ class CoarseToFine {
   const std::vector<Image>& images_;
   const std::vector<Mask>& masks_;
   const RegistrationOptions& options_;
+  const StreamContext stream_;  // options_.solve's threads and kernels
   const bool check_every_level_;
   const std::vector<bool>& misfit_exempt_;
   const std::vector<Frame>& search_frames_;

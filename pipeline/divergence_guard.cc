@@ -50,20 +50,20 @@ std::vector<double> TiedFractions(const std::vector<Frame>& frames,
 std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
                                  const CandidateSet& candidates,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                 int num_threads,
+                                 const StreamContext& context,
                                  const std::vector<Photometric>& photometric) {
   NormalEquations system;
   if (photometric.empty()) {
     // One cost-only pass of the DSR stream, which splits the cost by frame.
     AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
-                            /*with_jacobian=*/false, num_threads, &system);
+                            /*with_jacobian=*/false, context, &system);
   } else {
     // The same pass with the photometric term: DSR's residuals of the corrected
     // observations (docs/design.md 2.8), each in its frame's own intensity units.
     CHECK_EQ(photometric.size(), frames.size());
     AccumulateReducedPhotometricSystem(frames, candidates, frame_from_world, photometric, 0,
                                        candidates.num_voxels(), /*with_jacobian=*/false,
-                                       num_threads, &system);
+                                       context, &system);
   }
   return MisfitsFromFrameCosts(system.frame_cost, system.frame_observations);
 }

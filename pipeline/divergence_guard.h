@@ -24,6 +24,7 @@
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
 #include "dsr/model/photometric.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -41,13 +42,13 @@ std::vector<double> TiedFractions(const std::vector<Frame>& frames,
 // For each frame, the root mean square of its differences to the per-voxel mean of the
 // observations (the DSR residuals), over the candidate voxels that at least two frames
 // observe at `frame_from_world`. 0 for a frame with no such voxel. Deterministic (for any
-// num_threads). With `photometric` (one per frame; empty: none) they are DSR's residuals
+// thread count). With `photometric` (one per frame; empty: none) they are DSR's residuals
 // with photometric parameters (docs/design.md section 2.8): the corrected observations
 // c_i = gain_i I_i(p_ij) + offset_i against their mean, on frame 0's intensity scale.
 std::vector<double> FrameMisfits(const std::vector<Frame>& frames,
                                  const CandidateSet& candidates,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                 int num_threads,
+                                 const StreamContext& context,
                                  const std::vector<Photometric>& photometric = {});
 // The same from per-frame sums of squared residuals and their counts (a DSR pass's
 // NormalEquations::frame_cost and frame_observations).

@@ -237,7 +237,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
                              const std::vector<Mask>& masks,
-                             int num_threads,
+                             const StreamContext& context,
                              PoseUncertainty* uncertainty,
                              std::string* why) {
   const int m = static_cast<int>(frames.size());
@@ -245,7 +245,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
   ReducedSystem system;
   // Cost, observations and voxels only: the covariance uses GradientJacobian, not H.
   AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
-                          /*with_jacobian=*/false, num_threads, &system);
+                          /*with_jacobian=*/false, context, &system);
   const int64_t dof = system.observations - system.voxels - n;
   if (dof < n) {
     *why = "too few observations (" + std::to_string(system.observations) +
@@ -265,7 +265,8 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
     step_rad[i] = step_mm[i] / std::max(radius, frames[i].geometry().spacing_mm.maxCoeff());
   }
   const Eigen::MatrixXd a =
-      GradientJacobian(frames, candidates, frame_from_world, step_mm, step_rad, num_threads)
+      GradientJacobian(frames, candidates, frame_from_world, step_mm, step_rad,
+                       context.num_threads)
           .bottomRightCorner(n, n);
   const Eigen::PartialPivLU<Eigen::MatrixXd> lu(a);
   const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (a + a.transpose()),
@@ -278,7 +279,8 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
   // The sandwich H^-1 Cov(g) H^-1 over the free poses (frame 0's rows dropped: the gauge).
   int64_t clusters = 0;
   const Eigen::MatrixXd gradient_covariance =
-      ClusteredGradientCovariance(frames, candidates, frame_from_world, num_threads, &clusters)
+      ClusteredGradientCovariance(frames, candidates, frame_from_world, context.num_threads,
+                                  &clusters)
           .bottomRightCorner(n, n);
   if (clusters < 2 * n) {
     *why = "too few independent parts of the overlap (" + std::to_string(clusters) +

@@ -34,6 +34,7 @@
 #include "dsr/geometry/volume.h"
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -54,7 +55,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
                              const std::vector<Mask>& masks,
-                             int num_threads,
+                             const StreamContext& context,
                              PoseUncertainty* uncertainty,
                              std::string* why);
 

@@ -47,6 +47,11 @@ bool SolveOptions::Validate(std::string* error) const {
     *error = "--max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
     return false;
   }
+  if (!KernelPathAvailable(kernels)) {
+    *error = std::string("--kernels=") + KernelPathToString(kernels) +
+             ": this CPU does not run them";
+    return false;
+  }
   return true;
 }
 

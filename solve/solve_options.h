@@ -11,6 +11,7 @@
 #include <ceres/solver.h>
 
 #include "dsr/model/photometric.h"
+#include "dsr/util/cpu.h"
 
 namespace dsr {
 
@@ -24,6 +25,8 @@ struct SolveOptions {
   double gradient_tolerance = 1e-12;
   double parameter_tolerance = 1e-10;
   int num_threads = 0;  // <= 0: all hardware threads
+  // The SIMD kernels of the streamed costs (util/cpu.h); Validate checks the CPU runs them.
+  KernelPath kernels = KernelPath::kAuto;
   bool log_progress = true;  // one line per iteration on stderr
   // Prepended to the mode's name on progress lines (e.g. "level 2 " -> "level 2 dsr iter").
   std::string progress_prefix;

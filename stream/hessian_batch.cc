@@ -118,7 +118,8 @@ void AddGroup(KernelPath path,
 
 }  // namespace
 
-void AddBatchHessian(const VoxelBatch& batch,
+void AddBatchHessian(KernelPath requested,
+                     const VoxelBatch& batch,
                      const HessianWeights* weights,
                      double* h,
                      int n,
@@ -165,7 +166,7 @@ void AddBatchHessian(const VoxelBatch& batch,
     residuals[r] = batch.residual + batch.begin[t];
   }
 
-  const KernelPath path = ActiveKernelPath();
+  const KernelPath path = ResolveKernelPath(requested);
   for (int g = 0; g < num_groups; ++g) {
     int frame[kMaxFrames];
     int k = 0;

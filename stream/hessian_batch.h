@@ -25,6 +25,7 @@
 #include <cstdint>
 
 #include "dsr/model/observation.h"
+#include "dsr/util/cpu.h"
 
 namespace dsr {
 
@@ -47,8 +48,9 @@ struct HessianWeights {
 //   H_ab += (delta_ab - u_a u_b / sum_c u_c^2) J_a^T J_b   (c over the voxel's observers),
 // which is DSR's with photometric parameters (u = 1 / gain; docs/design.md 2.8) and the
 // plain form (1, -1/k) when every u is 1. Voxels with the same observers share it.
-// Uses the kernel path of ActiveKernelPath() (stream/voxel_stream.h).
-void AddBatchHessian(const VoxelBatch& batch,
+// `path`: the kernel to run (util/cpu.h; kAuto: the widest available).
+void AddBatchHessian(KernelPath path,
+                     const VoxelBatch& batch,
                      const HessianWeights* weights,
                      double* h,
                      int n,

@@ -72,6 +72,11 @@ struct StreamedPassCounts {
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
                                              const SolveOptions& solve);
 
+// The threads and kernels a solve's streams run with.
+inline StreamContext StreamContextFor(const SolveOptions& solve) {
+  return {solve.num_threads, solve.kernels};
+}
+
 class StreamedPoseCost : public ceres::CostFunction {
  public:
   StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world,

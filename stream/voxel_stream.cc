@@ -1,9 +1,8 @@
-// Posed frames, the kernel-path choice and the portable batch sampler (stream/voxel_stream.h).
+// Posed frames and the portable batch sampler (stream/voxel_stream.h).
 #include "dsr/stream/voxel_stream.h"
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <cstring>
 
 #include "dsr/stream/kernels/kernels_avx2.h"
@@ -11,21 +10,6 @@
 
 namespace dsr {
 namespace {
-
-KernelPath BestKernelPath() {
-  // DSR_KERNELS=portable or =avx2 caps the choice (e.g. to compare the paths); an
-  // unavailable or unknown name leaves it to the CPU.
-  const char* forced = std::getenv("DSR_KERNELS");
-  if (forced != nullptr && std::strcmp(forced, "portable") == 0) return KernelPath::kPortable;
-  const bool cap_avx2 = forced != nullptr && std::strcmp(forced, "avx2") == 0;
-  if (!cap_avx2 && KernelPathAvailable(KernelPath::kAvx512)) return KernelPath::kAvx512;
-  return KernelPathAvailable(KernelPath::kAvx2) ? KernelPath::kAvx2 : KernelPath::kPortable;
-}
-
-KernelPath& MutableKernelPath() {
-  static KernelPath path = BestKernelPath();
-  return path;
-}
 
 // The portable sampler: the same formulas as the AVX2 one (stream/kernels/kernels_avx2.cc), one
 // double at a time, plugged into the shared loop.
@@ -91,37 +75,6 @@ inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
 #undef DSR_KERNEL_ATTR
 
 }  // namespace
-
-bool KernelPathAvailable(KernelPath path) {
-  switch (path) {
-    case KernelPath::kPortable:
-      return true;
-    case KernelPath::kAvx2:
-      return internal::CpuHasAvx2Fma();
-    case KernelPath::kAvx512:
-      return internal::CpuHasAvx2Fma() && internal::CpuHasAvx512();
-  }
-  return false;
-}
-
-KernelPath ActiveKernelPath() { return MutableKernelPath(); }
-
-void SetKernelPath(KernelPath path) {
-  CHECK(KernelPathAvailable(path)) << KernelPathName(path) << " kernels are not available here";
-  MutableKernelPath() = path;
-}
-
-const char* KernelPathName(KernelPath path) {
-  switch (path) {
-    case KernelPath::kPortable:
-      return "portable";
-    case KernelPath::kAvx2:
-      return "avx2";
-    case KernelPath::kAvx512:
-      return "avx512";
-  }
-  return "?";
-}
 
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world) {
@@ -193,14 +146,15 @@ void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu
   jac[5] = q[0] * grad[1] - q[1] * grad[0];
 }
 
-int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
+int64_t SampleVoxelBatch(KernelPath path,
+                         const std::vector<PosedFrame>& posed,
                          const CandidateSet& candidates,
                          int64_t v,
                          int64_t end,
                          bool with_jacobian,
                          VoxelBatch* batch) {
 #ifdef DSR_HAVE_AVX2_KERNELS
-  if (ActiveKernelPath() != KernelPath::kPortable) {  // kAvx512 samples with AVX2 too
+  if (ResolveKernelPath(path) != KernelPath::kPortable) {  // kAvx512 samples with AVX2 too
     return internal::SampleVoxelBatchAvx2(posed, candidates, v, end, with_jacobian, batch);
   }
 #endif

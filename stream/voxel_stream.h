@@ -43,6 +43,7 @@
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
 #include "dsr/stream/hessian_batch.h"
+#include "dsr/util/cpu.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -84,19 +85,12 @@ struct PosedFrame {
 std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
                                    const std::vector<Eigen::Isometry3d>& frame_from_world);
 
-// Which implementation of the sampler and of the batched Gauss-Newton kernel runs.
-// kAvx2: both in AVX2 + FMA; kAvx512: the AVX2 sampler with an AVX-512 Gauss-Newton
-// kernel (stream/kernels/kernels_avx512.h); kPortable: plain C++, the twin tests compare with. The
-// default is the widest the CPU runs (checked at run time; the rest of the build stays
-// baseline x86-64); DSR_KERNELS=avx2 or =portable caps it. All evaluate the same
-// formulas; results agree to rounding (about 1e-15 relative).
-enum class KernelPath { kPortable, kAvx2, kAvx512 };
-bool KernelPathAvailable(KernelPath path);
-KernelPath ActiveKernelPath();
-// For tests and benchmarks; CHECKs that `path` is available. Not thread-safe: call it
-// while no stream runs.
-void SetKernelPath(KernelPath path);
-const char* KernelPathName(KernelPath path);
+// How a stream runs: its threads and its kernel path (util/cpu.h). Results are
+// bit-identical for any thread count; the kernel paths agree to rounding.
+struct StreamContext {
+  int num_threads = 0;  // <= 0: all hardware threads
+  KernelPath kernels = KernelPath::kAuto;
+};
 
 // Jacobian layout in a batch: J_ij = [d/d rho (3), d/d phi (3)], 6 doubles, the k
 // Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
@@ -137,8 +131,10 @@ struct VoxelBatch {
 
 // Fills `batch` (emptied first) with the candidate voxels from `v` on (stopping at `end`
 // or when the batch is full) that at least two frames observe at `posed`; Jacobians only
-// when `with_jacobian`. Returns the first voxel not consumed. Uses ActiveKernelPath().
-int64_t SampleVoxelBatch(const std::vector<PosedFrame>& posed,
+// when `with_jacobian`. Returns the first voxel not consumed. `path`: the sampler to run
+// (kAvx512 samples with AVX2; kAuto: the widest available).
+int64_t SampleVoxelBatch(KernelPath path,
+                         const std::vector<PosedFrame>& posed,
                          const CandidateSet& candidates,
                          int64_t v,
                          int64_t end,
@@ -226,7 +222,8 @@ struct ProjectionFactorsOf<Term, std::void_t<decltype(Term::projection_factors)>
 constexpr int64_t kStreamBlocks = 64;
 
 template <class Term>
-void StreamBlock(const std::vector<PosedFrame>& posed,
+void StreamBlock(KernelPath path,
+                 const std::vector<PosedFrame>& posed,
                  const CandidateSet& candidates,
                  int64_t b0,
                  int64_t b1,
@@ -243,7 +240,7 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
     for (int k = 2; k <= kMaxFrames; ++k) weights[k] = term.Weights(k);
   }
   for (int64_t v = b0; v < b1;) {
-    v = SampleVoxelBatch(posed, candidates, v, b1, with_jacobian, batch);
+    v = SampleVoxelBatch(path, posed, candidates, v, b1, with_jacobian, batch);
     acc->voxels += batch->num_voxels;
     for (int t = 0; t < batch->num_voxels; ++t) {
       VoxelObservations obs;
@@ -258,7 +255,7 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
       term(obs, with_jacobian, acc);
     }
     if (batched) {
-      AddBatchHessian(*batch, weights, acc->hessian.data(), acc->n,
+      AddBatchHessian(path, *batch, weights, acc->hessian.data(), acc->n,
                       batched_gradient ? acc->gradient.data() : nullptr, kWidth,
                       ProjectionFactorsOf<Term>::Get(term));
     }
@@ -267,7 +264,8 @@ void StreamBlock(const std::vector<PosedFrame>& posed,
 
 }  // namespace internal
 
-// Streams candidate voxels [begin, end) at the given poses through `term`, a callable
+// Streams candidate voxels [begin, end) at the given poses through `term` with the threads
+// and kernels of `context` (CHECKs that its kernel path is available), `term` being a callable
 // `void(const VoxelObservations&, bool with_jacobian, VoxelAccumulator*)` that adds the
 // voxel's cost and observation count and, when with_jacobian, its gradient and its
 // Gauss-Newton terms to at least the upper block triangle (frame a <= frame b) of the
@@ -291,20 +289,22 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
                            int64_t begin,
                            int64_t end,
                            bool with_jacobian,
-                           int num_threads,
+                           const StreamContext& context,
                            const Term& term,
                            NormalEquations* out) {
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
   CHECK_LE(0, begin);
   CHECK_LE(end, candidates.num_voxels());
+  const KernelPath path = ResolveKernelPath(context.kernels);
+  CHECK(KernelPathAvailable(path)) << KernelPathToString(path) << " kernels are not available here";
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
   const int64_t count = std::max<int64_t>(0, end - begin);
   const int64_t num_blocks = std::max<int64_t>(1, std::min(internal::kStreamBlocks, count));
   const int64_t block_size = (count + num_blocks - 1) / num_blocks;
   const int n = internal::FrameParametersOf<Term>::value * m;
   std::vector<VoxelAccumulator> partial(num_blocks);
-  ParallelFor(0, num_blocks, num_threads, [&](int64_t block) {
+  ParallelFor(0, num_blocks, context.num_threads, [&](int64_t block) {
     VoxelAccumulator& acc = partial[block];
     acc.n = n;
     if (with_jacobian) {
@@ -313,10 +313,10 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
     }
     const int64_t b0 = begin + block * block_size, b1 = std::min(end, b0 + block_size);
     // One batch per thread, reused, so that it stays in the caches (a new 0.6 MB batch per
-    // block measured slower: a cost-only evaluation 61 against 69 ms at best, 1 thread).
+    // block starts cold every time).
     thread_local std::unique_ptr<VoxelBatch> batch;
     if (batch == nullptr) batch.reset(new VoxelBatch);
-    internal::StreamBlock(posed, candidates, b0, b1, with_jacobian, term, batch.get(), &acc);
+    internal::StreamBlock(path, posed, candidates, b0, b1, with_jacobian, term, batch.get(), &acc);
   });
   *out = NormalEquations();
   if (with_jacobian) {

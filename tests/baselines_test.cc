@@ -51,8 +51,8 @@ TEST(Ape, PerVoxelCostIsKTimesTheDsrCost) {
   std::vector<int> voxels_with_k(6, 0);
   for (int64_t v = 0; v < cand.num_voxels(); ++v) {
     NormalEquations ape, dsr;
-    AccumulateApeSystem(s.frames, cand, poses, v, v + 1, true, 1, &ape);
-    AccumulateReducedSystem(s.frames, cand, poses, v, v + 1, true, 1, &dsr);
+    AccumulateApeSystem(s.frames, cand, poses, v, v + 1, true, StreamContext{1}, &ape);
+    AccumulateReducedSystem(s.frames, cand, poses, v, v + 1, true, StreamContext{1}, &dsr);
     const int64_t k = dsr.observations;  // k_j (0 when fewer than 2 observe the voxel)
     EXPECT_EQ(ape.observations, k * (k - 1) / 2);
     if (k < 2) continue;
@@ -67,8 +67,9 @@ TEST(Ape, PerVoxelCostIsKTimesTheDsrCost) {
   // The identity was checked for every multiplicity, and APE is not DSR scaled overall.
   for (int k = 2; k <= 5; ++k) EXPECT_GT(voxels_with_k[k], 0) << "k=" << k;
   NormalEquations ape, dsr;
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &ape);
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &dsr);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2}, &ape);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                          &dsr);
   EXPECT_GT(ape.observations, dsr.observations);
   EXPECT_GT(Relative(ape.gradient / ape.gradient.norm(), dsr.gradient / dsr.gradient.norm()), 1e-3);
 }
@@ -84,8 +85,9 @@ TEST(Ape, BatchedFormOfItsGaussNewtonMatrixIsTheSameMatrix) {
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 8);
   const CandidateSet cand = Candidates(s, poses);
   NormalEquations pairs, batched;
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &pairs);
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &batched, true);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2}, &pairs);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                      &batched, true);
   EXPECT_EQ(pairs.cost, batched.cost);
   EXPECT_TRUE(pairs.gradient == batched.gradient);
   ASSERT_GT(pairs.hessian.norm(), 0.0);
@@ -130,7 +132,7 @@ TEST(Ape, StreamedSystemMatchesPerPairReference) {
     double ref_cost = 0.0;
     const Eigen::MatrixXd j = DenseJacobian(&problem, free_blocks, &r, &ref_cost);
     NormalEquations ape;
-    AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &ape);
+    AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2}, &ape);
     const int n = 6 * (num_frames - 1);
     EXPECT_NEAR(0.5 * ape.cost, ref_cost, kSystemRelativeTolerance * ref_cost);
     EXPECT_LT(Relative(ape.gradient.tail(n), j.transpose() * r), 10 * kSystemRelativeTolerance);
@@ -145,8 +147,9 @@ TEST(Ape, StreamedSystemMatchesPerPairReference) {
       streamed.AddParameterBlock(p2[i].data(), kPoseAmbientSize, &manifold);
       p2_blocks.push_back(p2[i].data());
     }
-    streamed.AddResidualBlock(new ApeChunkCost(&s.frames, &cand, poses[0], 0, cand.num_voxels(), 2),
-                              nullptr, p2_blocks);
+    streamed.AddResidualBlock(
+        new ApeChunkCost(&s.frames, &cand, poses[0], 0, cand.num_voxels(), StreamContext{2}),
+        nullptr, p2_blocks);
     Eigen::VectorXd sr;
     double streamed_cost = 0.0;
     const Eigen::MatrixXd sj = DenseJacobian(&streamed, p2_blocks, &sr, &streamed_cost);
@@ -165,9 +168,9 @@ TEST(Ape, AccumulationIsIdenticalForAnyThreadCount) {
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 3);
   const CandidateSet cand = Candidates(s, poses);
   NormalEquations one, two, four;
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 1, &one);
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &two);
-  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 4, &four);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{1}, &one);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2}, &two);
+  AccumulateApeSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{4}, &four);
   EXPECT_EQ(one.cost, two.cost);
   EXPECT_EQ(one.cost, four.cost);
   EXPECT_TRUE(one.hessian == two.hessian && one.hessian == four.hessian);

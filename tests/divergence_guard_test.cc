@@ -113,17 +113,17 @@ TEST_F(DivergenceGuardTest, MisfitsAreZeroAtAConsistentTruthAndPointAtAMisplaced
   const TestSequence lattice = MakeSequence(o);
   const std::vector<Frame>& frames = lattice.frames;
   const CandidateSet at_truth = CandidatesAt(frames, lattice.ground_truth);
-  for (double misfit : FrameMisfits(frames, at_truth, lattice.ground_truth, 2)) {
+  for (double misfit : FrameMisfits(frames, at_truth, lattice.ground_truth, StreamContext{2})) {
     EXPECT_LT(misfit, 1e-3);
   }
   const std::vector<Eigen::Isometry3d> moved = Shifted(lattice.ground_truth, 2, 1.5);
   const CandidateSet candidates = CandidatesAt(frames, moved);
-  const std::vector<double> misfits = FrameMisfits(frames, candidates, moved, 2);
+  const std::vector<double> misfits = FrameMisfits(frames, candidates, moved, StreamContext{2});
   for (int i : {0, 1, 3}) EXPECT_GT(misfits[2], misfits[i]) << i;
   EXPECT_GT(misfits[2], 1.0);
   // Fixed accumulation blocks: any thread count gives the same sums.
-  EXPECT_EQ(FrameMisfits(frames, candidates, moved, 1), misfits);
-  EXPECT_EQ(FrameMisfits(frames, candidates, moved, 3), misfits);
+  EXPECT_EQ(FrameMisfits(frames, candidates, moved, StreamContext{1}), misfits);
+  EXPECT_EQ(FrameMisfits(frames, candidates, moved, StreamContext{3}), misfits);
   std::string why;
   EXPECT_TRUE(MisfitOutlier(misfits, 1.2, &why));
   EXPECT_NE(why.find("frame 2 does not match the others"), std::string::npos) << why;
@@ -179,9 +179,10 @@ TEST(FrameMisfits, CompareCorrectedIntensities) {
     correction.push_back({-std::log(g[i]), -b[i] / g[i]});
   }
   const CandidateSet candidates = CandidatesAt(frames, s.ground_truth);
-  const std::vector<double> raw = FrameMisfits(frames, candidates, s.ground_truth, 2);
+  const std::vector<double> raw = FrameMisfits(frames, candidates, s.ground_truth,
+                                               StreamContext{2});
   const std::vector<double> corrected =
-      FrameMisfits(frames, candidates, s.ground_truth, 2, correction);
+      FrameMisfits(frames, candidates, s.ground_truth, StreamContext{2}, correction);
   ASSERT_EQ(corrected.size(), 4u);
   for (int i = 0; i < 4; ++i) {
     // Intensities of about 100 stored as float: differences of a few 1e-5 at most.
@@ -189,11 +190,12 @@ TEST(FrameMisfits, CompareCorrectedIntensities) {
     EXPECT_GT(raw[i], 1.0) << i;
   }
   // Deterministic for any thread count.
-  EXPECT_EQ(FrameMisfits(frames, candidates, s.ground_truth, 1, correction),
-            FrameMisfits(frames, candidates, s.ground_truth, 3, correction));
+  EXPECT_EQ(FrameMisfits(frames, candidates, s.ground_truth, StreamContext{1}, correction),
+            FrameMisfits(frames, candidates, s.ground_truth, StreamContext{3}, correction));
   // The gauge on every frame (gain exactly 1, offset 0) is no correction.
   const std::vector<Photometric> gauge(4);
-  const std::vector<double> with_gauge = FrameMisfits(frames, candidates, s.ground_truth, 2, gauge);
+  const std::vector<double> with_gauge = FrameMisfits(frames, candidates, s.ground_truth,
+                                                      StreamContext{2}, gauge);
   for (int i = 0; i < 4; ++i) EXPECT_NEAR(with_gauge[i], raw[i], 1e-12 * raw[i]) << i;
 }
 

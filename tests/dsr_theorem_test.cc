@@ -108,7 +108,8 @@ TEST(Theorem, DbaSchurStepEqualsReducedStepForAnyIntensities) {
     const CandidateSet cand = Candidates(s, poses);
     ASSERT_GT(cand.num_voxels(), 100);
     ReducedSystem reduced;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &reduced);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                            &reduced);
     const Eigen::VectorXd dsr_step = ReducedStep(reduced);
 
     DbaProblem dba(s.frames, cand, poses);
@@ -147,7 +148,7 @@ TEST(Theorem, PhotometricDbaSchurStepEqualsReducedStep) {
     const CandidateSet cand = Candidates(s, poses);
     ReducedSystem reduced;
     AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
-                                       true, 2, &reduced);
+                                       true, StreamContext{2}, &reduced);
     ASSERT_EQ(reduced.gradient.size(), 8 * c.num_frames);
     const Eigen::VectorXd dsr_step = ReducedStep(reduced, 8);
     DbaProblem dba(s.frames, cand, poses, photometric);
@@ -179,7 +180,7 @@ TEST(Theorem, PhotometricReducedCostIsTheDbaCostMinimisedOverIntensities) {
     const CandidateSet cand = Candidates(s, poses);
     ReducedSystem reduced;
     AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
-                                       false, 1, &reduced);
+                                       false, StreamContext{1}, &reduced);
     DbaProblem dba(s.frames, cand, poses, photometric);
     double dba_cost = 0.0;
     dba.problem().Evaluate(ceres::Problem::EvaluateOptions(), &dba_cost, nullptr, nullptr,
@@ -203,7 +204,8 @@ TEST(Theorem, ReducedCostIsTheDbaCostMinimisedOverIntensities) {
     const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
     const CandidateSet cand = Candidates(s, poses);
     ReducedSystem reduced;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, 1, &reduced);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, StreamContext{1},
+                            &reduced);
     // DbaProblem starts at M = the per-voxel mean, the minimiser over M for these poses.
     DbaProblem dba(s.frames, cand, poses);
     double dba_cost = 0.0;
@@ -553,9 +555,10 @@ TEST(ReducedCost, PhotometricSystemAtTheGaugeContainsThePlainOne) {
   const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, 142);
   const CandidateSet cand = Candidates(s, poses);
   ReducedSystem plain, wide;
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &plain);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                          &plain);
   AccumulateReducedPhotometricSystem(s.frames, cand, poses, std::vector<Photometric>(4), 0,
-                                     cand.num_voxels(), true, 2, &wide);
+                                     cand.num_voxels(), true, StreamContext{2}, &wide);
   EXPECT_EQ(plain.cost, wide.cost);
   EXPECT_EQ(plain.frame_cost, wide.frame_cost);
   for (int a = 0; a < 4; ++a) {
@@ -579,22 +582,18 @@ TEST(ReducedCost, PhotometricBatchedHessianMatchesTheTwinOnEveryKernelPath) {
     const auto photometric = RandomPhotometric(c.num_frames, seed++);
     const CandidateSet cand = Candidates(s, poses);
     ReducedSystem twin;
-    {
-      testing_kernels::KernelPathScope scope(KernelPath::kPortable);
-      AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
-                                         true, 2, &twin, false);
-    }
+    AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
+                                       true, StreamContext{2, KernelPath::kPortable}, &twin, false);
     ASSERT_GT(twin.hessian.norm(), 0.0);
     for (KernelPath path : testing_kernels::AvailablePaths()) {
-      testing_kernels::KernelPathScope scope(path);
       ReducedSystem batched;
       AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
-                                         true, 2, &batched, true);
+                                         true, StreamContext{2, path}, &batched, true);
       EXPECT_LT((batched.hessian - twin.hessian).norm() / twin.hessian.norm(), 1e-12)
-          << KernelPathName(path) << " m=" << c.num_frames;
+          << KernelPathToString(path) << " m=" << c.num_frames;
       EXPECT_LT((batched.gradient - twin.gradient).norm() / twin.gradient.norm(), 1e-12)
-          << KernelPathName(path) << " m=" << c.num_frames;
-      EXPECT_NEAR(batched.cost, twin.cost, 1e-12 * twin.cost) << KernelPathName(path);
+          << KernelPathToString(path) << " m=" << c.num_frames;
+      EXPECT_NEAR(batched.cost, twin.cost, 1e-12 * twin.cost) << KernelPathToString(path);
       EXPECT_TRUE(batched.hessian.isApprox(batched.hessian.transpose(), 0.0));
     }
   }
@@ -605,9 +604,12 @@ TEST(ReducedCost, AccumulationIsIdenticalForAnyThreadCount) {
   const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, 42);
   const CandidateSet cand = Candidates(s, poses);
   ReducedSystem one, two, four;
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 1, &one);
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &two);
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 4, &four);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{1},
+                          &one);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                          &two);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{4},
+                          &four);
   EXPECT_EQ(one.cost, two.cost);
   EXPECT_EQ(one.cost, four.cost);
   EXPECT_TRUE(one.hessian == two.hessian && one.hessian == four.hessian);
@@ -624,8 +626,10 @@ TEST(ReducedCost, BatchedHessianMatchesTheVoxelByVoxelTwin) {
     for (const auto& [begin, end] : {std::pair<int64_t, int64_t>{0, cand.num_voxels()},
                                      std::pair<int64_t, int64_t>{3, cand.num_voxels() / 2 + 1}}) {
       ReducedSystem batched, twin;
-      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, 2, &batched, true);
-      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, 2, &twin, false);
+      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, StreamContext{2}, &batched,
+                              true);
+      AccumulateReducedSystem(s.frames, cand, poses, begin, end, true, StreamContext{2}, &twin,
+                              false);
       ASSERT_GT(twin.hessian.norm(), 0.0);
       EXPECT_LT((batched.hessian - twin.hessian).norm() / twin.hessian.norm(),
                 kSystemRelativeTolerance)
@@ -647,7 +651,8 @@ TEST(ReducedCost, FrameCostsSplitTheCostByFrame) {
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 82);
   const CandidateSet cand = Candidates(s, poses);
   ReducedSystem system;
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, 2, &system);
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, StreamContext{2},
+                          &system);
   // Reference: each voxel's residuals from the per-voxel cost, added to their frames.
   std::vector<double> frame_cost(4, 0.0);
   std::vector<int64_t> frame_count(4, 0);

@@ -89,13 +89,15 @@ TEST(FieldOfViewEdge, GradientAndGaussNewtonMatrixMatchCentralDifferences) {
     ASSERT_GT(cand.num_voxels(), 500);
     // g and H as the solver gets them (the streamed fast path, this CPU's kernels).
     ReducedSystem system;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &system);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                            &system);
     const int n = 6 * (static_cast<int>(s.frames.size()) - 1);
 
     // df/ddelta = 2 J^T r = 2 g, against central differences of f.
     const auto cost = [&](const std::vector<Eigen::Isometry3d>& at) {
       ReducedSystem f;
-      AccumulateReducedSystem(s.frames, cand, at, 0, cand.num_voxels(), false, 2, &f);
+      AccumulateReducedSystem(s.frames, cand, at, 0, cand.num_voxels(), false, StreamContext{2},
+                              &f);
       return f.cost;
     };
     Eigen::VectorXd numeric_gradient(n);

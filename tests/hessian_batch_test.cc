@@ -21,7 +21,6 @@ namespace {
 constexpr double kRelativeTolerance = 1e-12;
 
 using testing_kernels::AvailablePaths;
-using testing_kernels::KernelPathScope;
 
 // Fills a batch with `num_voxels` random voxels whose observer sets are drawn from
 // `num_sets` random sets of at least two of `m` frames, in runs of random length; DSR's
@@ -128,9 +127,8 @@ void CompareWithTwin(int m,
     }
   }
   for (KernelPath path : AvailablePaths()) {
-    KernelPathScope scope(path);
     std::vector<double> batched(n * n, 0.0), batched_gradient(n, 0.0);
-    AddBatchHessian(*batch, weights, batched.data(), n, batched_gradient.data(), width,
+    AddBatchHessian(path, *batch, weights, batched.data(), n, batched_gradient.data(), width,
                     factor_data);
     double gradient_diff = 0.0, gradient_norm = 0.0;
     for (int r = 0; r < n; ++r) {
@@ -139,7 +137,7 @@ void CompareWithTwin(int m,
     }
     ASSERT_GT(gradient_norm, 0.0);
     EXPECT_LT(std::sqrt(gradient_diff / gradient_norm), kRelativeTolerance)
-        << KernelPathName(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
+        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
     // Compare the upper triangle (what the stream reads).
     double diff = 0.0, norm = 0.0;
     for (int r = 0; r < n; ++r) {
@@ -150,7 +148,7 @@ void CompareWithTwin(int m,
     }
     ASSERT_GT(norm, 0.0);
     EXPECT_LT(std::sqrt(diff / norm), kRelativeTolerance)
-        << KernelPathName(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
+        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
   }
 }
 

@@ -245,7 +245,8 @@ ObservationWeights GenericWeights(const TestSequence& s,
                                   uint64_t seed) {
   ObservationWeights weights(cand);
   ReweightStats stats;
-  UpdateObservationWeights(s.frames, cand, poses, photometric, Cauchy(4.0), 2, &weights, &stats);
+  UpdateObservationWeights(s.frames, cand, poses, photometric, Cauchy(4.0), StreamContext{2},
+                           &weights, &stats);
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<float> u(0.5f, 1.0f);
   for (float& w : weights.weight) w *= u(rng);
@@ -317,9 +318,10 @@ TEST(WeightedReducedCost, UnitWeightsGiveThePlainNumbersBitForBit) {
   ASSERT_EQ(static_cast<int64_t>(ones.weight.size()), cand.NumObservations());
   {
     ReducedSystem plain, weighted;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &plain, false);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, StreamContext{2},
+                            &plain, false);
     AccumulateWeightedReducedSystem(s.frames, cand, poses, {}, ones, 0, cand.num_voxels(), true,
-                                    2, &weighted);
+                                    StreamContext{2}, &weighted);
     EXPECT_EQ(plain.cost, weighted.cost);
     EXPECT_EQ(plain.frame_cost, weighted.frame_cost);
     EXPECT_EQ(plain.observations, weighted.observations);
@@ -330,9 +332,9 @@ TEST(WeightedReducedCost, UnitWeightsGiveThePlainNumbersBitForBit) {
     std::vector<Photometric> photometric = {{0.0, 0.0}, {0.1, 3.0}, {-0.15, 5.0}, {0.05, -4.0}};
     ReducedSystem plain, weighted;
     AccumulateReducedPhotometricSystem(s.frames, cand, poses, photometric, 0, cand.num_voxels(),
-                                       true, 2, &plain, false);
+                                       true, StreamContext{2}, &plain, false);
     AccumulateWeightedReducedSystem(s.frames, cand, poses, photometric, ones, 0,
-                                    cand.num_voxels(), true, 2, &weighted);
+                                    cand.num_voxels(), true, StreamContext{2}, &weighted);
     EXPECT_EQ(plain.cost, weighted.cost);
     EXPECT_TRUE(plain.hessian == weighted.hessian);
     EXPECT_TRUE(plain.gradient == weighted.gradient);
@@ -455,10 +457,11 @@ TEST(WeightedReducedCost, ReweightingGivesTheRobustLocationsWeights) {
     ObservationWeights weights = GenericWeights(s, cand, poses, photometric, 223);
     const ObservationWeights before = weights;
     ReweightStats stats;
-    UpdateObservationWeights(s.frames, cand, poses, photometric, loss, 1, &weights, &stats);
+    UpdateObservationWeights(s.frames, cand, poses, photometric, loss, StreamContext{1}, &weights,
+                             &stats);
     ObservationWeights threaded = before;
     ReweightStats threaded_stats;
-    UpdateObservationWeights(s.frames, cand, poses, photometric, loss, 3, &threaded,
+    UpdateObservationWeights(s.frames, cand, poses, photometric, loss, StreamContext{3}, &threaded,
                              &threaded_stats);
     EXPECT_TRUE(weights.weight == threaded.weight);
     EXPECT_EQ(stats.robust_cost, threaded_stats.robust_cost);
@@ -616,7 +619,7 @@ TEST(RobustTheorem, DbaSchurStepWithLossEqualsWeightedReducedStep) {
       ASSERT_GT(downweighted, 100);
       ReducedSystem reduced;
       AccumulateWeightedReducedSystem(s.frames, cand, poses, start, weights, 0, cand.num_voxels(),
-                                       true, 2, &reduced);
+                                       true, StreamContext{2}, &reduced);
       const int p = photometric ? 8 : 6;
       const int n = static_cast<int>(reduced.gradient.size()) - p;
       const Eigen::VectorXd dsr_step =

@@ -133,7 +133,7 @@ TEST(StreamedCost, DsrReportsTheFrameCostsOfItsFinalPoses) {
   ASSERT_EQ(report.final_frame_cost.size(), s.frames.size());
   ReducedSystem at_final;
   AccumulateReducedSystem(s.frames, cand, report.frame_from_world, 0, cand.num_voxels(), false,
-                          2, &at_final);
+                          StreamContext{2}, &at_final);
   EXPECT_EQ(report.final_frame_observations, at_final.frame_observations);
   for (size_t i = 0; i < s.frames.size(); ++i) {
     // Two chunks summed vs one pass: the same terms, added in another order.

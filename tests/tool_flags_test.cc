@@ -59,6 +59,18 @@ TEST(ToolFlags, SharedValidatorsNameTheFlagInEveryTool) {
   }
 }
 
+TEST(ToolFlags, KernelsNameAPathThisCpuRuns) {
+  ScopedTempDir dir;
+  for (const char* tool : {DSR_REGISTER_BIN, DSR_COMPARE_BIN}) {
+    const ToolRun run = RunTool(tool, "--kernels=avx3", dir.path());
+    EXPECT_EQ(run.exit_code, 2) << tool;
+    ASSERT_EQ(run.error_lines.size(), 1u) << run.err;
+    EXPECT_NE(run.error_lines[0].find("--kernels=avx3: must be auto|portable|avx2|avx512"),
+              std::string::npos)
+        << run.error_lines[0];
+  }
+}
+
 TEST(ToolFlags, CompareSimulatesFromASourceAndRefusesOneWithSequences) {
   ScopedTempDir dir;
   const std::string sequence = dir.File("sequence");

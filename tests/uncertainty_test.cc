@@ -159,7 +159,8 @@ TEST(PoseUncertainty, GradientJacobianIsTheDerivativeOfTheGradient) {
                      (c < 3 ? step_mm[f] : step_rad[f]);
   }
   ReducedSystem at;
-  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true, 2, &at);
+  AccumulateReducedSystem(frames, candidates, poses, 0, candidates.num_voxels(), true,
+                          StreamContext{2}, &at);
   const Eigen::MatrixXd a = GradientJacobian(frames, candidates, poses, step_mm, step_rad, 2);
   double exact_trace = 0.0, gauss_newton_trace = 0.0;  // translation diagonals, all frames
   for (int f = 0; f < m; ++f) {

@@ -9,10 +9,12 @@
 #include <cmath>
 #include <limits>
 #include <memory>
+#include <string>
 
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/stream/voxel_stream.h"
 #include "kernel_paths.h"
-#include "dsr/dsr_reduced/reduced_cost.h"
 #include "test_problems.h"
 
 namespace dsr {
@@ -29,7 +31,6 @@ constexpr double kJacobianTolerance = 1e-10;   // relative to the Jacobian's nor
 constexpr double kSystemRelativeTolerance = 1e-12;
 
 using testing_kernels::AvailablePaths;
-using testing_kernels::KernelPathScope;
 
 testing_problems::TestSequence Sequence(uint64_t seed) {
   SequenceOptions o;
@@ -51,11 +52,11 @@ TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
   ASSERT_GT(cand.num_voxels(), 100);
   const std::vector<PosedFrame> posed = PoseFrames(s.frames, poses);
   for (KernelPath path : AvailablePaths()) {
-    KernelPathScope scope(path);
     const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
     int64_t sampled_voxels = 0, rejected = 0;
     for (int64_t v = 0; v < cand.num_voxels();) {
-      const int64_t next = SampleVoxelBatch(posed, cand, v, cand.num_voxels(), true, batch.get());
+      const int64_t next = SampleVoxelBatch(path, posed, cand, v, cand.num_voxels(), true,
+                                            batch.get());
       ASSERT_GT(next, v);
       int t = 0;
       for (; v < next; ++v) {
@@ -77,17 +78,17 @@ TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
           }
         }
         if (frames.size() < 2) continue;  // the sampler drops such voxels
-        ASSERT_LT(t, batch->num_voxels) << KernelPathName(path);
+        ASSERT_LT(t, batch->num_voxels) << KernelPathToString(path);
         const int first = batch->begin[t], k = batch->begin[t + 1] - first;
-        ASSERT_EQ(k, static_cast<int>(frames.size())) << KernelPathName(path) << " voxel " << v;
+        ASSERT_EQ(k, static_cast<int>(frames.size())) << KernelPathToString(path) << " voxel " << v;
         // The weighted terms find a voxel's weights by its candidate index.
-        EXPECT_EQ(batch->voxel[t], v) << KernelPathName(path);
+        EXPECT_EQ(batch->voxel[t], v) << KernelPathToString(path);
         for (int a = 0; a < k; ++a) {
           EXPECT_EQ(batch->frame[first + a], frames[a]);
           EXPECT_NEAR(batch->value[first + a], values[a], kValueTolerance);
           EXPECT_LT((Eigen::Map<const RowVector6d>(batch->jac[first + a]) - jacobians[a]).norm(),
                     kJacobianTolerance * std::max(1.0, jacobians[a].norm()))
-              << KernelPathName(path) << " voxel " << v << " frame " << frames[a];
+              << KernelPathToString(path) << " voxel " << v << " frame " << frames[a];
         }
         ++t;
         ++sampled_voxels;
@@ -107,13 +108,12 @@ TEST(VoxelStream, NonFinitePosesObserveNothing) {
   poses[2].translation().y() = std::numeric_limits<double>::infinity();
   const std::vector<PosedFrame> posed = PoseFrames(s.frames, poses);
   for (KernelPath path : AvailablePaths()) {
-    KernelPathScope scope(path);
     const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
     for (int64_t v = 0; v < cand.num_voxels();) {
-      v = SampleVoxelBatch(posed, cand, v, cand.num_voxels(), false, batch.get());
+      v = SampleVoxelBatch(path, posed, cand, v, cand.num_voxels(), false, batch.get());
       for (int o = 0; o < batch->num_observations; ++o) {
-        EXPECT_NE(batch->frame[o], 1) << KernelPathName(path);
-        EXPECT_NE(batch->frame[o], 2) << KernelPathName(path);
+        EXPECT_NE(batch->frame[o], 1) << KernelPathToString(path);
+        EXPECT_NE(batch->frame[o], 2) << KernelPathToString(path);
       }
     }
   }
@@ -125,26 +125,51 @@ TEST(VoxelStream, KernelPathsGiveTheSameNormalEquations) {
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 10);
   const CandidateSet cand = Candidates(s, poses);
   ReducedSystem portable;
-  {
-    KernelPathScope scope(KernelPath::kPortable);
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &portable);
-  }
+  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true,
+                          StreamContext{2, KernelPath::kPortable}, &portable);
   for (KernelPath path : AvailablePaths()) {
     if (path == KernelPath::kPortable) continue;
     ReducedSystem simd;
-    {
-      KernelPathScope scope(path);
-      AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &simd);
-    }
-    EXPECT_EQ(portable.observations, simd.observations) << KernelPathName(path);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true,
+                            StreamContext{2, path}, &simd);
+    EXPECT_EQ(portable.observations, simd.observations) << KernelPathToString(path);
     EXPECT_NEAR(simd.cost, portable.cost, kSystemRelativeTolerance * portable.cost)
-        << KernelPathName(path);
+        << KernelPathToString(path);
     EXPECT_LT((simd.gradient - portable.gradient).norm() / portable.gradient.norm(),
               kSystemRelativeTolerance)
-        << KernelPathName(path);
+        << KernelPathToString(path);
     EXPECT_LT((simd.hessian - portable.hessian).norm() / portable.hessian.norm(),
               kSystemRelativeTolerance)
-        << KernelPathName(path);
+        << KernelPathToString(path);
+  }
+}
+
+// The solvers run the kernels their SolveOptions name: the portable twin and each SIMD path
+// give costs that agree to rounding but not bit for bit (FMA and another order of sums),
+// so a path the options did not reach would show as identical costs.
+TEST(VoxelStream, SolveOptionsChooseTheKernelPath) {
+  if (!KernelPathAvailable(KernelPath::kAvx2)) GTEST_SKIP() << "no AVX2+FMA on this CPU";
+  const auto s = Sequence(13);
+  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 14);
+  const CandidateSet cand = Candidates(s, poses);
+  const auto solve = [&](KernelPath path) {
+    DsrOptions options;
+    options.solve.max_iterations = 2;
+    options.solve.log_progress = false;
+    options.solve.kernels = path;
+    SolveReport report;
+    std::string error;
+    EXPECT_TRUE(SolveDsr(s.frames, cand, poses, options, &report, &error)) << error;
+    return report;
+  };
+  const SolveReport portable = solve(KernelPath::kPortable);
+  for (KernelPath path : AvailablePaths()) {
+    if (path == KernelPath::kPortable) continue;
+    const SolveReport simd = solve(path);
+    EXPECT_NE(simd.initial_cost, portable.initial_cost) << KernelPathToString(path);
+    EXPECT_NEAR(simd.initial_cost, portable.initial_cost,
+                kSystemRelativeTolerance * portable.initial_cost)
+        << KernelPathToString(path);
   }
 }
 
@@ -153,12 +178,13 @@ TEST(VoxelStream, CostOnlyPassGivesTheCostOfTheJacobianPassExactly) {
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 12);
   const CandidateSet cand = Candidates(s, poses);
   for (KernelPath path : AvailablePaths()) {
-    KernelPathScope scope(path);
     ReducedSystem cost_only, full;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, 2, &cost_only);
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, 2, &full);
-    EXPECT_EQ(cost_only.cost, full.cost) << KernelPathName(path);
-    EXPECT_EQ(cost_only.frame_cost, full.frame_cost) << KernelPathName(path);
+    const StreamContext context{2, path};
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, context,
+                            &cost_only);
+    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, context, &full);
+    EXPECT_EQ(cost_only.cost, full.cost) << KernelPathToString(path);
+    EXPECT_EQ(cost_only.frame_cost, full.frame_cost) << KernelPathToString(path);
   }
 }
 

@@ -19,11 +19,6 @@
 namespace dsr {
 namespace internal {
 
-bool CpuHasAvx2Fma() {
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-}
-
 namespace {
 
 struct Point {
@@ -389,12 +384,4 @@ DSR_TARGET_AVX2 void AddGroupGradientAvx2(const HessianGroup& group,
 }  // namespace internal
 }  // namespace dsr
 
-#else  // !DSR_HAVE_AVX2_KERNELS
-
-namespace dsr {
-namespace internal {
-bool CpuHasAvx2Fma() { return false; }
-}  // namespace internal
-}  // namespace dsr
-
-#endif
+#endif  // DSR_HAVE_AVX2_KERNELS

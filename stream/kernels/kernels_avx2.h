@@ -3,15 +3,17 @@
 // callers go through SampleVoxelBatch and AddBatchHessian, which pick the kernel path.
 //
 // Only these functions are compiled for AVX2 (a function attribute), so the library
-// still runs on any x86-64 CPU: the path is chosen at run time (CpuHasAvx2Fma). Eigen is
-// not compiled for AVX anywhere, so its alignment matches Debian's Ceres.
+// still runs on any x86-64 CPU: the caller's KernelPath picks them (util/cpu.h checks the
+// CPU). Eigen is not compiled for AVX anywhere, so its alignment matches Debian's Ceres.
 #ifndef DSR_STREAM_KERNELS_KERNELS_AVX2_H_
 #define DSR_STREAM_KERNELS_KERNELS_AVX2_H_
 
 #include <cstdint>
 #include <vector>
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#include "dsr/util/cpu.h"
+
+#ifdef DSR_HAVE_X86_KERNELS
 #define DSR_HAVE_AVX2_KERNELS 1
 #endif
 
@@ -25,9 +27,6 @@ struct VoxelBatch;
 namespace internal {
 
 struct HessianGroup;  // stream/hessian_batch.h
-
-// True when this build has the AVX2 kernels and the CPU runs AVX2 and FMA.
-bool CpuHasAvx2Fma();
 
 #ifdef DSR_HAVE_AVX2_KERNELS
 int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,

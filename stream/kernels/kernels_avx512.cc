@@ -22,12 +22,6 @@
 namespace dsr {
 namespace internal {
 
-bool CpuHasAvx512() {
-  __builtin_cpu_init();
-  return __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx2") &&
-         __builtin_cpu_supports("fma");
-}
-
 namespace {
 
 // Sums S_r[i0 + i] * S_r[c .. c + 8 kVectors) over the rows for i = 0..5 into `tile`
@@ -194,12 +188,4 @@ DSR_TARGET_AVX512 void AddGroupHessianAvx512(const HessianGroup& group,
 }  // namespace internal
 }  // namespace dsr
 
-#else  // !DSR_HAVE_AVX512_KERNELS
-
-namespace dsr {
-namespace internal {
-bool CpuHasAvx512() { return false; }
-}  // namespace internal
-}  // namespace dsr
-
-#endif
+#endif  // DSR_HAVE_AVX512_KERNELS

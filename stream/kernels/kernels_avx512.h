@@ -1,9 +1,9 @@
 // The AVX-512 group kernel of the batched Gauss-Newton matrix (stream/kernels/kernels_avx512.cc).
 // Internal: callers go through AddBatchHessian, which picks the kernel path
-// (stream/voxel_stream.h: KernelPath::kAvx512 = the AVX2 sampler with this kernel).
+// (util/cpu.h: KernelPath::kAvx512 = the AVX2 sampler with this kernel).
 //
 // Only this function is compiled for AVX-512 (a function attribute), so the library still
-// runs on any x86-64 CPU: the path is chosen at run time (CpuHasAvx512).
+// runs on any x86-64 CPU: the caller's KernelPath picks it (util/cpu.h checks the CPU).
 #ifndef DSR_STREAM_KERNELS_KERNELS_AVX512_H_
 #define DSR_STREAM_KERNELS_KERNELS_AVX512_H_
 
@@ -20,9 +20,6 @@ struct HessianWeights;
 namespace internal {
 
 struct HessianGroup;  // stream/hessian_batch.h
-
-// True when this build has the AVX-512 kernel and the CPU runs AVX-512F, AVX2 and FMA.
-bool CpuHasAvx512();
 
 #ifdef DSR_HAVE_AVX512_KERNELS
 // Same contract as AddGroupHessianPortable (stream/hessian_batch.h).

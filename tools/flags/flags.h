@@ -47,6 +47,7 @@ DECLARE_int32(pair_search_rotations);
 DECLARE_int32(search_max_axis);
 DECLARE_string(linear_solver);
 DECLARE_string(trust_region);
+DECLARE_string(kernels);
 DECLARE_int32(max_iterations);
 DECLARE_int32(coarse_max_iterations);
 DECLARE_double(function_tolerance);

@@ -49,6 +49,9 @@ DEFINE_string(linear_solver, "", "Ceres linear solver. dba: DENSE_SCHUR (default
               "SPARSE_SCHUR, ITERATIVE_SCHUR, DENSE_QR, SPARSE_NORMAL_CHOLESKY. dsr: DENSE_QR "
               "(default), DENSE_NORMAL_CHOLESKY.");
 DEFINE_string(trust_region, "LEVENBERG_MARQUARDT", "LEVENBERG_MARQUARDT or DOGLEG.");
+DEFINE_string(kernels, "auto", "SIMD kernels of the streamed costs (dsr, ape, pairs): auto (the "
+              "widest this CPU runs), portable (plain C++, the tests' twin), avx2 or avx512. "
+              "Results agree to rounding.");
 DEFINE_int32(max_iterations, 100, "Iteration limit of each solve on the finest level, >= 1.");
 DEFINE_int32(coarse_max_iterations, 50, "Iteration limit of each solve on coarser levels, >= 1.");
 DEFINE_double(function_tolerance, 1e-8, "Ceres function tolerance (relative cost change).");
@@ -102,11 +105,20 @@ bool ValidatePhotometric(const char* flag, const std::string& v) {
   return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
                         "must be none or affine");
 }
+bool ValidateKernels(const char* flag, const std::string& v) {
+  dsr::KernelPath path;
+  if (!dsr::CheckFlag(dsr::StringToKernelPath(v, &path), flag, v,
+                      "must be " + dsr::KernelPathNames())) {
+    return false;
+  }
+  return dsr::CheckFlag(dsr::KernelPathAvailable(path), flag, v, "this CPU does not run them");
+}
 bool ValidateMemoryBudget(const char* flag, double v) {
   return dsr::CheckFlag(v >= 0.0 && std::isfinite(v), flag, v, "must be >= 0");
 }
 }  // namespace
 DEFINE_validator(photometric, &ValidatePhotometric);
+DEFINE_validator(kernels, &ValidateKernels);
 DEFINE_validator(memory_budget_mb, &ValidateMemoryBudget);
 
 namespace dsr {
@@ -131,6 +143,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   solve.gradient_tolerance = FLAGS_gradient_tolerance;
   solve.parameter_tolerance = FLAGS_parameter_tolerance;
   solve.num_threads = FLAGS_num_threads;
+  StringToKernelPath(FLAGS_kernels, &solve.kernels);  // validated
   solve.step_tolerance_voxels = FLAGS_step_tolerance;
   solve.max_rejected_steps = FLAGS_max_rejected_steps;
   solve.log_progress = FLAGS_progress;
@@ -158,6 +171,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   options->search.num_pair_rotations = FLAGS_pair_search_rotations;
   options->search.num_threads = FLAGS_num_threads;
   options->search.refine.log_progress = false;
+  options->search.refine.kernels = solve.kernels;
   return true;
 }
 
