@@ -8,6 +8,7 @@
 
 #include "dsr/baselines/baselines.h"
 #include "dsr/model/panorama.h"
+#include "dsr/util/option_fields.h"
 
 namespace dsr {
 namespace {
@@ -112,25 +113,28 @@ BaselineOptions WithPrefix(const BaselineOptions& options, const std::string& pr
 }  // namespace
 
 bool BaselineOptions::Validate(std::string* error) const {
-  if (!solve.Validate(error)) return false;
+  if (!solve.Validate(error)) {
+    *error = PrefixFieldPaths("solve", *error);
+    return false;
+  }
   const std::string& ls = solve.linear_solver;
   if (!ls.empty() && ls != "DENSE_QR" && ls != "DENSE_NORMAL_CHOLESKY" &&
       ls != "SPARSE_NORMAL_CHOLESKY") {
-    *error = "--linear_solver=" + ls +
+    *error = "solve.linear_solver=" + ls +
              ": the baselines solve only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
              "SPARSE_NORMAL_CHOLESKY";
     return false;
   }
   if (!(panorama_spacing > 0.0) || !std::isfinite(panorama_spacing)) {
-    *error = "--panorama_spacing=" + std::to_string(panorama_spacing) + ": must be a positive number";
+    *error = FieldError("panorama_spacing", panorama_spacing, "must be a positive number");
     return false;
   }
   if (min_shared_voxels < 1) {
-    *error = "--min_shared_voxels=" + std::to_string(min_shared_voxels) + ": must be >= 1";
+    *error = FieldError("min_shared_voxels", min_shared_voxels, "must be >= 1");
     return false;
   }
   if (num_chunks < 1) {
-    *error = "--num_chunks=" + std::to_string(num_chunks) + ": must be >= 1";
+    *error = FieldError("num_chunks", num_chunks, "must be >= 1");
     return false;
   }
   return true;

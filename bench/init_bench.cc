@@ -50,9 +50,9 @@ const std::vector<Frame>& SearchLevelFrames() {
 
 PlacementSearchOptions Options(int rotations) {
   PlacementSearchOptions o;
-  o.num_rotations = rotations;
+  o.rotations = rotations;
   o.num_threads = 1;
-  o.refine.log_progress = false;
+  o.refine.progress = false;
   o.refine.num_threads = 1;
   return o;
 }

@@ -50,7 +50,7 @@ std::unique_ptr<Problem> MakeProblem(int num_frames, Eigen::Vector3i frame_size,
   SimulationOptions o;
   o.num_frames = num_frames;
   o.frame_size = frame_size;
-  o.frame_spacing_mm = frame_spacing_mm;
+  o.frame_spacing = frame_spacing_mm;
   SimulatedSequence s;
   std::string error;
   if (!Simulate(phantom, o, &s, &error)) {

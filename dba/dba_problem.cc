@@ -9,6 +9,7 @@
 
 #include "dsr/solve/convergence.h"
 
+#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -85,12 +86,18 @@ bool DbaPhotometricResidual::Evaluate(double const* const* parameters,
 }
 
 bool DbaOptions::Validate(std::string* error) const {
-  if (!solve.Validate(error)) return false;
-  if (!std::isfinite(memory_budget_bytes)) {
-    *error = "--memory_budget_mb: must be finite";
+  if (!solve.Validate(error)) {
+    *error = PrefixFieldPaths("solve", *error);
     return false;
   }
-  if (!loss.Validate(error)) return false;
+  if (!std::isfinite(memory_budget_mb)) {
+    *error = FieldError("memory_budget_mb", memory_budget_mb, "must be finite");
+    return false;
+  }
+  if (!loss.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);
+    return false;
+  }
   return ValidateInitialPhotometric(photometric, initial_photometric, error);
 }
 
@@ -268,16 +275,16 @@ bool SolveDba(const std::vector<Frame>& frames,
   const DbaMemoryEstimate estimate =
       EstimateDbaMemory(candidates, static_cast<int>(frames.size()), linear_solver,
                         options.photometric);
-  const double budget = options.memory_budget_bytes > 0.0
-                            ? options.memory_budget_bytes
+  const double budget = options.memory_budget_mb > 0.0
+                            ? options.memory_budget_mb * 1048576.0
                             : 0.5 * static_cast<double>(PhysicalMemoryBytes());
   if (budget > 0.0 && estimate.bytes > budget) {
     std::ostringstream s;
     s.precision(4);
     s << "DBA problem needs an estimated " << estimate.ToString() << " with " << linear_solver
-      << ", over the memory budget of " << budget / 1048576.0
-      << " MiB (--memory_budget_mb); use a coarser --panorama_spacing or --mode=dsr, which "
-         "needs no per-observation storage";
+      << ", over the memory budget of " << budget / 1048576.0 << " MiB (memory_budget_mb="
+      << options.memory_budget_mb << "); use mode=dsr, which needs no per-observation "
+         "storage, or a coarser panorama (panorama_spacing)";
     *error = s.str();
     return false;
   }
@@ -294,18 +301,21 @@ bool SolveDba(const std::vector<Frame>& frames,
     start = options.initial_photometric.empty() ? std::vector<Photometric>(frames.size())
                                                 : options.initial_photometric;
   }
-  if (!options.loss.Validate(error)) return false;
+  if (!options.loss.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);
+    return false;
+  }
   DbaProblem dba(frames, candidates, initial_frame_from_world, start, options.loss);
   ceres::Solver::Options solver_options;
   options.solve.ToCeres("DENSE_SCHUR", &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
     solver_options.linear_solver_ordering = dba.MakeOrdering();
   }
-  ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.log_progress);
+  ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.progress);
   solver_options.callbacks.push_back(&progress);
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dba.pose_parameters(i);
-  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance_voxels,
+  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
   stop.AddTo(&solver_options);
   std::string why;

@@ -79,8 +79,9 @@ struct DbaOptions {
   std::vector<Photometric> initial_photometric;
   // The loss of every residual (default squared: no Ceres loss at all).
   RobustLoss loss;
-  // Refuse problems whose estimated memory exceeds this; <= 0 means half the machine's RAM.
-  double memory_budget_bytes = 0.0;
+  // Refuse problems whose estimated memory exceeds this many MiB; <= 0 means half the
+  // machine's RAM.
+  double memory_budget_mb = 0.0;
   bool Validate(std::string* error) const;
 };
 

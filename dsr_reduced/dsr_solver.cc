@@ -7,25 +7,32 @@
 #include <glog/logging.h>
 
 #include "dsr/solve/convergence.h"
+#include "dsr/util/option_fields.h"
 
 #include "dsr/dsr_reduced/reduced_cost.h"
 
 namespace dsr {
 
 bool DsrOptions::Validate(std::string* error) const {
-  if (!solve.Validate(error)) return false;
+  if (!solve.Validate(error)) {
+    *error = PrefixFieldPaths("solve", *error);
+    return false;
+  }
   const std::string& ls = solve.linear_solver;
   if (!ls.empty() && ls != "DENSE_QR" && ls != "DENSE_NORMAL_CHOLESKY" &&
       ls != "SPARSE_NORMAL_CHOLESKY") {
-    *error = "--linear_solver=" + ls +
-             ": --mode=dsr solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
+    *error = "solve.linear_solver=" + ls +
+             ": DSR solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
              "SPARSE_NORMAL_CHOLESKY";
     return false;
   }
   if (!ValidateInitialPhotometric(photometric, initial_photometric, error)) return false;
-  if (!loss.Validate(error)) return false;
+  if (!loss.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);
+    return false;
+  }
   if (num_chunks < 1) {
-    *error = "--num_chunks=" + std::to_string(num_chunks) + ": must be >= 1";
+    *error = FieldError("num_chunks", num_chunks, "must be >= 1");
     return false;
   }
   return true;
@@ -169,11 +176,11 @@ bool SolveOnce(const std::vector<Frame>& frames,
     solver_options.num_threads = 1;
   }
   ProgressCallback progress(options.solve.progress_prefix + (options.reference_cost ? "dsr-ref" : "dsr"),
-                            options.solve.log_progress);
+                            options.solve.progress);
   solver_options.callbacks.push_back(&progress);
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);
-  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance_voxels,
+  PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
   stop.AddTo(&solver_options);
   std::string why;
@@ -243,7 +250,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   *report = SolveReport();
   report->initial_cost = 0.5 * stats.robust_cost;
   report->usable = true;
-  const double tolerance = options.solve.step_tolerance_voxels;
+  const double tolerance = options.solve.step_tolerance;
   DsrOptions solve_options = options;
   std::string why;
   int solves = 0;
@@ -311,7 +318,10 @@ bool SolveDsr(const std::vector<Frame>& frames,
              std::to_string(frames.size()) + " frames";
     return false;
   }
-  if (!options.loss.Validate(error)) return false;
+  if (!options.loss.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);
+    return false;
+  }
   if (options.loss.IsSquared()) {
     return SolveOnce(frames, candidates, initial_frame_from_world, options, nullptr, report,
                      error);

@@ -38,9 +38,9 @@ struct DsrOptions {
 };
 
 // Most weighted solves of one robust SolveDsr (IRLS); it usually stops after 3 to 6, when
-// a solve moves no field of view by solve.step_tolerance_voxels (docs/design.md 4.7).
+// a solve moves no field of view by solve.step_tolerance (docs/design.md 4.7).
 constexpr int kMaxReweightings = 30;
-// With solve.step_tolerance_voxels = 0 (solves run to their fixed point), IRLS stops when
+// With solve.step_tolerance = 0 (solves run to their fixed point), IRLS stops when
 // no weight changes by more than this (about 2 ulp of a float weight near 1) or the poses
 // stop moving at all.
 constexpr double kWeightChangeTolerance = 2.5e-7;
@@ -85,7 +85,7 @@ class DsrProblem {
 // weights w_ij = rho'(r_ij^2) from the robust location of each voxel at the start
 // (UpdateObservationWeights), then repeatedly one Ceres solve of f_w with the weights fixed
 // and new weights at its poses, until a solve moves no field of view by
-// solve.step_tolerance_voxels (solve/convergence.h) or, with that tolerance 0, until no
+// solve.step_tolerance (solve/convergence.h) or, with that tolerance 0, until no
 // weight changes by more than kWeightChangeTolerance or the poses stay put; at most
 // kMaxReweightings solves. The report then sums iterations, times and passes over the
 // solves (iteration records concatenated and renumbered; each record's cost is 1/2 f_w of

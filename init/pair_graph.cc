@@ -35,7 +35,7 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
   const int m = static_cast<int>(frames.size());
   *report = PairGraphReport();
   PlacementSearchOptions pair_options = options;
-  pair_options.num_rotations = options.num_pair_rotations;
+  pair_options.rotations = options.pair_rotations;
   // 1. Pairs searched globally: first each frame with its kIndexSpan nearest frames in the
   // given order (consecutive acquisitions usually overlap most), then every other pair of
   // each frame whose best pair is weak (below the frames' median best NCC by
@@ -135,7 +135,7 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
     measurements.push_back(z);
   }
   SolveOptions graph;
-  graph.log_progress = false;
+  graph.progress = false;
   SolveReport graph_report;
   std::vector<Eigen::Isometry3d> solved;
   if (!SolvePoseGraph(measurements, poses, graph, &solved, &graph_report, error,

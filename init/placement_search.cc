@@ -11,6 +11,7 @@
 #include "dsr/image/pyramid.h"
 #include "dsr/init/masked_ncc.h"
 #include "dsr/init/rotation_grid.h"
+#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -133,28 +134,32 @@ bool PlacementSearchOptions::Validate(std::string* error) const {
     *error = s.str();
     return false;
   };
-  if (!(max_rotation_deg > 0.0 && max_rotation_deg <= 180.0)) {
-    return bad("--search_rotation_deg", max_rotation_deg, "must be in (0, 180]");
+  if (!(rotation_deg > 0.0 && rotation_deg <= 180.0)) {
+    return bad("rotation_deg", rotation_deg, "must be in (0, 180]");
   }
-  if (num_rotations < 1 || num_rotations > 100000) {
-    return bad("--search_rotations", num_rotations, "must be in [1, 100000]");
+  if (rotations < 1 || rotations > 100000) {
+    return bad("rotations", rotations, "must be in [1, 100000]");
   }
-  if (num_pair_rotations < 1 || num_pair_rotations > 100000) {
-    return bad("--pair_search_rotations", num_pair_rotations, "must be in [1, 100000]");
+  if (pair_rotations < 1 || pair_rotations > 100000) {
+    return bad("pair_rotations", pair_rotations, "must be in [1, 100000]");
   }
   if (num_screened < 0 || num_screened > 100000) {
-    return bad("PlacementSearchOptions::num_screened", num_screened, "must be in [0, 100000]");
+    return bad("num_screened", num_screened, "must be in [0, 100000]");
   }
   if (num_refined < 1 || num_refined > 100) {
-    return bad("PlacementSearchOptions::num_refined", num_refined, "must be in [1, 100]");
+    return bad("num_refined", num_refined, "must be in [1, 100]");
   }
   if (!(distinct_rotation_deg >= 0.0 && distinct_rotation_deg <= 180.0)) {
-    return bad("PlacementSearchOptions::distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
+    return bad("distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
   }
   if (!(min_overlap_fraction > 0.0 && min_overlap_fraction <= 1.0)) {
-    return bad("PlacementSearchOptions::min_overlap_fraction", min_overlap_fraction, "must be in (0, 1]");
+    return bad("min_overlap_fraction", min_overlap_fraction, "must be in (0, 1]");
   }
-  return refine.Validate(error);
+  if (!refine.Validate(error)) {
+    *error = PrefixFieldPaths("refine", *error);
+    return false;
+  }
+  return true;
 }
 
 double ScoreMinOverlap(const PlacementSearchOptions& options) {
@@ -326,7 +331,7 @@ std::vector<Placement> SearchPeaks(const Frame& fixed,
                                    const Eigen::Matrix3d& centre,
                                    const PlacementSearchOptions& options) {
   std::vector<Eigen::Matrix3d> rotations =
-      RotationsInBall(centre, options.max_rotation_deg * kDegree, options.num_rotations);
+      RotationsInBall(centre, options.rotation_deg * kDegree, options.rotations);
   // The coarse screen: every rotation on both volumes at half resolution (an eighth of the
   // voxels, FFTs to match), then only the best num_screened rotations at this level.
   Frame coarse_fixed, coarse_moving;

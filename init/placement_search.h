@@ -34,15 +34,15 @@
 namespace dsr {
 
 struct PlacementSearchOptions {
-  // Rotations sampled within this angle of the centre rotation, about num_rotations of them
+  // Rotations sampled within this angle of the centre rotation, about `rotations` of them
   // (200 within 45 degrees: about 8 degrees apart, well inside the local solver's reach).
-  double max_rotation_deg = 45.0;
-  int num_rotations = 200;
+  double rotation_deg = 45.0;
+  int rotations = 200;
   // Best distinct peaks refined by the local solver (plus the caller's extra starts).
   int num_refined = 3;
   // Rotations per pair of the pair graph (init/pair_graph.h), which searches m(m-1)/2 pairs:
-  // fewer than num_rotations, about 11 degrees apart within 45 degrees.
-  int num_pair_rotations = 60;
+  // fewer than `rotations`, about 11 degrees apart within 45 degrees.
+  int pair_rotations = 60;
   // The coarse screen: every sampled rotation is first scored with both volumes at half
   // resolution (an eighth of the voxels), and only the best num_screened rotations are
   // searched at the given level. 0: no screen, every rotation at the given level.
@@ -59,7 +59,7 @@ struct PlacementSearchOptions {
   SolveOptions refine;
   int num_threads = 0;  // <= 0: all hardware threads
 
-  // `error` names the option by its dsr_register flag.
+  // `error` names the field (util/option_fields.h).
   bool Validate(std::string* error) const;
 };
 

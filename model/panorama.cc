@@ -17,7 +17,7 @@ bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, st
   if (voxel <= shortest_extent / 8.0) return true;
   std::ostringstream s;
   s.precision(3);
-  s << "--panorama_spacing=" << spacing_factor << ": panorama voxels of " << voxel
+  s << "panorama_spacing=" << spacing_factor << ": panorama voxels of " << voxel
     << " mm leave fewer than 8 across frame 0's field of view (" << shortest_extent
     << " mm along its shortest axis); must be at most "
     << shortest_extent / 8.0 / frame0.spacing_mm.minCoeff();

@@ -16,6 +16,8 @@
 
 #include <glog/logging.h>
 
+#include "dsr/util/option_fields.h"
+
 namespace dsr {
 
 const char* RobustLossKindName(RobustLoss::Kind kind) {
@@ -38,19 +40,19 @@ bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std
       return true;
     }
   }
-  *error = "--loss=" + name + ": must be squared, huber or cauchy";
+  *error = "loss=" + name + ": must be squared, huber or cauchy";
   return false;
 }
 
 bool RobustLoss::Validate(std::string* error) const {
   if (kind != Kind::kSquared && kind != Kind::kHuber && kind != Kind::kCauchy) {
-    *error = "--loss: unknown loss kind " + std::to_string(static_cast<int>(kind));
+    *error = "kind=" + std::to_string(static_cast<int>(kind)) + ": unknown loss kind";
     return false;
   }
   if (IsSquared()) return true;
   if (!std::isfinite(scale) || !(scale > 0.0)) {
     std::ostringstream s;
-    s << "--loss_scale=" << scale << ": must be finite and > 0 (grey levels) for --loss="
+    s << "scale=" << scale << ": must be finite and > 0 (grey levels) for kind="
       << RobustLossKindName(kind);
     *error = s.str();
     return false;
@@ -62,7 +64,10 @@ bool MakeRobustLoss(const std::string& name, double scale, RobustLoss* loss, std
   RobustLoss out;
   if (!StringToRobustLossKind(name, &out.kind, error)) return false;
   out.scale = scale;
-  if (!out.Validate(error)) return false;
+  if (!out.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);  // the fields of a RegistrationOptions
+    return false;
+  }
   *loss = out;
   return true;
 }

@@ -31,8 +31,8 @@ struct RobustLoss {
   double scale = 0.0;
 
   bool IsSquared() const { return kind == Kind::kSquared; }
-  // Huber and Cauchy need a finite scale > 0. `error` names the flags --loss and
-  // --loss_scale.
+  // Huber and Cauchy need a finite scale > 0. `error` names the fields kind and scale
+  // (util/option_fields.h).
   bool Validate(std::string* error) const;
   // rho(s) for s = r^2 >= 0.
   double Rho(double s) const;
@@ -49,7 +49,8 @@ struct RobustLoss {
 const char* RobustLossKindName(RobustLoss::Kind kind);
 // The kind named `name` (exactly one of the names above); false with `error` otherwise.
 bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std::string* error);
-// Parses and validates a loss from its name and scale (the flags --loss and --loss_scale).
+// Parses and validates a loss from its name and scale (RegistrationOptions::loss); the
+// error names the fields loss, loss.kind and loss.scale (util/option_fields.h).
 bool MakeRobustLoss(const std::string& name, double scale, RobustLoss* loss, std::string* error);
 
 // The robust location (M-estimate) of k values c_0..c_{k-1} by IRLS, the closed-form

@@ -101,7 +101,7 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
   pyramids.num_levels = options.pyramid_levels;
   for (int i = 0; i < m; ++i) {
     pyramids.levels[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
-                                      options.pyramid_sigma_voxels, options.finest_sigma_voxels,
+                                      options.pyramid_sigma, options.smoothing,
                                       options.pyramid_min_size, options.solve.num_threads);
     pyramids.num_levels =
         std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
@@ -119,9 +119,9 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
     const ImageLevel& stored = pyramids.levels[i][coarsest];
     ImageLevel level = stored.image.empty() ? ImageLevel{images[i], masks[i]} : stored;
-    while (level.image.geometry.size.maxCoeff() > options.search_max_axis_voxels &&
+    while (level.image.geometry.size.maxCoeff() > options.search_max_axis &&
            level.image.geometry.size.minCoeff() >= 8) {
-      ImageLevel next = Downsample(level.image, level.mask, options.pyramid_sigma_voxels, 1);
+      ImageLevel next = Downsample(level.image, level.mask, options.pyramid_sigma, 1);
       if (CountInside(next.mask) == 0) break;
       level = std::move(next);
     }
@@ -241,7 +241,7 @@ CoarseToFine::Next CoarseToFine::SolveLevel(int level, const std::vector<Frame>&
     if (next != Next::kGoOn) return next;
     next = SolveOnce(level, frames, grid, std::move(candidates), std::move(record));
     if (next != Next::kGoOn) return next;
-    if (last_motion_ <= options_.rebuild_tolerance_voxels) break;
+    if (last_motion_ <= options_.rebuild_tolerance) break;
   }
   return Next::kGoOn;
 }
@@ -393,7 +393,7 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   // slowly) goes on to the finer levels. Only where rebuilds were allowed: the pair-based
   // baselines solve once per level and move their frames by whole voxels in that one solve.
   const double unsettled_voxels =
-      std::max(options_.rebuild_tolerance_voxels, options_.unsettled_motion_voxels);
+      std::max(options_.rebuild_tolerance, options_.unsettled_motion_voxels);
   if (max_rebuilds_ > 0 && last_motion_ > unsettled_voxels) {
     std::vector<int> sliding;
     for (int i = 1; i < m_; ++i) {
@@ -415,7 +415,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // its candidates stand for the final poses' (as the rebuild rule has it); otherwise
   // candidates are built at the final poses.
   CandidateSet final_candidates;
-  if (last_motion_ <= options_.rebuild_tolerance_voxels) {
+  if (last_motion_ <= options_.rebuild_tolerance) {
     final_candidates = std::move(last_candidates_);
   } else {
     ImageGeometry final_grid;
@@ -436,7 +436,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // parameters the misfits are always measured here, on corrected intensities.
   const SolveReport& last = result_->solves.back().report;
   const bool reuse_last_pass = options_.mode == Mode::kDsr && !affine_ &&
-                               last_motion_ <= options_.rebuild_tolerance_voxels &&
+                               last_motion_ <= options_.rebuild_tolerance &&
                                static_cast<int>(last.final_frame_cost.size()) == m_;
   if (reuse_last_pass) {
     result_->frame_misfits =
@@ -461,16 +461,16 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
 
 void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
                                        const CandidateSet& candidates) {
-  if (!options_.estimate_uncertainty) return;
+  if (!options_.uncertainty) return;
   if (affine_) {
     // The estimate linearises the poses' stopping rule alone (pipeline/uncertainty.h); the
     // gains and offsets solved with them would change both its gradient and its derivative.
     result_->uncertainty_note =
         "the pose uncertainty does not model the photometric parameters "
-        "(--photometric=affine)";
+        "(photometric=affine)";
   } else if (!options_.loss.IsSquared()) {
     // Its noise model is the squared differences' (pipeline/uncertainty.h).
-    result_->uncertainty_note = "the pose uncertainty does not model the robust loss (--loss=" +
+    result_->uncertainty_note = "the pose uncertainty does not model the robust loss (loss=" +
                                 std::string(RobustLossKindName(options_.loss.kind)) + ")";
   } else if (options_.mode == Mode::kDsr || options_.mode == Mode::kDba) {
     if (!EstimatePoseUncertainty(frames, candidates, poses_, masks_, stream_,

@@ -11,7 +11,7 @@
 //                            the overlap determines every pose
 //       SolveOnce            the mode's solver (pipeline/modes.h) with the candidates fixed
 //                          until a solve moves no field-of-view corner by more than
-//                          rebuild_tolerance_voxels
+//                          rebuild_tolerance
 //     CheckCoarseLevel     (with check_every_level) misfit, pair and settling checks
 //   CheckFinalPoses        the guard, misfit and pair checks of the final poses, and the
 //                          pose uncertainty
@@ -49,7 +49,7 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
                        const RegistrationOptions& options);
 
 // The frames the global search works on: the coarsest pyramid level, halved further until
-// no axis is longer than options.search_max_axis_voxels.
+// no axis is longer than options.search_max_axis.
 std::vector<Frame> SearchFrames(const std::vector<Image>& images,
                                 const std::vector<Mask>& masks,
                                 const Pyramids& pyramids,

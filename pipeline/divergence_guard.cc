@@ -96,8 +96,8 @@ bool MisfitOutlier(const std::vector<double>& misfits, double max_ratio, std::st
   s.precision(3);
   s << "frame " << worst << " does not match the others at the final poses: its RMS "
     << "difference to the panorama is " << misfits[worst] << ", " << misfits[worst] / reference
-    << " times the frames' lower quartile (" << reference << "; --max_misfit_ratio="
-    << max_ratio << "), a wrong local minimum; give better initial poses with --init";
+    << " times the frames' lower quartile (" << reference << "; max_misfit_ratio="
+    << max_ratio << "), a wrong local minimum; give better initial poses (init)";
   *why = s.str();
   return true;
 }
@@ -143,8 +143,8 @@ bool DivergenceGuard::Diverged(const std::vector<Frame>& frames,
     std::ostringstream s;
     s << "diverged: frame " << i << " slid out of the overlap (its best chain of overlapping "
       << "frames to frame 0 covers " << percent(tied[i]) << "% of its field of view, down "
-      << "from " << percent(initial_[i]) << "% at the initial poses; --min_kept_overlap="
-      << min_kept_ << "); give better initial poses with --init";
+      << "from " << percent(initial_[i]) << "% at the initial poses; min_kept_overlap="
+      << min_kept_ << "); give better initial poses (init)";
     *why = s.str();
   }
   return diverged;

@@ -44,7 +44,7 @@ struct ComparisonRow {
   // and whatever the comparison itself holds, e.g. the phantom): peak minus resident at
   // the start of the run. The method's own memory.
   double added_memory_mb = 0.0;
-  // With RegistrationOptions::estimate_uncertainty (modes dsr and dba; NaN otherwise), over
+  // With RegistrationOptions::uncertainty (modes dsr and dba; NaN otherwise), over
   // frames 1..m-1: the mean predicted TRE and the mean normalised squared pose error
   // e^T C^-1 e against the ground truth (pipeline/uncertainty.h; 6 when calibrated).
   double predicted_tre_mm = std::numeric_limits<double>::quiet_NaN();

@@ -46,8 +46,8 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
     }
   }
   const int shortest_axis = first.size.minCoeff();
-  if (options.finest_sigma_voxels > 0.25 * shortest_axis) {
-    *error = "--smoothing=" + Format(options.finest_sigma_voxels) +
+  if (options.smoothing > 0.25 * shortest_axis) {
+    *error = "smoothing=" + Format(options.smoothing) +
              ": a Gaussian of that many voxels erases every structure of frame 0 (" +
              std::to_string(shortest_axis) + " voxels along its shortest axis); must be at most " +
              Format(0.25 * shortest_axis);
@@ -69,7 +69,7 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
   for (size_t i = 1; i < images.size(); ++i) {
     const double distance = (centre_in_world(i) - centre0).stableNorm();
     if (!(distance <= kMaxInitialSpread * largest_extent)) {
-      *error = "the initial poses (--init) place frame " + std::to_string(i) + " " +
+      *error = "the initial poses (init) place frame " + std::to_string(i) + " " +
                Format(distance) + " mm from frame 0, more than " + Format(kMaxInitialSpread) +
                " times the frames' size (" + Format(largest_extent) +
                " mm): check the poses file's translations (millimetres, world to frame)";

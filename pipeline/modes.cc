@@ -67,7 +67,7 @@ DsrOptions ToDsrOptions(const RegistrationOptions& options, const SolveOptions& 
 DbaOptions ToDbaOptions(const RegistrationOptions& options, const SolveOptions& solve) {
   DbaOptions dba;
   dba.solve = solve;
-  dba.memory_budget_bytes = options.dba.memory_budget_bytes;
+  dba.memory_budget_mb = options.dba.memory_budget_mb;
   dba.photometric = options.photometric == PhotometricModel::kAffine;
   dba.loss = options.loss;
   return dba;

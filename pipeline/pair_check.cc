@@ -104,10 +104,9 @@ bool PairDisagreement(const std::vector<PairMismatch>& pairs,
     << " do not match each other at the poses reached: 1 - NCC over their overlap ("
     << static_cast<int>(100.0 * worst->overlap_fraction + 0.5) << "% of a field of view) is "
     << worst->mismatch << ", " << worst->mismatch / reference
-    << " times the pairs' lower quartile (" << reference << "; --max_pair_mismatch_ratio="
+    << " times the pairs' lower quartile (" << reference << "; max_pair_mismatch_ratio="
     << max_ratio << "); " << disagreeing << " of " << pairs.size()
-    << " overlapping pairs disagree: a wrong local minimum; give better initial poses with "
-       "--init";
+    << " overlapping pairs disagree: a wrong local minimum; give better initial poses (init)";
   *why = s.str();
   return true;
 }

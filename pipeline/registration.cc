@@ -11,6 +11,7 @@
 #include "dsr/init/recovery.h"
 #include "dsr/pipeline/coarse_to_fine.h"
 #include "dsr/pipeline/input_checks.h"
+#include "dsr/util/option_fields.h"
 
 namespace dsr {
 namespace {
@@ -60,72 +61,71 @@ bool SetInitialisation(const std::string& name, int max_recoveries, Registration
 
 namespace {
 
-// A function that writes "--flag=value: rule" into *error and returns false.
-auto BadFlag(std::string* error) {
-  return [error](const std::string& flag, const std::string& value, const std::string& rule) {
-    *error = "--" + flag + "=" + value + ": " + rule;
+// A function that writes "field=value: rule" (util/option_fields.h) into *error and
+// returns false.
+auto BadField(std::string* error) {
+  return [error](const std::string& field, const auto& value, const std::string& rule) {
+    *error = FieldError(field, value, rule);
     return false;
   };
 }
 
 // The pyramid's and the candidate rebuilds' rules of RegistrationOptions::Validate.
 bool ValidateLevels(const RegistrationOptions& o, std::string* error) {
-  const auto bad = BadFlag(error);
+  const auto bad = BadField(error);
   if (!(o.panorama_spacing > 0.0) || !std::isfinite(o.panorama_spacing)) {
-    return bad("panorama_spacing", std::to_string(o.panorama_spacing), "must be a positive number");
+    return bad("panorama_spacing", o.panorama_spacing, "must be a positive number");
   }
   if (o.pyramid_levels < 1 || o.pyramid_levels > 8) {
-    return bad("pyramid_levels", std::to_string(o.pyramid_levels), "must be in 1..8");
+    return bad("pyramid_levels", o.pyramid_levels, "must be in 1..8");
   }
-  if (!(o.pyramid_sigma_voxels >= 0.0) || !std::isfinite(o.pyramid_sigma_voxels)) {
-    return bad("pyramid_sigma", std::to_string(o.pyramid_sigma_voxels), "must be >= 0");
+  if (!(o.pyramid_sigma >= 0.0) || !std::isfinite(o.pyramid_sigma)) {
+    return bad("pyramid_sigma", o.pyramid_sigma, "must be >= 0");
   }
-  if (!(o.finest_sigma_voxels >= 0.0) || !std::isfinite(o.finest_sigma_voxels)) {
-    return bad("smoothing", std::to_string(o.finest_sigma_voxels), "must be >= 0");
+  if (!(o.smoothing >= 0.0) || !std::isfinite(o.smoothing)) {
+    return bad("smoothing", o.smoothing, "must be >= 0");
   }
   if (o.pyramid_min_size < 4) {
-    return bad("pyramid_min_size", std::to_string(o.pyramid_min_size), "must be >= 4");
+    return bad("pyramid_min_size", o.pyramid_min_size, "must be >= 4");
   }
   if (o.coarse_max_iterations < 1) {
-    return bad("coarse_max_iterations", std::to_string(o.coarse_max_iterations), "must be >= 1");
+    return bad("coarse_max_iterations", o.coarse_max_iterations, "must be >= 1");
   }
-  if (o.max_rebuilds < 0) return bad("max_rebuilds", std::to_string(o.max_rebuilds), "must be >= 0");
-  if (!(o.rebuild_tolerance_voxels > 0.0)) {
-    return bad("rebuild_tolerance", std::to_string(o.rebuild_tolerance_voxels), "must be > 0");
+  if (o.max_rebuilds < 0) return bad("max_rebuilds", o.max_rebuilds, "must be >= 0");
+  if (!(o.rebuild_tolerance > 0.0)) {
+    return bad("rebuild_tolerance", o.rebuild_tolerance, "must be > 0");
   }
   if (!(o.unsettled_motion_voxels >= 0.0 && std::isfinite(o.unsettled_motion_voxels))) {
-    *error = "RegistrationOptions::o.unsettled_motion_voxels=" +
-             std::to_string(o.unsettled_motion_voxels) + ": must be finite and >= 0";
-    return false;
+    return bad("unsettled_motion_voxels", o.unsettled_motion_voxels, "must be finite and >= 0");
   }
   return true;
 }
 
 // The checks' and the recovery's rules of RegistrationOptions::Validate.
 bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
-  const auto bad = BadFlag(error);
+  const auto bad = BadField(error);
   if (!(o.min_kept_overlap >= 0.0 && o.min_kept_overlap < 1.0)) {
-    return bad("min_kept_overlap", std::to_string(o.min_kept_overlap), "must be in [0, 1)");
+    return bad("min_kept_overlap", o.min_kept_overlap, "must be in [0, 1)");
   }
   if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
-    return bad("max_misfit_ratio", std::to_string(o.max_misfit_ratio), "must be 0 (off) or > 1");
+    return bad("max_misfit_ratio", o.max_misfit_ratio, "must be 0 (off) or > 1");
   }
   if (!(o.max_pair_mismatch_ratio == 0.0 ||
         (o.max_pair_mismatch_ratio > 1.0 && std::isfinite(o.max_pair_mismatch_ratio)))) {
-    return bad("max_pair_mismatch_ratio", std::to_string(o.max_pair_mismatch_ratio),
+    return bad("max_pair_mismatch_ratio", o.max_pair_mismatch_ratio,
                "must be 0 (off) or > 1");
   }
   if (o.min_shared_voxels < 1) {
-    return bad("min_shared_voxels", std::to_string(o.min_shared_voxels), "must be >= 1");
+    return bad("min_shared_voxels", o.min_shared_voxels, "must be >= 1");
   }
   if (o.max_recoveries < 0 || o.max_recoveries > 10) {
-    return bad("max_recoveries", std::to_string(o.max_recoveries), "must be in [0, 10]");
+    return bad("max_recoveries", o.max_recoveries, "must be in [0, 10]");
   }
   if (o.max_recoveries > 0 && o.max_misfit_ratio == 0.0 && o.min_kept_overlap == 0.0 &&
       o.max_pair_mismatch_ratio == 0.0) {
-    return bad("max_recoveries", std::to_string(o.max_recoveries),
-               "recovery needs a check that flags frames: --o.max_misfit_ratio, "
-               "--o.max_pair_mismatch_ratio or --o.min_kept_overlap must not be 0");
+    return bad("max_recoveries", o.max_recoveries,
+               "recovery needs a check that flags frames, but max_misfit_ratio=0, "
+               "max_pair_mismatch_ratio=0 and min_kept_overlap=0");
   }
   return true;
 }
@@ -133,33 +133,37 @@ bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
 }  // namespace
 
 bool RegistrationOptions::Validate(std::string* error) const {
-  if (ModeToString(mode)[0] == '\0') {
-    *error = "RegistrationOptions::mode=" + std::to_string(static_cast<int>(mode)) + ": unknown mode";
+  const auto bad = BadField(error);
+  if (ModeToString(mode)[0] == '\0') return bad("mode", static_cast<int>(mode), "unknown mode");
+  if (!solve.Validate(error)) {
+    *error = PrefixFieldPaths("solve", *error);
     return false;
   }
-  if (!solve.Validate(error)) return false;
   if (!ValidateLevels(*this, error) || !ValidateChecks(*this, error)) return false;
-  const auto bad = BadFlag(error);
-  if (search_max_axis_voxels < 8) {
-    return bad("search_max_axis", std::to_string(search_max_axis_voxels), "must be >= 8");
+  if (search_max_axis < 8) {
+    return bad("search_max_axis", search_max_axis, "must be >= 8");
   }
   if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
+    *error = PrefixFieldPaths("search", *error);
     return false;
   }
-  if (!loss.Validate(error)) return false;
+  if (!loss.Validate(error)) {
+    *error = PrefixFieldPaths("loss", *error);
+    return false;
+  }
   if (!loss.IsSquared() && !ModeEstimatesPhotometric(mode)) {
-    return bad("loss", RobustLossKindName(loss.kind),
-               "needs --mode=dsr or dba (--mode=" + std::string(ModeToString(mode)) +
+    return bad("loss.kind", RobustLossKindName(loss.kind),
+               "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
                    " is a baseline with squared differences)");
   }
   const bool affine = photometric == PhotometricModel::kAffine;
   if (affine && !ModeEstimatesPhotometric(mode)) {
     return bad("photometric", PhotometricModelToString(photometric),
-               "needs --mode=dsr or dba (--mode=" + std::string(ModeToString(mode)) +
-                   " is a baseline without photometric parameters; use --photometric=none)");
+               "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
+                   " is a baseline without photometric parameters; use photometric=none)");
   }
   // Each solver's own rules first without the photometric parameters, so that an error of
-  // theirs with them is the flag's.
+  // theirs with them is the photometric field's.
   if (ModeEstimatesPhotometric(mode)) {
     const auto valid = [&](const RegistrationOptions& o) {
       return mode == Mode::kDsr ? ToDsrOptions(o, solve).Validate(error)
@@ -169,7 +173,7 @@ bool RegistrationOptions::Validate(std::string* error) const {
     plain.photometric = PhotometricModel::kNone;
     if (!valid(plain)) return false;
     if (affine && !valid(*this)) {
-      *error = "--photometric=affine: " + *error;
+      *error = "photometric=affine: " + *error;
       return false;
     }
   } else if (!ToBaselineOptions(*this, solve).Validate(error)) {
@@ -209,11 +213,11 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
   RegistrationResult init;
   if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {
-    *error = "--init=pairwise: " + *error;
+    *error = "init=pairwise: " + *error;
     return false;
   }
   if (!init.usable) {
-    result->failure = "--init=pairwise: " + init.failure;
+    result->failure = "init=pairwise: " + init.failure;
     *ended = true;
     return true;
   }
@@ -340,7 +344,7 @@ bool RegisterScaled(const std::vector<Image>& images,
     const auto init_start = std::chrono::steady_clock::now();
     PairGraphReport graph;
     if (!GlobalInitialPoses(search_frames, options.search, &poses, &graph, error)) {
-      *error = "--init=global: " + *error;
+      *error = "init=global: " + *error;
       return false;
     }
     result->init_seconds = Seconds(init_start);

@@ -79,28 +79,28 @@ struct RegistrationOptions {
   // also run after every coarse level, so that a wrong minimum is caught early and cheaply,
   // and a coarse level that did not settle (its last solve, every rebuild used, still moved
   // a frame by more than unsettled_motion_voxels, in the level's voxels, and by more than
-  // rebuild_tolerance_voxels) is recovered at once (docs/design.md section 10).
+  // rebuild_tolerance) is recovered at once (docs/design.md section 10).
   int max_recoveries = 0;
   double unsettled_motion_voxels = 1.0;
   // The global search of recovery and of InitialPoses::kGlobal. It runs on the coarsest
   // pyramid level, halved further until no axis of a frame is longer than
-  // search_max_axis_voxels.
+  // search_max_axis.
   PlacementSearchOptions search;
-  int search_max_axis_voxels = 32;
+  int search_max_axis = 32;
   SolveOptions solve;             // per solve; max_iterations is the finest level's limit
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
 
   // Pyramid (image/pyramid.h). Level 0 is the input resolution.
   int pyramid_levels = 3;
-  double pyramid_sigma_voxels = 1.0;   // smoothing before each halving
-  double finest_sigma_voxels = 0.0;    // smoothing of the finest level itself
+  double pyramid_sigma = 1.0;   // smoothing before each halving
+  double smoothing = 0.0;    // smoothing of the finest level itself
   int pyramid_min_size = 12;           // no level with an axis shorter than this
   // Iteration limit of each solve on the coarser levels (the finest uses solve.max_iterations).
   int coarse_max_iterations = 50;
 
   // Candidate rebuilds per level (outer loop) and when to stop them.
   int max_rebuilds = 4;
-  double rebuild_tolerance_voxels = 0.05;
+  double rebuild_tolerance = 0.05;
 
   // Frames must share at least this many candidate voxels along a spanning tree.
   int64_t min_shared_voxels = 64;
@@ -125,10 +125,10 @@ struct RegistrationOptions {
   // and dba, whose estimate it is): one cost pass over the finest level, one for the
   // gradient's covariance and one of 6 extra samples per observation for its derivative.
   // Off by default (its cost).
-  bool estimate_uncertainty = false;
+  bool uncertainty = false;
 
   // Photometric parameters (modes dsr and dba only; Validate refuses kAffine for the
-  // baselines, naming --photometric). With kAffine every solve estimates a gain and an
+  // baselines, naming photometric). With kAffine every solve estimates a gain and an
   // offset per frame (DsrOptions/DbaOptions::photometric). They do not depend on the
   // resolution (the pyramid's normalised smoothing maps a I + b to a I_s + b), so each
   // solve starts from the previous solve's estimate, across candidate rebuilds and pyramid
@@ -153,7 +153,7 @@ struct RegistrationOptions {
     bool reference_cost = false;  // the per-voxel reference cost instead of the fast path
   };
   struct DbaSettings {
-    double memory_budget_bytes = 0.0;  // <= 0: half the machine's RAM
+    double memory_budget_mb = 0.0;  // MiB; <= 0: half the machine's RAM
   };
   DsrSettings dsr;
   DbaSettings dba;
@@ -213,7 +213,7 @@ struct RegistrationResult {
     double seconds = 0.0;  // the search (the solves that follow are counted above)
   };
   std::vector<Recovery> recoveries;
-  // The final poses' uncertainty (estimate_uncertainty, a usable dsr or dba result);
+  // The final poses' uncertainty (uncertainty, a usable dsr or dba result);
   // covariance is empty when not estimated, with the reason in uncertainty_note.
   PoseUncertainty uncertainty;
   std::string uncertainty_note;

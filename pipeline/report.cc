@@ -341,7 +341,7 @@ std::string ReportIndex(const ReportInputs& in, const std::string& pair_picture)
   }
   if (photometric) {
     md << "\nGain and offset: frame i's intensities on frame 0's scale are gain * I_i + offset "
-          "(--photometric=affine); the panorama and the pair picture show them so.\n";
+          "(photometric=affine); the panorama and the pair picture show them so.\n";
   }
   if (uncertainty || !r.uncertainty_note.empty()) {
     md << "\n" << UncertaintySummary(r.uncertainty, r.uncertainty_note) << ".\n";
@@ -376,7 +376,7 @@ bool WriteReport(const std::string& dir,
   std::error_code ec;
   fs::create_directories(fs::path(dir) / "transforms", ec);
   if (ec) {
-    *error = "--report_dir=" + dir + ": cannot create the folder (" + ec.message() + ")";
+    *error = "report_dir=" + dir + ": cannot create the folder (" + ec.message() + ")";
     return false;
   }
   const RegistrationResult& r = *in.result;

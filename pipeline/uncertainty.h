@@ -1,5 +1,5 @@
 // Pose uncertainty of a registration (docs/design.md section 8.6), off by default
-// (RegistrationOptions::estimate_uncertainty, dsr_register --uncertainty): it costs a pass
+// (RegistrationOptions::uncertainty, dsr_register --uncertainty): it costs a pass
 // of 6 extra samples per observation.
 //
 // DSR stops where its gradient g = sum_j sum_a J_aj^T r_aj vanishes (r_aj = I_a(p_aj) -

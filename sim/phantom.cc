@@ -225,9 +225,9 @@ float Mix(float a, float b, double weight) { return static_cast<float>(a + (b - 
 bool PhantomOptions::Validate(std::string* error) const {
   std::ostringstream s;
   if (size < 16 || size > 512) {
-    s << "--phantom_size=" << size << ": must be in [16, 512]";
+    s << "size=" << size << ": must be in [16, 512]";
   } else if (!std::isfinite(spacing_mm) || spacing_mm <= 0.0) {
-    s << "phantom spacing_mm=" << spacing_mm << ": must be finite and > 0";
+    s << "spacing_mm=" << spacing_mm << ": must be finite and > 0";
   } else {
     return true;
   }

@@ -35,8 +35,8 @@ struct PhantomOptions {
   double spacing_mm = 1.0;  // isotropic, finite and > 0
   uint64_t seed = 1;        // layout jitter and texture
 
-  // False with a one-line message (naming dsr_simulate's --phantom_size for the size)
-  // when a value is out of range.
+  // False with a one-line message naming the field (util/option_fields.h) when a value
+  // is out of range.
   bool Validate(std::string* error) const;
 };
 

@@ -483,53 +483,53 @@ bool SimulationOptions::Validate(std::string* error) const {
     return std::isfinite(v) && v >= lo && v <= hi;
   };
   if (num_frames < 2 || num_frames > kMaxFrames) {
-    s << "--num_frames=" << num_frames << ": must be in [2, " << kMaxFrames << "]";
+    s << "num_frames=" << num_frames << ": must be in [2, " << kMaxFrames << "]";
   } else if (!range(max_rotation_deg, 0.0, 180.0)) {
-    s << "--max_rotation_deg=" << max_rotation_deg << ": must be in [0, 180]";
+    s << "max_rotation_deg=" << max_rotation_deg << ": must be in [0, 180]";
   } else if (!range(max_translation_voxels, 0.0, std::numeric_limits<double>::max())) {
-    s << "--max_translation_voxels=" << max_translation_voxels << ": must be finite and >= 0";
+    s << "max_translation_voxels=" << max_translation_voxels << ": must be finite and >= 0";
   } else if (*PoseModelToString(pose_model) == '\0') {
-    s << "--pose_model=" << static_cast<int>(pose_model) << ": must be random or walk";
+    s << "pose_model=" << static_cast<int>(pose_model) << ": must be random or walk";
   } else if (!range(step_rotation_deg, 0.0, 180.0)) {
-    s << "--step_rotation_deg=" << step_rotation_deg << ": must be in [0, 180]";
+    s << "step_rotation_deg=" << step_rotation_deg << ": must be in [0, 180]";
   } else if (!range(step_translation_voxels, 0.0, std::numeric_limits<double>::max())) {
-    s << "--step_translation_voxels=" << step_translation_voxels << ": must be finite and >= 0";
-  } else if (!range(noise_sigma, 0.0, std::numeric_limits<double>::max())) {
-    s << "--sigma=" << noise_sigma << ": must be finite and >= 0";
+    s << "step_translation_voxels=" << step_translation_voxels << ": must be finite and >= 0";
+  } else if (!range(sigma, 0.0, std::numeric_limits<double>::max())) {
+    s << "sigma=" << sigma << ": must be finite and >= 0";
   } else if ((frame_size.array() < 4).any() || (frame_size.array() > kMaxFrameSize).any()) {
-    s << "--frame_size=" << frame_size[0] << "," << frame_size[1] << "," << frame_size[2]
+    s << "frame_size=" << frame_size[0] << "," << frame_size[1] << "," << frame_size[2]
       << ": every size must be in [4, " << kMaxFrameSize << "]";
-  } else if (!range(frame_spacing_mm, 0.0, std::numeric_limits<double>::max())) {
-    s << "--frame_spacing=" << frame_spacing_mm << ": must be finite and >= 0 (0 = source spacing)";
+  } else if (!range(frame_spacing, 0.0, std::numeric_limits<double>::max())) {
+    s << "frame_spacing=" << frame_spacing << ": must be finite and >= 0 (0 = source spacing)";
   } else if (!(std::isfinite(azimuth_deg) && azimuth_deg > 0.0 && azimuth_deg < 180.0)) {
-    s << "--azimuth_deg=" << azimuth_deg << ": must be in (0, 180)";
+    s << "azimuth_deg=" << azimuth_deg << ": must be in (0, 180)";
   } else if (!(std::isfinite(elevation_deg) && elevation_deg > 0.0 && elevation_deg < 180.0)) {
-    s << "--elevation_deg=" << elevation_deg << ": must be in (0, 180)";
+    s << "elevation_deg=" << elevation_deg << ": must be in (0, 180)";
   } else if (!range(min_depth_voxels, 0.0, frame_size[2] - 3.0)) {
-    s << "--min_depth_voxels=" << min_depth_voxels
+    s << "min_depth_voxels=" << min_depth_voxels
       << ": must be in [0, frame depth - 3 = " << frame_size[2] - 3 << "]";
-  } else if (mask_erosion_voxels < 0 || mask_erosion_voxels > kMaxMaskErosion) {
-    s << "--mask_erosion=" << mask_erosion_voxels << ": must be in [0, " << kMaxMaskErosion
+  } else if (mask_erosion < 0 || mask_erosion > kMaxMaskErosion) {
+    s << "mask_erosion=" << mask_erosion << ": must be in [0, " << kMaxMaskErosion
       << "]";
   } else if (*SourceInterpolationToString(interpolation) == '\0') {
-    s << "--interpolation=" << static_cast<int>(interpolation) << ": must be linear or cubic";
+    s << "interpolation=" << static_cast<int>(interpolation) << ": must be linear or cubic";
   } else if (!range(gain_range, 0.0, kMaxGainRange)) {
-    s << "--gain_range=" << gain_range << ": must be in [0, " << kMaxGainRange << "]";
+    s << "gain_range=" << gain_range << ": must be in [0, " << kMaxGainRange << "]";
   } else if (!range(offset_range, 0.0, kMaxOffsetRange)) {
-    s << "--offset_range=" << offset_range << ": must be in [0, " << kMaxOffsetRange << "]";
+    s << "offset_range=" << offset_range << ": must be in [0, " << kMaxOffsetRange << "]";
   } else if (speckle_looks < 0 || speckle_looks > kMaxSpeckleLooks) {
-    s << "--speckle_looks=" << speckle_looks << ": must be 0 (no speckle) or in [1, "
+    s << "speckle_looks=" << speckle_looks << ": must be 0 (no speckle) or in [1, "
       << kMaxSpeckleLooks << "]";
   } else if (!range(speckle_correlation_voxels, 0.0, kMaxSpeckleCorrelation)) {
-    s << "--speckle_correlation_voxels=" << speckle_correlation_voxels << ": must be in [0, "
+    s << "speckle_correlation_voxels=" << speckle_correlation_voxels << ": must be in [0, "
       << kMaxSpeckleCorrelation << "]";
   } else if (!range(speckle_world_fraction, 0.0, 1.0)) {
-    s << "--speckle_world_fraction=" << speckle_world_fraction << ": must be in [0, 1]";
+    s << "speckle_world_fraction=" << speckle_world_fraction << ": must be in [0, 1]";
   } else if (speckle_world_fraction > 0.0 && speckle_looks == 0) {
-    s << "--speckle_world_fraction=" << speckle_world_fraction
-      << ": needs speckle (--speckle_looks >= 1), which is off";
+    s << "speckle_world_fraction=" << speckle_world_fraction
+      << ": needs speckle, but speckle_looks=0";
   } else if (!range(attenuation_db_per_cm, 0.0, kMaxAttenuationDbPerCm)) {
-    s << "--attenuation_db_per_cm=" << attenuation_db_per_cm << ": must be in [0, "
+    s << "attenuation_db_per_cm=" << attenuation_db_per_cm << ": must be in [0, "
       << kMaxAttenuationDbPerCm << "]";
   } else {
     return true;
@@ -541,7 +541,7 @@ bool SimulationOptions::Validate(std::string* error) const {
 ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& o) {
   ImageGeometry g;
   g.size = o.frame_size;
-  g.spacing_mm = Eigen::Vector3d::Constant(o.frame_spacing_mm > 0.0 ? o.frame_spacing_mm
+  g.spacing_mm = Eigen::Vector3d::Constant(o.frame_spacing > 0.0 ? o.frame_spacing
                                                                     : source.spacing_mm[0]);
   return g;  // origin 0, identity direction
 }
@@ -798,12 +798,16 @@ bool Simulate(const Image& source,
 
   const ImageGeometry g = SimulatedFrameGeometry(source.geometry, options);
   const Mask fov = PyramidFieldOfView(g, options);
-  const Mask mask = ErodeFieldOfView(fov, options.mask_erosion_voxels);
+  const Mask mask = ErodeFieldOfView(fov, options.mask_erosion);
   if (CountInside(mask) == 0) {
-    *error = "the field of view is empty after the " +
-             std::to_string(options.mask_erosion_voxels) +
-             "-voxel erosion (--mask_erosion): increase --frame_size, --azimuth_deg or "
-             "--elevation_deg, or decrease --min_depth_voxels or --mask_erosion";
+    std::ostringstream s;
+    s << "the field of view is empty after the " << options.mask_erosion
+      << "-voxel erosion (mask_erosion): increase frame_size=" << options.frame_size[0] << ","
+      << options.frame_size[1] << "," << options.frame_size[2]
+      << ", azimuth_deg=" << options.azimuth_deg << " or elevation_deg=" << options.elevation_deg
+      << ", or decrease min_depth_voxels=" << options.min_depth_voxels
+      << " or mask_erosion=" << options.mask_erosion;
+    *error = s.str();
     return false;
   }
   std::mt19937_64 rng(options.seed);
@@ -885,7 +889,7 @@ bool Simulate(const Image& source,
       s << "frame " << f << ": field-of-view voxel (" << ijk.transpose()
         << ") maps to source index (" << ijk_source.transpose() << "), outside the source grid ("
         << source.geometry.DebugString()
-        << "); use a larger source (--phantom_size), a smaller --frame_size or smaller motions";
+        << "); use a larger source, a smaller frame_size or smaller motions";
       *error = s.str();
       return false;
     }
@@ -912,7 +916,7 @@ bool Simulate(const Image& source,
       if (!attenuation.empty()) value *= attenuation[l];
       if (!speckle.empty()) value *= speckle.voxels[l];
       if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
-      const double noisy = value + options.noise_sigma * normal(rng);
+      const double noisy = value + options.sigma * normal(rng);
       frame.voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
     }
     out.masks.push_back(mask);

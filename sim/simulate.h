@@ -2,7 +2,7 @@
 // with a TEE-like pyramidal field of view at random rigid poses, intensities 0..255,
 // additive Gaussian noise inside the field of view, zero outside.
 //
-// Frame geometry: `frame_size` voxels, isotropic spacing s (frame_spacing_mm, or the
+// Frame geometry: `frame_size` voxels, isotropic spacing s (frame_spacing, or the
 // source's spacing along its first axis), origin 0, identity direction: the probe's own
 // coordinates. The pyramid's apex is the centre of the k = 0 face, depth runs along +k.
 // A voxel (i, j, k) is in the field of view when
@@ -42,7 +42,7 @@
 // the largest angle that keeps it inside. The step bounds therefore always hold, the box
 // bounds the whole sequence, and a frame stuck at a box face simply moves less.
 //
-// Intensities: the source's value at world_from_frame * x, plus N(0, noise_sigma), clamped
+// Intensities: the source's value at world_from_frame * x, plus N(0, sigma), clamped
 // to 0..255, for field-of-view voxels; 0 outside (with the optional ultrasound-like effects
 // below applied before the noise). The value is, by `interpolation`:
 // kLinear (default) the trilinear value (Frame::InterpolateValue on an all-ones mask);
@@ -56,7 +56,7 @@
 // Ultrasound-like effects (docs/design.md section 6.6), all off by default, so that a
 // sequence without them is bit for bit the one the simulator made before they existed. Per
 // field-of-view voxel of frame i, with S the interpolated source value:
-//   I = clamp(g_i (S a(r) s_i) + o_i + N(0, noise_sigma), 0, 255),
+//   I = clamp(g_i (S a(r) s_i) + o_i + N(0, sigma), 0, 255),
 // where
 //   a(r) = 10^(-attenuation_db_per_cm r / 20): depth attenuation, r the distance (cm) of the
 //          voxel centre from the pyramid's apex (the centre of the k = 0 face, as above);
@@ -81,7 +81,7 @@
 // grid), never from the poses-and-noise generator, so the poses and the noise draws are the
 // same with the effects on or off, and the speckle does not depend on the thread count.
 //
-// Masks: the field of view eroded by mask_erosion_voxels (default 1) voxels, each voxel of
+// Masks: the field of view eroded by mask_erosion (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
 // field of view. The registration's gradients read mask voxels only whatever the mask
 // (image/frame.h: a valid cell's corners need their 6 neighbours inside the mask), so for
@@ -136,14 +136,14 @@ struct SimulationOptions {
   double max_translation_voxels = 15.0;  // per world axis, in frame voxels, >= 0
   double step_rotation_deg = 6.0;        // kWalk: largest rotation per step, in [0, 180]
   double step_translation_voxels = 6.0;  // kWalk: largest shift per step, frame voxels, >= 0
-  double noise_sigma = 25.0;             // intensity units, >= 0
+  double sigma = 25.0;             // intensity units, >= 0
   uint64_t seed = 1;
   Eigen::Vector3i frame_size = Eigen::Vector3i(96, 96, 80);  // voxels, depth along k
-  double frame_spacing_mm = 0.0;  // 0: the source's spacing along its first axis
+  double frame_spacing = 0.0;  // 0: the source's spacing along its first axis
   double azimuth_deg = 75.0;      // full opening angles of the pyramid, in (0, 180)
   double elevation_deg = 75.0;
   double min_depth_voxels = 4.0;  // near-field cut, in [0, frame_size[2] - 3]
-  int mask_erosion_voxels = 1;    // erosion of the written masks, in [0, 50]; 0 = the FOV
+  int mask_erosion = 1;    // erosion of the written masks, in [0, 50]; 0 = the FOV
   SourceInterpolation interpolation = SourceInterpolation::kLinear;  // how frames sample
   // Ultrasound-like effects (see the header comment); each default leaves them off.
   double gain_range = 0.0;    // per-frame gain uniform in [1 - this, 1 + this], in [0, 0.9]
@@ -158,14 +158,14 @@ struct SimulationOptions {
   double speckle_world_fraction = 0.0;
   double attenuation_db_per_cm = 0.0;  // depth attenuation from the apex, dB/cm, in [0, 10]
 
-  // Checks ranges and cross-field rules. The message names the dsr_simulate flag
-  // (e.g. "--num_frames=1: must be in [2, 1000]").
+  // Checks ranges and cross-field rules. The message names the field
+  // (util/option_fields.h; e.g. "num_frames=1: must be in [2, 1000]").
   bool Validate(std::string* error) const;
 };
 
 struct SimulatedSequence {
   std::vector<Image> frames;  // on the frame grid, 0..255, 0 outside the FOV
-  std::vector<Mask> masks;    // the field of view eroded by mask_erosion_voxels (all equal)
+  std::vector<Mask> masks;    // the field of view eroded by mask_erosion (all equal)
   std::vector<Eigen::Isometry3d> frame_from_world;  // world = the source's physical space
   // The frames' drawn gains g_i and offsets o_i (frame i = g_i S + o_i before noise, S the
   // source, attenuated and speckled); 1 and 0 when gain_range and offset_range are 0. For

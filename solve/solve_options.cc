@@ -13,22 +13,22 @@ namespace dsr {
 bool SolveOptions::Validate(std::string* error) const {
   ceres::TrustRegionStrategyType tr;
   if (!ceres::StringToTrustRegionStrategyType(trust_region, &tr)) {
-    *error = "--trust_region=" + trust_region + ": must be LEVENBERG_MARQUARDT or DOGLEG";
+    *error = "trust_region=" + trust_region + ": must be LEVENBERG_MARQUARDT or DOGLEG";
     return false;
   }
   ceres::LinearSolverType ls;
   if (!linear_solver.empty() && !ceres::StringToLinearSolverType(linear_solver, &ls)) {
-    *error = "--linear_solver=" + linear_solver + ": not a Ceres linear solver name";
+    *error = "linear_solver=" + linear_solver + ": not a Ceres linear solver name";
     return false;
   }
   if (max_iterations < 1) {
-    *error = "--max_iterations=" + std::to_string(max_iterations) + ": must be >= 1";
+    *error = "max_iterations=" + std::to_string(max_iterations) + ": must be >= 1";
     return false;
   }
   const std::pair<const char*, double> tolerances[] = {
-      {"--function_tolerance", function_tolerance},
-      {"--gradient_tolerance", gradient_tolerance},
-      {"--parameter_tolerance", parameter_tolerance}};
+      {"function_tolerance", function_tolerance},
+      {"gradient_tolerance", gradient_tolerance},
+      {"parameter_tolerance", parameter_tolerance}};
   for (const auto& [name, value] : tolerances) {
     if (!std::isfinite(value) || value < 0.0) {
       std::ostringstream s;
@@ -37,18 +37,18 @@ bool SolveOptions::Validate(std::string* error) const {
       return false;
     }
   }
-  if (!std::isfinite(step_tolerance_voxels) || step_tolerance_voxels < 0.0) {
+  if (!std::isfinite(step_tolerance) || step_tolerance < 0.0) {
     std::ostringstream s;
-    s << "--step_tolerance=" << step_tolerance_voxels << ": must be finite and >= 0";
+    s << "step_tolerance=" << step_tolerance << ": must be finite and >= 0";
     *error = s.str();
     return false;
   }
   if (max_rejected_steps < 0) {
-    *error = "--max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
+    *error = "max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
     return false;
   }
   if (!KernelPathAvailable(kernels)) {
-    *error = std::string("--kernels=") + KernelPathToString(kernels) +
+    *error = std::string("kernels=") + KernelPathToString(kernels) +
              ": this CPU does not run them";
     return false;
   }

@@ -27,7 +27,7 @@ struct SolveOptions {
   int num_threads = 0;  // <= 0: all hardware threads
   // The SIMD kernels of the streamed costs (util/cpu.h); Validate checks the CPU runs them.
   KernelPath kernels = KernelPath::kAuto;
-  bool log_progress = true;  // one line per iteration on stderr
+  bool progress = true;  // one line per iteration on stderr
   // Prepended to the mode's name on progress lines (e.g. "level 2 " -> "level 2 dsr iter").
   std::string progress_prefix;
   // Ceres accepts a step only when the cost drops by at least this fraction of the model's
@@ -37,14 +37,14 @@ struct SolveOptions {
   // The pose stopping rule of solve/convergence.h: stop when an accepted step moves no
   // field of view by more than this many voxels (0 = off), or after this many rejected
   // steps in a row (0 = off). Tests that converge to 1e-8 turn both off.
-  double step_tolerance_voxels = 5e-3;
+  double step_tolerance = 5e-3;
   int max_rejected_steps = 5;
   // Streamed costs (DSR, APE, pair registrations): compute Jacobians along with a trial
   // point's cost and skip the Jacobians of the point that ends the solve
   // (stream/streamed_cost.h). Same poses and costs either way; fewer passes over the voxels.
   bool reuse_evaluations = true;
 
-  // Checks names and ranges; `error` names the option (as its command-line flag).
+  // Checks names and ranges; `error` names the field (util/option_fields.h).
   bool Validate(std::string* error) const;
   // Fills a ceres::Solver::Options (linear solver = `default_linear_solver` when empty).
   void ToCeres(const std::string& default_linear_solver, ceres::Solver::Options* out) const;

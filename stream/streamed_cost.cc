@@ -68,7 +68,7 @@ StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
   if (!solve.reuse_evaluations) return policy;
   policy.speculate = true;
   policy.frames = &frames;
-  policy.step_tolerance_voxels = solve.step_tolerance_voxels;
+  policy.step_tolerance_voxels = solve.step_tolerance;
   return policy;
 }
 
@@ -256,9 +256,9 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   // The streamed blocks thread internally over fixed voxel blocks (deterministic); Ceres
   // evaluates the few blocks one after another.
   options.num_threads = 1;
-  ProgressCallback progress(solve.progress_prefix + label, solve.log_progress);
+  ProgressCallback progress(solve.progress_prefix + label, solve.progress);
   options.callbacks.push_back(&progress);
-  PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance_voxels,
+  PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance,
                         solve.max_rejected_steps);
   stop.AddTo(&options);
   std::string why;

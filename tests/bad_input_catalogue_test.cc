@@ -274,7 +274,7 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --max_pair_mismatch_ratio=1", "--max_pair_mismatch_ratio");
   Register(base + " --max_pair_mismatch_ratio=inf", "--max_pair_mismatch_ratio");
   Register(base + " --search_rotations=0", "--search_rotations=0:");
-  Register(base + " --pair_search_rotations=-5", "--pair_search_rotations=-5:");
+  Register(base + " --search_pair_rotations=-5", "--search_pair_rotations=-5:");
   Register(base + " --search_rotation_deg=200", "--search_rotation_deg=200:");
   Register(base + " --search_max_axis=4", "--search_max_axis");
   Register(base + " --init=no_such_start", "no_such_start");

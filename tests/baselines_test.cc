@@ -226,7 +226,7 @@ TEST(LieNormalization, PoseGraphRecoversConsistentMeasurementsExactly) {
     start[i] = ExpSE3(d) * truth[i];
   }
   SolveOptions solve;
-  solve.log_progress = false;
+  solve.progress = false;
   std::vector<Eigen::Isometry3d> poses;
   SolveReport report;
   std::string error;
@@ -256,7 +256,7 @@ SimulatedSequence SmallSequence() {
   SimulationOptions options;
   options.num_frames = 4;
   options.frame_size = Eigen::Vector3i(40, 40, 32);
-  options.noise_sigma = 0.0;
+  options.sigma = 0.0;
   options.max_translation_voxels = 4.0;
   options.max_rotation_deg = 8.0;
   options.min_depth_voxels = 2.0;
@@ -271,7 +271,7 @@ PoseErrorSummary RegisterWith(const std::string& mode, RegistrationResult* resul
   static const SimulatedSequence sequence = SmallSequence();
   RegistrationOptions o;
   EXPECT_TRUE(StringToMode(mode, &o.mode)) << mode;
-  o.solve.log_progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.solve.progress = getenv("DSR_TEST_LOG") != nullptr;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
@@ -310,7 +310,7 @@ TEST(Baselines, PairwiseInitialiserFeedsTheMode) {
   RegistrationOptions o;
   o.mode = dsr::Mode::kDsr;
   o.init = InitialPoses::kPairwise;
-  o.solve.log_progress = false;
+  o.solve.progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
@@ -337,11 +337,11 @@ TEST(Baselines, OptionsAreValidated) {
   EXPECT_TRUE(o.Validate(&error)) << error;
   o.solve.linear_solver = "SPARSE_SCHUR";
   EXPECT_FALSE(o.Validate(&error));
-  EXPECT_NE(error.find("--linear_solver=SPARSE_SCHUR"), std::string::npos) << error;
+  EXPECT_NE(error.find("solve.linear_solver=SPARSE_SCHUR"), std::string::npos) << error;
   o = BaselineOptions();
   o.panorama_spacing = -1.0;
   EXPECT_FALSE(o.Validate(&error));
-  EXPECT_NE(error.find("--panorama_spacing"), std::string::npos) << error;
+  EXPECT_NE(error.find("panorama_spacing="), std::string::npos) << error;
 }
 
 }  // namespace

@@ -31,7 +31,7 @@ constexpr double kGradientCheckPrecision = 1e-3;
 
 DbaOptions QuietOptions() {
   DbaOptions o;
-  o.solve.log_progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.solve.progress = getenv("DSR_TEST_LOG") != nullptr;
   o.solve.num_threads = 2;
   return o;
 }
@@ -176,7 +176,7 @@ TEST(Dba, PanoramaAtConvergenceIsThePerVoxelMean) {
   options.solve.function_tolerance = 1e-14;
   options.solve.parameter_tolerance = 1e-14;
   options.solve.gradient_tolerance = 1e-16;
-  options.solve.step_tolerance_voxels = 0.0;  // converge fully (solve/convergence.h off)
+  options.solve.step_tolerance = 0.0;  // converge fully (solve/convergence.h off)
   options.solve.max_rejected_steps = 0;
   SolveReport report;
   std::vector<float> intensities;
@@ -231,7 +231,7 @@ TEST(Dba, PhotometricBlocksRecoverGainsAndOffsets) {
   options.solve.function_tolerance = 1e-14;
   options.solve.parameter_tolerance = 1e-14;
   options.solve.gradient_tolerance = 1e-16;
-  options.solve.step_tolerance_voxels = 0.0;
+  options.solve.step_tolerance = 0.0;
   options.solve.max_rejected_steps = 0;
   SolveReport report;
   ASSERT_TRUE(SolveDba(frames, c, init, options, &report, nullptr, &error)) << error;
@@ -260,13 +260,13 @@ TEST(Dba, MemoryGuardRefusesProblemsOverTheBudget) {
   const auto s = MakeSequence(so);
   const CandidateSet c = Candidates(s, s.ground_truth);
   DbaOptions options = QuietOptions();
-  options.memory_budget_bytes = 1024.0;  // 1 KiB: far below any real problem
+  options.memory_budget_mb = 1.0 / 1024.0;  // 1 KiB: far below any real problem
   SolveReport report;
   std::string error;
   EXPECT_FALSE(SolveDba(s.frames, c, s.ground_truth, options, &report, nullptr, &error));
   EXPECT_NE(error.find("MiB"), std::string::npos) << error;
-  EXPECT_NE(error.find("--mode=dsr"), std::string::npos) << error;
-  EXPECT_NE(error.find("--panorama_spacing"), std::string::npos) << error;
+  EXPECT_NE(error.find("mode=dsr"), std::string::npos) << error;
+  EXPECT_NE(error.find("(panorama_spacing)"), std::string::npos) << error;
   const DbaMemoryEstimate e = EstimateDbaMemory(c, 3, "DENSE_SCHUR");
   EXPECT_EQ(e.residual_blocks, c.NumObservations());
   EXPECT_GT(EstimateDbaMemory(c, 3, "DENSE_QR").bytes, e.bytes);
@@ -295,7 +295,7 @@ TEST(Dba, EveryLinearSolverReachesTheSamePoses) {
     options.solve.function_tolerance = 1e-20;
     options.solve.gradient_tolerance = 1e-20;
     options.solve.parameter_tolerance = 1e-15;
-    options.solve.step_tolerance_voxels = 0.0;
+    options.solve.step_tolerance = 0.0;
     options.solve.max_rejected_steps = 0;
     SolveReport report;
     std::string error;

@@ -133,7 +133,7 @@ TEST(MisfitOutlier, ComparesTheWorstFrameWithTheMedian) {
   std::string why;
   EXPECT_TRUE(MisfitOutlier({10.0, 11.0, 40.0, 12.0}, 2.0, &why));  // lower quartile 10
   EXPECT_NE(why.find("frame 2 does not match"), std::string::npos) << why;
-  EXPECT_NE(why.find("--max_misfit_ratio=2"), std::string::npos) << why;
+  EXPECT_NE(why.find("max_misfit_ratio=2"), std::string::npos) << why;
   EXPECT_FALSE(MisfitOutlier({10.0, 11.0, 20.0, 12.0}, 2.0, &why));  // 20 = 2 x 10
   // Three of five frames off: the reference stays with the good ones.
   EXPECT_TRUE(MisfitOutlier({10.0, 30.0, 31.0, 11.0, 32.0}, 2.0, &why));

@@ -45,7 +45,7 @@ class DsrSimulateCli : public ::testing::Test {
     o.max_rotation_deg = 5.0;
     o.max_translation_voxels = 2.0;
     o.min_depth_voxels = 2.0;
-    o.noise_sigma = 0.0;
+    o.sigma = 0.0;
     return o;
   }
 
@@ -288,7 +288,7 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
       {"--speckle_world_fraction=nan --speckle_looks=2" + out,
        "--speckle_world_fraction=nan: must be in [0, 1]"},
       {"--speckle_world_fraction=0.5" + out,
-       "--speckle_world_fraction=0.5: needs speckle (--speckle_looks >= 1), which is off"},
+       "--speckle_world_fraction=0.5: needs speckle, but --speckle_looks=0"},
       {"--attenuation_db_per_cm=11" + out, "--attenuation_db_per_cm=11: must be in [0, 10]"},
       {"--attenuation_db_per_cm=nan" + out, "--attenuation_db_per_cm=nan: must be in [0, 10]"},
       {"--num_frames=abc" + out, "num_frames"},

@@ -224,13 +224,13 @@ TEST(Theorem, ReducedCostIsTheDbaCostMinimisedOverIntensities) {
 // Solves as far as Ceres goes: every tolerance at its floor and the pose stopping rule off.
 SolveOptions FixedPointOptions(int max_iterations) {
   SolveOptions o;
-  o.log_progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.progress = getenv("DSR_TEST_LOG") != nullptr;
   o.num_threads = 2;
   o.max_iterations = max_iterations;
   o.function_tolerance = 1e-20;
   o.gradient_tolerance = 1e-20;
   o.parameter_tolerance = 1e-15;
-  o.step_tolerance_voxels = 0.0;
+  o.step_tolerance = 0.0;
   o.max_rejected_steps = 0;
   return o;
 }

@@ -152,12 +152,12 @@ TEST(FieldOfViewEdge, NoiseFreeSolveReachesGroundTruth) {
     const TestSequence s = MakeSequence(EdgeOptions(num_frames, true, seed++));
     std::vector<Eigen::Isometry3d> poses = Perturbed(s.ground_truth, 0.02, 0.5, seed++);
     DsrOptions options;
-    options.solve.log_progress = false;
+    options.solve.progress = false;
     options.solve.num_threads = 2;
     options.solve.function_tolerance = 1e-20;
     options.solve.gradient_tolerance = 1e-20;
     options.solve.parameter_tolerance = 1e-15;
-    options.solve.step_tolerance_voxels = 0.0;
+    options.solve.step_tolerance = 0.0;
     double moved = 1.0;
     for (int rebuild = 0; rebuild < 5 && moved > 1e-9; ++rebuild) {
       const CandidateSet cand = Candidates(s, poses);

@@ -145,10 +145,10 @@ const FortyDegreePair& FortyDegreeTwentyVoxelPair() {
 
 PlacementSearchOptions FortyDegreeSearch() {
   PlacementSearchOptions search;
-  search.max_rotation_deg = 45.0;
-  search.num_rotations = 200;
+  search.rotation_deg = 45.0;
+  search.rotations = 200;
   search.num_threads = 2;
-  search.refine.log_progress = false;
+  search.refine.progress = false;
   return search;
 }
 
@@ -180,7 +180,7 @@ TEST(PlacementSearch, CoarseScreenKeepsTheBestRotationsUnchanged) {
   DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const FortyDegreePair& p = FortyDegreeTwentyVoxelPair();
   PlacementSearchOptions all = FortyDegreeSearch();
-  all.num_rotations = 100;
+  all.rotations = 100;
   all.num_screened = 0;
   PlacementSearchOptions screened = all;
   screened.num_screened = 12;
@@ -214,7 +214,7 @@ SimulatedSequence SmallSequence(uint64_t seed, int num_frames = 5) {
   o.frame_size = Eigen::Vector3i(48, 48, 40);
   o.max_rotation_deg = 10.0;
   o.max_translation_voxels = 6.0;
-  o.noise_sigma = 10.0;
+  o.sigma = 10.0;
   o.min_depth_voxels = 2.0;
   o.seed = seed;
   SimulatedSequence s;
@@ -225,13 +225,13 @@ SimulatedSequence SmallSequence(uint64_t seed, int num_frames = 5) {
 
 RegistrationOptions SmallOptions() {
   RegistrationOptions o;
-  o.solve.log_progress = false;
+  o.solve.progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
-  o.search.num_rotations = 200;
+  o.search.rotations = 200;
   o.search.num_threads = 2;
-  o.search.refine.log_progress = false;
+  o.search.refine.progress = false;
   return o;
 }
 
@@ -241,7 +241,7 @@ TEST(PairGraph, ShuffledFramesGiveTheSamePoses) {
   DSR_SKIP_HEAVY_UNDER_SANITIZER();
   const SimulatedSequence s = SmallSequence(11, 4);
   RegistrationOptions o = SmallOptions();
-  o.search.num_rotations = 150;
+  o.search.rotations = 150;
   SetInitialisation("global", 2, &o);
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
   RegistrationResult in_order;
@@ -325,7 +325,7 @@ TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
   poses[off] = turn * poses[off];
   PlacementSearchOptions search;
   search.num_threads = 2;
-  search.refine.log_progress = false;
+  search.refine.progress = false;
   std::vector<Eigen::Isometry3d> replaced;
   std::vector<FrameReplacement> records;
   std::string error;
@@ -397,7 +397,7 @@ TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
   RegistrationOptions o = SmallOptions();
   o.max_rebuilds = 1;
-  o.rebuild_tolerance_voxels = 1e-12;
+  o.rebuild_tolerance = 1e-12;
   o.unsettled_motion_voxels = 0.0;
   RegistrationResult plain;
   std::string error;

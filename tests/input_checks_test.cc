@@ -21,11 +21,11 @@ SimulatedSequence SmallSequence() {
   SimulationOptions o;
   o.num_frames = 4;
   o.frame_size = Eigen::Vector3i(40, 40, 32);
-  o.noise_sigma = 10.0;
+  o.sigma = 10.0;
   o.max_translation_voxels = 4.0;
   o.max_rotation_deg = 6.0;
   o.min_depth_voxels = 2.0;
-  o.mask_erosion_voxels = 0;
+  o.mask_erosion = 0;
   o.seed = 5;
   SimulatedSequence s;
   std::string error;
@@ -35,7 +35,7 @@ SimulatedSequence SmallSequence() {
 
 RegistrationOptions SmallOptions() {
   RegistrationOptions o;
-  o.solve.log_progress = false;
+  o.solve.progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
@@ -124,23 +124,23 @@ TEST(CheckRegistrationInputs, NamesWhatIsWrong) {
   EXPECT_NE(error.find("coarser"), std::string::npos) << error;
 
   // A smoothing that erases the frames.
-  o.finest_sigma_voxels = 1e6;
+  o.smoothing = 1e6;
   EXPECT_FALSE(CheckRegistrationInputs(s.frames, identity, o, &error));
-  EXPECT_NE(error.find("--smoothing=1e+06"), std::string::npos) << error;
-  o.finest_sigma_voxels = 1.0;
+  EXPECT_NE(error.find("smoothing=1e+06"), std::string::npos) << error;
+  o.smoothing = 1.0;
   EXPECT_TRUE(CheckRegistrationInputs(s.frames, identity, o, &error)) << error;
 
   // Panorama voxels larger than the frames.
   o.panorama_spacing = 1e300;
   EXPECT_FALSE(CheckRegistrationInputs(s.frames, identity, o, &error));
-  EXPECT_NE(error.find("--panorama_spacing=1e+300"), std::string::npos) << error;
+  EXPECT_NE(error.find("panorama_spacing=1e+300"), std::string::npos) << error;
   o.panorama_spacing = 1.0;
 
   // An initial translation of 1e300 mm names --init (and does not overflow to a pass).
   std::vector<Eigen::Isometry3d> far = identity;
   far[3].translation() = Eigen::Vector3d(1e300, 1e300, 0.0);
   EXPECT_FALSE(CheckRegistrationInputs(s.frames, far, o, &error));
-  EXPECT_NE(error.find("(--init) place frame 3"), std::string::npos) << error;
+  EXPECT_NE(error.find("(init) place frame 3"), std::string::npos) << error;
   far[3].translation() = Eigen::Vector3d(500.0, 0.0, 0.0);  // apart, but a sane number
   EXPECT_TRUE(CheckRegistrationInputs(s.frames, far, o, &error)) << error;
 }

@@ -40,7 +40,7 @@ TEST(PairDisagreement, NamesTheSmallerGroup) {
   std::vector<int> sorted = flagged;
   std::sort(sorted.begin(), sorted.end());
   EXPECT_EQ(sorted, group);
-  EXPECT_NE(why.find("--max_pair_mismatch_ratio=5"), std::string::npos) << why;
+  EXPECT_NE(why.find("max_pair_mismatch_ratio=5"), std::string::npos) << why;
   EXPECT_NE(why.find("30 of 55 overlapping pairs disagree"), std::string::npos) << why;
 }
 
@@ -87,7 +87,7 @@ TEST(PairMismatches, CatchesTwoGroupsOnSimulatedFrames) {
   o.frame_size = Eigen::Vector3i(48, 48, 40);
   o.max_rotation_deg = 8.0;
   o.max_translation_voxels = 5.0;
-  o.noise_sigma = 10.0;
+  o.sigma = 10.0;
   o.min_depth_voxels = 2.0;
   o.seed = 4;
   SimulatedSequence s;
@@ -134,7 +134,7 @@ TEST(Checks, RefuseTheWrongMinimumOfThePairwiseBaseline) {
   ASSERT_TRUE(Simulate(MakePhantom(PhantomOptions()), o, &s, &error)) << error;
   RegistrationOptions r;
   r.mode = dsr::Mode::kPairwise;
-  r.solve.log_progress = false;
+  r.solve.progress = false;
   r.solve.num_threads = 2;
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
   RegistrationResult result;

@@ -125,7 +125,7 @@ TEST(Phantom, ValidateRejectsNonsense) {
   EXPECT_TRUE(options.Validate(&error));
   options.size = 8;
   EXPECT_FALSE(options.Validate(&error));
-  EXPECT_NE(error.find("--phantom_size=8"), std::string::npos) << error;
+  EXPECT_NE(error.find("size=8"), std::string::npos) << error;
   options = PhantomOptions();
   options.spacing_mm = 0.0;
   EXPECT_FALSE(options.Validate(&error));

@@ -35,12 +35,12 @@ SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
   SimulationOptions options;
   options.num_frames = setup.num_frames;
   options.frame_size = setup.frame_size;
-  options.noise_sigma = setup.sigma;
+  options.sigma = setup.sigma;
   options.max_translation_voxels = setup.max_translation_voxels;
   options.max_rotation_deg = setup.max_rotation_deg;
   options.min_depth_voxels = 2.0;
   // Masks equal to the field of view: Frame keeps gradients inside them (image/frame.h).
-  options.mask_erosion_voxels = 0;
+  options.mask_erosion = 0;
   options.seed = setup.seed;
   SimulatedSequence sequence;
   std::string error;
@@ -51,7 +51,7 @@ SimulatedSequence Simulated(const SequenceSetup& setup, int phantom_size = 96) {
 RegistrationOptions Options(const std::string& mode) {
   RegistrationOptions o;
   EXPECT_TRUE(StringToMode(mode, &o.mode)) << mode;
-  o.solve.log_progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.solve.progress = getenv("DSR_TEST_LOG") != nullptr;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
@@ -207,7 +207,7 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
   // The misfits compare corrected intensities: round-off, far below the raw differences.
   for (double misfit : result.frame_misfits) EXPECT_LT(misfit, 1e-3);
   // Photometric parameters are not the uncertainty estimate's: skipped, with the reason.
-  o.estimate_uncertainty = true;
+  o.uncertainty = true;
   RegistrationResult with_uncertainty;
   ASSERT_TRUE(Register(images, s.masks, start, o, &with_uncertainty, &error)) << error;
   EXPECT_TRUE(with_uncertainty.uncertainty.covariance.empty());
@@ -323,10 +323,10 @@ TEST(Pipeline, RefusesBadSetups) {
   o = Options("ape");
   o.photometric = PhotometricModel::kAffine;
   EXPECT_FALSE(o.Validate(&error));
-  EXPECT_NE(error.find("--photometric=affine"), std::string::npos) << error;
-  EXPECT_NE(error.find("--mode=ape"), std::string::npos) << error;
+  EXPECT_NE(error.find("photometric=affine"), std::string::npos) << error;
+  EXPECT_NE(error.find("mode=ape"), std::string::npos) << error;
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
-  EXPECT_NE(error.find("--photometric=affine"), std::string::npos) << error;
+  EXPECT_NE(error.find("photometric=affine"), std::string::npos) << error;
   o.mode = dsr::Mode::kDba;
   EXPECT_TRUE(o.Validate(&error)) << error;
   PhotometricModel model = PhotometricModel::kNone;
@@ -336,10 +336,10 @@ TEST(Pipeline, RefusesBadSetups) {
   EXPECT_EQ(model, PhotometricModel::kAffine);
   // DBA over a tiny memory budget.
   o = Options("dba");
-  o.dba.memory_budget_bytes = 1024.0;
+  o.dba.memory_budget_mb = 1.0 / 1024.0;
   EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
-  EXPECT_NE(error.find("--panorama_spacing"), std::string::npos) << error;
-  EXPECT_NE(error.find("--mode=dsr"), std::string::npos) << error;
+  EXPECT_NE(error.find("(panorama_spacing)"), std::string::npos) << error;
+  EXPECT_NE(error.find("mode=dsr"), std::string::npos) << error;
 }
 
 }  // namespace

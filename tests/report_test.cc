@@ -39,11 +39,11 @@ const Registered& Small() {
     options.max_translation_voxels = 3.0;
     options.max_rotation_deg = 6.0;
     options.min_depth_voxels = 2.0;
-    options.noise_sigma = 5.0;
+    options.sigma = 5.0;
     std::string error;
     EXPECT_TRUE(Simulate(MakePhantom(phantom), options, &out->sequence, &error)) << error;
     RegistrationOptions o;
-    o.solve.log_progress = false;
+    o.solve.progress = false;
     o.solve.num_threads = 2;
     o.pyramid_levels = 2;
     o.pyramid_min_size = 8;

@@ -124,26 +124,26 @@ TEST(RobustLoss, ParsesNamesAndRejectsBadInput) {
 
   const RobustLoss before = loss;
   EXPECT_FALSE(MakeRobustLoss("tukey", 5.0, &loss, &error));
-  EXPECT_EQ(error, "--loss=tukey: must be squared, huber or cauchy");
+  EXPECT_EQ(error, "loss=tukey: must be squared, huber or cauchy");
   EXPECT_FALSE(MakeRobustLoss("Huber", 5.0, &loss, &error));
-  EXPECT_EQ(error, "--loss=Huber: must be squared, huber or cauchy");
+  EXPECT_EQ(error, "loss=Huber: must be squared, huber or cauchy");
   EXPECT_FALSE(MakeRobustLoss("", 5.0, &loss, &error));
-  EXPECT_EQ(error, "--loss=: must be squared, huber or cauchy");
+  EXPECT_EQ(error, "loss=: must be squared, huber or cauchy");
   EXPECT_FALSE(MakeRobustLoss("huber", 0.0, &loss, &error));
-  EXPECT_EQ(error, "--loss_scale=0: must be finite and > 0 (grey levels) for --loss=huber");
+  EXPECT_EQ(error, "loss.scale=0: must be finite and > 0 (grey levels) for loss.kind=huber");
   EXPECT_FALSE(MakeRobustLoss("cauchy", -2.0, &loss, &error));
-  EXPECT_EQ(error, "--loss_scale=-2: must be finite and > 0 (grey levels) for --loss=cauchy");
+  EXPECT_EQ(error, "loss.scale=-2: must be finite and > 0 (grey levels) for loss.kind=cauchy");
   EXPECT_FALSE(MakeRobustLoss("cauchy", std::numeric_limits<double>::quiet_NaN(), &loss, &error));
-  EXPECT_NE(error.find("--loss_scale=nan: must be finite and > 0"), std::string::npos) << error;
+  EXPECT_NE(error.find("loss.scale=nan: must be finite and > 0"), std::string::npos) << error;
   EXPECT_FALSE(
       MakeRobustLoss("huber", std::numeric_limits<double>::infinity(), &loss, &error));
-  EXPECT_NE(error.find("--loss_scale=inf: must be finite and > 0"), std::string::npos) << error;
+  EXPECT_NE(error.find("loss.scale=inf: must be finite and > 0"), std::string::npos) << error;
   // A failed parse leaves the output alone.
   EXPECT_EQ(loss.kind, before.kind);
   EXPECT_FALSE(Huber(0.0).Validate(&error));
   const RobustLoss unknown{static_cast<RobustLoss::Kind>(7), 1.0};
   EXPECT_FALSE(unknown.Validate(&error));
-  EXPECT_EQ(error, "--loss: unknown loss kind 7");
+  EXPECT_EQ(error, "kind=7: unknown loss kind");
 }
 
 // The robust location is the M-estimate: sum_a rho'(r_a^2) r_a = 0, away from the outlier
@@ -211,11 +211,11 @@ TEST(DbaRobustLoss, BadScaleIsRefusedWithAMessage) {
   options.loss = Huber(-1.0);
   std::string error;
   EXPECT_FALSE(options.Validate(&error));
-  EXPECT_EQ(error, "--loss_scale=-1: must be finite and > 0 (grey levels) for --loss=huber");
+  EXPECT_EQ(error, "loss.scale=-1: must be finite and > 0 (grey levels) for loss.kind=huber");
   SolveReport report;
   error.clear();
   EXPECT_FALSE(SolveDba(s.frames, cand, s.ground_truth, options, &report, nullptr, &error));
-  EXPECT_EQ(error, "--loss_scale=-1: must be finite and > 0 (grey levels) for --loss=huber");
+  EXPECT_EQ(error, "loss.scale=-1: must be finite and > 0 (grey levels) for loss.kind=huber");
 }
 
 TEST(DbaMemory, PhotometricBlocksAreCounted) {
@@ -704,13 +704,13 @@ TEST(RobustTheorem, DbaSchurStepWithLossEqualsWeightedReducedStep) {
 // (IRLS then stops when the weights stop changing).
 SolveOptions FixedPointOptions(int max_iterations) {
   SolveOptions o;
-  o.log_progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.progress = getenv("DSR_TEST_LOG") != nullptr;
   o.num_threads = 2;
   o.max_iterations = max_iterations;
   o.function_tolerance = 1e-20;
   o.gradient_tolerance = 1e-20;
   o.parameter_tolerance = 1e-15;
-  o.step_tolerance_voxels = 0.0;
+  o.step_tolerance = 0.0;
   o.max_rejected_steps = 0;
   return o;
 }
@@ -993,13 +993,13 @@ TEST(RobustLoss, OutliersPullSquaredPosesMoreThanRobustOnes) {
     SolveReport report;
     if (dba) {
       DbaOptions options;
-      options.solve.log_progress = false;
+      options.solve.progress = false;
       options.solve.num_threads = 2;
       options.loss = loss;
       EXPECT_TRUE(SolveDba(s.frames, cand, init, options, &report, nullptr, &error)) << error;
     } else {
       DsrOptions options;
-      options.solve.log_progress = false;
+      options.solve.progress = false;
       options.solve.num_threads = 2;
       options.loss = loss;
       EXPECT_TRUE(SolveDsr(s.frames, cand, init, options, &report, &error)) << error;
@@ -1029,7 +1029,7 @@ TEST(RobustLoss, OutliersPullSquaredPosesMoreThanRobustOnes) {
 TEST(RobustLoss, ReweightingStopsWithThePoseRule) {
   const OutlierProblem p = MakeOutlierProblem(7);
   DsrOptions options;
-  options.solve.log_progress = false;
+  options.solve.progress = false;
   options.solve.num_threads = 2;
   options.loss = Huber(5.0);
   SolveReport report;
@@ -1064,20 +1064,20 @@ TEST(RobustLoss, DsrRefusesBadScaleAndSquaredIsThePlainSolve) {
   const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 242);
   const CandidateSet cand = Candidates(s, init);
   DsrOptions options;
-  options.solve.log_progress = false;
+  options.solve.progress = false;
   options.solve.num_threads = 2;
   options.loss = Cauchy(std::numeric_limits<double>::infinity());
   std::string error;
   EXPECT_FALSE(options.Validate(&error));
-  EXPECT_EQ(error, "--loss_scale=inf: must be finite and > 0 (grey levels) for --loss=cauchy");
+  EXPECT_EQ(error, "loss.scale=inf: must be finite and > 0 (grey levels) for loss.kind=cauchy");
   SolveReport report;
   error.clear();
   EXPECT_FALSE(SolveDsr(s.frames, cand, init, options, &report, &error));
-  EXPECT_EQ(error, "--loss_scale=inf: must be finite and > 0 (grey levels) for --loss=cauchy");
+  EXPECT_EQ(error, "loss.scale=inf: must be finite and > 0 (grey levels) for loss.kind=cauchy");
   // Squared, with or without a (meaningless) scale: the plain solve, bit for bit.
   for (bool reference : {false, true}) {
     DsrOptions plain;
-    plain.solve.log_progress = false;
+    plain.solve.progress = false;
     plain.solve.num_threads = 2;
     plain.reference_cost = reference;
     DsrOptions squared = plain;

@@ -32,7 +32,7 @@ SimulationOptions SmallOptions() {
   o.frame_size = Eigen::Vector3i(32, 32, 32);
   o.max_rotation_deg = 8.0;
   o.max_translation_voxels = 4.0;
-  o.noise_sigma = 0.0;
+  o.sigma = 0.0;
   o.min_depth_voxels = 2.0;
   return o;
 }
@@ -182,7 +182,7 @@ TEST(Simulate, WrongPosesDisagree) {
 TEST(Simulate, DeterministicForASeedAndSeedsDiffer) {
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 25.0;
+  o.sigma = 25.0;
   SimulatedSequence a, b, c;
   std::string error;
   ASSERT_TRUE(Simulate(source, o, &a, &error)) << error;
@@ -349,7 +349,7 @@ TEST(Simulate, WalkIsDeterministicAndStartsWhereRandomStarts) {
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   SimulationOptions small = SmallOptions();
   small.pose_model = PoseModel::kWalk;
-  small.noise_sigma = 25.0;
+  small.sigma = 25.0;
   SimulatedSequence s1, s2;
   std::string error;
   ASSERT_TRUE(Simulate(source, small, &s1, &error)) << error;
@@ -511,7 +511,7 @@ TEST(Simulate, NoiseHasTheRequestedStatistics) {
   g.origin_mm = Eigen::Vector3d(10.0, -20.0, 5.0);
   const Image flat(g, 128.0f);
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 25.0;
+  o.sigma = 25.0;
   SimulatedSequence s;
   std::string error;
   ASSERT_TRUE(Simulate(flat, o, &s, &error)) << error;
@@ -611,18 +611,18 @@ TEST(Simulate, MaskErosionCountsVoxelsAndZeroIsTheFieldOfView) {
   source_grid.origin_mm = Eigen::Vector3d::Constant(-44.5);
   const Image source(source_grid, 100.0f);
   for (int erosion : {0, 2}) {
-    o.mask_erosion_voxels = erosion;
+    o.mask_erosion = erosion;
     SimulatedSequence s;
     std::string error;
     ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
     for (const Mask& m : s.masks) EXPECT_EQ(m.voxels, (erosion == 0 ? fov : twice).voxels);
   }
   // An erosion that eats the whole field of view is refused, naming the flag.
-  o.mask_erosion_voxels = 30;
+  o.mask_erosion = 30;
   SimulatedSequence s;
   std::string error;
   EXPECT_FALSE(Simulate(source, o, &s, &error));
-  EXPECT_NE(error.find("--mask_erosion"), std::string::npos) << error;
+  EXPECT_NE(error.find("(mask_erosion)"), std::string::npos) << error;
 }
 
 // FNV-1a (64 bit) over the frames' float bit patterns, in frame and voxel order.
@@ -661,7 +661,7 @@ TEST(Simulate, DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption) {
   for (const Recorded& r : recorded) {
     SimulationOptions o = SmallOptions();
     ASSERT_EQ(o.interpolation, SourceInterpolation::kLinear);  // the default
-    o.noise_sigma = r.sigma;
+    o.sigma = r.sigma;
     SimulatedSequence s;
     std::string error;
     ASSERT_TRUE(Simulate(SmallSource(r.spacing), o, &s, &error)) << error;
@@ -796,7 +796,7 @@ TEST(Simulate, CubicFramesSampleASmoothSourceWithinTheDerivedBound) {
          {SourceInterpolation::kLinear, SourceInterpolation::kCubic}) {
       SimulationOptions o = SmallOptions();
       o.interpolation = interpolation;
-      o.mask_erosion_voxels = 0;
+      o.mask_erosion = 0;
       SimulatedSequence s;
       std::string error;
       ASSERT_TRUE(Simulate(source, o, &s, &error)) << error;
@@ -839,7 +839,7 @@ TEST(Simulate, CubicFramesSampleASmoothSourceWithinTheDerivedBound) {
 TEST(Simulate, CubicIsDeterministicAndDiffersFromLinearOnlyByInterpolation) {
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 25.0;
+  o.sigma = 25.0;
   SimulatedSequence linear, a, b;
   std::string error;
   ASSERT_TRUE(Simulate(source, o, &linear, &error)) << error;
@@ -853,7 +853,7 @@ TEST(Simulate, CubicIsDeterministicAndDiffersFromLinearOnlyByInterpolation) {
     EXPECT_TRUE(a.frame_from_world[f].matrix() == linear.frame_from_world[f].matrix());
   }
   // Noise-free cubic frames agree under the ground-truth poses as linear ones do.
-  o.noise_sigma = 0.0;
+  o.sigma = 0.0;
   SimulatedSequence quiet;
   ASSERT_TRUE(Simulate(source, o, &quiet, &error)) << error;
   for (int j = 1; j < o.num_frames; ++j) {
@@ -895,53 +895,53 @@ TEST(Simulate, ValidateRejectsNonsense) {
     const char* flag;
   };
   const Case cases[] = {
-      {[](SimulationOptions* o) { o->num_frames = 1; }, "--num_frames=1"},
-      {[](SimulationOptions* o) { o->max_rotation_deg = -1.0; }, "--max_rotation_deg"},
+      {[](SimulationOptions* o) { o->num_frames = 1; }, "num_frames=1"},
+      {[](SimulationOptions* o) { o->max_rotation_deg = -1.0; }, "max_rotation_deg"},
       {[](SimulationOptions* o) { o->max_translation_voxels = std::nan(""); },
-       "--max_translation_voxels"},
-      {[](SimulationOptions* o) { o->noise_sigma = -1.0; }, "--sigma=-1"},
-      {[](SimulationOptions* o) { o->noise_sigma = INFINITY; }, "--sigma"},
+       "max_translation_voxels"},
+      {[](SimulationOptions* o) { o->sigma = -1.0; }, "sigma=-1"},
+      {[](SimulationOptions* o) { o->sigma = INFINITY; }, "sigma"},
       {[](SimulationOptions* o) { o->frame_size = Eigen::Vector3i(96, 0, 80); },
-       "--frame_size=96,0,80"},
-      {[](SimulationOptions* o) { o->frame_spacing_mm = -0.5; }, "--frame_spacing"},
-      {[](SimulationOptions* o) { o->azimuth_deg = 0.0; }, "--azimuth_deg"},
-      {[](SimulationOptions* o) { o->elevation_deg = 180.0; }, "--elevation_deg"},
-      {[](SimulationOptions* o) { o->min_depth_voxels = 78.0; }, "--min_depth_voxels"},
+       "frame_size=96,0,80"},
+      {[](SimulationOptions* o) { o->frame_spacing = -0.5; }, "frame_spacing"},
+      {[](SimulationOptions* o) { o->azimuth_deg = 0.0; }, "azimuth_deg"},
+      {[](SimulationOptions* o) { o->elevation_deg = 180.0; }, "elevation_deg"},
+      {[](SimulationOptions* o) { o->min_depth_voxels = 78.0; }, "min_depth_voxels"},
       {[](SimulationOptions* o) { o->pose_model = static_cast<PoseModel>(7); },
-       "--pose_model=7"},
-      {[](SimulationOptions* o) { o->step_rotation_deg = 181.0; }, "--step_rotation_deg=181"},
+       "pose_model=7"},
+      {[](SimulationOptions* o) { o->step_rotation_deg = 181.0; }, "step_rotation_deg=181"},
       {[](SimulationOptions* o) { o->step_translation_voxels = -1.0; },
-       "--step_translation_voxels=-1"},
-      {[](SimulationOptions* o) { o->mask_erosion_voxels = -1; }, "--mask_erosion=-1"},
-      {[](SimulationOptions* o) { o->mask_erosion_voxels = 51; }, "--mask_erosion=51"},
+       "step_translation_voxels=-1"},
+      {[](SimulationOptions* o) { o->mask_erosion = -1; }, "mask_erosion=-1"},
+      {[](SimulationOptions* o) { o->mask_erosion = 51; }, "mask_erosion=51"},
       {[](SimulationOptions* o) { o->interpolation = static_cast<SourceInterpolation>(7); },
-       "--interpolation=7: must be linear or cubic"},
+       "interpolation=7: must be linear or cubic"},
       {[](SimulationOptions* o) { o->gain_range = -0.1; },
-       "--gain_range=-0.1: must be in [0, 0.9]"},
-      {[](SimulationOptions* o) { o->gain_range = 0.95; }, "--gain_range=0.95"},
-      {[](SimulationOptions* o) { o->gain_range = std::nan(""); }, "--gain_range=nan"},
+       "gain_range=-0.1: must be in [0, 0.9]"},
+      {[](SimulationOptions* o) { o->gain_range = 0.95; }, "gain_range=0.95"},
+      {[](SimulationOptions* o) { o->gain_range = std::nan(""); }, "gain_range=nan"},
       {[](SimulationOptions* o) { o->offset_range = 101.0; },
-       "--offset_range=101: must be in [0, 100]"},
-      {[](SimulationOptions* o) { o->offset_range = -1.0; }, "--offset_range=-1"},
+       "offset_range=101: must be in [0, 100]"},
+      {[](SimulationOptions* o) { o->offset_range = -1.0; }, "offset_range=-1"},
       {[](SimulationOptions* o) { o->speckle_looks = -1; },
-       "--speckle_looks=-1: must be 0 (no speckle) or in [1, 64]"},
-      {[](SimulationOptions* o) { o->speckle_looks = 65; }, "--speckle_looks=65"},
+       "speckle_looks=-1: must be 0 (no speckle) or in [1, 64]"},
+      {[](SimulationOptions* o) { o->speckle_looks = 65; }, "speckle_looks=65"},
       {[](SimulationOptions* o) { o->speckle_correlation_voxels = 4.5; },
-       "--speckle_correlation_voxels=4.5: must be in [0, 4]"},
+       "speckle_correlation_voxels=4.5: must be in [0, 4]"},
       {[](SimulationOptions* o) { o->speckle_correlation_voxels = -1.0; },
-       "--speckle_correlation_voxels=-1"},
+       "speckle_correlation_voxels=-1"},
       {[](SimulationOptions* o) { o->speckle_world_fraction = 1.5; },
-       "--speckle_world_fraction=1.5: must be in [0, 1]"},
+       "speckle_world_fraction=1.5: must be in [0, 1]"},
       {[](SimulationOptions* o) { o->speckle_world_fraction = -0.1; },
-       "--speckle_world_fraction=-0.1: must be in [0, 1]"},
+       "speckle_world_fraction=-0.1: must be in [0, 1]"},
       {[](SimulationOptions* o) { o->speckle_world_fraction = std::nan(""); },
-       "--speckle_world_fraction=nan"},
+       "speckle_world_fraction=nan"},
       {[](SimulationOptions* o) { o->speckle_world_fraction = 0.5; },  // no speckle
-       "--speckle_world_fraction=0.5: needs speckle (--speckle_looks >= 1)"},
+       "speckle_world_fraction=0.5: needs speckle, but speckle_looks=0"},
       {[](SimulationOptions* o) { o->attenuation_db_per_cm = 11.0; },
-       "--attenuation_db_per_cm=11: must be in [0, 10]"},
+       "attenuation_db_per_cm=11: must be in [0, 10]"},
       {[](SimulationOptions* o) { o->attenuation_db_per_cm = INFINITY; },
-       "--attenuation_db_per_cm=inf"},
+       "attenuation_db_per_cm=inf"},
   };
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (const Case& c : cases) {
@@ -977,7 +977,7 @@ TEST(SimulateEffects, OffByDefaultAndExplicitZerosChangeNothing) {
   EXPECT_EQ(defaults.attenuation_db_per_cm, 0.0);
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 25.0;
+  o.sigma = 25.0;
   SimulatedSequence plain, zeros;
   std::string error;
   ASSERT_TRUE(Simulate(source, o, &plain, &error)) << error;
@@ -1037,8 +1037,8 @@ TEST(SimulateEffects, GainAndOffsetMapEveryFrameAndLeaveTheNoiseDrawsAlone) {
 
   // With noise: the noise of each voxel is the same draw with and without the gain and
   // offset (they come from their own generator).
-  o.noise_sigma = 25.0;
-  g.noise_sigma = 25.0;
+  o.sigma = 25.0;
+  g.sigma = 25.0;
   SimulatedSequence noisy, noisy_mapped;
   ASSERT_TRUE(Simulate(source, o, &noisy, &error)) << error;
   ASSERT_TRUE(Simulate(source, g, &noisy_mapped, &error)) << error;
@@ -1250,7 +1250,7 @@ TEST(SimulateEffects, AttenuationFollowsTheDistanceFromTheApex) {
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (double spacing_mm : {0.0, 0.5}) {  // 0: the source's 1 mm
     SimulationOptions o = SmallOptions();
-    o.frame_spacing_mm = spacing_mm;
+    o.frame_spacing = spacing_mm;
     SimulatedSequence plain, attenuated;
     std::string error;
     ASSERT_TRUE(Simulate(source, o, &plain, &error)) << error;
@@ -1424,7 +1424,7 @@ CrossFrame CrossFrameCorrelation(const std::vector<Image>& fields,
 // DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption (one compiler and library).
 SimulationOptions WorldFractionChecksumOptions(int looks, double correlation_voxels) {
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 25.0;
+  o.sigma = 25.0;
   o.gain_range = 0.3;
   o.offset_range = 20.0;
   o.attenuation_db_per_cm = 3.0;
@@ -1614,7 +1614,7 @@ TEST(SimulateWorldSpeckle, SimulateAppliesItAndLeavesTheOtherDrawsAlone) {
   grid.origin_mm = Eigen::Vector3d::Constant(-39.5);
   const Image flat(grid, 60.0f);
   SimulationOptions o = SmallOptions();
-  o.noise_sigma = 10.0;
+  o.sigma = 10.0;
   o.speckle_looks = 2;
   o.gain_range = 0.2;
   o.offset_range = 5.0;
@@ -1648,7 +1648,7 @@ TEST(SimulateWorldSpeckle, SimulateAppliesItAndLeavesTheOtherDrawsAlone) {
           b - (plain.gain[f] * 60.0 * plain_fields[f].voxels[v] + plain.offset[f]);
       ASSERT_NEAR(noise_world, noise_plain, kFloatValueTolerance)
           << "frame " << f << " voxel " << v;
-      ASSERT_LT(std::abs(noise_world), 6.0 * o.noise_sigma);
+      ASSERT_LT(std::abs(noise_world), 6.0 * o.sigma);
       ++compared;
     }
   }

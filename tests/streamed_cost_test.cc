@@ -68,7 +68,7 @@ TEST(StreamedCost, ReusingPassesDoesNotChangeDsrSolves) {
     const CandidateSet cand = Candidates(s, init);
     DsrOptions options;
     options.num_chunks = 3;
-    options.solve.log_progress = false;
+    options.solve.progress = false;
     options.solve.max_iterations = 30;
     SolveReport with, without;
     SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
@@ -85,7 +85,7 @@ TEST(StreamedCost, ReusingPassesDoesNotChangeApeSolves) {
   const auto init = Perturbed(s.ground_truth, 0.04, 1.5, 15);
   const CandidateSet cand = Candidates(s, init);
   BaselineOptions options;
-  options.solve.log_progress = false;
+  options.solve.progress = false;
   options.solve.max_iterations = 30;
   SolveReport with, without;
   SolveBothWays(options, [&](const BaselineOptions& o, SolveReport* r, std::string* e) {
@@ -101,9 +101,9 @@ TEST(StreamedCost, StepRuleOffMeansNoLazyFinalPoint) {
   const auto init = Perturbed(s.ground_truth, 0.04, 1.5, 16);
   const CandidateSet cand = Candidates(s, init);
   DsrOptions options;
-  options.solve.log_progress = false;
+  options.solve.progress = false;
   options.solve.max_iterations = 12;
-  options.solve.step_tolerance_voxels = 0.0;
+  options.solve.step_tolerance = 0.0;
   SolveReport with, without;
   SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
     return SolveDsr(s.frames, cand, init, o, r, e);
@@ -124,7 +124,7 @@ TEST(StreamedCost, DsrReportsTheFrameCostsOfItsFinalPoses) {
   const CandidateSet cand = testing_problems::InteriorCandidates(s, init, 1.5);
   DsrOptions options;
   options.num_chunks = 2;
-  options.solve.log_progress = false;
+  options.solve.progress = false;
   SolveReport report;
   std::string error;
   ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &report, &error)) << error;

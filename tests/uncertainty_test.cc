@@ -56,11 +56,11 @@ SimulatedSequence Sequence(double noise_sigma) {
   SimulationOptions o;
   o.num_frames = 4;
   o.frame_size = Eigen::Vector3i(40, 40, 32);
-  o.noise_sigma = noise_sigma;
+  o.sigma = noise_sigma;
   o.max_translation_voxels = 4.0;
   o.max_rotation_deg = 6.0;
   o.min_depth_voxels = 2.0;
-  o.mask_erosion_voxels = 0;
+  o.mask_erosion = 0;
   o.seed = 8;
   SimulatedSequence s;
   std::string error;
@@ -70,11 +70,11 @@ SimulatedSequence Sequence(double noise_sigma) {
 
 RegistrationResult RegisterWithUncertainty(const SimulatedSequence& s) {
   RegistrationOptions o;
-  o.solve.log_progress = false;
+  o.solve.progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
-  o.estimate_uncertainty = true;
+  o.uncertainty = true;
   RegistrationResult result;
   std::string error;
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
@@ -208,7 +208,7 @@ TEST(PoseUncertainty, IsPositiveDefiniteAndGrowsWithTheNoise) {
   }
   // Off by default: nothing estimated.
   RegistrationOptions o;
-  EXPECT_FALSE(o.estimate_uncertainty);
+  EXPECT_FALSE(o.uncertainty);
 }
 
 // dsr_compare's row (pipeline/experiment.h) carries the mean predicted TRE and the mean
@@ -218,11 +218,11 @@ TEST(PoseUncertainty, ComparisonRowsCarryIt) {
   const SimulatedSequence s = Sequence(10.0);
   ExperimentSequence sequence{"seq", s.frames, s.masks, s.frame_from_world, {}};
   RegistrationOptions o;
-  o.solve.log_progress = false;
+  o.solve.progress = false;
   o.solve.num_threads = 2;
   o.pyramid_levels = 2;
   o.pyramid_min_size = 8;
-  o.estimate_uncertainty = true;
+  o.uncertainty = true;
   ComparisonRow dsr = RunMethod(sequence, o);
   o.mode = dsr::Mode::kApe;
   ComparisonRow ape = RunMethod(sequence, o);

@@ -155,7 +155,7 @@ TEST(VoxelStream, SolveOptionsChooseTheKernelPath) {
   const auto solve = [&](KernelPath path) {
     DsrOptions options;
     options.solve.max_iterations = 2;
-    options.solve.log_progress = false;
+    options.solve.progress = false;
     options.solve.kernels = path;
     SolveReport report;
     std::string error;

@@ -298,7 +298,9 @@ int Main(int argc, char** argv) {
       std::fprintf(stderr, "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
                    row.method.c_str(), row.sequence.c_str(), row.ok ? "ok    " : "FAILED",
                    row.mae_translation_voxels, row.mae_rotation_rad, row.iterations, row.seconds);
-      if (!row.ok) std::fprintf(stderr, "dsr_compare:   %s\n", row.failure.c_str());
+      if (!row.ok) {
+        std::fprintf(stderr, "dsr_compare:   %s\n", dsr::FieldPathsAsFlags(row.failure).c_str());
+      }
       if (row.ok) {
         dsr::PosesFile poses;
         poses.frame_from_world = row.frame_from_world;

@@ -383,7 +383,9 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
   }
   if (FLAGS_uncertainty) {
     std::printf("dsr_register: %s\n",
-                dsr::UncertaintySummary(result.uncertainty, result.uncertainty_note).c_str());
+                dsr::FieldPathsAsFlags(
+                    dsr::UncertaintySummary(result.uncertainty, result.uncertainty_note))
+                    .c_str());
   }
   if (written.fused) {
     std::printf("dsr_register: field-of-view enlargement %.2f (voxels seen by any frame / "

@@ -1,5 +1,6 @@
 #include "dsr/tools/tool_util.h"
 
+#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 #include "dsr/io/io_image.h"
@@ -393,8 +394,22 @@ void InitTool(const char* usage,
   VLOG(1) << "flags:\n" << gflags::CommandlineFlagsIntoString();
 }
 
+std::string FieldPathsAsFlags(const std::string& message) {
+  return RewriteFieldPaths(message, [](const std::string& path) {
+    std::string joined = path;
+    std::replace(joined.begin(), joined.end(), '.', '_');
+    const size_t last = path.rfind('.');
+    for (const std::string& name : {joined, path.substr(last == std::string::npos ? 0 : last + 1),
+                                    path.substr(0, path.find('.'))}) {
+      gflags::CommandLineFlagInfo info;
+      if (gflags::GetCommandLineFlagInfo(name.c_str(), &info)) return "--" + name;
+    }
+    return path;
+  });
+}
+
 int Fail(const std::string& message, int code) {
-  std::fprintf(stderr, "%s: error: %s\n", ToolName().c_str(), message.c_str());
+  std::fprintf(stderr, "%s: error: %s\n", ToolName().c_str(), FieldPathsAsFlags(message).c_str());
   std::fflush(stderr);
   return code;
 }

@@ -76,8 +76,15 @@ bool CheckMemoryEstimate(const std::string& what_flags,
                          const std::string& what,
                          std::string* error);
 
-// Prints "<tool>: error: <message>" as one line on stderr and returns `code`, so that
-// main can `return Fail(...)`.
+// `message` (a library's error or failure) with each option field path it names
+// (util/option_fields.h) written as this tool's flag: "--" and the first of the path with
+// '.' as '_' (search.rotations -> --search_rotations), its last part (solve.max_iterations
+// -> --max_iterations) and its first part (loss.kind -> --loss) that is a flag of this
+// tool. A path with none of them (an option no flag sets) stays as it is.
+std::string FieldPathsAsFlags(const std::string& message);
+
+// Prints "<tool>: error: <message>" as one line on stderr, with FieldPathsAsFlags, and
+// returns `code`, so that main can `return Fail(...)`.
 int Fail(const std::string& message, int code = kExitBadInput);
 
 // Prints "<tool>: error: --<flag>=<value>: <rule>" and exits with kExitBadInput.

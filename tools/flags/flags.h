@@ -43,7 +43,7 @@ DECLARE_double(loss_scale);
 DECLARE_string(photometric);
 DECLARE_double(search_rotation_deg);
 DECLARE_int32(search_rotations);
-DECLARE_int32(pair_search_rotations);
+DECLARE_int32(search_pair_rotations);
 DECLARE_int32(search_max_axis);
 DECLARE_string(linear_solver);
 DECLARE_string(trust_region);

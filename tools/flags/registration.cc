@@ -40,7 +40,7 @@ DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global
               "within this angle of frame 0's orientation, in (0, 180].");
 DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
              "[1, 100000] (more: finer, slower).");
-DEFINE_int32(pair_search_rotations, 60, "Global search of --init=global and of a recovery "
+DEFINE_int32(search_pair_rotations, 60, "Global search of --init=global and of a recovery "
              "that places every frame: about this many rotations per pair of frames, in "
              "[1, 100000].");
 DEFINE_int32(search_max_axis, 32, "Global search: on the coarsest pyramid level, halved further "
@@ -144,33 +144,33 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   solve.parameter_tolerance = FLAGS_parameter_tolerance;
   solve.num_threads = FLAGS_num_threads;
   StringToKernelPath(FLAGS_kernels, &solve.kernels);  // validated
-  solve.step_tolerance_voxels = FLAGS_step_tolerance;
+  solve.step_tolerance = FLAGS_step_tolerance;
   solve.max_rejected_steps = FLAGS_max_rejected_steps;
-  solve.log_progress = FLAGS_progress;
+  solve.progress = FLAGS_progress;
   options->panorama_spacing = FLAGS_panorama_spacing;
   options->pyramid_levels = FLAGS_pyramid_levels;
-  options->pyramid_sigma_voxels = FLAGS_pyramid_sigma;
+  options->pyramid_sigma = FLAGS_pyramid_sigma;
   options->pyramid_min_size = FLAGS_pyramid_min_size;
-  options->finest_sigma_voxels = FLAGS_smoothing;
+  options->smoothing = FLAGS_smoothing;
   options->coarse_max_iterations = FLAGS_coarse_max_iterations;
   options->max_rebuilds = FLAGS_max_rebuilds;
-  options->rebuild_tolerance_voxels = FLAGS_rebuild_tolerance;
+  options->rebuild_tolerance = FLAGS_rebuild_tolerance;
   options->min_kept_overlap = FLAGS_min_kept_overlap;
   options->max_misfit_ratio = FLAGS_max_misfit_ratio;
   options->max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
   options->dsr.num_chunks = FLAGS_num_chunks;
   options->dsr.reference_cost = FLAGS_reference_cost;
-  options->dba.memory_budget_bytes = FLAGS_memory_budget_mb * 1048576.0;
-  options->estimate_uncertainty = FLAGS_uncertainty;
+  options->dba.memory_budget_mb = FLAGS_memory_budget_mb;
+  options->uncertainty = FLAGS_uncertainty;
   if (!MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options->loss, error)) return false;
   init_file->clear();
   if (!SetInitialisation(FLAGS_init, FLAGS_max_recoveries, options)) *init_file = FLAGS_init;
-  options->search.max_rotation_deg = FLAGS_search_rotation_deg;
-  options->search.num_rotations = FLAGS_search_rotations;
-  options->search_max_axis_voxels = FLAGS_search_max_axis;
-  options->search.num_pair_rotations = FLAGS_pair_search_rotations;
+  options->search.rotation_deg = FLAGS_search_rotation_deg;
+  options->search.rotations = FLAGS_search_rotations;
+  options->search_max_axis = FLAGS_search_max_axis;
+  options->search.pair_rotations = FLAGS_search_pair_rotations;
   options->search.num_threads = FLAGS_num_threads;
-  options->search.refine.log_progress = false;
+  options->search.refine.progress = false;
   options->search.refine.kernels = solve.kernels;
   return true;
 }

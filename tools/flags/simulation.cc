@@ -6,6 +6,7 @@
 
 #include "dsr/tools/flags/flags.h"
 #include "dsr/tools/tool_util.h"
+#include "dsr/util/option_fields.h"
 
 DEFINE_string(out_dir,
               "",
@@ -224,12 +225,12 @@ bool SimulationOptionsFromFlags(SimulationOptions* options,
   CHECK(StringToPoseModel(FLAGS_pose_model, &options->pose_model));  // validated
   options->step_rotation_deg = FLAGS_step_rotation_deg;
   options->step_translation_voxels = FLAGS_step_translation_voxels;
-  options->mask_erosion_voxels = FLAGS_mask_erosion;
+  options->mask_erosion = FLAGS_mask_erosion;
   CHECK(StringToSourceInterpolation(FLAGS_interpolation, &options->interpolation));  // validated
-  options->noise_sigma = FLAGS_sigma;
+  options->sigma = FLAGS_sigma;
   options->seed = FLAGS_seed;
   CHECK(ParseSize3(FLAGS_frame_size, &options->frame_size));  // validated
-  options->frame_spacing_mm = FLAGS_frame_spacing;
+  options->frame_spacing = FLAGS_frame_spacing;
   options->azimuth_deg = FLAGS_azimuth_deg;
   options->elevation_deg = FLAGS_elevation_deg;
   options->min_depth_voxels = FLAGS_min_depth_voxels;
@@ -241,7 +242,12 @@ bool SimulationOptionsFromFlags(SimulationOptions* options,
   options->attenuation_db_per_cm = FLAGS_attenuation_db_per_cm;
   phantom->size = FLAGS_phantom_size;
   phantom->seed = FLAGS_phantom_seed;
-  return options->Validate(error) && phantom->Validate(error);
+  if (!options->Validate(error)) return false;
+  if (!phantom->Validate(error)) {
+    *error = PrefixFieldPaths("phantom", *error);
+    return false;
+  }
+  return true;
 }
 
 }  // namespace dsr
