@@ -117,14 +117,7 @@ bool BaselineOptions::Validate(std::string* error) const {
     *error = PrefixFieldPaths("solve", *error);
     return false;
   }
-  const std::string& ls = solve.linear_solver;
-  if (!ls.empty() && ls != "DENSE_QR" && ls != "DENSE_NORMAL_CHOLESKY" &&
-      ls != "SPARSE_NORMAL_CHOLESKY") {
-    *error = "solve.linear_solver=" + ls +
-             ": the baselines solve only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
-             "SPARSE_NORMAL_CHOLESKY";
-    return false;
-  }
+  if (!ValidatePoseOnlyLinearSolver(solve, "the baselines solve", error)) return false;
   if (!(panorama_spacing > 0.0) || !std::isfinite(panorama_spacing)) {
     *error = FieldError("panorama_spacing", panorama_spacing, "must be a positive number");
     return false;

@@ -90,8 +90,8 @@ bool SolvePoseGraph(const std::vector<RelativePose>& measurements,
   }
   ceres::Solver::Options options;
   SolveOptions graph = solve;
-  graph.linear_solver = "";  // a few poses: dense is right whatever the image solver was
-  graph.ToCeres("DENSE_QR", &options);
+  graph.linear_solver.reset();  // a few poses: dense is right whatever the image solver was
+  graph.ToCeres(ceres::DENSE_QR, &options);
   // The graph is cheap and smooth: converge tightly, independent of the image tolerances.
   options.max_num_iterations = 200;
   options.function_tolerance = 1e-14;

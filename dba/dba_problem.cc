@@ -111,7 +111,7 @@ std::string DbaMemoryEstimate::ToString() const {
 
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
-                                    const std::string& linear_solver,
+                                    ceres::LinearSolverType linear_solver,
                                     bool photometric) {
   // Per-item costs in bytes for Ceres 2.1: a residual block (ResidualBlock, the DbaResidual
   // object, parameter pointers, its Jacobian row (8 doubles) and row-block structure in the
@@ -139,11 +139,11 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
   // Non-zeros of one residual's Jacobian row in tangent coordinates: pose, intensity and
   // with photometric parameters [log_gain, offset].
   const double row = photometric ? 9.0 : 7.0;
-  if (linear_solver == "DENSE_QR" || linear_solver == "DENSE_NORMAL_CHOLESKY") {
+  if (linear_solver == ceres::DENSE_QR || linear_solver == ceres::DENSE_NORMAL_CHOLESKY) {
     // Dense Jacobian (rows x columns) or normal matrix, plus a factorisation copy.
-    const double rows = linear_solver == "DENSE_QR" ? e.residual_blocks : params;
+    const double rows = linear_solver == ceres::DENSE_QR ? e.residual_blocks : params;
     bytes += 2.0 * 8.0 * rows * params;
-  } else if (linear_solver == "SPARSE_NORMAL_CHOLESKY") {
+  } else if (linear_solver == ceres::SPARSE_NORMAL_CHOLESKY) {
     // J^T J and its Cholesky factor: the pose rows fill in against every intensity.
     bytes += 2.0 * 12.0 * (row * e.residual_blocks + pose_params * params);
   } else {
@@ -270,8 +270,7 @@ bool SolveDba(const std::vector<Frame>& frames,
               SolveReport* report,
               std::vector<float>* intensities,
               std::string* error) {
-  const std::string linear_solver =
-      options.solve.linear_solver.empty() ? "DENSE_SCHUR" : options.solve.linear_solver;
+  const ceres::LinearSolverType linear_solver = options.solve.LinearSolverOr(ceres::DENSE_SCHUR);
   const DbaMemoryEstimate estimate =
       EstimateDbaMemory(candidates, static_cast<int>(frames.size()), linear_solver,
                         options.photometric);
@@ -281,7 +280,8 @@ bool SolveDba(const std::vector<Frame>& frames,
   if (budget > 0.0 && estimate.bytes > budget) {
     std::ostringstream s;
     s.precision(4);
-    s << "DBA problem needs an estimated " << estimate.ToString() << " with " << linear_solver
+    s << "DBA problem needs an estimated " << estimate.ToString() << " with "
+      << ceres::LinearSolverTypeToString(linear_solver)
       << ", over the memory budget of " << budget / 1048576.0 << " MiB (memory_budget_mb="
       << options.memory_budget_mb << "); use mode=dsr, which needs no per-observation "
          "storage, or a coarser panorama (panorama_spacing)";
@@ -307,7 +307,7 @@ bool SolveDba(const std::vector<Frame>& frames,
   }
   DbaProblem dba(frames, candidates, initial_frame_from_world, start, options.loss);
   ceres::Solver::Options solver_options;
-  options.solve.ToCeres("DENSE_SCHUR", &solver_options);
+  options.solve.ToCeres(ceres::DENSE_SCHUR, &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
     solver_options.linear_solver_ordering = dba.MakeOrdering();
   }

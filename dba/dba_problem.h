@@ -96,7 +96,7 @@ struct DbaMemoryEstimate {
 // `photometric`: with a [log_gain, offset] block per frame (DbaOptions::photometric).
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
-                                    const std::string& linear_solver,
+                                    ceres::LinearSolverType linear_solver,
                                     bool photometric = false);
 
 // The Ceres problem, kept as an object so tests can evaluate its Jacobian.

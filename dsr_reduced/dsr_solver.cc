@@ -18,14 +18,7 @@ bool DsrOptions::Validate(std::string* error) const {
     *error = PrefixFieldPaths("solve", *error);
     return false;
   }
-  const std::string& ls = solve.linear_solver;
-  if (!ls.empty() && ls != "DENSE_QR" && ls != "DENSE_NORMAL_CHOLESKY" &&
-      ls != "SPARSE_NORMAL_CHOLESKY") {
-    *error = "solve.linear_solver=" + ls +
-             ": DSR solves only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
-             "SPARSE_NORMAL_CHOLESKY";
-    return false;
-  }
+  if (!ValidatePoseOnlyLinearSolver(solve, "DSR solves", error)) return false;
   if (!ValidateInitialPhotometric(photometric, initial_photometric, error)) return false;
   if (!loss.Validate(error)) {
     *error = PrefixFieldPaths("loss", *error);
@@ -168,7 +161,7 @@ bool SolveOnce(const std::vector<Frame>& frames,
   // it is set for this solve only (stream/streamed_cost.h).
   dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
   ceres::Solver::Options solver_options;
-  options.solve.ToCeres(options.reference_cost ? "SPARSE_NORMAL_CHOLESKY" : "DENSE_QR",
+  options.solve.ToCeres(options.reference_cost ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_QR,
                         &solver_options);
   if (!options.reference_cost) {
     // The chunk costs thread internally over fixed voxel blocks (deterministic); Ceres

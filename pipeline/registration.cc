@@ -209,7 +209,7 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.min_kept_overlap = 0.0;
   init_options.max_misfit_ratio = 0.0;
   init_options.max_pair_mismatch_ratio = 0.0;
-  init_options.solve.linear_solver = "";  // the mode's solver may be a Schur type
+  init_options.solve.linear_solver.reset();  // the mode's solver may be a Schur type
   init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
   RegistrationResult init;
   if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {

@@ -8,17 +8,14 @@
 
 #include <ceres/types.h>
 
+#include "dsr/util/option_fields.h"
+
 namespace dsr {
 
 bool SolveOptions::Validate(std::string* error) const {
-  ceres::TrustRegionStrategyType tr;
-  if (!ceres::StringToTrustRegionStrategyType(trust_region, &tr)) {
-    *error = "trust_region=" + trust_region + ": must be LEVENBERG_MARQUARDT or DOGLEG";
-    return false;
-  }
-  ceres::LinearSolverType ls;
-  if (!linear_solver.empty() && !ceres::StringToLinearSolverType(linear_solver, &ls)) {
-    *error = "linear_solver=" + linear_solver + ": not a Ceres linear solver name";
+  if (trust_region != ceres::LEVENBERG_MARQUARDT && trust_region != ceres::DOGLEG) {
+    *error = FieldError("trust_region", static_cast<int>(trust_region),
+                        "must be LEVENBERG_MARQUARDT or DOGLEG");
     return false;
   }
   if (max_iterations < 1) {
@@ -55,11 +52,23 @@ bool SolveOptions::Validate(std::string* error) const {
   return true;
 }
 
-void SolveOptions::ToCeres(const std::string& default_linear_solver,
+bool ValidatePoseOnlyLinearSolver(const SolveOptions& solve, const std::string& who,
+                                  std::string* error) {
+  if (!solve.linear_solver || *solve.linear_solver == ceres::DENSE_QR ||
+      *solve.linear_solver == ceres::DENSE_NORMAL_CHOLESKY ||
+      *solve.linear_solver == ceres::SPARSE_NORMAL_CHOLESKY) {
+    return true;
+  }
+  *error = FieldError("solve.linear_solver", ceres::LinearSolverTypeToString(*solve.linear_solver),
+                      who + " only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
+                            "SPARSE_NORMAL_CHOLESKY");
+  return false;
+}
+
+void SolveOptions::ToCeres(ceres::LinearSolverType mode_default,
                            ceres::Solver::Options* out) const {
-  CHECK(ceres::StringToTrustRegionStrategyType(trust_region, &out->trust_region_strategy_type));
-  const std::string& ls = linear_solver.empty() ? default_linear_solver : linear_solver;
-  CHECK(ceres::StringToLinearSolverType(ls, &out->linear_solver_type)) << ls;
+  out->trust_region_strategy_type = trust_region;
+  out->linear_solver_type = LinearSolverOr(mode_default);
   out->max_num_iterations = max_iterations;
   out->function_tolerance = function_tolerance;
   out->gradient_tolerance = gradient_tolerance;

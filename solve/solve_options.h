@@ -3,6 +3,7 @@
 #ifndef DSR_SOLVE_SOLVE_OPTIONS_H_
 #define DSR_SOLVE_SOLVE_OPTIONS_H_
 
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -16,10 +17,9 @@
 namespace dsr {
 
 struct SolveOptions {
-  // "LEVENBERG_MARQUARDT" or "DOGLEG".
-  std::string trust_region = "LEVENBERG_MARQUARDT";
-  // A ceres::LinearSolverType name; empty = the mode's default.
-  std::string linear_solver;
+  ceres::TrustRegionStrategyType trust_region = ceres::LEVENBERG_MARQUARDT;
+  // Empty: the mode's default.
+  std::optional<ceres::LinearSolverType> linear_solver;
   int max_iterations = 100;
   double function_tolerance = 1e-8;
   double gradient_tolerance = 1e-12;
@@ -46,9 +46,19 @@ struct SolveOptions {
 
   // Checks names and ranges; `error` names the field (util/option_fields.h).
   bool Validate(std::string* error) const;
-  // Fills a ceres::Solver::Options (linear solver = `default_linear_solver` when empty).
-  void ToCeres(const std::string& default_linear_solver, ceres::Solver::Options* out) const;
+  // The linear solver: linear_solver, or `mode_default` when it is empty.
+  ceres::LinearSolverType LinearSolverOr(ceres::LinearSolverType mode_default) const {
+    return linear_solver.value_or(mode_default);
+  }
+  // Fills a ceres::Solver::Options (linear solver: LinearSolverOr(mode_default)).
+  void ToCeres(ceres::LinearSolverType mode_default, ceres::Solver::Options* out) const;
 };
+
+// For solvers whose problem has only the poses (DSR, the baselines): an empty
+// solve.linear_solver or one of DENSE_QR, DENSE_NORMAL_CHOLESKY, SPARSE_NORMAL_CHOLESKY;
+// otherwise false with "solve.linear_solver=X: <who> only the poses; ...".
+bool ValidatePoseOnlyLinearSolver(const SolveOptions& solve, const std::string& who,
+                                  std::string* error);
 
 // Per-iteration record, kept for reports and convergence plots.
 struct IterationRecord {

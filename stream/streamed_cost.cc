@@ -252,7 +252,7 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
     problem.AddResidualBlock(cost, nullptr, free_blocks);
   }
   ceres::Solver::Options options;
-  solve.ToCeres("DENSE_QR", &options);
+  solve.ToCeres(ceres::DENSE_QR, &options);
   // The streamed blocks thread internally over fixed voxel blocks (deterministic); Ceres
   // evaluates the few blocks one after another.
   options.num_threads = 1;

@@ -335,7 +335,7 @@ TEST(Baselines, OptionsAreValidated) {
   BaselineOptions o;
   std::string error;
   EXPECT_TRUE(o.Validate(&error)) << error;
-  o.solve.linear_solver = "SPARSE_SCHUR";
+  o.solve.linear_solver = ceres::SPARSE_SCHUR;
   EXPECT_FALSE(o.Validate(&error));
   EXPECT_NE(error.find("solve.linear_solver=SPARSE_SCHUR"), std::string::npos) << error;
   o = BaselineOptions();

@@ -267,9 +267,9 @@ TEST(Dba, MemoryGuardRefusesProblemsOverTheBudget) {
   EXPECT_NE(error.find("MiB"), std::string::npos) << error;
   EXPECT_NE(error.find("mode=dsr"), std::string::npos) << error;
   EXPECT_NE(error.find("(panorama_spacing)"), std::string::npos) << error;
-  const DbaMemoryEstimate e = EstimateDbaMemory(c, 3, "DENSE_SCHUR");
+  const DbaMemoryEstimate e = EstimateDbaMemory(c, 3, ceres::DENSE_SCHUR);
   EXPECT_EQ(e.residual_blocks, c.NumObservations());
-  EXPECT_GT(EstimateDbaMemory(c, 3, "DENSE_QR").bytes, e.bytes);
+  EXPECT_GT(EstimateDbaMemory(c, 3, ceres::DENSE_QR).bytes, e.bytes);
 }
 
 // Every linear solver flag value runs and reaches the same poses. A lattice-aligned problem
@@ -287,8 +287,9 @@ TEST(Dba, EveryLinearSolverReachesTheSamePoses) {
   const auto init = testing_problems::Perturbed(s.ground_truth, 0.01, 0.3, 8);
   const CandidateSet c = testing_problems::InteriorCandidates(s, init, 1.0);
   ASSERT_GT(c.num_voxels(), 50);
-  for (const char* solver : {"DENSE_SCHUR", "SPARSE_SCHUR", "ITERATIVE_SCHUR", "DENSE_QR",
-                             "SPARSE_NORMAL_CHOLESKY"}) {
+  for (ceres::LinearSolverType solver : {ceres::DENSE_SCHUR, ceres::SPARSE_SCHUR,
+                                         ceres::ITERATIVE_SCHUR, ceres::DENSE_QR,
+                                         ceres::SPARSE_NORMAL_CHOLESKY}) {
     DbaOptions options = QuietOptions();
     options.solve.linear_solver = solver;
     options.solve.max_iterations = 2000;

@@ -228,7 +228,7 @@ TEST(Pipeline, DsrDenseSolversGiveTheSamePoses) {
   setup.num_frames = 4;
   const SimulatedSequence sequence = Simulated(setup);
   std::vector<Eigen::Isometry3d> first;
-  for (const char* solver : {"DENSE_QR", "DENSE_NORMAL_CHOLESKY"}) {
+  for (ceres::LinearSolverType solver : {ceres::DENSE_QR, ceres::DENSE_NORMAL_CHOLESKY}) {
     RegistrationOptions o = Options("dsr");
     o.solve.linear_solver = solver;
     RegistrationResult result;

@@ -221,7 +221,8 @@ TEST(DbaRobustLoss, BadScaleIsRefusedWithAMessage) {
 TEST(DbaMemory, PhotometricBlocksAreCounted) {
   const auto s = MakeSequence(SequenceOptions());
   const CandidateSet cand = Candidates(s, s.ground_truth);
-  for (const char* solver : {"DENSE_SCHUR", "SPARSE_NORMAL_CHOLESKY", "DENSE_QR"}) {
+  for (ceres::LinearSolverType solver :
+       {ceres::DENSE_SCHUR, ceres::SPARSE_NORMAL_CHOLESKY, ceres::DENSE_QR}) {
     const DbaMemoryEstimate plain = EstimateDbaMemory(cand, 4, solver);
     const DbaMemoryEstimate photometric = EstimateDbaMemory(cand, 4, solver, true);
     EXPECT_EQ(plain.bytes, EstimateDbaMemory(cand, 4, solver, false).bytes);

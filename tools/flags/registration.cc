@@ -105,6 +105,16 @@ bool ValidatePhotometric(const char* flag, const std::string& v) {
   return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
                         "must be none or affine");
 }
+bool ValidateLinearSolver(const char* flag, const std::string& v) {
+  ceres::LinearSolverType type;
+  return dsr::CheckFlag(v.empty() || ceres::StringToLinearSolverType(v, &type), flag, v,
+                        "not a Ceres linear solver name");
+}
+bool ValidateTrustRegion(const char* flag, const std::string& v) {
+  ceres::TrustRegionStrategyType type;
+  return dsr::CheckFlag(ceres::StringToTrustRegionStrategyType(v, &type), flag, v,
+                        "must be LEVENBERG_MARQUARDT or DOGLEG");
+}
 bool ValidateKernels(const char* flag, const std::string& v) {
   dsr::KernelPath path;
   if (!dsr::CheckFlag(dsr::StringToKernelPath(v, &path), flag, v,
@@ -118,6 +128,8 @@ bool ValidateMemoryBudget(const char* flag, double v) {
 }
 }  // namespace
 DEFINE_validator(photometric, &ValidatePhotometric);
+DEFINE_validator(linear_solver, &ValidateLinearSolver);
+DEFINE_validator(trust_region, &ValidateTrustRegion);
 DEFINE_validator(kernels, &ValidateKernels);
 DEFINE_validator(memory_budget_mb, &ValidateMemoryBudget);
 
@@ -136,8 +148,13 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
                                   std::string* init_file,
                                   std::string* error) {
   SolveOptions& solve = options->solve;
-  solve.trust_region = FLAGS_trust_region;
-  solve.linear_solver = FLAGS_linear_solver;
+  ceres::StringToTrustRegionStrategyType(FLAGS_trust_region, &solve.trust_region);  // validated
+  solve.linear_solver.reset();
+  if (!FLAGS_linear_solver.empty()) {
+    ceres::LinearSolverType type;
+    ceres::StringToLinearSolverType(FLAGS_linear_solver, &type);  // validated
+    solve.linear_solver = type;
+  }
   solve.max_iterations = FLAGS_max_iterations;
   solve.function_tolerance = FLAGS_function_tolerance;
   solve.gradient_tolerance = FLAGS_gradient_tolerance;
