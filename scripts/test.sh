@@ -4,7 +4,7 @@
 # (build-asan/, DSR_SANITIZE=ON; sanitizer options and third-party leak suppressions are
 # compiled in, tests/sanitizer_suppressions/). The second build is -O1 with line tables
 # only (-g1), which halves its compile time against -O2 -g; tests that solve to machine
-# precision skip themselves there (tests/sanitizer.h). DSR_SKIP_SANITIZE=1 skips the second
+# precision skip themselves there (tests/support/sanitizer.h). DSR_SKIP_SANITIZE=1 skips the second
 # pass for quick local runs; CI (.ci/run) runs both.
 set -euo pipefail
 cd "$(dirname "$0")/.."

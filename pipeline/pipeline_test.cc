@@ -11,8 +11,8 @@
 #include "dsr/pipeline/registration.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
-#include "test_problems.h"
-#include "sanitizer.h"
+#include "dsr/tests/support/test_problems.h"
+#include "dsr/tests/support/sanitizer.h"
 
 namespace dsr {
 namespace {

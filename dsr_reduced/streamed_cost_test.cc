@@ -7,7 +7,7 @@
 
 #include "dsr/baselines/baselines.h"
 #include "dsr/dsr_reduced/dsr_solver.h"
-#include "test_problems.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

@@ -2,8 +2,8 @@
 // a smooth analytic "world" intensity (random Gaussian blobs plus a slow ramp), sampled
 // exactly at every frame voxel's world position under known poses, so ground truth is
 // exact and interpolation never compounds.
-#ifndef DSR_TESTS_TEST_PROBLEMS_H_
-#define DSR_TESTS_TEST_PROBLEMS_H_
+#ifndef DSR_TESTS_SUPPORT_TEST_PROBLEMS_H_
+#define DSR_TESTS_SUPPORT_TEST_PROBLEMS_H_
 
 #include <algorithm>
 #include <cmath>
@@ -305,4 +305,4 @@ inline void ExpectEliminatedJacobianMatchesNumeric(
 }  // namespace testing_problems
 }  // namespace dsr
 
-#endif  // DSR_TESTS_TEST_PROBLEMS_H_
+#endif  // DSR_TESTS_SUPPORT_TEST_PROBLEMS_H_

@@ -11,8 +11,8 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/eval/eval.h"
 #include "dsr/tests/support/tolerances.h"
-#include "sanitizer.h"
-#include "test_problems.h"
+#include "dsr/tests/support/sanitizer.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

@@ -1,6 +1,6 @@
 // Test helper for the kernel paths of util/cpu.h: every path this CPU runs (never kAuto).
-#ifndef DSR_TESTS_KERNEL_PATHS_H_
-#define DSR_TESTS_KERNEL_PATHS_H_
+#ifndef DSR_TESTS_SUPPORT_KERNEL_PATHS_H_
+#define DSR_TESTS_SUPPORT_KERNEL_PATHS_H_
 
 #include <vector>
 
@@ -19,4 +19,4 @@ inline std::vector<KernelPath> AvailablePaths() {
 }  // namespace testing_kernels
 }  // namespace dsr
 
-#endif  // DSR_TESTS_KERNEL_PATHS_H_
+#endif  // DSR_TESTS_SUPPORT_KERNEL_PATHS_H_

@@ -20,7 +20,7 @@
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
 #include "dsr/tests/support/tolerances.h"
-#include "sanitizer.h"
+#include "dsr/tests/support/sanitizer.h"
 
 namespace dsr {
 namespace {

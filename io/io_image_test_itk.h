@@ -1,8 +1,8 @@
 // Test-only writers that call ITK directly, to make files dsr never writes itself
 // (integer pixels, 2D, 4D, vector pixels). Kept free of Eigen, like io/io_itk.h: ITK 5.2
 // bundles its own Eigen, which cannot share a translation unit with the system one.
-#ifndef DSR_TESTS_IO_IMAGE_TEST_ITK_H_
-#define DSR_TESTS_IO_IMAGE_TEST_ITK_H_
+#ifndef DSR_IO_IO_IMAGE_TEST_ITK_H_
+#define DSR_IO_IO_IMAGE_TEST_ITK_H_
 
 #include <string>
 #include <vector>
@@ -42,4 +42,4 @@ std::string ResampleWithTransformFile(const std::string& image_path,
 }  // namespace test_itk
 }  // namespace dsr
 
-#endif  // DSR_TESTS_IO_IMAGE_TEST_ITK_H_
+#endif  // DSR_IO_IO_IMAGE_TEST_ITK_H_

@@ -1,7 +1,7 @@
 // Whether a test binary is built with AddressSanitizer (the second pass of
 // scripts/test.sh, DSR_SANITIZE=ON), and the one way tests skip themselves there.
-#ifndef DSR_TESTS_SANITIZER_H_
-#define DSR_TESTS_SANITIZER_H_
+#ifndef DSR_TESTS_SUPPORT_SANITIZER_H_
+#define DSR_TESTS_SUPPORT_SANITIZER_H_
 
 #include <gtest/gtest.h>
 
@@ -41,4 +41,4 @@ constexpr T FullUnlessSanitized(T full, T reduced) {
   DSR_SKIP_UNDER_SANITIZER("numerically heavy: run by the Release pass; its code runs " \
                            "under the sanitizers in smaller tests")
 
-#endif  // DSR_TESTS_SANITIZER_H_
+#endif  // DSR_TESTS_SUPPORT_SANITIZER_H_

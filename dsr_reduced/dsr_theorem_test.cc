@@ -21,9 +21,9 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
-#include "kernel_paths.h"
-#include "sanitizer.h"
-#include "test_problems.h"
+#include "dsr/tests/support/kernel_paths.h"
+#include "dsr/tests/support/sanitizer.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

@@ -1,6 +1,6 @@
 // Runs a command-line tool for CLI tests: exit code, stdout, stderr and its error lines.
-#ifndef DSR_TESTS_CLI_RUN_H_
-#define DSR_TESTS_CLI_RUN_H_
+#ifndef DSR_TESTS_SUPPORT_CLI_RUN_H_
+#define DSR_TESTS_SUPPORT_CLI_RUN_H_
 
 #include <sys/wait.h>
 
@@ -55,4 +55,4 @@ inline ToolRun RunTool(const std::string& binary, const std::string& args,
 }  // namespace testing_cli
 }  // namespace dsr
 
-#endif  // DSR_TESTS_CLI_RUN_H_
+#endif  // DSR_TESTS_SUPPORT_CLI_RUN_H_

@@ -12,7 +12,7 @@
 
 #include "dsr/stream/hessian_batch.h"
 #include "dsr/stream/voxel_stream.h"
-#include "kernel_paths.h"
+#include "dsr/tests/support/kernel_paths.h"
 
 namespace dsr {
 namespace {

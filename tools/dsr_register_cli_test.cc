@@ -10,7 +10,7 @@
 
 #include <gtest/gtest.h>
 
-#include "cli_run.h"
+#include "dsr/tests/support/cli_run.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/tests/support/scoped_temp_dir.h"

@@ -6,7 +6,7 @@
 
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/divergence_guard.h"
-#include "test_problems.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

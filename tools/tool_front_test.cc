@@ -12,12 +12,12 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
-#include "cli_run.h"
+#include "dsr/tests/support/cli_run.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/observation.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
-#include "sanitizer.h"
+#include "dsr/tests/support/sanitizer.h"
 
 namespace dsr {
 namespace {

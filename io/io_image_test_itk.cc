@@ -1,5 +1,5 @@
 // Test-only ITK writers (see io_image_test_itk.h).
-#include "dsr/tests/io_image_test_itk.h"
+#include "dsr/io/io_image_test_itk.h"
 
 #include <cstdint>
 #include <exception>

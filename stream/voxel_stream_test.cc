@@ -1,21 +1,16 @@
 // The batch sampler of the voxel stream (stream/voxel_stream.h), each kernel path against
 // the obviously-correct per-observation twin ObserveSample (model/observation.h): the same
-// observers kept (sigma_ij), values and Jacobians to rounding; and the kernel
-// paths against each other through whole DSR evaluations. Also the rule the solver's
-// evaluation cache relies on: a cost-only pass gives bit-for-bit the cost of a pass with
-// Jacobians.
+// observers kept (sigma_ij), values and Jacobians to rounding. The kernel paths through
+// whole DSR evaluations: dsr_reduced/reduced_kernels_test.cc.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <limits>
 #include <memory>
-#include <string>
 
-#include "dsr/dsr_reduced/dsr_solver.h"
-#include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/stream/voxel_stream.h"
-#include "kernel_paths.h"
-#include "test_problems.h"
+#include "dsr/tests/support/kernel_paths.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {
@@ -28,7 +23,6 @@ using testing_problems::SequenceOptions;
 // Same trilinear formula, other order of additions (and FMA on the AVX2 path).
 constexpr double kValueTolerance = 1e-10;      // intensities are O(100)
 constexpr double kJacobianTolerance = 1e-10;   // relative to the Jacobian's norm
-constexpr double kSystemRelativeTolerance = 1e-12;
 
 using testing_kernels::AvailablePaths;
 
@@ -119,74 +113,6 @@ TEST(VoxelStream, NonFinitePosesObserveNothing) {
   }
 }
 
-TEST(VoxelStream, KernelPathsGiveTheSameNormalEquations) {
-  if (!KernelPathAvailable(KernelPath::kAvx2)) GTEST_SKIP() << "no AVX2+FMA on this CPU";
-  const auto s = Sequence(9);
-  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 10);
-  const CandidateSet cand = Candidates(s, poses);
-  ReducedSystem portable;
-  AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true,
-                          StreamContext{2, KernelPath::kPortable}, &portable);
-  for (KernelPath path : AvailablePaths()) {
-    if (path == KernelPath::kPortable) continue;
-    ReducedSystem simd;
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true,
-                            StreamContext{2, path}, &simd);
-    EXPECT_EQ(portable.observations, simd.observations) << KernelPathToString(path);
-    EXPECT_NEAR(simd.cost, portable.cost, kSystemRelativeTolerance * portable.cost)
-        << KernelPathToString(path);
-    EXPECT_LT((simd.gradient - portable.gradient).norm() / portable.gradient.norm(),
-              kSystemRelativeTolerance)
-        << KernelPathToString(path);
-    EXPECT_LT((simd.hessian - portable.hessian).norm() / portable.hessian.norm(),
-              kSystemRelativeTolerance)
-        << KernelPathToString(path);
-  }
-}
-
-// The solvers run the kernels their SolveOptions name: the portable twin and each SIMD path
-// give costs that agree to rounding but not bit for bit (FMA and another order of sums),
-// so a path the options did not reach would show as identical costs.
-TEST(VoxelStream, SolveOptionsChooseTheKernelPath) {
-  if (!KernelPathAvailable(KernelPath::kAvx2)) GTEST_SKIP() << "no AVX2+FMA on this CPU";
-  const auto s = Sequence(13);
-  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 14);
-  const CandidateSet cand = Candidates(s, poses);
-  const auto solve = [&](KernelPath path) {
-    DsrOptions options;
-    options.solve.max_iterations = 2;
-    options.solve.progress = false;
-    options.solve.kernels = path;
-    SolveReport report;
-    std::string error;
-    EXPECT_TRUE(SolveDsr(s.frames, cand, poses, options, &report, &error)) << error;
-    return report;
-  };
-  const SolveReport portable = solve(KernelPath::kPortable);
-  for (KernelPath path : AvailablePaths()) {
-    if (path == KernelPath::kPortable) continue;
-    const SolveReport simd = solve(path);
-    EXPECT_NE(simd.initial_cost, portable.initial_cost) << KernelPathToString(path);
-    EXPECT_NEAR(simd.initial_cost, portable.initial_cost,
-                kSystemRelativeTolerance * portable.initial_cost)
-        << KernelPathToString(path);
-  }
-}
-
-TEST(VoxelStream, CostOnlyPassGivesTheCostOfTheJacobianPassExactly) {
-  const auto s = Sequence(11);
-  const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 12);
-  const CandidateSet cand = Candidates(s, poses);
-  for (KernelPath path : AvailablePaths()) {
-    ReducedSystem cost_only, full;
-    const StreamContext context{2, path};
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), false, context,
-                            &cost_only);
-    AccumulateReducedSystem(s.frames, cand, poses, 0, cand.num_voxels(), true, context, &full);
-    EXPECT_EQ(cost_only.cost, full.cost) << KernelPathToString(path);
-    EXPECT_EQ(cost_only.frame_cost, full.frame_cost) << KernelPathToString(path);
-  }
-}
 
 }  // namespace
 }  // namespace dsr

@@ -10,9 +10,9 @@
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_transform.h"
 #include "dsr/model/panorama.h"
-#include "dsr/tests/io_image_test_itk.h"
+#include "dsr/io/io_image_test_itk.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
-#include "test_problems.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

@@ -8,8 +8,8 @@
 
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
-#include "sanitizer.h"
-#include "test_problems.h"
+#include "dsr/tests/support/sanitizer.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

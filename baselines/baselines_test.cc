@@ -21,7 +21,7 @@
 #include "dsr/sim/simulate.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
-#include "test_problems.h"
+#include "dsr/tests/support/test_problems.h"
 
 namespace dsr {
 namespace {

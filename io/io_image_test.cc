@@ -18,7 +18,7 @@
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
-#include "dsr/tests/io_image_test_itk.h"
+#include "dsr/io/io_image_test_itk.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {

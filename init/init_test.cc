@@ -19,7 +19,7 @@
 #include "dsr/pipeline/registration.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
-#include "sanitizer.h"
+#include "dsr/tests/support/sanitizer.h"
 
 namespace dsr {
 namespace {

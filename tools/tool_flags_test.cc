@@ -5,7 +5,7 @@
 
 #include <gtest/gtest.h>
 
-#include "dsr/tests/cli_run.h"
+#include "dsr/tests/support/cli_run.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
 
 namespace dsr {
