@@ -10,10 +10,10 @@
 #
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
 # real anatomical volume the project did not make). Protocols: bench/protocols.sh (paper,
-# wide, walk, and the ultrasound-like us and us_flat of issue 21). Masks: fov = the exact field of
-# view (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one
-# voxel (what dsr_register uses without --masks). Sequences are cached under OUT/sequences (simulated again when their protocol's flags
-# change).
+# wide, walk, and the ultrasound-like us and us_flat). Masks: fov = the exact field of view
+# (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one voxel
+# (what dsr_register uses without --masks). Sequences are cached under OUT/sequences
+# (simulated again when their protocol's flags change).
 # --uncertainty: also the pose covariance (dsr_compare --uncertainty) and a table of the
 # predicted against the measured error (runs go to OUT/runs/INIT-uncertainty).
 # --photometric=affine: per-frame gain and offset estimated with the poses (dsr_compare

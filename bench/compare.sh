@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# End-to-end performance comparisons in one run, on the same simulated data (issue 6):
+# End-to-end performance comparisons in one run, on the same simulated data:
 #   (a) DSR vs DBA (Ceres DENSE_SCHUR) on a problem small enough for DBA, both registering
 #       it fully (3-level pyramid); plus the memory a dsr_register process holds before it
 #       reads anything (the shared libraries), which both modes carry

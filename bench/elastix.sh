@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# elastix groupwise baseline beside the accuracy benchmark (issue 20): registers the same
+# elastix groupwise baseline beside the accuracy benchmark: registers the same
 # seeded sequences as bench/accuracy.sh with elastix's groupwise rigid registration
 # (EulerStackTransform + VarianceOverLastDimensionMetric, bench/elastix_groupwise.py, one
 # run per sequence, from identity) and writes, per source, protocol and mask kind,

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""elastix groupwise rigid baseline for ONE sequence folder written by dsr_simulate (issue 20).
+"""elastix groupwise rigid baseline for ONE sequence folder written by dsr_simulate.
 
 Stacks the frames (frame_00 .. frame_NN) into one 4D image, registers it with elastix's
 groupwise rigid registration (EulerStackTransform + VarianceOverLastDimensionMetric, the
@@ -432,7 +432,7 @@ def parameter_file(m, center, scales, iterations, samples):
 // ---- Components
 (Registration "MultiResolutionRegistration")  // default groupwise map
 (Transform "EulerStackTransform")             // one Euler3D (rigid) transform per frame
-(Metric "VarianceOverLastDimensionMetric")    // issue 20; Metz et al.'s groupwise metric
+(Metric "VarianceOverLastDimensionMetric")    // Metz et al.'s groupwise metric
 (Optimizer "AdaptiveStochasticGradientDescent")  // default map, Par0012, Par0039
 (ImageSampler "RandomCoordinate")            // default map, Par0039: off-grid samples
 (Interpolator "ReducedDimensionBSplineInterpolator")  // default groupwise map

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Summarises bench/compare.sh's results folder: summary.md (markdown tables with the
-ratios issue 6 asks for) and scaling.png (log-log time per iteration and peak memory versus
+ratios the performance targets are stated in) and scaling.png (log-log time per iteration and peak memory versus
 frames and versus voxels, with fitted slopes).
 
 Usage: python3 bench/summarize.py RESULTS_DIR CORES"""

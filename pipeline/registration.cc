@@ -185,8 +185,8 @@ bool RegistrationOptions::Validate(std::string* error) const {
 namespace {
 
 // Recovery searches at most this many frames against the panorama of the others; beyond,
-// the pair graph places every frame. Measured at the paper's size on 2 cores: one frame's
-// search 1.4-4.5 s (it covers the whole panorama), the pair graph of 11 frames about 5 s.
+// the pair graph places every frame: one frame's search covers the whole panorama, so two
+// or three of them already cost about what the pair graph of all frames costs.
 constexpr int kMaxRePlacementSearches = 2;
 
 // The pairwise initialiser (InitialPoses::kPairwise): the whole pipeline once with the

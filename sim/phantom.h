@@ -18,8 +18,8 @@
 // Structure sizes scale with the volume (a 64^3 phantom is a small heart, though walls stay
 // at least 3 voxels thick); edge widths and texture scales are in voxels. Deterministic for
 // a seed with a given standard library, whatever the thread count (std::normal_distribution's
-// output is implementation-defined, so tests must not rely on exact values). 192^3 takes
-// ~0.5 s on one core.
+// output is implementation-defined, so tests must not rely on exact values). Its cost grows
+// with size^3.
 #ifndef DSR_SIM_PHANTOM_H_
 #define DSR_SIM_PHANTOM_H_
 

@@ -14,9 +14,8 @@
 // Gauss-Newton matrix has the per-voxel form (delta_ab d + s) J_a^T J_b the stream adds it
 // for the whole batch at once, voxels with the same observers together
 // (stream/hessian_batch.h), and likewise their gradient g_a += r_a J_a when the term hands
-// over its residuals r_a. Larger batches make larger groups: 2048 voxels (8192
-// observations, about 0.6 MB, within the L2 cache) took an evaluation with Jacobians
-// from 116 to 105 ms (1 thread) where 512 voxels were the limit. The sampler and those
+// over its residuals r_a. Larger batches make larger groups, up to what stays in the L2
+// cache: 2048 voxels (8192 observations, about 0.6 MB). The sampler and those
 // kernels have SIMD implementations (AVX2+FMA, and AVX-512 for the Gauss-Newton matrix)
 // where the CPU has them, and portable ones (the twins tests compare with; KernelPath).
 //

@@ -1,7 +1,7 @@
 // Large buffers (frame data, pyramid levels) on transparent huge pages where the kernel
 // gives them on request (THP "madvise" mode, Debian's default): the first write of a
-// fresh 2 MiB page is one page fault instead of 512, which took about 0.4 s of a
-// clinical-size registration (11 frames of 176x176x200) in page faults alone.
+// fresh 2 MiB page is one page fault instead of 512 (page faults alone were a visible
+// part of a clinical-size registration).
 #ifndef DSR_UTIL_HUGE_PAGES_H_
 #define DSR_UTIL_HUGE_PAGES_H_
 

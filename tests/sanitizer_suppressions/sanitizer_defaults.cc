@@ -4,9 +4,8 @@
 
 // Leak detection on. Allocation stacks come from the frame-pointer unwinder (ASan's
 // default): the slow DWARF unwinder on every malloc (fast_unwind_on_malloc=0) nearly
-// doubled the sanitizer pass of ctest (669 against 359 CPU-seconds; a dsr_register run of
-// dsr_register_cli_test 20.8 s against 3.5 s, the start of a test binary that loads ITK
-// 0.69 s against 0.19 s), and the suppressions below still match: the frame above malloc
+// doubled the sanitizer pass of ctest (figures: the commit that chose the fast one), and
+// the suppressions below still match: the frame above malloc
 // is the third-party library's own (the whole ctest pass runs clean). The libFuzzer build
 // (tests/fuzz/CMakeLists.txt defines DSR_SANITIZER_FULL_MALLOC_STACKS) keeps the full
 // stacks, with which its MetaIO leak was found.
