@@ -11,6 +11,7 @@
 #include "dsr/geometry/se3.h"
 #include "dsr/init/rotation_grid.h"
 #include "dsr/model/observation.h"
+#include "dsr/util/clock.h"
 
 namespace dsr {
 namespace {
@@ -143,8 +144,7 @@ bool GlobalInitialPoses(const std::vector<Frame>& frames,
     return false;
   }
   *frame_from_world = graph_report.usable ? RelativeToFrame0(solved) : poses;
-  report->seconds =
-      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  report->seconds = SecondsSince(start);
   return true;
 }
 

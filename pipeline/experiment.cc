@@ -14,6 +14,7 @@
 #include <sstream>
 
 #include "dsr/eval/eval.h"
+#include "dsr/util/clock.h"
 
 namespace dsr {
 namespace {
@@ -96,7 +97,7 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
     row.failure = error;
     return row;
   }
-  row.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  row.seconds = SecondsSince(start);
   row.recoveries = static_cast<int>(result.recoveries.size());
   if (!result.usable) {
     row.failure = result.failure;

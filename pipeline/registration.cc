@@ -11,14 +11,11 @@
 #include "dsr/init/recovery.h"
 #include "dsr/pipeline/coarse_to_fine.h"
 #include "dsr/pipeline/input_checks.h"
+#include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
 
 namespace dsr {
 namespace {
-
-double Seconds(std::chrono::steady_clock::time_point since) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
-}
 
 // Index of a frame whose field of view holds a single value (no image information), or -1.
 int ConstantFrame(const std::vector<Image>& images, const std::vector<Mask>& masks) {
@@ -294,7 +291,7 @@ bool Recover(const std::vector<Frame>& search_frames,
       moved = true;
     }
   }
-  recovery.seconds = Seconds(recovery_start);
+  recovery.seconds = SecondsSince(recovery_start);
   const bool go_on = moved || recovery.misfit_accepted;
   result->recoveries.push_back(std::move(recovery));
   if (go_on) *poses = RelativeToFrame0(next);
@@ -322,12 +319,12 @@ bool RegisterScaled(const std::vector<Image>& images,
     }
     if (ended) {
       result->frame_from_world = poses;
-      result->seconds = Seconds(start);
+      result->seconds = SecondsSince(start);
       return true;
     }
   }
   Pyramids pyramids = BuildPyramids(images, masks, options);
-  result->pyramid_seconds = Seconds(start) - result->init_seconds;
+  result->pyramid_seconds = SecondsSince(start) - result->init_seconds;
   const int constant = ConstantFrame(images, masks);
   if (constant >= 0) {
     *error = "frame " + std::to_string(constant) +
@@ -347,7 +344,7 @@ bool RegisterScaled(const std::vector<Image>& images,
       *error = "init=global: " + *error;
       return false;
     }
-    result->init_seconds = Seconds(init_start);
+    result->init_seconds = SecondsSince(init_start);
     result->init_frame_from_world = poses;
   }
   for (int round = 0;; ++round) {
@@ -359,7 +356,7 @@ bool RegisterScaled(const std::vector<Image>& images,
       break;
     }
   }
-  result->seconds = Seconds(start);
+  result->seconds = SecondsSince(start);
   return true;
 }
 

@@ -187,7 +187,7 @@ int Main(int argc, char** argv) {
     dsr::SetInitialisation(
         method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init,
         FLAGS_max_recoveries, &o);
-    o.photometric = dsr::ModeEstimatesPhotometric(o.mode) ? dsr::PhotometricFromFlags(dsr::Mode::kDsr)
+    o.photometric = dsr::ModeEstimatesPhotometric(o.mode) ? dsr::PhotometricFromFlags(o.mode)
                                                           : dsr::PhotometricModel::kNone;
     if (!dsr::ModeEstimatesPhotometric(o.mode)) o.loss = dsr::RobustLoss();  // squared
     return o;
@@ -295,11 +295,12 @@ int Main(int argc, char** argv) {
     }
     for (const std::string& m : methods) {
       dsr::ComparisonRow row = dsr::RunMethod(sequence, options_for(m));
+      row.failure = dsr::FieldPathsAsFlags(row.failure);  // the CSV's too: in flags
       std::fprintf(stderr, "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
                    row.method.c_str(), row.sequence.c_str(), row.ok ? "ok    " : "FAILED",
                    row.mae_translation_voxels, row.mae_rotation_rad, row.iterations, row.seconds);
       if (!row.ok) {
-        std::fprintf(stderr, "dsr_compare:   %s\n", dsr::FieldPathsAsFlags(row.failure).c_str());
+        std::fprintf(stderr, "dsr_compare:   %s\n", row.failure.c_str());
       }
       if (row.ok) {
         dsr::PosesFile poses;

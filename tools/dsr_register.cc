@@ -24,6 +24,7 @@
 #include "dsr/tools/flags/flags.h"
 #include "dsr/tools/output_plan.h"
 #include "dsr/tools/tool_util.h"
+#include "dsr/util/clock.h"
 #include "dsr/util/parallel.h"
 
 DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
@@ -95,10 +96,6 @@ std::string PhotometricSummary(const std::vector<dsr::Photometric>& photometric,
     line += item;
   }
   return line;
-}
-
-double SecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
 }
 
 // The files written into --out_tfm_dir, --out_resampled_dir and --report_dir
@@ -426,7 +423,7 @@ int Main(int argc, char** argv) {
       !ReadPoseFiles(in, init_file, &initial, &gt, &error)) {
     return Fail(error);
   }
-  const double load_seconds = SecondsSince(start);
+  const double load_seconds = dsr::SecondsSince(start);
   // The pipeline's own checks of the frames first (Register repeats them), so that a
   // broken header or pose is named as such, not as a panorama too large for memory.
   if (!dsr::CheckRegistrationInputs(images, initial, options, &error)) {
@@ -443,7 +440,7 @@ int Main(int argc, char** argv) {
   if (!WriteOutputs(in, images, masks, initial, gt, options, result, plan, &written, &error)) {
     return Fail(error, dsr::kExitFailed);
   }
-  PrintSummary(options, result, gt, written, SecondsSince(start), load_seconds);
+  PrintSummary(options, result, gt, written, dsr::SecondsSince(start), load_seconds);
   return EXIT_SUCCESS;
 }
 

@@ -22,14 +22,11 @@
 #include "dsr/tools/flags/flags.h"
 #include "dsr/tools/output_plan.h"
 #include "dsr/tools/tool_util.h"
+#include "dsr/util/clock.h"
 
 DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
-
-double SecondsSince(std::chrono::steady_clock::time_point start) {
-  return std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-}
 
 int Main(int argc, char** argv) {
   dsr::InitTool(
@@ -123,14 +120,14 @@ int Main(int argc, char** argv) {
                                               world_speckle_bytes(source.geometry))) {
     return dsr::Fail(error);
   }
-  const double source_seconds = SecondsSince(start);
+  const double source_seconds = dsr::SecondsSince(start);
   LOG(INFO) << (FLAGS_source.empty() ? "phantom " : "read ") << source.geometry.DebugString()
             << " in " << source_seconds << " s";
 
   start = std::chrono::steady_clock::now();
   dsr::SimulatedSequence sequence;
   if (!dsr::Simulate(source, options, &sequence, &error)) return dsr::Fail(error);
-  const double simulate_seconds = SecondsSince(start);
+  const double simulate_seconds = dsr::SecondsSince(start);
   LOG(INFO) << "simulated " << options.num_frames << " frames in " << simulate_seconds << " s";
   if (!plan.CreateFolders(&error)) return dsr::Fail(error, dsr::kExitFailed);
 
@@ -158,7 +155,7 @@ int Main(int argc, char** argv) {
   if (!dsr::WritePoses(poses, (dir / "gt_poses.json").string(), &error)) {
     return dsr::Fail(error, dsr::kExitFailed);
   }
-  const double write_seconds = SecondsSince(start);
+  const double write_seconds = dsr::SecondsSince(start);
 
   const dsr::ImageGeometry& g = sequence.frames[0].geometry;
   const int64_t fov_voxels = dsr::CountInside(dsr::PyramidFieldOfView(g, options));

@@ -71,6 +71,25 @@ TEST(ToolFlags, KernelsNameAPathThisCpuRuns) {
   }
 }
 
+// A library's failure names option fields (util/option_fields.h); the tools print and write
+// it with their flags, in the log and in dsr_compare's results.csv alike.
+TEST(ToolFlags, FailuresNameTheFlagsInTheLogAndTheResults) {
+  ScopedTempDir dir;
+  const ToolRun run = RunTool(DSR_COMPARE_BIN,
+                              "--out_dir=" + dir.File("c") +
+                                  " --methods=dsr --num_sequences=1 --num_frames=3 "
+                                  "--pyramid_levels=1 --phantom_size=64 --frame_size=28,28,24 "
+                                  "--max_translation_voxels=3 --max_rotation_deg=3 "
+                                  "--max_misfit_ratio=1.01",
+                              dir.path());
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  const std::string csv = ReadText(dir.File("c") + "/results.csv");
+  EXPECT_NE(csv.find("does not match the others"), std::string::npos) << csv;
+  EXPECT_NE(csv.find("--max_misfit_ratio=1.01)"), std::string::npos) << csv;
+  EXPECT_NE(csv.find("(--init)"), std::string::npos) << csv;
+  EXPECT_NE(run.err.find("--max_misfit_ratio=1.01)"), std::string::npos) << run.err;
+}
+
 TEST(ToolFlags, CompareSimulatesFromASourceAndRefusesOneWithSequences) {
   ScopedTempDir dir;
   const std::string sequence = dir.File("sequence");
