@@ -311,7 +311,8 @@ bool SolveDba(const std::vector<Frame>& frames,
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
     solver_options.linear_solver_ordering = dba.MakeOrdering();
   }
-  ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.progress);
+  ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.progress,
+                            options.solve.on_iteration);
   solver_options.callbacks.push_back(&progress);
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dba.pose_parameters(i);

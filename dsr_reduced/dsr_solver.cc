@@ -168,8 +168,9 @@ bool SolveOnce(const std::vector<Frame>& frames,
     // itself evaluates the few chunks one after another.
     solver_options.num_threads = 1;
   }
-  ProgressCallback progress(options.solve.progress_prefix + (options.reference_cost ? "dsr-ref" : "dsr"),
-                            options.solve.progress);
+  ProgressCallback progress(
+      options.solve.progress_prefix + (options.reference_cost ? "dsr-ref" : "dsr"),
+      options.solve.progress, options.solve.on_iteration);
   solver_options.callbacks.push_back(&progress);
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);

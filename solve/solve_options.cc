@@ -94,6 +94,7 @@ ceres::CallbackReturnType ProgressCallback::operator()(const ceres::IterationSum
                  label_.c_str(), s.iteration, s.cost, s.step_norm, s.trust_region_radius,
                  s.step_is_successful ? "accepted" : "rejected", s.cumulative_time_in_seconds);
   }
+  if (observer_ && !observer_(label_, r)) return ceres::SOLVER_ABORT;
   return ceres::SOLVER_CONTINUE;
 }
 

@@ -3,6 +3,7 @@
 #ifndef DSR_SOLVE_SOLVE_OPTIONS_H_
 #define DSR_SOLVE_SOLVE_OPTIONS_H_
 
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -15,6 +16,13 @@
 #include "dsr/util/cpu.h"
 
 namespace dsr {
+
+struct IterationRecord;
+
+// Told of every iteration of every solve, with the solve's progress label (e.g. "level 0
+// dsr"); returning false stops that solve (Ceres's SOLVER_ABORT: the solve is then not
+// usable). Called on the thread that runs the solve.
+using IterationObserver = std::function<bool(const std::string& label, const IterationRecord&)>;
 
 struct SolveOptions {
   ceres::TrustRegionStrategyType trust_region = ceres::LEVENBERG_MARQUARDT;
@@ -30,6 +38,8 @@ struct SolveOptions {
   bool progress = true;  // one line per iteration on stderr
   // Prepended to the mode's name on progress lines (e.g. "level 2 " -> "level 2 dsr iter").
   std::string progress_prefix;
+  // Optional: called after every iteration (the Python module's progress callback).
+  IterationObserver on_iteration;
   // Ceres accepts a step only when the cost drops by at least this fraction of the model's
   // prediction. Tests that study Gauss-Newton fixed points lower it (see
   // docs/design.md section 4.4); users keep Ceres's default.
@@ -69,16 +79,19 @@ struct IterationRecord {
   bool step_accepted = true;
 };
 
-// Logs each iteration to stderr (when enabled) and keeps the records.
+// Logs each iteration to stderr (when enabled), keeps the records and tells `observer`
+// (when set; its false aborts the solve).
 class ProgressCallback final : public ceres::IterationCallback {
  public:
-  ProgressCallback(std::string label, bool log) : label_(std::move(label)), log_(log) {}
+  ProgressCallback(std::string label, bool log, IterationObserver observer = nullptr)
+      : label_(std::move(label)), log_(log), observer_(std::move(observer)) {}
   ceres::CallbackReturnType operator()(const ceres::IterationSummary& summary) override;
   const std::vector<IterationRecord>& records() const { return records_; }
 
  private:
   std::string label_;
   bool log_;
+  IterationObserver observer_;
   std::vector<IterationRecord> records_;
 };
 

@@ -256,7 +256,7 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   // The streamed blocks thread internally over fixed voxel blocks (deterministic); Ceres
   // evaluates the few blocks one after another.
   options.num_threads = 1;
-  ProgressCallback progress(solve.progress_prefix + label, solve.progress);
+  ProgressCallback progress(solve.progress_prefix + label, solve.progress, solve.on_iteration);
   options.callbacks.push_back(&progress);
   PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance,
                         solve.max_rejected_steps);

@@ -11,6 +11,7 @@
 #include <glog/logging.h>
 
 #include "dsr/image/frame.h"
+#include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/observation.h"

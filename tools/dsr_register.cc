@@ -13,6 +13,7 @@
 #include <glog/logging.h>
 
 #include "dsr/eval/eval.h"
+#include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/io/io_transform.h"
@@ -27,9 +28,6 @@
 #include "dsr/util/clock.h"
 #include "dsr/util/parallel.h"
 
-DEFINE_string(mode, "dsr", "Solver: dsr (reduced problem, intensities eliminated), dba "
-              "(full direct bundle adjustment in Ceres; small problems only), or one of the "
-              "paper's baselines: pairwise, lie_normalization, sequential, ape.");
 DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
               "frame 0 = identity). Required.");
 DEFINE_string(out_panorama, "", "Optional output image of the panorama on the final grid: "
@@ -124,24 +122,6 @@ void PlanFolderOutputs(int m, const std::vector<int>& pair, dsr::OutputPlan* pla
       plan->AddDerivedFile("report_dir", dir, file);
     }
   }
-}
-
-// The registration's options from the flags, checked before any file is read.
-bool OptionsFromFlags(dsr::RegistrationOptions* options, std::string* init_file,
-                      std::string* error) {
-  if (!dsr::StringToMode(FLAGS_mode, &options->mode)) {
-    std::string names;
-    for (const std::string& name : dsr::ModeNames()) names += (names.empty() ? "" : "|") + name;
-    *error = "--mode=" + FLAGS_mode + ": unknown mode (one of " + names + ")";
-    return false;
-  }
-  if (!dsr::RegistrationOptionsFromFlags(options, init_file, error)) return false;
-  options->photometric = dsr::PhotometricFromFlags(options->mode);
-  if (FLAGS_uncertainty && !dsr::ModeEstimatesPhotometric(options->mode)) {
-    *error = "--uncertainty: needs --mode=dsr or dba (got --mode=" + FLAGS_mode + ")";
-    return false;
-  }
-  return options->Validate(error);
 }
 
 // The files named by --images and --masks and the report's frames, checked before any file
@@ -410,7 +390,7 @@ int Main(int argc, char** argv) {
   std::string error, init_file;
   // Options first, so that flag errors come before any file is read.
   dsr::RegistrationOptions options;
-  if (!OptionsFromFlags(&options, &init_file, &error)) return Fail(error);
+  if (!dsr::RunOptionsFromFlags(&options, &init_file, &error)) return Fail(error);
   Inputs in;
   dsr::OutputPlan plan;
   if (!ParseInputs(&in, &error) || !PlanFiles(in, init_file, &plan, &error)) return Fail(error);

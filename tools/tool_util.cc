@@ -6,6 +6,7 @@
 #include "dsr/io/io_image.h"
 
 #include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -14,6 +15,7 @@
 #include <exception>
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <new>
 #include <system_error>
 
@@ -414,17 +416,36 @@ int Fail(const std::string& message, int code) {
   return code;
 }
 
-void ExitBadFlag(const char* flag, const std::string& value, const std::string& rule) {
-  std::exit(Fail(std::string("--") + flag + "=" + value + ": " + rule));
+namespace {
+std::atomic<bool> bad_flags_exit{true};
+std::mutex last_bad_flag_mutex;
+std::string last_bad_flag;
+}  // namespace
+
+bool RefuseFlag(const char* flag, const std::string& value, const std::string& rule) {
+  const std::string message = std::string("--") + flag + "=" + value + ": " + rule;
+  if (bad_flags_exit) std::exit(Fail(message));
+  const std::lock_guard<std::mutex> lock(last_bad_flag_mutex);
+  last_bad_flag = message;
+  return false;
+}
+
+void SetBadFlagsExit(bool exit) { bad_flags_exit = exit; }
+
+std::string LastBadFlag() {
+  const std::lock_guard<std::mutex> lock(last_bad_flag_mutex);
+  return last_bad_flag;
 }
 
 bool CheckInputFileFlag(const char* flag, const std::string& path) {
   if (path.empty()) return true;
   std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) ExitBadFlag(flag, path, "no such file");
-  if (!std::filesystem::is_regular_file(path, ec)) ExitBadFlag(flag, path, "not a regular file");
+  if (!std::filesystem::exists(path, ec)) return RefuseFlag(flag, path, "no such file");
+  if (!std::filesystem::is_regular_file(path, ec)) {
+    return RefuseFlag(flag, path, "not a regular file");
+  }
   if (!std::ifstream(path, std::ios::binary).is_open())
-    ExitBadFlag(flag, path, "cannot open for reading");
+    return RefuseFlag(flag, path, "cannot open for reading");
   return true;
 }
 
@@ -617,39 +638,6 @@ bool ParseVector3(const std::string& text, Eigen::Vector3d* vector) {
     if (end == items[a].c_str() || *end != '\0' || !std::isfinite(parsed[a])) return false;
   }
   *vector = parsed;
-  return true;
-}
-
-bool ReadFrames(const std::vector<std::string>& image_paths,
-                const std::vector<std::string>& mask_paths,
-                int mask_erosion,
-                int num_threads,
-                std::vector<Image>* images,
-                std::vector<Mask>* masks,
-                std::string* error) {
-  const int m = static_cast<int>(image_paths.size());
-  images->assign(m, Image());
-  masks->assign(m, Mask());
-  std::vector<std::string> read_errors(m);
-  ParallelFor(0, m, num_threads, [&](int64_t i) {
-    std::string& e = read_errors[i];
-    if (!ReadImage(image_paths[i], &(*images)[i], &e)) return;
-    if (!mask_paths.empty()) {
-      ReadMask(mask_paths[i], (*images)[i].geometry, &(*masks)[i], &e);
-      return;
-    }
-    (*masks)[i] = MaskFromNonZero((*images)[i], mask_erosion);
-    if (CountInside((*masks)[i]) == 0) {
-      e = image_paths[i] + ": no voxel left in the field of view (non-zero voxels eroded by "
-          "--mask_erosion=" + std::to_string(mask_erosion) + ")";
-    }
-  });
-  for (const std::string& e : read_errors) {
-    if (!e.empty()) {
-      *error = e;
-      return false;
-    }
-  }
   return true;
 }
 

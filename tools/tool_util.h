@@ -87,10 +87,16 @@ std::string FieldPathsAsFlags(const std::string& message);
 // returns `code`, so that main can `return Fail(...)`.
 int Fail(const std::string& message, int code = kExitBadInput);
 
-// Prints "<tool>: error: --<flag>=<value>: <rule>" and exits with kExitBadInput.
-[[noreturn]] void ExitBadFlag(const char* flag, const std::string& value, const std::string& rule);
+// A refused flag value, "--<flag>=<value>: <rule>": a tool prints it as its error and exits
+// with kExitBadInput; a front end that lives on after a bad value (the Python module,
+// after SetBadFlagsExit(false)) gets false, and the message from LastBadFlag().
+bool RefuseFlag(const char* flag, const std::string& value, const std::string& rule);
+// Whether RefuseFlag exits the process (the default) or returns false.
+void SetBadFlagsExit(bool exit);
+// The message of the latest RefuseFlag that returned false ("" when none).
+std::string LastBadFlag();
 
-// For DEFINE_validator functions: returns true when `ok`, else ExitBadFlag. (A validator
+// For DEFINE_validator functions: returns true when `ok`, else RefuseFlag. (A validator
 // that returns false makes gflags print "failed validation of new value" without saying
 // which rule failed.) gflags also runs validators on unchanged defaults, so defaults must
 // pass. Example:
@@ -102,11 +108,11 @@ bool CheckFlag(bool ok, const char* flag, const T& value, const std::string& rul
   if (ok) return true;
   std::ostringstream s;
   s << value;
-  ExitBadFlag(flag, s.str(), rule);
+  return RefuseFlag(flag, s.str(), rule);
 }
 
 // Validator for optional input-file flags: true for "" or a readable regular file;
-// otherwise ExitBadFlag (missing, a folder, unreadable).
+// otherwise RefuseFlag (missing, a folder, unreadable).
 bool CheckInputFileFlag(const char* flag, const std::string& path);
 
 // The absolute, normalised form of a path (symlinks resolved where they exist), so that two
@@ -154,17 +160,6 @@ bool ParseSize3(const std::string& text,
 
 // "1,1.5,2" -> (1, 1.5, 2). False unless exactly three finite numbers.
 bool ParseVector3(const std::string& text, Eigen::Vector3d* vector);
-
-// Reads frames in parallel (decompression dominates) with their masks: `mask_paths` one per
-// image, or empty for each image's non-zero voxels eroded by `mask_erosion` voxels. The
-// first failing frame in input order is reported (one line naming the file).
-bool ReadFrames(const std::vector<std::string>& image_paths,
-                const std::vector<std::string>& mask_paths,
-                int mask_erosion,
-                int num_threads,
-                std::vector<Image>* images,
-                std::vector<Mask>* masks,
-                std::string* error);
 
 }  // namespace dsr
 

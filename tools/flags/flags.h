@@ -7,6 +7,7 @@
 // a tool refers to one of their flags or functions.
 //   frames.cc        --images --masks --blend --feather_voxels    dsr_register, dsr_fuse
 //   mask.cc          --mask_erosion                               dsr_simulate, dsr_register, dsr_fuse
+//   mode.cc          --mode, one registration run's options       dsr_register, the Python module
 //   panorama.cc      --panorama_spacing --num_threads             dsr_register, dsr_fuse, dsr_compare
 //   registration.cc  the registration's options                   dsr_register, dsr_compare
 //   simulation.cc    the simulation's options, --out_dir          dsr_simulate, dsr_compare
@@ -32,6 +33,8 @@ DECLARE_string(blend);
 DECLARE_double(feather_voxels);
 // mask.cc
 DECLARE_int32(mask_erosion);
+// mode.cc
+DECLARE_string(mode);
 // panorama.cc
 DECLARE_double(panorama_spacing);
 DECLARE_int32(num_threads);
@@ -115,7 +118,7 @@ bool FrameFilesFromFlags(int min_frames,
 // --blend: the panorama's fusion, and whether it is feathered.
 bool FeatherBlend();
 
-// The registration's options from the flags, but for the mode (--mode is dsr_register's,
+// The registration's options from the flags, but for the mode (--mode is a single run's,
 // dsr_compare has --methods) and the photometric model (its default depends on the mode).
 // --init: a name sets the start and recovery (SetInitialisation); any other text is a
 // poses file, returned in *init_file (the start is then the file's poses, with recovery).
@@ -123,6 +126,12 @@ bool FeatherBlend();
 bool RegistrationOptionsFromFlags(RegistrationOptions* options,
                                   std::string* init_file,
                                   std::string* error);
+
+// mode.cc: one registration run's options (dsr_register, the Python module): --mode, the
+// options above, the photometric model for that mode, and RegistrationOptions::Validate.
+// False with a one-line `error` naming the flag (or a field, from Validate).
+bool RunOptionsFromFlags(RegistrationOptions* options, std::string* init_file,
+                         std::string* error);
 
 // --photometric as the model of `mode`: its value, except that the default applies only to
 // the modes that estimate photometric parameters (a baseline runs without them unless
