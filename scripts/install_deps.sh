@@ -8,7 +8,7 @@ packages=(
   libopencv-core-dev libopencv-imgproc-dev libopencv-imgcodecs-dev
   libinsighttoolkit5-dev nlohmann-json3-dev libfftw3-dev zlib1g-dev
   libgtest-dev libgmock-dev libbenchmark-dev
-  python3
+  python3 python3-dev python3-venv pybind11-dev
 )
 missing=()
 for p in "${packages[@]}"; do

@@ -1,0 +1,307 @@
+"""dsr: direct simultaneous registration of several 3D images, from Python.
+
+The C++ libraries do all the work (the module ``dsr._core``); this file turns Python
+inputs into what they take. Options are the command-line flags of ``dsr_register`` and
+``dsr_simulate`` by name (``max_iterations=50``, ``photometric="affine"``), with their
+defaults, rules and one-line error messages: a bad value raises ``ValueError`` with the
+message the command line prints.
+
+Conventions (docs/design.md section 1): a pose is a 4x4 matrix T_i mapping world (frame 0's
+physical space, LPS millimetres) to frame i; frame 0's is the identity. Arrays are indexed
+[k, j, i] (numpy's and SimpleITK's order: the last axis is x).
+
+Example::
+
+    import dsr
+    sequence = dsr.simulate(num_frames=4, seed=1)
+    result = dsr.register(sequence.frames, masks=sequence.masks)
+    print(result.summary["iterations"], result.poses[1])
+    result.save("poses.json")
+"""
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+from . import _core
+
+__all__ = [
+    "Image",
+    "Result",
+    "Sequence",
+    "RegistrationError",
+    "register",
+    "simulate",
+    "read_image",
+    "write_image",
+    "read_poses",
+    "write_poses",
+    "options",
+]
+
+RegistrationError = _core.RegistrationError
+RegistrationError.__doc__ = (
+    "A registration that was set up right but gave no result (dsr_register's exit status 1): "
+    "a frame stuck in a wrong minimum, or a solve that diverged. The message says why.")
+
+
+@dataclass
+class Image:
+    """A 3D image: ``array`` indexed [k, j, i] and its physical grid (LPS millimetres).
+
+    ``direction`` is the 3x3 matrix whose columns are the index axes in physical space.
+    """
+
+    array: np.ndarray
+    spacing: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    origin: Tuple[float, float, float] = (0.0, 0.0, 0.0)
+    direction: np.ndarray = field(default_factory=lambda: np.eye(3))
+
+    def geometry(self) -> Tuple[List[float], List[float], List[float]]:
+        return (
+            [float(v) for v in self.spacing],
+            [float(v) for v in self.origin],
+            [float(v) for v in np.asarray(self.direction, dtype=float).reshape(9)],
+        )
+
+    @staticmethod
+    def _from_core(pair) -> "Image":
+        array, (spacing, origin, direction) = pair
+        return Image(array, tuple(spacing), tuple(origin), np.asarray(direction).reshape(3, 3))
+
+
+ImageLike = Union[str, "os.PathLike[str]", Image, np.ndarray, Any]
+
+
+def _as_path(value: Any) -> Optional[str]:
+    if isinstance(value, (str, os.PathLike)):
+        return os.fspath(value)
+    return None
+
+
+def _as_image(value: Any, what: str) -> Image:
+    """An Image from a dsr.Image, a SimpleITK image or a nibabel image."""
+    if isinstance(value, Image):
+        return value
+    if isinstance(value, np.ndarray):
+        raise ValueError(
+            f"{what}: a bare numpy array has no spacing, origin or direction; "
+            "pass dsr.Image(array, spacing=..., origin=..., direction=...)")
+    if hasattr(value, "GetSpacing") and hasattr(value, "GetDirection"):  # SimpleITK
+        import SimpleITK as sitk  # noqa: PLC0415 (only when given one)
+
+        return Image(
+            sitk.GetArrayFromImage(value),
+            tuple(value.GetSpacing()),
+            tuple(value.GetOrigin()),
+            np.asarray(value.GetDirection(), dtype=float).reshape(3, 3),
+        )
+    if hasattr(value, "affine") and hasattr(value, "get_fdata"):  # nibabel
+        # nibabel's affine maps (i, j, k) to RAS; dsr's world is LPS (as ITK reads NIfTI).
+        affine = np.diag([-1.0, -1.0, 1.0, 1.0]) @ np.asarray(value.affine, dtype=float)
+        linear = affine[:3, :3]
+        spacing = np.linalg.norm(linear, axis=0)
+        data = np.asanyarray(value.dataobj)
+        return Image(
+            np.ascontiguousarray(np.transpose(data, (2, 1, 0))),
+            tuple(spacing),
+            tuple(affine[:3, 3]),
+            linear / spacing,
+        )
+    raise ValueError(f"{what}: not a path, dsr.Image, SimpleITK image or nibabel image "
+                     f"({type(value).__name__})")
+
+
+def _flag_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, (list, tuple)):
+        return ",".join(_flag_value(v) for v in value)
+    return os.fspath(value) if isinstance(value, os.PathLike) else str(value)
+
+
+def _flags(options: Dict[str, Any]) -> List[Tuple[str, str]]:
+    return [(name, _flag_value(value)) for name, value in options.items()]
+
+
+@dataclass
+class Result:
+    """A registration's result.
+
+    ``poses``: one 4x4 array per frame (world = frame 0 -> frame i; frame 0's is the
+    identity). ``summary``: mode, iterations, final cost, seconds, termination, recoveries.
+    ``gain``/``offset`` (with ``photometric="affine"``): frame i's corrected intensity is
+    gain * I_i + offset. ``covariance``/``predicted_tre_mm`` (with ``uncertainty=True``).
+    """
+
+    poses: List[np.ndarray]
+    summary: Dict[str, Any]
+    images: List[str]
+    gain: List[float]
+    offset: List[float]
+    covariance: List[np.ndarray]
+    predicted_tre_mm: List[float]
+
+    def save(self, path: Union[str, "os.PathLike[str]"]) -> None:
+        """Writes the poses JSON dsr_register writes (atomically)."""
+        write_poses(path, self.poses, images=self.images, gain=self.gain, offset=self.offset,
+                    covariance=self.covariance, predicted_tre_mm=self.predicted_tre_mm)
+
+
+def register(images: Sequence[ImageLike],
+             masks: Optional[Sequence[ImageLike]] = None,
+             *,
+             mode: str = "dsr",
+             init: Union[str, "os.PathLike[str]"] = "auto",
+             initial_poses: Optional[Sequence[np.ndarray]] = None,
+             names: Optional[Sequence[str]] = None,
+             on_iteration: Optional[Callable[[str, Dict[str, Any]], Any]] = None,
+             **options: Any) -> Result:
+    """Registers several 3D images simultaneously, as ``dsr_register`` does.
+
+    images: file paths (read as dsr_register reads them) or images (dsr.Image, SimpleITK,
+        nibabel); frame 0 is the reference.
+    masks: one field-of-view mask per image, the same kind as the images; default: each
+        image's non-zero voxels eroded by ``mask_erosion`` voxels.
+    mode, init, **options: dsr_register's flags by name (e.g. ``pyramid_levels=2``,
+        ``photometric="affine"``, ``uncertainty=True``) with its defaults, except
+        ``progress`` (its iteration lines on stderr), off here; ``dsr.options()`` lists them.
+    initial_poses: start poses (4x4, world -> frame) instead of ``init``'s.
+    names: the images' names in the poses file (default: the file names, or frame_NN).
+    on_iteration: called after every solver iteration as on_iteration(label, record) with
+        record {"iteration", "cost", "step_norm", "seconds", "step_accepted"} and label the
+        solve's (e.g. "level 1 dsr"); returning False stops the registration
+        (RegistrationError), and an exception it raises is raised by register().
+
+    Raises ValueError for bad input (the command line's message) and RegistrationError when
+    the registration gives no result.
+    """
+    images = list(images)
+    paths = [_as_path(image) for image in images]
+    mask_list = list(masks) if masks is not None else []
+    from_files = all(p is not None for p in paths)
+    if from_files:
+        core_images: list = paths
+        mask_paths = [_as_path(mask) for mask in mask_list]
+        if any(p is None for p in mask_paths):
+            raise ValueError("masks: give files with image files")
+        core_masks: list = mask_paths
+        default_names = [os.path.basename(p) for p in paths]
+    else:
+        if any(p is not None for p in paths):
+            raise ValueError("images: give all as files or all as images, not both")
+        core_images = []
+        for i, image in enumerate(images):
+            im = _as_image(image, f"image {i}")
+            core_images.append((np.asarray(im.array, dtype=np.float32), im.geometry()))
+        core_masks = []
+        for i, mask in enumerate(mask_list):
+            mk = _as_image(mask, f"mask {i}")
+            core_masks.append((np.asarray(mk.array, dtype=np.uint8), mk.geometry()))
+        default_names = [f"frame_{i:02d}" for i in range(len(images))]
+    image_names = list(names) if names is not None else default_names
+    if len(image_names) != len(images):
+        raise ValueError(f"names: {len(image_names)} names for {len(images)} images")
+    flags = _flags({"mode": mode, "init": init, "progress": False, **options})
+    if initial_poses is not None:
+        flags = [f for f in flags if f[0] != "init"] + [("init", "identity")]
+        initial = [np.asarray(p, dtype=float) for p in initial_poses]
+    else:
+        initial = None
+    observer = None
+    if on_iteration is not None:
+        def observer(label: str, record) -> bool:
+            answer = on_iteration(label, {
+                "iteration": record.iteration,
+                "cost": record.cost,
+                "step_norm": record.step_norm,
+                "seconds": record.seconds,
+                "step_accepted": record.step_accepted,
+            })
+            return answer is not False
+    out = _core.register(core_images, core_masks, image_names, flags, initial, observer)
+    poses = out["poses"]
+    return Result(
+        poses=list(poses["frame_from_world"]),
+        summary=dict(out["summary"]),
+        images=list(poses["images"]),
+        gain=list(poses["gain"]),
+        offset=list(poses["offset"]),
+        covariance=list(poses["covariance"]),
+        predicted_tre_mm=list(poses["predicted_tre_mm"]),
+    )
+
+
+@dataclass
+class Sequence:
+    """A simulated sequence: frames and masks (dsr.Image) and the true poses (4x4, the
+    source volume's physical space -> frame i), with the true gains and offsets when
+    simulated (frame 0's scale, as Result.gain and Result.offset)."""
+
+    frames: List[Image]
+    masks: List[Image]
+    frame_from_world: List[np.ndarray]
+    gain: List[float]
+    offset: List[float]
+
+
+def simulate(**options: Any) -> Sequence:
+    """Simulates a sequence as ``dsr_simulate`` does (its flags by name, e.g. ``seed=3``,
+    ``num_frames=5``, ``source="volume.nii.gz"``; default: the built-in phantom and the
+    paper's protocol), in memory."""
+    out = _core.simulate(_flags(options))
+    return Sequence(
+        frames=[Image._from_core(f) for f in out["frames"]],
+        masks=[Image._from_core(m) for m in out["masks"]],
+        frame_from_world=list(out["frame_from_world"]),
+        gain=list(out.get("gain", [])),
+        offset=list(out.get("offset", [])),
+    )
+
+
+def read_image(path: Union[str, "os.PathLike[str]"]) -> Image:
+    """Reads a 3D image (NIfTI, MetaImage, NRRD) as dsr reads it (ITK, LPS)."""
+    return Image._from_core(_core.read_image(os.fspath(path)))
+
+
+def write_image(image: ImageLike, path: Union[str, "os.PathLike[str]"]) -> None:
+    """Writes a 3D image (float32; the format from the file name), atomically."""
+    im = _as_image(image, "image")
+    _core.write_image(np.asarray(im.array, dtype=np.float32), im.geometry(), os.fspath(path))
+
+
+def read_poses(path: Union[str, "os.PathLike[str]"], expected_frames: int = -1) -> Dict[str, Any]:
+    """Reads a poses JSON (dsr_register's, dsr_simulate's gt_poses.json): a dict with
+    "images", "frame_from_world" (4x4 arrays), "gain" and "offset" (empty when absent)."""
+    return _core.read_poses(os.fspath(path), expected_frames)
+
+
+def write_poses(path: Union[str, "os.PathLike[str]"],
+                poses: Sequence[np.ndarray],
+                *,
+                images: Optional[Sequence[str]] = None,
+                gain: Sequence[float] = (),
+                offset: Sequence[float] = (),
+                covariance: Sequence[np.ndarray] = (),
+                predicted_tre_mm: Sequence[float] = ()) -> None:
+    """Writes a poses JSON as dsr_register does (atomically)."""
+    poses = [np.asarray(p, dtype=float) for p in poses]
+    _core.write_poses({
+        "images": list(images) if images is not None else [""] * len(poses),
+        "frame_from_world": poses,
+        "gain": list(gain),
+        "offset": list(offset),
+        "covariance": [np.asarray(c, dtype=float) for c in covariance],
+        "predicted_tre_mm": list(predicted_tre_mm),
+    }, os.fspath(path))
+
+
+def options() -> Dict[str, Dict[str, str]]:
+    """The options register() and simulate() take: name -> {type, default, help, file}."""
+    return {name: {"type": kind, "default": default, "help": help_text, "file": file}
+            for name, kind, default, help_text, file in _core.options()}

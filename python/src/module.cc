@@ -1,0 +1,407 @@
+// dsr._core: the C++ side of the Python package (python/dsr/__init__.py is the API users
+// call). It is a front end like the command-line tools: options arrive as flag names and
+// values and go through the same flags layer (tools/flags: validators, defaults, the
+// mapping to RegistrationOptions and SimulationOptions), so a registration from Python is
+// the registration dsr_register runs, with its messages. No method code lives here.
+#include <pybind11/functional.h>
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+
+#include <exception>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include <Eigen/Geometry>
+#include <gflags/gflags.h>
+
+#include "dsr/io/io_frames.h"
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_poses.h"
+#include "dsr/pipeline/input_checks.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/report.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
+#include "dsr/tools/flags/flags.h"
+#include "dsr/tools/tool_util.h"
+
+namespace py = pybind11;
+
+namespace dsr {
+namespace {
+
+// Raised for a run that was set up right but did not give a result (dsr_register's exit
+// status 1): the Python class dsr.RegistrationError.
+PyObject* registration_error = nullptr;
+
+[[noreturn]] void BadInput(const std::string& message) {
+  throw py::value_error(FieldPathsAsFlags(message));
+}
+
+// Sets each (flag, value) for the current call; a FlagSaver in the caller restores them.
+void SetFlags(const std::vector<std::pair<std::string, std::string>>& flags) {
+  for (const auto& [name, value] : flags) {
+    gflags::CommandLineFlagInfo info;
+    if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
+      BadInput("unknown option '" + name + "'");
+    }
+    if (gflags::SetCommandLineOption(name.c_str(), value.c_str()).empty()) {
+      const std::string refused = LastBadFlag();
+      BadInput(refused.rfind("--" + name + "=", 0) == 0
+                   ? refused
+                   : "--" + name + "=" + value + ": not a valid " + info.type);
+    }
+  }
+}
+
+// A 3D image: the voxels as a C-ordered array indexed [k][j][i] (numpy's and SimpleITK's
+// order) and the geometry (spacing, origin, direction as 9 numbers, row-major).
+using Geometry = std::tuple<std::vector<double>, std::vector<double>, std::vector<double>>;
+
+ImageGeometry ToGeometry(const std::vector<ssize_t>& shape, const Geometry& g) {
+  const auto& [spacing, origin, direction] = g;
+  if (shape.size() != 3) BadInput("an image must have 3 axes, not " + std::to_string(shape.size()));
+  if (spacing.size() != 3 || origin.size() != 3 || direction.size() != 9) {
+    BadInput("an image's spacing and origin need 3 numbers and its direction 9");
+  }
+  ImageGeometry out;
+  out.size = Eigen::Vector3i(static_cast<int>(shape[2]), static_cast<int>(shape[1]),
+                             static_cast<int>(shape[0]));
+  for (int d = 0; d < 3; ++d) {
+    out.spacing_mm[d] = spacing[d];
+    out.origin_mm[d] = origin[d];
+    for (int e = 0; e < 3; ++e) out.direction(d, e) = direction[3 * d + e];
+  }
+  return out;
+}
+
+Geometry FromGeometry(const ImageGeometry& g) {
+  std::vector<double> direction(9);
+  for (int d = 0; d < 3; ++d) {
+    for (int e = 0; e < 3; ++e) direction[3 * d + e] = g.direction(d, e);
+  }
+  return {{g.spacing_mm[0], g.spacing_mm[1], g.spacing_mm[2]},
+          {g.origin_mm[0], g.origin_mm[1], g.origin_mm[2]},
+          direction};
+}
+
+template <typename T>
+Volume<T> ToVolume(const py::array_t<T, py::array::c_style | py::array::forcecast>& array,
+                   const Geometry& geometry, const std::string& what) {
+  std::vector<ssize_t> shape(array.shape(), array.shape() + array.ndim());
+  Volume<T> out(ToGeometry(shape, geometry));
+  std::string error;
+  if (!out.geometry.Validate(what, &error)) BadInput(error);
+  std::copy(array.data(), array.data() + out.voxels.size(), out.voxels.begin());
+  return out;
+}
+
+template <typename T>
+py::array_t<T> ToArray(const Volume<T>& volume) {
+  const Eigen::Vector3i& n = volume.geometry.size;
+  py::array_t<T> out({static_cast<ssize_t>(n[2]), static_cast<ssize_t>(n[1]),
+                      static_cast<ssize_t>(n[0])});
+  std::copy(volume.voxels.begin(), volume.voxels.end(), out.mutable_data());
+  return out;
+}
+
+py::array_t<double> ToArray(const Eigen::Isometry3d& pose) {
+  py::array_t<double> out({4, 4});
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) out.mutable_at(r, c) = pose.matrix()(r, c);
+  }
+  return out;
+}
+
+Eigen::Isometry3d ToPose(const py::array_t<double, py::array::c_style | py::array::forcecast>& a) {
+  if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4) BadInput("a pose must be a 4x4 matrix");
+  Eigen::Isometry3d pose;
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) pose.matrix()(r, c) = a.at(r, c);
+  }
+  return pose;
+}
+
+py::dict PosesToDict(const PosesFile& poses) {
+  py::dict out;
+  py::list matrices, covariance;
+  for (const Eigen::Isometry3d& pose : poses.frame_from_world) matrices.append(ToArray(pose));
+  for (const auto& c : poses.covariance) {
+    py::array_t<double> m({6, 6});
+    for (int r = 0; r < 6; ++r) {
+      for (int k = 0; k < 6; ++k) m.mutable_at(r, k) = c(r, k);
+    }
+    covariance.append(m);
+  }
+  out["images"] = poses.images;
+  out["frame_from_world"] = matrices;
+  out["covariance"] = covariance;
+  out["predicted_tre_mm"] = poses.predicted_tre_mm;
+  out["gain"] = poses.gain;
+  out["offset"] = poses.offset;
+  return out;
+}
+
+PosesFile PosesFromDict(const py::dict& d) {
+  PosesFile poses;
+  poses.images = d["images"].cast<std::vector<std::string>>();
+  for (const py::handle& m : d["frame_from_world"]) {
+    poses.frame_from_world.push_back(ToPose(py::reinterpret_borrow<py::object>(m)));
+  }
+  if (d.contains("covariance")) {
+    for (const py::handle& m : d["covariance"]) {
+      const auto a = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(m);
+      if (!a || a.ndim() != 2 || a.shape(0) != 6 || a.shape(1) != 6) {
+        BadInput("a covariance must be a 6x6 matrix");
+      }
+      Eigen::Matrix<double, 6, 6> c;
+      for (int r = 0; r < 6; ++r) {
+        for (int k = 0; k < 6; ++k) c(r, k) = a.at(r, k);
+      }
+      poses.covariance.push_back(c);
+    }
+  }
+  if (d.contains("predicted_tre_mm")) {
+    poses.predicted_tre_mm = d["predicted_tre_mm"].cast<std::vector<double>>();
+  }
+  if (d.contains("gain")) poses.gain = d["gain"].cast<std::vector<double>>();
+  if (d.contains("offset")) poses.offset = d["offset"].cast<std::vector<double>>();
+  return poses;
+}
+
+py::dict Summary(const RegistrationOptions& options, const RegistrationResult& result) {
+  py::dict s;
+  s["mode"] = ModeToString(options.mode);
+  s["frames"] = result.frame_from_world.size();
+  s["solves"] = result.solves.size();
+  s["levels"] = result.solves.empty() ? 0 : result.solves.front().level + 1;
+  s["iterations"] = result.total_iterations;
+  if (!result.solves.empty()) {
+    const LevelSolve& last = result.solves.back();
+    s["final_cost"] = last.report.final_cost;
+    s["termination"] = last.report.termination;
+    s["voxels"] = last.candidate_voxels;
+    s["observations"] = last.candidate_observations;
+  }
+  s["seconds"] = result.seconds;
+  s["pyramid_seconds"] = result.pyramid_seconds;
+  s["recoveries"] = result.recoveries.size();
+  py::list recoveries;
+  for (const RegistrationResult::Recovery& r : result.recoveries) {
+    recoveries.append(FieldPathsAsFlags(r.why));
+  }
+  s["recovery_reasons"] = recoveries;
+  if (options.uncertainty) {
+    s["uncertainty"] = FieldPathsAsFlags(UncertaintySummary(result.uncertainty,
+                                                            result.uncertainty_note));
+  }
+  return s;
+}
+
+// register(images, masks, names, flags, initial, on_iteration): `images` are file paths
+// (read as dsr_register reads them, masks too) or (array, geometry) pairs; `masks` the
+// same kind, or empty for each image's non-zero voxels eroded by --mask_erosion.
+py::dict RegisterImages(const py::list& images,
+                  const py::list& masks,
+                  const std::vector<std::string>& names,
+                  const std::vector<std::pair<std::string, std::string>>& flags,
+                  const py::object& initial,
+                  const IterationObserver& on_iteration) {
+  gflags::FlagSaver saver;
+  SetFlags(flags);
+  std::string error, init_file;
+  RegistrationOptions options;
+  if (!RunOptionsFromFlags(&options, &init_file, &error)) BadInput(error);
+  // The callback's exception stops the solve and is raised once the registration returns.
+  std::exception_ptr callback_error;
+  if (on_iteration) {
+    options.solve.on_iteration = [&](const std::string& label, const IterationRecord& r) {
+      if (callback_error) return false;
+      try {
+        return on_iteration(label, r);
+      } catch (...) {
+        callback_error = std::current_exception();
+        return false;
+      }
+    };
+  }
+  const int m = static_cast<int>(images.size());
+  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
+  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
+    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
+             std::to_string(masks.size()) + " masks");
+  }
+  std::vector<Image> frames;
+  std::vector<Mask> frame_masks;
+  if (py::isinstance<py::str>(images[0])) {
+    // As --images and --masks, so that the paths get dsr_register's checks and messages.
+    const auto join = [](const std::vector<std::string>& paths) {
+      std::string out;
+      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
+      return out;
+    };
+    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
+              {"masks", join(masks.cast<std::vector<std::string>>())}});
+    std::vector<std::string> image_paths, mask_paths;
+    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
+    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &frames,
+                    &frame_masks, &error)) {
+      BadInput(error);
+    }
+  } else {
+    for (int i = 0; i < m; ++i) {
+      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
+      frames.push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
+      if (masks.empty()) {
+        frame_masks.push_back(MaskFromNonZero(frames.back(), FLAGS_mask_erosion));
+        if (CountInside(frame_masks.back()) == 0) {
+          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
+                   "(non-zero voxels eroded by mask_erosion=" +
+                   std::to_string(FLAGS_mask_erosion) + ")");
+        }
+      } else {
+        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
+        frame_masks.push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
+        if (!frame_masks.back().geometry.SameGrid(frames.back().geometry, 1e-3)) {
+          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
+        }
+      }
+    }
+  }
+  std::vector<Eigen::Isometry3d> start(m, Eigen::Isometry3d::Identity());
+  if (!init_file.empty()) {
+    PosesFile poses;
+    if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
+    start = poses.frame_from_world;
+  } else if (!initial.is_none()) {
+    const auto list = initial.cast<py::list>();
+    if (static_cast<int>(list.size()) != m) BadInput("need one initial pose per image");
+    for (int i = 0; i < m; ++i) start[i] = ToPose(py::reinterpret_borrow<py::object>(list[i]));
+  }
+  if (!CheckRegistrationInputs(frames, start, options, &error)) BadInput(error);
+  RegistrationResult result;
+  bool ok = false;
+  {
+    py::gil_scoped_release release;
+    ok = Register(frames, frame_masks, start, options, &result, &error);
+  }
+  if (callback_error) std::rethrow_exception(callback_error);
+  if (!ok) BadInput(error);
+  if (!result.usable) {
+    PyErr_SetString(registration_error, FieldPathsAsFlags(result.failure).c_str());
+    throw py::error_already_set();
+  }
+  py::dict out;
+  out["poses"] = PosesToDict(ResultPoses(result, names));
+  out["summary"] = Summary(options, result);
+  return out;
+}
+
+// simulate(flags): dsr_simulate's sequence (frames, masks, ground truth) in memory.
+py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>& flags) {
+  gflags::FlagSaver saver;
+  SetFlags(flags);
+  SimulationOptions options;
+  PhantomOptions phantom;
+  std::string error;
+  if (!SimulationOptionsFromFlags(&options, &phantom, &error)) BadInput(error);
+  Image source;
+  if (FLAGS_source.empty()) {
+    source = MakePhantom(phantom);
+  } else if (!ReadImage(FLAGS_source, &source, &error)) {
+    BadInput("--source: " + error);
+  }
+  SimulatedSequence sequence;
+  bool ok = false;
+  {
+    py::gil_scoped_release release;
+    ok = Simulate(source, options, &sequence, &error);
+  }
+  if (!ok) BadInput(error);
+  py::list frames, masks, truth;
+  for (size_t f = 0; f < sequence.frames.size(); ++f) {
+    frames.append(py::make_tuple(ToArray(sequence.frames[f]),
+                                 FromGeometry(sequence.frames[f].geometry)));
+    masks.append(py::make_tuple(ToArray(sequence.masks[f]),
+                                FromGeometry(sequence.masks[f].geometry)));
+    truth.append(ToArray(sequence.frame_from_world[f]));
+  }
+  py::dict out;
+  out["frames"] = frames;
+  out["masks"] = masks;
+  out["frame_from_world"] = truth;
+  if (options.gain_range > 0.0 || options.offset_range > 0.0) {
+    std::vector<double> gain, offset;
+    Frame0IntensityCorrections(sequence.gain, sequence.offset, &gain, &offset);
+    out["gain"] = gain;
+    out["offset"] = offset;
+  }
+  return out;
+}
+
+py::tuple ReadImageFile(const std::string& path) {
+  Image image;
+  std::string error;
+  if (!ReadImage(path, &image, &error)) BadInput(error);
+  return py::make_tuple(ToArray(image), FromGeometry(image.geometry));
+}
+
+void WriteImageFile(const py::array& array, const Geometry& geometry, const std::string& path) {
+  std::string error;
+  if (!WriteImage(ToVolume<float>(array, geometry, "image"), path, &error)) {
+    throw std::runtime_error(error);
+  }
+}
+
+py::dict ReadPosesFile(const std::string& path, int expected_frames) {
+  PosesFile poses;
+  std::string error;
+  if (!ReadPoses(path, expected_frames, &poses, &error)) BadInput(error);
+  return PosesToDict(poses);
+}
+
+void WritePosesFile(const py::dict& poses, const std::string& path) {
+  std::string error;
+  if (!WritePoses(PosesFromDict(poses), path, &error)) throw std::runtime_error(error);
+}
+
+// The flags an option may be given as: each with its type, default and help.
+py::list Options() {
+  std::vector<gflags::CommandLineFlagInfo> all;
+  gflags::GetAllFlags(&all);
+  py::list out;
+  for (const gflags::CommandLineFlagInfo& info : all) {
+    out.append(py::make_tuple(info.name, info.type, info.default_value, info.description,
+                              std::filesystem::path(info.filename).filename().string()));
+  }
+  return out;
+}
+
+}  // namespace
+}  // namespace dsr
+
+PYBIND11_MODULE(_core, m) {
+  m.doc() = "C++ core of the dsr package (see dsr/__init__.py for the API).";
+  dsr::SetBadFlagsExit(false);  // a refused value raises ValueError, it never exits Python
+  static py::exception<std::runtime_error> error(m, "RegistrationError", PyExc_RuntimeError);
+  dsr::registration_error = error.ptr();
+  py::class_<dsr::IterationRecord>(m, "IterationRecord")
+      .def_readonly("iteration", &dsr::IterationRecord::iteration)
+      .def_readonly("cost", &dsr::IterationRecord::cost)
+      .def_readonly("step_norm", &dsr::IterationRecord::step_norm)
+      .def_readonly("seconds", &dsr::IterationRecord::seconds)
+      .def_readonly("step_accepted", &dsr::IterationRecord::step_accepted);
+  m.def("register", &dsr::RegisterImages, py::arg("images"), py::arg("masks"), py::arg("names"),
+        py::arg("flags"), py::arg("initial"), py::arg("on_iteration"));
+  m.def("simulate", &dsr::SimulateSequence, py::arg("flags"));
+  m.def("read_image", &dsr::ReadImageFile, py::arg("path"));
+  m.def("write_image", &dsr::WriteImageFile, py::arg("array"), py::arg("geometry"),
+        py::arg("path"));
+  m.def("read_poses", &dsr::ReadPosesFile, py::arg("path"), py::arg("expected_frames") = -1);
+  m.def("write_poses", &dsr::WritePosesFile, py::arg("poses"), py::arg("path"));
+  m.def("options", &dsr::Options);
+}

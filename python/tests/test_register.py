@@ -1,0 +1,209 @@
+"""The Python package against the command-line tools it fronts: the same registration bit for
+bit, the same one-line messages for bad input, and its own inputs (arrays, in-memory
+simulation) giving the same results as files."""
+import os
+import pathlib
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+
+import dsr
+
+TOOLS = pathlib.Path(
+    os.environ.get("DSR_TOOLS", pathlib.Path(__file__).parents[2] / "build" / "tools"))
+SMALL = {"phantom_size": 64, "frame_size": "32,32,28", "max_rotation_deg": 6,
+         "max_translation_voxels": 3, "min_depth_voxels": 2, "sigma": 10}
+LEVELS = {"pyramid_levels": 2, "pyramid_min_size": 8}
+
+
+def run_tool(tool, *args):
+    return subprocess.run([str(TOOLS / tool), *args], capture_output=True, text=True)
+
+
+def cli_flags(options):
+    return [f"--{name}={value}" for name, value in options.items()]
+
+
+@pytest.fixture(scope="module")
+def sequence(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("sequence") / "s"
+    run = run_tool("dsr_simulate", f"--out_dir={folder}", "--num_frames=3", *cli_flags(SMALL))
+    assert run.returncode == 0, run.stderr
+    return folder
+
+
+def files(folder, kind):
+    return [str(folder / f"{kind}_{i:02d}.nii.gz") for i in range(3)]
+
+
+def test_register_from_files_writes_the_clis_poses_file_bit_for_bit(sequence, tmp_path):
+    cli_poses = tmp_path / "cli.json"
+    run = run_tool("dsr_register", "--images=" + ",".join(files(sequence, "frame")),
+                   "--masks=" + ",".join(files(sequence, "mask")), f"--out_poses={cli_poses}",
+                   "--progress=false", *cli_flags(LEVELS))
+    assert run.returncode == 0, run.stderr
+    result = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
+    result.save(tmp_path / "python.json")
+    assert (tmp_path / "python.json").read_bytes() == cli_poses.read_bytes()
+    written = dsr.read_poses(cli_poses, 3)
+    assert written["images"] == ["frame_00.nii.gz", "frame_01.nii.gz", "frame_02.nii.gz"]
+    for ours, theirs in zip(result.poses, written["frame_from_world"]):
+        assert np.array_equal(ours, theirs)
+    assert result.summary["mode"] == "dsr"
+    assert result.summary["iterations"] > 0
+    assert np.array_equal(result.poses[0], np.eye(4))
+
+
+def test_arrays_register_as_their_files_do(sequence):
+    from_files = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
+    images = [dsr.read_image(p) for p in files(sequence, "frame")]
+    masks = [dsr.read_image(p) for p in files(sequence, "mask")]
+    assert images[0].array.shape == (28, 32, 32)  # [k, j, i]
+    from_arrays = dsr.register(images, masks, **LEVELS)
+    for a, b in zip(from_arrays.poses, from_files.poses):
+        assert np.array_equal(a, b)
+    # Without masks both derive them from the non-zero voxels (mask_erosion).
+    no_masks = dsr.register(files(sequence, "frame"), **LEVELS)
+    for a, b in zip(dsr.register(images, **LEVELS).poses, no_masks.poses):
+        assert np.array_equal(a, b)
+
+
+@pytest.mark.parametrize("reader", ["SimpleITK", "nibabel"])
+def test_simpleitk_and_nibabel_images_register_as_their_files_do(sequence, reader):
+    if reader == "SimpleITK":
+        import SimpleITK as sitk
+        read = sitk.ReadImage
+    else:
+        import nibabel
+        read = nibabel.load
+    from_files = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
+    images = [read(p) for p in files(sequence, "frame")]
+    masks = [read(p) for p in files(sequence, "mask")]
+    ours = dsr.register(images, masks, **LEVELS)
+    # The same voxels; the geometry as each library reads the NIfTI header (to rounding).
+    for a, b in zip(ours.poses, from_files.poses):
+        assert np.abs(a - b).max() < 1e-6
+
+
+def test_simulate_in_memory_is_dsr_simulate(sequence):
+    simulated = dsr.simulate(num_frames=3, **SMALL)
+    for i, path in enumerate(files(sequence, "frame")):
+        on_disk = dsr.read_image(path)
+        assert np.array_equal(simulated.frames[i].array, on_disk.array)
+        assert np.allclose(simulated.frames[i].spacing, on_disk.spacing)
+    truth = dsr.read_poses(sequence / "gt_poses.json", 3)["frame_from_world"]
+    for a, b in zip(simulated.frame_from_world, truth):
+        assert np.array_equal(a, b)
+
+
+def test_registration_finds_the_simulated_poses():
+    simulated = dsr.simulate(num_frames=4, seed=3, **SMALL)
+    result = dsr.register(simulated.frames, simulated.masks, **LEVELS)
+    world_from_frame0 = np.linalg.inv(simulated.frame_from_world[0])
+    for estimate, truth in zip(result.poses, simulated.frame_from_world):
+        relative = truth @ world_from_frame0  # the truth in frame 0's world
+        assert np.abs(estimate[:3, 3] - relative[:3, 3]).max() < 0.2  # mm
+        assert np.abs(estimate[:3, :3] - relative[:3, :3]).max() < 5e-3
+
+
+def error_line(tool, *args):
+    run = run_tool(tool, *args)
+    assert run.returncode == 2, run.stderr
+    lines = [line for line in run.stderr.splitlines() if ": error: " in line]
+    assert len(lines) == 1, run.stderr
+    return lines[0].split(": error: ", 1)[1]
+
+
+@pytest.mark.parametrize("options", [
+    {"max_iterations": 0},
+    {"mode": "magic"},
+    {"photometric": "linear"},
+    {"panorama_spacing": 0},
+    {"kernels": "avx3"},
+    {"loss": "huber", "loss_scale": 0.0},
+    {"mode": "ape", "photometric": "affine"},
+    {"smoothing": 1e6},
+])
+def test_bad_options_raise_the_clis_message(sequence, options):
+    images = files(sequence, "frame")
+    expected = error_line("dsr_register", "--images=" + ",".join(images), "--out_poses=unused.json",
+                          *cli_flags(options))
+    with pytest.raises(ValueError) as raised:
+        dsr.register(images, **options)
+    assert str(raised.value) == expected
+
+
+def test_bad_inputs_raise_value_errors(sequence, tmp_path):
+    images = files(sequence, "frame")
+    missing = str(tmp_path / "missing.nii.gz")
+    expected = error_line("dsr_register", "--images=" + ",".join(images[:2] + [missing]),
+                          "--out_poses=unused.json")
+    with pytest.raises(ValueError) as raised:
+        dsr.register(images[:2] + [missing])
+    assert str(raised.value) == expected
+    with pytest.raises(ValueError, match="unknown option 'pyramid_level'"):
+        dsr.register(images, pyramid_level=2)
+    with pytest.raises(ValueError, match="no spacing, origin or direction"):
+        dsr.register([np.zeros((4, 4, 4))] * 2)
+    with pytest.raises(ValueError, match="at least 2 images"):
+        dsr.register(images[:1])
+
+
+def test_iteration_callback_reports_and_can_stop(sequence):
+    seen = []
+    dsr.register(files(sequence, "frame"), **LEVELS,
+                 on_iteration=lambda label, record: seen.append((label, record)))
+    assert seen and all("dsr" in label for label, _ in seen)
+    assert {"iteration", "cost", "step_norm", "seconds", "step_accepted"} <= set(seen[0][1])
+    with pytest.raises(dsr.RegistrationError):
+        dsr.register(files(sequence, "frame"), **LEVELS, max_recoveries=0,
+                     on_iteration=lambda label, record: False)
+
+    def fail(label, record):
+        raise KeyError("stop here")
+
+    with pytest.raises(KeyError, match="stop here"):
+        dsr.register(files(sequence, "frame"), **LEVELS, on_iteration=fail)
+
+
+def test_other_python_threads_run_while_it_solves(sequence):
+    ticks = 0
+    done = threading.Event()
+
+    def count():
+        nonlocal ticks
+        while not done.is_set():
+            ticks += 1
+            time.sleep(0.001)
+
+    counter = threading.Thread(target=count)
+    counter.start()
+    start = time.perf_counter()
+    dsr.register(files(sequence, "frame"), **LEVELS)
+    seconds = time.perf_counter() - start
+    done.set()
+    counter.join()
+    # A millisecond sleep per tick: with the GIL held for the solve there would be ~none.
+    assert ticks > 0.2 * seconds / 0.001
+
+
+def test_poses_round_trip(tmp_path):
+    poses = [np.eye(4), np.array([[1, 0, 0, 2.5], [0, 0, -1, 0], [0, 1, 0, -1], [0, 0, 0, 1.0]])]
+    dsr.write_poses(tmp_path / "p.json", poses, images=["a", "b"], gain=[1.0, 1.2],
+                    offset=[0.0, -3.0])
+    back = dsr.read_poses(tmp_path / "p.json")
+    assert back["images"] == ["a", "b"] and back["gain"] == [1.0, 1.2]
+    assert all(np.array_equal(a, b) for a, b in zip(poses, back["frame_from_world"]))
+    assert "max_iterations" in dsr.options() and "seed" in dsr.options()
+
+
+def test_the_readmes_example_runs(tmp_path, monkeypatch):
+    readme = (pathlib.Path(__file__).parents[2] / "README.md").read_text()
+    section = readme.split("## From Python", 1)[1]
+    code = section.split("```python\n", 1)[1].split("```", 1)[0]
+    monkeypatch.chdir(tmp_path)
+    exec(compile(code, "README.md", "exec"), {})
+    assert dsr.read_poses(tmp_path / "poses.json", 5)["frame_from_world"][0].shape == (4, 4)
