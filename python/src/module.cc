@@ -202,20 +202,99 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   return s;
 }
 
-// register(images, masks, names, flags, initial, on_iteration): `images` are file paths
-// (read as dsr_register reads them, masks too) or (array, geometry) pairs; `masks` the
-// same kind, or empty for each image's non-zero voxels eroded by --mask_erosion.
-py::dict RegisterImages(const py::list& images,
-                  const py::list& masks,
-                  const std::vector<std::string>& names,
-                  const std::vector<std::pair<std::string, std::string>>& flags,
-                  const py::object& initial,
-                  const IterationObserver& on_iteration) {
+// What a registration starts from: its options, frames, masks and initial poses.
+struct Run {
+  RegistrationOptions options;
+  std::vector<Image> frames;
+  std::vector<Mask> masks;
+  std::vector<Eigen::Isometry3d> start;
+};
+
+// The run that `flags` set up for `images` (file paths, read as dsr_register reads them,
+// masks too; or (array, geometry) pairs) and `masks` (the same kind, or empty for each
+// image's non-zero voxels eroded by --mask_erosion). --init's poses file is matched to the
+// images by name as dsr_register matches it (to the paths, or to `names`). The flags hold
+// their values only within this call (the FlagSaver), which runs with the GIL held: a
+// registration in another Python thread never sees them.
+Run PrepareRun(const py::list& images,
+               const py::list& masks,
+               const std::vector<std::string>& names,
+               const std::vector<std::pair<std::string, std::string>>& flags,
+               const py::object& initial) {
   gflags::FlagSaver saver;
   SetFlags(flags);
   std::string error, init_file;
-  RegistrationOptions options;
-  if (!RunOptionsFromFlags(&options, &init_file, &error)) BadInput(error);
+  Run run;
+  if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
+  const int m = static_cast<int>(images.size());
+  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
+  if (static_cast<int>(names.size()) != m) BadInput("need one name per image");
+  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
+    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
+             std::to_string(masks.size()) + " masks");
+  }
+  std::vector<std::string> match_names = names;  // what --init's entries are matched to
+  if (py::isinstance<py::str>(images[0])) {
+    // As --images and --masks, so that the paths get dsr_register's checks and messages.
+    const auto join = [](const std::vector<std::string>& paths) {
+      std::string out;
+      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
+      return out;
+    };
+    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
+              {"masks", join(masks.cast<std::vector<std::string>>())}});
+    std::vector<std::string> image_paths, mask_paths;
+    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
+    match_names = image_paths;
+    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &run.frames,
+                    &run.masks, &error)) {
+      BadInput(error);
+    }
+  } else {
+    for (int i = 0; i < m; ++i) {
+      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
+      run.frames.push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
+      if (masks.empty()) {
+        run.masks.push_back(MaskFromNonZero(run.frames.back(), FLAGS_mask_erosion));
+        if (CountInside(run.masks.back()) == 0) {
+          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
+                   "(non-zero voxels eroded by mask_erosion=" +
+                   std::to_string(FLAGS_mask_erosion) + ")");
+        }
+      } else {
+        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
+        run.masks.push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
+        if (!run.masks.back().geometry.SameGrid(run.frames.back().geometry, 1e-3)) {
+          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
+        }
+      }
+    }
+  }
+  run.start.assign(m, Eigen::Isometry3d::Identity());
+  if (!init_file.empty()) {
+    PosesFile poses;
+    if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
+    if (!MatchPosesToImages("init", init_file, match_names, &poses, &error)) BadInput(error);
+    run.start = poses.frame_from_world;
+  } else if (!initial.is_none()) {
+    const auto list = initial.cast<py::list>();
+    if (static_cast<int>(list.size()) != m) BadInput("need one initial pose per image");
+    for (int i = 0; i < m; ++i) run.start[i] = ToPose(py::reinterpret_borrow<py::object>(list[i]));
+  }
+  return run;
+}
+
+// register(images, masks, names, flags, initial, on_iteration): PrepareRun's run, solved
+// without the GIL; the poses file's contents and a summary.
+py::dict RegisterImages(const py::list& images,
+                        const py::list& masks,
+                        const std::vector<std::string>& names,
+                        const std::vector<std::pair<std::string, std::string>>& flags,
+                        const py::object& initial,
+                        const IterationObserver& on_iteration) {
+  Run run = PrepareRun(images, masks, names, flags, initial);
+  RegistrationOptions& options = run.options;
+  std::string error;
   // The callback's exception stops the solve and is raised once the registration returns.
   std::exception_ptr callback_error;
   if (on_iteration) {
@@ -229,65 +308,12 @@ py::dict RegisterImages(const py::list& images,
       }
     };
   }
-  const int m = static_cast<int>(images.size());
-  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
-  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
-    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
-             std::to_string(masks.size()) + " masks");
-  }
-  std::vector<Image> frames;
-  std::vector<Mask> frame_masks;
-  if (py::isinstance<py::str>(images[0])) {
-    // As --images and --masks, so that the paths get dsr_register's checks and messages.
-    const auto join = [](const std::vector<std::string>& paths) {
-      std::string out;
-      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
-      return out;
-    };
-    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
-              {"masks", join(masks.cast<std::vector<std::string>>())}});
-    std::vector<std::string> image_paths, mask_paths;
-    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
-    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &frames,
-                    &frame_masks, &error)) {
-      BadInput(error);
-    }
-  } else {
-    for (int i = 0; i < m; ++i) {
-      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
-      frames.push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
-      if (masks.empty()) {
-        frame_masks.push_back(MaskFromNonZero(frames.back(), FLAGS_mask_erosion));
-        if (CountInside(frame_masks.back()) == 0) {
-          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
-                   "(non-zero voxels eroded by mask_erosion=" +
-                   std::to_string(FLAGS_mask_erosion) + ")");
-        }
-      } else {
-        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
-        frame_masks.push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
-        if (!frame_masks.back().geometry.SameGrid(frames.back().geometry, 1e-3)) {
-          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
-        }
-      }
-    }
-  }
-  std::vector<Eigen::Isometry3d> start(m, Eigen::Isometry3d::Identity());
-  if (!init_file.empty()) {
-    PosesFile poses;
-    if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
-    start = poses.frame_from_world;
-  } else if (!initial.is_none()) {
-    const auto list = initial.cast<py::list>();
-    if (static_cast<int>(list.size()) != m) BadInput("need one initial pose per image");
-    for (int i = 0; i < m; ++i) start[i] = ToPose(py::reinterpret_borrow<py::object>(list[i]));
-  }
-  if (!CheckRegistrationInputs(frames, start, options, &error)) BadInput(error);
+  if (!CheckRegistrationInputs(run.frames, run.start, options, &error)) BadInput(error);
   RegistrationResult result;
   bool ok = false;
   {
     py::gil_scoped_release release;
-    ok = Register(frames, frame_masks, start, options, &result, &error);
+    ok = Register(run.frames, run.masks, run.start, options, &result, &error);
   }
   if (callback_error) std::rethrow_exception(callback_error);
   if (!ok) BadInput(error);
@@ -303,16 +329,19 @@ py::dict RegisterImages(const py::list& images,
 
 // simulate(flags): dsr_simulate's sequence (frames, masks, ground truth) in memory.
 py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>& flags) {
-  gflags::FlagSaver saver;
-  SetFlags(flags);
   SimulationOptions options;
   PhantomOptions phantom;
-  std::string error;
-  if (!SimulationOptionsFromFlags(&options, &phantom, &error)) BadInput(error);
+  std::string source_path, error;
+  {
+    gflags::FlagSaver saver;  // the flags' values only until the options are read
+    SetFlags(flags);
+    if (!SimulationOptionsFromFlags(&options, &phantom, &error)) BadInput(error);
+    source_path = FLAGS_source;
+  }
   Image source;
-  if (FLAGS_source.empty()) {
+  if (source_path.empty()) {
     source = MakePhantom(phantom);
-  } else if (!ReadImage(FLAGS_source, &source, &error)) {
+  } else if (!ReadImage(source_path, &source, &error)) {
     BadInput("--source: " + error);
   }
   SimulatedSequence sequence;

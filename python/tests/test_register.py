@@ -207,3 +207,40 @@ def test_the_readmes_example_runs(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exec(compile(code, "README.md", "exec"), {})
     assert dsr.read_poses(tmp_path / "poses.json", 5)["frame_from_world"][0].shape == (4, 4)
+
+
+def test_options_hold_for_their_call_only(sequence):
+    images = files(sequence, "frame")
+    first = dsr.register(images, **LEVELS)
+    dsr.register(images, **LEVELS, max_iterations=1, max_recoveries=0, max_misfit_ratio=0)
+    assert all(np.array_equal(a, b) for a, b in
+               zip(dsr.register(images, **LEVELS).poses, first.poses))
+    # Two registrations at once, each with its own options (the solve runs without the GIL).
+    results = {}
+
+    def run(name, **options):
+        results[name] = dsr.register(images, **options).poses
+
+    threads = [threading.Thread(target=run, args=("levels",), kwargs=LEVELS),
+               threading.Thread(target=run, args=("coarse",),
+                                kwargs={"pyramid_levels": 1, "max_iterations": 2,
+                                        "max_recoveries": 0, "max_misfit_ratio": 0})]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert all(np.array_equal(a, b) for a, b in zip(results["levels"], first.poses))
+    assert all(np.array_equal(a, b) for a, b in
+               zip(dsr.register(images, **LEVELS).poses, first.poses))
+
+
+def test_init_file_is_matched_to_the_images_by_name(sequence, tmp_path):
+    images = files(sequence, "frame")
+    result = dsr.register(images, **LEVELS)
+    # The file lists the frames in another order; its names put them back.
+    order = [2, 0, 1]
+    dsr.write_poses(tmp_path / "init.json", [result.poses[i] for i in order],
+                    images=[os.path.basename(images[i]) for i in order])
+    again = dsr.register(images, init=tmp_path / "init.json", **LEVELS)
+    for a, b in zip(again.poses, result.poses):
+        assert np.abs(a - b).max() < 1e-3
