@@ -432,9 +432,11 @@ bool RefuseFlag(const char* flag, const std::string& value, const std::string& r
 
 void SetBadFlagsExit(bool exit) { bad_flags_exit = exit; }
 
-std::string LastBadFlag() {
+std::string TakeLastBadFlag() {
   const std::lock_guard<std::mutex> lock(last_bad_flag_mutex);
-  return last_bad_flag;
+  std::string message;
+  message.swap(last_bad_flag);
+  return message;
 }
 
 bool CheckInputFileFlag(const char* flag, const std::string& path) {

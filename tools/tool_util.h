@@ -89,12 +89,13 @@ int Fail(const std::string& message, int code = kExitBadInput);
 
 // A refused flag value, "--<flag>=<value>: <rule>": a tool prints it as its error and exits
 // with kExitBadInput; a front end that lives on after a bad value (the Python module,
-// after SetBadFlagsExit(false)) gets false, and the message from LastBadFlag().
+// after SetBadFlagsExit(false)) gets false, and the message from TakeLastBadFlag().
 bool RefuseFlag(const char* flag, const std::string& value, const std::string& rule);
 // Whether RefuseFlag exits the process (the default) or returns false.
 void SetBadFlagsExit(bool exit);
-// The message of the latest RefuseFlag that returned false ("" when none).
-std::string LastBadFlag();
+// The message of the latest RefuseFlag that returned false since the last call ("" when
+// none); the next call returns "" unless another value was refused in between.
+std::string TakeLastBadFlag();
 
 // For DEFINE_validator functions: returns true when `ok`, else RefuseFlag. (A validator
 // that returns false makes gflags print "failed validation of new value" without saying

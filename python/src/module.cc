@@ -49,11 +49,12 @@ void SetFlags(const std::vector<std::pair<std::string, std::string>>& flags) {
     if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
       BadInput("unknown option '" + name + "'");
     }
+    TakeLastBadFlag();  // only this value's refusal counts
     if (gflags::SetCommandLineOption(name.c_str(), value.c_str()).empty()) {
-      const std::string refused = LastBadFlag();
-      BadInput(refused.rfind("--" + name + "=", 0) == 0
-                   ? refused
-                   : "--" + name + "=" + value + ": not a valid " + info.type);
+      // The validator's message, or gflags refused the text itself (not a number).
+      const std::string refused = TakeLastBadFlag();
+      BadInput(!refused.empty() ? refused
+                                : "--" + name + "=" + value + ": not a valid " + info.type);
     }
   }
 }

@@ -144,6 +144,12 @@ def test_bad_inputs_raise_value_errors(sequence, tmp_path):
     with pytest.raises(ValueError) as raised:
         dsr.register(images[:2] + [missing])
     assert str(raised.value) == expected
+    # A value a flag's validator refuses, then one of the same flag that is not a number:
+    # each gets its own message.
+    with pytest.raises(ValueError, match=r"^--panorama_spacing=0: must be in \[0.001, 1000\] "):
+        dsr.register(images, panorama_spacing=0)
+    with pytest.raises(ValueError, match=r"^--panorama_spacing=two: not a valid double$"):
+        dsr.register(images, panorama_spacing="two")
     with pytest.raises(ValueError, match="unknown option 'pyramid_level'"):
         dsr.register(images, pyramid_level=2)
     with pytest.raises(ValueError, match="no spacing, origin or direction"):
