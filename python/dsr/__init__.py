@@ -21,6 +21,7 @@ Example::
 from __future__ import annotations
 
 import os
+import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -171,7 +172,8 @@ def register(images: Sequence[ImageLike],
     mode, init, **options: dsr_register's flags by name (e.g. ``pyramid_levels=2``,
         ``photometric="affine"``, ``uncertainty=True``) with its defaults, except
         ``progress`` (its iteration lines on stderr), off here; ``dsr.options()`` lists them.
-    initial_poses: start poses (4x4, world -> frame) instead of ``init``'s.
+    initial_poses: start poses (4x4, world -> frame) instead of ``init``'s, used as
+        dsr_register uses an ``init`` poses file (with recovery).
     names: the images' names in the poses file (default: the file names, or frame_NN).
     on_iteration: called after every solver iteration as on_iteration(label, record) with
         record {"iteration", "cost", "step_norm", "seconds", "step_accepted"} and label the
@@ -207,12 +209,20 @@ def register(images: Sequence[ImageLike],
     image_names = list(names) if names is not None else default_names
     if len(image_names) != len(images):
         raise ValueError(f"names: {len(image_names)} names for {len(images)} images")
-    flags = _flags({"mode": mode, "init": init, "progress": False, **options})
-    if initial_poses is not None:
-        flags = [f for f in flags if f[0] != "init"] + [("init", "identity")]
-        initial = [np.asarray(p, dtype=float) for p in initial_poses]
-    else:
-        initial = None
+    def run(init_value) -> Result:
+        flags = _flags({"mode": mode, "init": init_value, "progress": False, **options})
+        return _register(core_images, core_masks, image_names, flags, on_iteration)
+
+    if initial_poses is None:
+        return run(init)
+    # As dsr_register --init=FILE: the poses matched to the images by name, with recovery.
+    with tempfile.TemporaryDirectory(prefix="dsr_") as work:
+        path = os.path.join(work, "initial_poses.json")
+        write_poses(path, list(initial_poses), images=image_names)
+        return run(path)
+
+
+def _register(core_images, core_masks, image_names, flags, on_iteration) -> Result:
     observer = None
     if on_iteration is not None:
         def observer(label: str, record) -> bool:
@@ -224,7 +234,7 @@ def register(images: Sequence[ImageLike],
                 "step_accepted": record.step_accepted,
             })
             return answer is not False
-    out = _core.register(core_images, core_masks, image_names, flags, initial, observer)
+    out = _core.register(core_images, core_masks, image_names, flags, observer)
     poses = out["poses"]
     return Result(
         poses=list(poses["frame_from_world"]),

@@ -171,6 +171,18 @@ PosesFile PosesFromDict(const py::dict& d) {
   }
   if (d.contains("gain")) poses.gain = d["gain"].cast<std::vector<double>>();
   if (d.contains("offset")) poses.offset = d["offset"].cast<std::vector<double>>();
+  // One entry per pose in every list given (WritePoses's contract).
+  const size_t m = poses.frame_from_world.size();
+  for (const auto& [what, count] : {std::pair<const char*, size_t>{"images", poses.images.size()},
+                                    {"covariance", poses.covariance.size()},
+                                    {"predicted_tre_mm", poses.predicted_tre_mm.size()},
+                                    {"gain", poses.gain.size()},
+                                    {"offset", poses.offset.size()}}) {
+    if (count != 0 && count != m) {
+      BadInput(std::string(what) + ": " + std::to_string(count) + " entries for " +
+               std::to_string(m) + " poses");
+    }
+  }
   return poses;
 }
 
@@ -220,8 +232,7 @@ struct Run {
 Run PrepareRun(const py::list& images,
                const py::list& masks,
                const std::vector<std::string>& names,
-               const std::vector<std::pair<std::string, std::string>>& flags,
-               const py::object& initial) {
+               const std::vector<std::pair<std::string, std::string>>& flags) {
   gflags::FlagSaver saver;
   SetFlags(flags);
   std::string error, init_file;
@@ -277,23 +288,18 @@ Run PrepareRun(const py::list& images,
     if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
     if (!MatchPosesToImages("init", init_file, match_names, &poses, &error)) BadInput(error);
     run.start = poses.frame_from_world;
-  } else if (!initial.is_none()) {
-    const auto list = initial.cast<py::list>();
-    if (static_cast<int>(list.size()) != m) BadInput("need one initial pose per image");
-    for (int i = 0; i < m; ++i) run.start[i] = ToPose(py::reinterpret_borrow<py::object>(list[i]));
   }
   return run;
 }
 
-// register(images, masks, names, flags, initial, on_iteration): PrepareRun's run, solved
+// register(images, masks, names, flags, on_iteration): PrepareRun's run, solved
 // without the GIL; the poses file's contents and a summary.
 py::dict RegisterImages(const py::list& images,
                         const py::list& masks,
                         const std::vector<std::string>& names,
                         const std::vector<std::pair<std::string, std::string>>& flags,
-                        const py::object& initial,
                         const IterationObserver& on_iteration) {
-  Run run = PrepareRun(images, masks, names, flags, initial);
+  Run run = PrepareRun(images, masks, names, flags);
   RegistrationOptions& options = run.options;
   std::string error;
   // The callback's exception stops the solve and is raised once the registration returns.
@@ -426,7 +432,7 @@ PYBIND11_MODULE(_core, m) {
       .def_readonly("seconds", &dsr::IterationRecord::seconds)
       .def_readonly("step_accepted", &dsr::IterationRecord::step_accepted);
   m.def("register", &dsr::RegisterImages, py::arg("images"), py::arg("masks"), py::arg("names"),
-        py::arg("flags"), py::arg("initial"), py::arg("on_iteration"));
+        py::arg("flags"), py::arg("on_iteration"));
   m.def("simulate", &dsr::SimulateSequence, py::arg("flags"));
   m.def("read_image", &dsr::ReadImageFile, py::arg("path"));
   m.def("write_image", &dsr::WriteImageFile, py::arg("array"), py::arg("geometry"),

@@ -156,6 +156,13 @@ def test_bad_inputs_raise_value_errors(sequence, tmp_path):
         dsr.register([np.zeros((4, 4, 4))] * 2)
     with pytest.raises(ValueError, match="at least 2 images"):
         dsr.register(images[:1])
+    with pytest.raises(ValueError, match="3 axes"):
+        dsr.register([dsr.Image(np.ones((4, 4)))] * 2)
+    with pytest.raises(ValueError, match="spacing"):
+        dsr.register([dsr.Image(np.ones((8, 8, 8)), spacing=(1.0, 0.0, 1.0))] * 2)
+    with pytest.raises(ValueError, match="not on its image's voxel grid"):
+        dsr.register([dsr.Image(np.ones((8, 8, 8)))] * 2,
+                     masks=[dsr.Image(np.ones((8, 8, 9)))] * 2)
 
 
 def test_iteration_callback_reports_and_can_stop(sequence):
@@ -204,6 +211,8 @@ def test_poses_round_trip(tmp_path):
     assert back["images"] == ["a", "b"] and back["gain"] == [1.0, 1.2]
     assert all(np.array_equal(a, b) for a, b in zip(poses, back["frame_from_world"]))
     assert "max_iterations" in dsr.options() and "seed" in dsr.options()
+    with pytest.raises(ValueError, match="gain: 1 entries for 2 poses"):
+        dsr.write_poses(tmp_path / "q.json", poses, gain=[1.0])
 
 
 def test_the_readmes_example_runs(tmp_path, monkeypatch):
@@ -250,3 +259,13 @@ def test_init_file_is_matched_to_the_images_by_name(sequence, tmp_path):
     again = dsr.register(images, init=tmp_path / "init.json", **LEVELS)
     for a, b in zip(again.poses, result.poses):
         assert np.abs(a - b).max() < 1e-3
+
+
+def test_initial_poses_start_the_registration(sequence):
+    images = files(sequence, "frame")
+    result = dsr.register(images, **LEVELS)
+    again = dsr.register(images, initial_poses=result.poses, **LEVELS)
+    for a, b in zip(again.poses, result.poses):
+        assert np.abs(a - b).max() < 1e-3
+    with pytest.raises(ValueError, match="images: 3 entries for 2 poses"):
+        dsr.register(images, initial_poses=result.poses[:2], **LEVELS)
