@@ -43,8 +43,10 @@ for _ in range(runs):
 with open(cli_poses, "rb") as a, open(py_poses, "rb") as b:
     same = a.read() == b.read()
 print(f"{len(frames)} frames, {runs} runs each, {os.cpu_count()} cores")
-print(f"dsr_register (process): median {statistics.median(cli):.3f} s  {[round(t, 3) for t in cli]}")
-print(f"dsr.register (call):    median {statistics.median(py):.3f} s  {[round(t, 3) for t in py]}")
+print(f"dsr_register (process): median {statistics.median(cli):.3f} s",
+      [round(t, 3) for t in cli])
+print(f"dsr.register (call):    median {statistics.median(py):.3f} s",
+      [round(t, 3) for t in py])
 print(f"ratio: median of paired runs {statistics.median(p / c for p, c in zip(py, cli)):.3f}")
 print(f"same poses file: {same}")
 sys.exit(0 if same else 1)
