@@ -117,10 +117,10 @@ def _as_image(value: Any, what: str) -> Image:
 
 
 def _flag_value(value: Any) -> str:
-    if isinstance(value, bool):
+    if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
-    if isinstance(value, float):
-        return repr(value)
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))  # the shortest text that reads back as the same double
     if isinstance(value, (list, tuple)):
         return ",".join(_flag_value(v) for v in value)
     return os.fspath(value) if isinstance(value, os.PathLike) else str(value)

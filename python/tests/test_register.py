@@ -224,6 +224,14 @@ def test_the_readmes_example_runs(tmp_path, monkeypatch):
     assert dsr.read_poses(tmp_path / "poses.json", 5)["frame_from_world"][0].shape == (4, 4)
 
 
+def test_numpy_scalars_are_option_values(sequence):
+    images = files(sequence, "frame")
+    plain = dsr.register(images, pyramid_levels=2, pyramid_min_size=8, panorama_spacing=1.0)
+    numpy = dsr.register(images, pyramid_levels=np.int64(2), pyramid_min_size=8,
+                         panorama_spacing=np.float64(1.0), uncertainty=np.False_)
+    assert all(np.array_equal(a, b) for a, b in zip(plain.poses, numpy.poses))
+
+
 def test_options_hold_for_their_call_only(sequence):
     images = files(sequence, "frame")
     first = dsr.register(images, **LEVELS)
