@@ -230,4 +230,44 @@ PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
               });
 }
 
+bool PrepareFusion(const std::vector<Image>& images,
+                   const std::vector<Mask>& masks,
+                   const std::vector<std::string>& names,
+                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   double spacing_factor,
+                   int num_threads,
+                   std::vector<Frame>* frames,
+                   std::vector<Eigen::Isometry3d>* relative,
+                   ImageGeometry* grid,
+                   std::string* error) {
+  const int m = static_cast<int>(images.size());
+  CHECK_EQ(static_cast<int>(masks.size()), m);
+  CHECK_EQ(static_cast<int>(names.size()), m);
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  frames->assign(m, Frame());
+  ParallelFor(0, m, num_threads, [&](int64_t i) { (*frames)[i] = Frame(images[i], masks[i]); });
+  for (int i = 0; i < m; ++i) {
+    if ((*frames)[i].num_valid_cells() == 0) {
+      *error = names[i] + ": no valid voxel in the field of view (the mask is too small)";
+      return false;
+    }
+  }
+  // The rule a registration applies too: a panorama voxel must resolve frame 0.
+  if (!CheckPanoramaSpacing(images[0].geometry, spacing_factor, error)) return false;
+  *relative = RelativeToFrame0(frame_from_world);
+  return BuildPanoramaGrid(*frames, *relative, spacing_factor, grid, error);
+}
+
+PanoramaImages FusePanorama(const std::vector<Frame>& frames,
+                            const std::vector<Eigen::Isometry3d>& frame_from_world,
+                            const ImageGeometry& grid,
+                            bool feather,
+                            double feather_voxels,
+                            int num_threads,
+                            const std::vector<Photometric>& photometric) {
+  return feather ? FusePanoramaFeather(frames, frame_from_world, grid, feather_voxels,
+                                       num_threads, photometric)
+                 : FusePanoramaMean(frames, frame_from_world, grid, num_threads, photometric);
+}
+
 }  // namespace dsr

@@ -25,7 +25,7 @@ constexpr int64_t kMaxPanoramaVoxels = int64_t{1} << 31;
 
 // The coarsest panorama spacing that still resolves frame 0: a panorama voxel (frame 0's
 // smallest spacing times `spacing_factor`) of at most an eighth of frame 0's shortest
-// extent. False with `error` naming --panorama_spacing and the largest factor allowed.
+// extent. False with `error` naming panorama_spacing and the largest factor allowed.
 bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error);
 
 // Builds the grid. Fails when a frame has no valid cell or the grid would exceed
@@ -75,6 +75,31 @@ PanoramaImages FusePanoramaFeather(const std::vector<Frame>& frames,
                                    double feather_voxels,
                                    int num_threads,
                                    const std::vector<Photometric>& photometric = {});
+
+// Fusion of whole images (dsr_fuse, the Python module), before the panorama is allocated:
+// each image with its mask as a Frame (in parallel), each with at least one valid cell
+// (else an error naming `names[i]`), the spacing checked against frame 0
+// (CheckPanoramaSpacing), the poses made relative to frame 0 (`relative`), and the grid
+// that covers every frame at them (BuildPanoramaGrid). False with a one-line `error`.
+bool PrepareFusion(const std::vector<Image>& images,
+                   const std::vector<Mask>& masks,
+                   const std::vector<std::string>& names,
+                   const std::vector<Eigen::Isometry3d>& frame_from_world,
+                   double spacing_factor,
+                   int num_threads,
+                   std::vector<Frame>* frames,
+                   std::vector<Eigen::Isometry3d>* relative,
+                   ImageGeometry* grid,
+                   std::string* error);
+
+// FusePanoramaFeather when `feather`, else FusePanoramaMean.
+PanoramaImages FusePanorama(const std::vector<Frame>& frames,
+                            const std::vector<Eigen::Isometry3d>& frame_from_world,
+                            const ImageGeometry& grid,
+                            bool feather,
+                            double feather_voxels,
+                            int num_threads,
+                            const std::vector<Photometric>& photometric = {});
 
 // The fused panorama as a Frame in world coordinates (what a frame is registered to, in the
 // sequential baseline and in recovery): the mean image, with the voxels some frame observes

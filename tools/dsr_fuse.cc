@@ -76,20 +76,12 @@ int Main(int argc, char** argv) {
   }
   // After the frames, so that a broken frame is reported as such first.
   if (!dsr::MatchPosesToImages("poses", FLAGS_poses, image_paths, &poses, &error)) return Fail(error);
-  std::vector<dsr::Frame> frames(m);
-  dsr::ParallelFor(0, m, FLAGS_num_threads, [&](int64_t i) { frames[i] = dsr::Frame(images[i], masks[i]); });
-  for (int i = 0; i < m; ++i) {
-    if (frames[i].num_valid_cells() == 0) {
-      return Fail(image_paths[i] + ": no valid voxel in the field of view (the mask is too small)");
-    }
-  }
-  // The rule dsr_register applies too: a panorama voxel must resolve frame 0.
-  if (!dsr::CheckPanoramaSpacing(images[0].geometry, FLAGS_panorama_spacing, &error)) {
-    return Fail(error);
-  }
-  const std::vector<Eigen::Isometry3d> frame_from_world = dsr::RelativeToFrame0(poses.frame_from_world);
+  std::vector<dsr::Frame> frames;
+  std::vector<Eigen::Isometry3d> frame_from_world;
   dsr::ImageGeometry grid;
-  if (!dsr::BuildPanoramaGrid(frames, frame_from_world, FLAGS_panorama_spacing, &grid, &error)) {
+  if (!dsr::PrepareFusion(images, masks, image_paths, poses.frame_from_world,
+                          FLAGS_panorama_spacing, FLAGS_num_threads, &frames, &frame_from_world,
+                          &grid, &error)) {
     return Fail(error);
   }
   // The mean (float) and k_j (uint8); writing adds a float copy and ITK's image of each
@@ -106,10 +98,8 @@ int Main(int argc, char** argv) {
   // The file's gains and offsets (re-gauged to frame 0 by MatchPosesToImages), if any.
   const std::vector<dsr::Photometric> photometric = dsr::PhotometricFromPoses(poses);
   const dsr::PanoramaImages fused =
-      dsr::FeatherBlend()
-          ? dsr::FusePanoramaFeather(frames, frame_from_world, grid, FLAGS_feather_voxels,
-                                     FLAGS_num_threads, photometric)
-          : dsr::FusePanoramaMean(frames, frame_from_world, grid, FLAGS_num_threads, photometric);
+      dsr::FusePanorama(frames, frame_from_world, grid, dsr::FeatherBlend(), FLAGS_feather_voxels,
+                        FLAGS_num_threads, photometric);
   if (!dsr::WriteImage(fused.mean, FLAGS_out, &error)) return Fail(error, dsr::kExitFailed);
   if (!FLAGS_out_count.empty()) {
     dsr::Image count(grid, 0.0f);

@@ -35,6 +35,8 @@ __all__ = [
     "Sequence",
     "RegistrationError",
     "register",
+    "fuse",
+    "write_tfm",
     "simulate",
     "read_image",
     "write_image",
@@ -116,6 +118,37 @@ def _as_image(value: Any, what: str) -> Image:
                      f"({type(value).__name__})")
 
 
+def _inputs(images, masks, names):
+    """What _core takes for images and masks: all paths, or all (array, geometry) pairs;
+    and the images' names (default: the file names, or frame_NN)."""
+    images = list(images)
+    paths = [_as_path(image) for image in images]
+    mask_list = list(masks) if masks is not None else []
+    if all(p is not None for p in paths):
+        mask_paths = [_as_path(mask) for mask in mask_list]
+        if any(p is None for p in mask_paths):
+            raise ValueError("masks: give files with image files")
+        core_images: list = paths
+        core_masks: list = mask_paths
+        default_names = [os.path.basename(p) for p in paths]
+    else:
+        if any(p is not None for p in paths):
+            raise ValueError("images: give all as files or all as images, not both")
+        core_images = []
+        for i, image in enumerate(images):
+            im = _as_image(image, f"image {i}")
+            core_images.append((np.asarray(im.array, dtype=np.float32), im.geometry()))
+        core_masks = []
+        for i, mask in enumerate(mask_list):
+            mk = _as_image(mask, f"mask {i}")
+            core_masks.append((np.asarray(mk.array, dtype=np.uint8), mk.geometry()))
+        default_names = [f"frame_{i:02d}" for i in range(len(images))]
+    image_names = list(names) if names is not None else default_names
+    if len(image_names) != len(images):
+        raise ValueError(f"names: {len(image_names)} names for {len(images)} images")
+    return core_images, core_masks, image_names
+
+
 def _flag_value(value: Any) -> str:
     if isinstance(value, (bool, np.bool_)):
         return "true" if value else "false"
@@ -183,32 +216,7 @@ def register(images: Sequence[ImageLike],
     Raises ValueError for bad input (the command line's message) and RegistrationError when
     the registration gives no result.
     """
-    images = list(images)
-    paths = [_as_path(image) for image in images]
-    mask_list = list(masks) if masks is not None else []
-    from_files = all(p is not None for p in paths)
-    if from_files:
-        core_images: list = paths
-        mask_paths = [_as_path(mask) for mask in mask_list]
-        if any(p is None for p in mask_paths):
-            raise ValueError("masks: give files with image files")
-        core_masks: list = mask_paths
-        default_names = [os.path.basename(p) for p in paths]
-    else:
-        if any(p is not None for p in paths):
-            raise ValueError("images: give all as files or all as images, not both")
-        core_images = []
-        for i, image in enumerate(images):
-            im = _as_image(image, f"image {i}")
-            core_images.append((np.asarray(im.array, dtype=np.float32), im.geometry()))
-        core_masks = []
-        for i, mask in enumerate(mask_list):
-            mk = _as_image(mask, f"mask {i}")
-            core_masks.append((np.asarray(mk.array, dtype=np.uint8), mk.geometry()))
-        default_names = [f"frame_{i:02d}" for i in range(len(images))]
-    image_names = list(names) if names is not None else default_names
-    if len(image_names) != len(images):
-        raise ValueError(f"names: {len(image_names)} names for {len(images)} images")
+    core_images, core_masks, image_names = _inputs(images, masks, names)
     def run(init_value) -> Result:
         flags = _flags({"mode": mode, "init": init_value, "progress": False, **options})
         return _register(core_images, core_masks, image_names, flags, on_iteration)
@@ -245,6 +253,43 @@ def _register(core_images, core_masks, image_names, flags, on_iteration) -> Resu
         covariance=list(poses["covariance"]),
         predicted_tre_mm=list(poses["predicted_tre_mm"]),
     )
+
+
+def fuse(images: Sequence[ImageLike],
+         poses: Union[Result, Sequence[np.ndarray], str, "os.PathLike[str]"],
+         masks: Optional[Sequence[ImageLike]] = None,
+         *,
+         blend: str = "feather",
+         names: Optional[Sequence[str]] = None,
+         **options: Any) -> Tuple[Image, Image]:
+    """The panorama of the images at the poses, as ``dsr_fuse`` writes it: (mean, count),
+    count being the number of frames that observe each voxel.
+
+    poses: a Result (its gains and offsets correct the intensities, as dsr_fuse does with a
+        poses file that has them), a poses file, or one 4x4 array per image. A file's or a
+        Result's entries are matched to the images by name.
+    blend: "feather" (weights falling to 0 towards each field of view's edge) or "mean".
+    **options: dsr_fuse's flags by name (``panorama_spacing``, ``feather_voxels``,
+        ``mask_erosion``, ``num_threads``).
+    """
+    core_images, core_masks, image_names = _inputs(images, masks, names)
+    if isinstance(poses, Result):
+        table = {"images": poses.images, "frame_from_world": poses.poses, "gain": poses.gain,
+                 "offset": poses.offset}
+    elif _as_path(poses) is not None:
+        table = read_poses(poses)
+    else:
+        table = {"images": [""] * len(poses),
+                 "frame_from_world": [np.asarray(p, dtype=float) for p in poses]}
+    mean, count, _ = _core.fuse(core_images, core_masks, image_names, table,
+                                _flags({"blend": blend, **options}))
+    return Image._from_core(mean), Image._from_core(count)
+
+
+def write_tfm(pose: np.ndarray, path: Union[str, "os.PathLike[str]"]) -> None:
+    """Writes a frame's pose (4x4, world -> frame) as the ITK transform file dsr_register
+    writes for it (--out_tfm_dir), atomically."""
+    _core.write_tfm(np.asarray(pose, dtype=float), os.fspath(path))
 
 
 @dataclass

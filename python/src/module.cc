@@ -8,6 +8,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <cmath>
 #include <exception>
 #include <filesystem>
 #include <memory>
@@ -21,6 +22,8 @@
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
+#include "dsr/io/io_transform.h"
+#include "dsr/model/panorama.h"
 #include "dsr/pipeline/input_checks.h"
 #include "dsr/pipeline/registration.h"
 #include "dsr/pipeline/report.h"
@@ -171,6 +174,9 @@ PosesFile PosesFromDict(const py::dict& d) {
   }
   if (d.contains("gain")) poses.gain = d["gain"].cast<std::vector<double>>();
   if (d.contains("offset")) poses.offset = d["offset"].cast<std::vector<double>>();
+  for (double g : poses.gain) {
+    if (!(g > 0.0 && std::isfinite(g))) BadInput("gain: every gain must be finite and > 0");
+  }
   // One entry per pose in every list given (WritePoses's contract).
   const size_t m = poses.frame_from_world.size();
   for (const auto& [what, count] : {std::pair<const char*, size_t>{"images", poses.images.size()},
@@ -215,6 +221,64 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   return s;
 }
 
+// The images and masks of a call, read while its flags hold (--images and --masks for
+// paths, --mask_erosion, --num_threads): file paths, read as the tools read them (masks
+// too), or (array, geometry) pairs; `masks` the same kind, or empty for each image's
+// non-zero voxels eroded by --mask_erosion. `match_names`: what a poses file's entries are
+// matched to (the paths, or `names`).
+void ReadInputs(const py::list& images,
+                const py::list& masks,
+                const std::vector<std::string>& names,
+                std::vector<Image>* frames,
+                std::vector<Mask>* frame_masks,
+                std::vector<std::string>* match_names) {
+  std::string error;
+  const int m = static_cast<int>(images.size());
+  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
+  if (static_cast<int>(names.size()) != m) BadInput("need one name per image");
+  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
+    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
+             std::to_string(masks.size()) + " masks");
+  }
+  *match_names = names;
+  if (py::isinstance<py::str>(images[0])) {
+    // As --images and --masks, so that the paths get dsr_register's checks and messages.
+    const auto join = [](const std::vector<std::string>& paths) {
+      std::string out;
+      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
+      return out;
+    };
+    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
+              {"masks", join(masks.cast<std::vector<std::string>>())}});
+    std::vector<std::string> image_paths, mask_paths;
+    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
+    *match_names = image_paths;
+    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, frames,
+                    frame_masks, &error)) {
+      BadInput(error);
+    }
+  } else {
+    for (int i = 0; i < m; ++i) {
+      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
+      frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
+      if (masks.empty()) {
+        frame_masks->push_back(MaskFromNonZero(frames->back(), FLAGS_mask_erosion));
+        if (CountInside(frame_masks->back()) == 0) {
+          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
+                   "(non-zero voxels eroded by mask_erosion=" +
+                   std::to_string(FLAGS_mask_erosion) + ")");
+        }
+      } else {
+        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
+        frame_masks->push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
+        if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
+          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
+        }
+      }
+    }
+  }
+}
+
 // What a registration starts from: its options, frames, masks and initial poses.
 struct Run {
   RegistrationOptions options;
@@ -238,50 +302,9 @@ Run PrepareRun(const py::list& images,
   std::string error, init_file;
   Run run;
   if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
+  std::vector<std::string> match_names;
+  ReadInputs(images, masks, names, &run.frames, &run.masks, &match_names);
   const int m = static_cast<int>(images.size());
-  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
-  if (static_cast<int>(names.size()) != m) BadInput("need one name per image");
-  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
-    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
-             std::to_string(masks.size()) + " masks");
-  }
-  std::vector<std::string> match_names = names;  // what --init's entries are matched to
-  if (py::isinstance<py::str>(images[0])) {
-    // As --images and --masks, so that the paths get dsr_register's checks and messages.
-    const auto join = [](const std::vector<std::string>& paths) {
-      std::string out;
-      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
-      return out;
-    };
-    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
-              {"masks", join(masks.cast<std::vector<std::string>>())}});
-    std::vector<std::string> image_paths, mask_paths;
-    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
-    match_names = image_paths;
-    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &run.frames,
-                    &run.masks, &error)) {
-      BadInput(error);
-    }
-  } else {
-    for (int i = 0; i < m; ++i) {
-      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
-      run.frames.push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
-      if (masks.empty()) {
-        run.masks.push_back(MaskFromNonZero(run.frames.back(), FLAGS_mask_erosion));
-        if (CountInside(run.masks.back()) == 0) {
-          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
-                   "(non-zero voxels eroded by mask_erosion=" +
-                   std::to_string(FLAGS_mask_erosion) + ")");
-        }
-      } else {
-        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
-        run.masks.push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
-        if (!run.masks.back().geometry.SameGrid(run.frames.back().geometry, 1e-3)) {
-          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
-        }
-      }
-    }
-  }
   run.start.assign(m, Eigen::Isometry3d::Identity());
   if (!init_file.empty()) {
     PosesFile poses;
@@ -379,6 +402,60 @@ py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>
   return out;
 }
 
+// fuse(images, masks, names, poses, flags): dsr_fuse's panorama (mean, count and the
+// field-of-view enlargement) of the images at the poses (the poses dict of read_poses or a
+// registration; gains and offsets correct the intensities as in dsr_fuse).
+py::tuple FuseImages(const py::list& images,
+                     const py::list& masks,
+                     const std::vector<std::string>& names,
+                     const py::dict& poses_dict,
+                     const std::vector<std::pair<std::string, std::string>>& flags) {
+  std::vector<Image> frames_in;
+  std::vector<Mask> masks_in;
+  std::vector<std::string> match_names;
+  double spacing = 1.0, feather_voxels = 0.0;
+  bool feather = false;
+  int num_threads = 0;
+  {
+    gflags::FlagSaver saver;  // the flags' values only while the inputs are read
+    SetFlags(flags);
+    ReadInputs(images, masks, names, &frames_in, &masks_in, &match_names);
+    spacing = FLAGS_panorama_spacing;
+    feather = FeatherBlend();
+    feather_voxels = FLAGS_feather_voxels;
+    num_threads = FLAGS_num_threads;
+  }
+  PosesFile poses = PosesFromDict(poses_dict);
+  const int m = static_cast<int>(frames_in.size());
+  std::string error;
+  if (static_cast<int>(poses.frame_from_world.size()) != m) {
+    BadInput("poses: " + std::to_string(poses.frame_from_world.size()) + " poses for " +
+             std::to_string(m) + " images");
+  }
+  if (!MatchPosesToImages("poses", "poses", match_names, &poses, &error)) BadInput(error);
+  std::vector<Frame> frames;
+  std::vector<Eigen::Isometry3d> relative;
+  ImageGeometry grid;
+  if (!PrepareFusion(frames_in, masks_in, match_names, poses.frame_from_world, spacing,
+                     num_threads, &frames, &relative, &grid, &error)) {
+    BadInput(error);
+  }
+  const std::vector<Photometric> photometric = PhotometricFromPoses(poses);
+  PanoramaImages fused;
+  {
+    py::gil_scoped_release release;
+    fused = FusePanorama(frames, relative, grid, feather, feather_voxels, num_threads, photometric);
+  }
+  return py::make_tuple(py::make_tuple(ToArray(fused.mean), FromGeometry(grid)),
+                        py::make_tuple(ToArray(fused.count), FromGeometry(grid)),
+                        fused.EnlargementRatio());
+}
+
+void WriteTransformFile(const py::array& pose, const std::string& path) {
+  std::string error;
+  if (!WriteItkTransform(ToPose(pose), path, &error)) BadInput(error);
+}
+
 py::tuple ReadImageFile(const std::string& path) {
   Image image;
   std::string error;
@@ -434,6 +511,9 @@ PYBIND11_MODULE(_core, m) {
   m.def("register", &dsr::RegisterImages, py::arg("images"), py::arg("masks"), py::arg("names"),
         py::arg("flags"), py::arg("on_iteration"));
   m.def("simulate", &dsr::SimulateSequence, py::arg("flags"));
+  m.def("fuse", &dsr::FuseImages, py::arg("images"), py::arg("masks"), py::arg("names"),
+        py::arg("poses"), py::arg("flags"));
+  m.def("write_tfm", &dsr::WriteTransformFile, py::arg("pose"), py::arg("path"));
   m.def("read_image", &dsr::ReadImageFile, py::arg("path"));
   m.def("write_image", &dsr::WriteImageFile, py::arg("array"), py::arg("geometry"),
         py::arg("path"));

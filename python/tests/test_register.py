@@ -220,8 +220,10 @@ def test_the_readmes_example_runs(tmp_path, monkeypatch):
     section = readme.split("## From Python", 1)[1]
     code = section.split("```python\n", 1)[1].split("```", 1)[0]
     monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("MPLBACKEND", "Agg")
     exec(compile(code, "README.md", "exec"), {})
     assert dsr.read_poses(tmp_path / "poses.json", 5)["frame_from_world"][0].shape == (4, 4)
+    assert (tmp_path / "panorama.png").stat().st_size > 1000
 
 
 def test_numpy_scalars_are_option_values(sequence):
@@ -277,3 +279,37 @@ def test_initial_poses_start_the_registration(sequence):
         assert np.abs(a - b).max() < 1e-3
     with pytest.raises(ValueError, match="images: 3 entries for 2 poses"):
         dsr.register(images, initial_poses=result.poses[:2], **LEVELS)
+
+
+def test_fuse_writes_dsr_fuses_panorama(sequence, tmp_path):
+    frames, masks = files(sequence, "frame"), files(sequence, "mask")
+    result = dsr.register(frames, masks, **LEVELS)
+    result.save(tmp_path / "poses.json")
+    for blend in ("feather", "mean"):
+        run = run_tool("dsr_fuse", "--images=" + ",".join(frames), "--masks=" + ",".join(masks),
+                       f"--poses={tmp_path / 'poses.json'}", f"--blend={blend}",
+                       f"--out={tmp_path / 'pano.nii.gz'}", f"--out_count={tmp_path / 'n.nii.gz'}")
+        assert run.returncode == 0, run.stderr
+        for poses in (result, tmp_path / "poses.json"):
+            mean, count = dsr.fuse(frames, poses, masks, blend=blend)
+            assert np.array_equal(mean.array, dsr.read_image(tmp_path / "pano.nii.gz").array)
+            assert np.array_equal(count.array, dsr.read_image(tmp_path / "n.nii.gz").array)
+            assert count.array.max() == 3
+    # Arrays and plain pose matrices give the same panorama as the files.
+    images = [dsr.read_image(p) for p in frames]
+    mean, _ = dsr.fuse(images, result.poses, [dsr.read_image(p) for p in masks], blend="mean")
+    assert np.array_equal(mean.array, dsr.read_image(tmp_path / "pano.nii.gz").array)
+    with pytest.raises(ValueError, match="2 poses for 3 images"):
+        dsr.fuse(frames, result.poses[:2], masks)
+
+
+def test_write_tfm_writes_dsr_registers_transform(sequence, tmp_path):
+    frames = files(sequence, "frame")
+    run = run_tool("dsr_register", "--images=" + ",".join(frames), "--progress=false",
+                   f"--out_poses={tmp_path / 'p.json'}", f"--out_tfm_dir={tmp_path / 'tfm'}",
+                   *cli_flags(LEVELS))
+    assert run.returncode == 0, run.stderr
+    poses = dsr.read_poses(tmp_path / "p.json")["frame_from_world"]
+    dsr.write_tfm(poses[1], tmp_path / "frame_01.tfm")
+    written = (tmp_path / "tfm" / "frame_01.tfm").read_bytes()
+    assert (tmp_path / "frame_01.tfm").read_bytes() == written
