@@ -4,13 +4,13 @@
 # (cmake --install: static, position-independent) and the extension module links them, so
 # only python/src/module.cc and the tools' flags layer are compiled here. The package goes
 # into .venv (scripts/python_env.sh); scikit-build-core comes from PyPI (Debian has none),
-# pybind11 from Debian; SimpleITK (and nibabel, python_env.sh) for the tests that pass
-# their images. Called by scripts/test.sh after the Release ctest.
+# pybind11 from Debian; SimpleITK and tqdm (and nibabel, python_env.sh) for the tests that
+# pass their images and show a bar. Called by scripts/test.sh after the Release ctest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="$PWD/${DSR_BUILD_DIR:-build}"
 python=$(bash scripts/python_env.sh)
-"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" SimpleITK
+"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" SimpleITK tqdm
 cmake --install "$build" --prefix "$build/python-prefix" >/dev/null
 "$python" -m pip install -q --disable-pip-version-check ./python \
   -Ccmake.define.dsr_DIR="$build/python-prefix/lib/cmake/dsr" -Cbuild-dir="$build/python"

@@ -195,6 +195,7 @@ def register(images: Sequence[ImageLike],
              initial_poses: Optional[Sequence[np.ndarray]] = None,
              names: Optional[Sequence[str]] = None,
              on_iteration: Optional[Callable[[str, Dict[str, Any]], Any]] = None,
+             progress_bar: bool = False,
              **options: Any) -> Result:
     """Registers several 3D images simultaneously, as ``dsr_register`` does.
 
@@ -212,15 +213,41 @@ def register(images: Sequence[ImageLike],
         record {"iteration", "cost", "step_norm", "seconds", "step_accepted"} and label the
         solve's (e.g. "level 1 dsr"); returning False stops the registration
         (RegistrationError), and an exception it raises is raised by register().
+    progress_bar: a tqdm bar on stderr (tqdm must be installed): one step per iteration,
+        the solve's label and cost beside it.
 
     Raises ValueError for bad input (the command line's message) and RegistrationError when
     the registration gives no result.
     """
     core_images, core_masks, image_names = _inputs(images, masks, names)
+    callback = on_iteration
+    bar = None
+    if progress_bar:
+        try:
+            from tqdm.auto import tqdm  # noqa: PLC0415 (only when asked for)
+        except ImportError as error:
+            raise ImportError("progress_bar=True needs tqdm (pip install tqdm)") from error
+        bar = tqdm(unit="it", desc="dsr")
+
+        def callback(label: str, record: Dict[str, Any]) -> Any:
+            bar.set_description(label, refresh=False)
+            bar.set_postfix(cost=f"{record['cost']:.4g}", refresh=False)
+            bar.update(1)
+            return on_iteration(label, record) if on_iteration is not None else None
+
     def run(init_value) -> Result:
         flags = _flags({"mode": mode, "init": init_value, "progress": False, **options})
-        return _register(core_images, core_masks, image_names, flags, on_iteration)
+        return _register(core_images, core_masks, image_names, flags, callback)
 
+    try:
+        return _run_with_init(run, init, initial_poses, image_names)
+    finally:
+        if bar is not None:
+            bar.close()
+
+
+def _run_with_init(run, init, initial_poses, image_names) -> Result:
+    """run(init) or, with initial poses, run(a poses file holding them)."""
     if initial_poses is None:
         return run(init)
     # As dsr_register --init=FILE: the poses matched to the images by name, with recovery.

@@ -313,3 +313,11 @@ def test_write_tfm_writes_dsr_registers_transform(sequence, tmp_path):
     dsr.write_tfm(poses[1], tmp_path / "frame_01.tfm")
     written = (tmp_path / "tfm" / "frame_01.tfm").read_bytes()
     assert (tmp_path / "frame_01.tfm").read_bytes() == written
+
+
+def test_progress_bar_counts_the_iterations(sequence, capsys):
+    seen = []
+    dsr.register(files(sequence, "frame"), **LEVELS, progress_bar=True,
+                 on_iteration=lambda label, record: seen.append(label))
+    bar = capsys.readouterr().err
+    assert f"{len(seen)}it" in bar.replace(" ", "") and "dsr" in bar and "cost=" in bar
