@@ -128,32 +128,27 @@ struct RotatedGrid {
 }  // namespace
 
 bool PlacementSearchOptions::Validate(std::string* error) const {
-  auto bad = [&](const std::string& name, double value, const std::string& rule) {
-    std::ostringstream s;
-    s << name << "=" << value << ": " << rule;
-    *error = s.str();
-    return false;
-  };
   if (!(rotation_deg > 0.0 && rotation_deg <= 180.0)) {
-    return bad("rotation_deg", rotation_deg, "must be in (0, 180]");
+    return RefuseField(error, "rotation_deg", rotation_deg, "must be in (0, 180]");
   }
   if (rotations < 1 || rotations > 100000) {
-    return bad("rotations", rotations, "must be in [1, 100000]");
+    return RefuseField(error, "rotations", rotations, "must be in [1, 100000]");
   }
   if (pair_rotations < 1 || pair_rotations > 100000) {
-    return bad("pair_rotations", pair_rotations, "must be in [1, 100000]");
+    return RefuseField(error, "pair_rotations", pair_rotations, "must be in [1, 100000]");
   }
   if (num_screened < 0 || num_screened > 100000) {
-    return bad("num_screened", num_screened, "must be in [0, 100000]");
+    return RefuseField(error, "num_screened", num_screened, "must be in [0, 100000]");
   }
   if (num_refined < 1 || num_refined > 100) {
-    return bad("num_refined", num_refined, "must be in [1, 100]");
+    return RefuseField(error, "num_refined", num_refined, "must be in [1, 100]");
   }
   if (!(distinct_rotation_deg >= 0.0 && distinct_rotation_deg <= 180.0)) {
-    return bad("distinct_rotation_deg", distinct_rotation_deg, "must be in [0, 180]");
+    return RefuseField(error, "distinct_rotation_deg", distinct_rotation_deg,
+                       "must be in [0, 180]");
   }
   if (!(min_overlap_fraction > 0.0 && min_overlap_fraction <= 1.0)) {
-    return bad("min_overlap_fraction", min_overlap_fraction, "must be in (0, 1]");
+    return RefuseField(error, "min_overlap_fraction", min_overlap_fraction, "must be in (0, 1]");
   }
   if (!refine.Validate(error)) {
     *error = PrefixFieldPaths("refine", *error);

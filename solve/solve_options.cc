@@ -14,13 +14,11 @@ namespace dsr {
 
 bool SolveOptions::Validate(std::string* error) const {
   if (trust_region != ceres::LEVENBERG_MARQUARDT && trust_region != ceres::DOGLEG) {
-    *error = FieldError("trust_region", static_cast<int>(trust_region),
-                        "must be LEVENBERG_MARQUARDT or DOGLEG");
-    return false;
+    return RefuseField(error, "trust_region", static_cast<int>(trust_region),
+                       "must be LEVENBERG_MARQUARDT or DOGLEG");
   }
   if (max_iterations < 1) {
-    *error = "max_iterations=" + std::to_string(max_iterations) + ": must be >= 1";
-    return false;
+    return RefuseField(error, "max_iterations", max_iterations, "must be >= 1");
   }
   const std::pair<const char*, double> tolerances[] = {
       {"function_tolerance", function_tolerance},
@@ -28,26 +26,18 @@ bool SolveOptions::Validate(std::string* error) const {
       {"parameter_tolerance", parameter_tolerance}};
   for (const auto& [name, value] : tolerances) {
     if (!std::isfinite(value) || value < 0.0) {
-      std::ostringstream s;
-      s << name << "=" << value << ": must be finite and >= 0";
-      *error = s.str();
-      return false;
+      return RefuseField(error, name, value, "must be finite and >= 0");
     }
   }
   if (!std::isfinite(step_tolerance) || step_tolerance < 0.0) {
-    std::ostringstream s;
-    s << "step_tolerance=" << step_tolerance << ": must be finite and >= 0";
-    *error = s.str();
-    return false;
+    return RefuseField(error, "step_tolerance", step_tolerance, "must be finite and >= 0");
   }
   if (max_rejected_steps < 0) {
-    *error = "max_rejected_steps=" + std::to_string(max_rejected_steps) + ": must be >= 0";
-    return false;
+    return RefuseField(error, "max_rejected_steps", max_rejected_steps, "must be >= 0");
   }
   if (!KernelPathAvailable(kernels)) {
-    *error = std::string("kernels=") + KernelPathToString(kernels) +
-             ": this CPU does not run them";
-    return false;
+    return RefuseField(error, "kernels", KernelPathToString(kernels),
+                       "this CPU does not run them");
   }
   return true;
 }
@@ -59,10 +49,10 @@ bool ValidatePoseOnlyLinearSolver(const SolveOptions& solve, const std::string& 
       *solve.linear_solver == ceres::SPARSE_NORMAL_CHOLESKY) {
     return true;
   }
-  *error = FieldError("solve.linear_solver", ceres::LinearSolverTypeToString(*solve.linear_solver),
-                      who + " only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
-                            "SPARSE_NORMAL_CHOLESKY");
-  return false;
+  return RefuseField(error, "solve.linear_solver",
+                     ceres::LinearSolverTypeToString(*solve.linear_solver),
+                     who + " only the poses; use DENSE_QR, DENSE_NORMAL_CHOLESKY or "
+                           "SPARSE_NORMAL_CHOLESKY");
 }
 
 void SolveOptions::ToCeres(ceres::LinearSolverType mode_default,

@@ -25,6 +25,14 @@ std::string FieldError(const std::string& field, const T& value, const std::stri
   return s.str();
 }
 
+// For Validate functions: *error = FieldError(field, value, rule); returns false.
+template <typename T>
+bool RefuseField(std::string* error, const std::string& field, const T& value,
+                 const std::string& rule) {
+  *error = FieldError(field, value, rule);
+  return false;
+}
+
 // `message` with every field path replaced by rewrite(path).
 std::string RewriteFieldPaths(const std::string& message,
                               const std::function<std::string(const std::string&)>& rewrite);
