@@ -6,6 +6,18 @@
 
 namespace dsr {
 
+bool MaskFromImage(const Image& image,
+                   int mask_erosion,
+                   const std::string& name,
+                   Mask* mask,
+                   std::string* error) {
+  *mask = MaskFromNonZero(image, mask_erosion);
+  if (CountInside(*mask) > 0) return true;
+  *error = name + ": no voxel left in the field of view (non-zero voxels eroded by "
+           "mask_erosion=" + std::to_string(mask_erosion) + ")";
+  return false;
+}
+
 bool ReadFrames(const std::vector<std::string>& image_paths,
                 const std::vector<std::string>& mask_paths,
                 int mask_erosion,
@@ -24,11 +36,7 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
       ReadMask(mask_paths[i], (*images)[i].geometry, &(*masks)[i], &e);
       return;
     }
-    (*masks)[i] = MaskFromNonZero((*images)[i], mask_erosion);
-    if (CountInside((*masks)[i]) == 0) {
-      e = image_paths[i] + ": no voxel left in the field of view (non-zero voxels eroded by "
-          "mask_erosion=" + std::to_string(mask_erosion) + ")";
-    }
+    MaskFromImage((*images)[i], mask_erosion, image_paths[i], &(*masks)[i], &e);
   });
   for (const std::string& e : read_errors) {
     if (!e.empty()) {

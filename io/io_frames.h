@@ -9,6 +9,14 @@
 
 namespace dsr {
 
+// The mask of an image given without one: its non-zero voxels eroded by `mask_erosion`
+// voxels (MaskFromNonZero). False, with an error naming `name`, when no voxel is left.
+bool MaskFromImage(const Image& image,
+                   int mask_erosion,
+                   const std::string& name,
+                   Mask* mask,
+                   std::string* error);
+
 // Reads frames in parallel (decompression dominates) with their masks: `mask_paths` one per
 // image, or empty for each image's non-zero voxels eroded by `mask_erosion` voxels
 // (MaskFromNonZero). The first failing frame in input order is reported (one line naming

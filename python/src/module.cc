@@ -262,11 +262,10 @@ void ReadInputs(const py::list& images,
       const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
       frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
       if (masks.empty()) {
-        frame_masks->push_back(MaskFromNonZero(frames->back(), FLAGS_mask_erosion));
-        if (CountInside(frame_masks->back()) == 0) {
-          BadInput("image " + std::to_string(i) + ": no voxel left in the field of view "
-                   "(non-zero voxels eroded by mask_erosion=" +
-                   std::to_string(FLAGS_mask_erosion) + ")");
+        frame_masks->emplace_back();
+        if (!MaskFromImage(frames->back(), FLAGS_mask_erosion, "image " + std::to_string(i),
+                           &frame_masks->back(), &error)) {
+          BadInput(error);
         }
       } else {
         const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
