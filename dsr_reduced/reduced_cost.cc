@@ -483,8 +483,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
     offset[i] = photometric.empty() ? 0.0 : photometric[i].offset;
     unit[i] = photometric.empty() ? 1.0 : photometric[i].unit();
   }
-  const KernelPath path = ResolveKernelPath(context.kernels);
-  CHECK(KernelPathAvailable(path)) << KernelPathToString(path) << " kernels are not available here";
+  const KernelPath path = StreamKernelPath(context);
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
   // Fixed blocks summed in order, as in StreamNormalEquations: identical for any thread
   // count. Each voxel's weights are written by its block only.

@@ -91,6 +91,14 @@ struct StreamContext {
   KernelPath kernels = KernelPath::kAuto;
 };
 
+// The kernel path a stream with `context` runs (kAuto resolved); CHECKs that the CPU runs
+// it (SolveOptions::Validate refuses one it does not).
+inline KernelPath StreamKernelPath(const StreamContext& context) {
+  const KernelPath path = ResolveKernelPath(context.kernels);
+  CHECK(KernelPathAvailable(path)) << KernelPathToString(path) << " kernels are not available here";
+  return path;
+}
+
 // Jacobian layout in a batch: J_ij = [d/d rho (3), d/d phi (3)], 6 doubles, the k
 // Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
 // Gauss-Newton kernel reads as 6k consecutive doubles).
@@ -264,7 +272,7 @@ void StreamBlock(KernelPath path,
 }  // namespace internal
 
 // Streams candidate voxels [begin, end) at the given poses through `term` with the threads
-// and kernels of `context` (CHECKs that its kernel path is available), `term` being a callable
+// and kernels of `context` (StreamKernelPath), `term` being a callable
 // `void(const VoxelObservations&, bool with_jacobian, VoxelAccumulator*)` that adds the
 // voxel's cost and observation count and, when with_jacobian, its gradient and its
 // Gauss-Newton terms to at least the upper block triangle (frame a <= frame b) of the
@@ -295,8 +303,7 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
   CHECK_LE(0, begin);
   CHECK_LE(end, candidates.num_voxels());
-  const KernelPath path = ResolveKernelPath(context.kernels);
-  CHECK(KernelPathAvailable(path)) << KernelPathToString(path) << " kernels are not available here";
+  const KernelPath path = StreamKernelPath(context);
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
   const int64_t count = std::max<int64_t>(0, end - begin);
   const int64_t num_blocks = std::max<int64_t>(1, std::min(internal::kStreamBlocks, count));
