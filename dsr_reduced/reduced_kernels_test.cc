@@ -17,27 +17,15 @@ namespace {
 
 using testing_kernels::AvailablePaths;
 using testing_problems::Candidates;
-using testing_problems::MakeSequence;
+using testing_problems::KernelTestSequence;
 using testing_problems::Perturbed;
-using testing_problems::SequenceOptions;
 
 // The paths sum the same terms in another order (and with FMA).
 constexpr double kSystemRelativeTolerance = 1e-12;
 
-testing_problems::TestSequence Sequence(uint64_t seed) {
-  SequenceOptions o;
-  o.num_frames = 4;
-  o.size = 16;
-  o.noise_sigma = 10.0;
-  o.max_rotation = 0.2;
-  o.erosion = 2;
-  o.seed = seed;
-  return MakeSequence(o);
-}
-
 TEST(ReducedKernels, KernelPathsGiveTheSameNormalEquations) {
   if (!KernelPathAvailable(KernelPath::kAvx2)) GTEST_SKIP() << "no AVX2+FMA on this CPU";
-  const auto s = Sequence(9);
+  const auto s = KernelTestSequence(9);
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 10);
   const CandidateSet cand = Candidates(s, poses);
   ReducedSystem portable;
@@ -65,7 +53,7 @@ TEST(ReducedKernels, KernelPathsGiveTheSameNormalEquations) {
 // so a path the options did not reach would show as identical costs.
 TEST(ReducedKernels, SolveOptionsChooseTheKernelPath) {
   if (!KernelPathAvailable(KernelPath::kAvx2)) GTEST_SKIP() << "no AVX2+FMA on this CPU";
-  const auto s = Sequence(13);
+  const auto s = KernelTestSequence(13);
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 14);
   const CandidateSet cand = Candidates(s, poses);
   const auto solve = [&](KernelPath path) {
@@ -90,7 +78,7 @@ TEST(ReducedKernels, SolveOptionsChooseTheKernelPath) {
 }
 
 TEST(ReducedKernels, CostOnlyPassGivesTheCostOfTheJacobianPassExactly) {
-  const auto s = Sequence(11);
+  const auto s = KernelTestSequence(11);
   const auto poses = Perturbed(s.ground_truth, 0.03, 1.0, 12);
   const CandidateSet cand = Candidates(s, poses);
   for (KernelPath path : AvailablePaths()) {

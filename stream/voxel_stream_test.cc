@@ -16,9 +16,8 @@ namespace dsr {
 namespace {
 
 using testing_problems::Candidates;
-using testing_problems::MakeSequence;
+using testing_problems::KernelTestSequence;
 using testing_problems::Perturbed;
-using testing_problems::SequenceOptions;
 
 // Same trilinear formula, other order of additions (and FMA on the AVX2 path).
 constexpr double kValueTolerance = 1e-10;      // intensities are O(100)
@@ -26,19 +25,8 @@ constexpr double kJacobianTolerance = 1e-10;   // relative to the Jacobian's nor
 
 using testing_kernels::AvailablePaths;
 
-testing_problems::TestSequence Sequence(uint64_t seed) {
-  SequenceOptions o;
-  o.num_frames = 4;
-  o.size = 16;
-  o.noise_sigma = 10.0;
-  o.max_rotation = 0.2;
-  o.erosion = 2;
-  o.seed = seed;
-  return MakeSequence(o);
-}
-
 TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
-  const auto s = Sequence(5);
+  const auto s = KernelTestSequence(5);
   // Candidates with a margin: many candidate observers fall outside the valid region, so
   // both outcomes of sigma_ij are exercised.
   const auto poses = Perturbed(s.ground_truth, 0.05, 1.5, 6);
@@ -95,7 +83,7 @@ TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
 }
 
 TEST(VoxelStream, NonFinitePosesObserveNothing) {
-  const auto s = Sequence(7);
+  const auto s = KernelTestSequence(7);
   std::vector<Eigen::Isometry3d> poses = s.ground_truth;
   const CandidateSet cand = Candidates(s, poses);
   poses[1].translation().x() = std::numeric_limits<double>::quiet_NaN();

@@ -147,6 +147,19 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
   return s;
 }
 
+// 4 noisy frames of 16^3 (sigma 10, rotations within 0.2 rad, masks eroded by 2): the
+// small sequence the kernel-path tests compare the paths on.
+inline TestSequence KernelTestSequence(uint64_t seed) {
+  SequenceOptions o;
+  o.num_frames = 4;
+  o.size = 16;
+  o.noise_sigma = 10.0;
+  o.max_rotation = 0.2;
+  o.erosion = 2;
+  o.seed = seed;
+  return MakeSequence(o);
+}
+
 // Ground truth with every free pose perturbed by up to `rotation` rad / `translation` mm.
 inline std::vector<Eigen::Isometry3d> Perturbed(const std::vector<Eigen::Isometry3d>& poses,
                                                 double rotation,
