@@ -79,6 +79,11 @@ struct Volume {
 using Image = Volume<float>;   // intensities
 using Mask = Volume<uint8_t>;  // field of view: 1 inside, 0 outside
 
+// Checks that every voxel is finite (the registration's sums take no NaN or Inf). On
+// failure `error` names the first bad voxel by index, "<what>: voxel (i,j,k) is NaN". The
+// front ends check what they read or are given (io_image's ReadImage, the Python module).
+bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string* error);
+
 // A field-of-view mask from an image that is zero outside its field of view: 1 except at
 // the zero voxels connected to the grid border through zero voxels (so zeros enclosed by
 // non-zero data, e.g. noise clamped at 0, stay inside), then eroded by `erosion_voxels` voxels

@@ -148,16 +148,7 @@ bool ReadImage(const std::string& path, Image* image, std::string* error) {
   Image out;
   out.geometry = ToGeometry(raw);
   out.voxels = std::move(raw.voxels);
-  const auto bad =
-      std::find_if(out.voxels.begin(), out.voxels.end(), [](float v) { return !std::isfinite(v); });
-  if (bad != out.voxels.end()) {
-    const int64_t v = bad - out.voxels.begin();
-    const int64_t nx = out.geometry.size[0];
-    const int64_t nxy = nx * out.geometry.size[1];
-    *error = path + ": voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) +
-             "," + std::to_string(v / nxy) + ") is " + (std::isnan(*bad) ? "NaN" : "Inf");
-    return false;
-  }
+  if (!CheckFiniteVoxels(out, path, error)) return false;
   *image = std::move(out);
   return true;
 }

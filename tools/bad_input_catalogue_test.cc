@@ -263,8 +263,8 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --trust_region=ANNEALING", "--trust_region");
   Register(base + " --num_threads=-2", "--num_threads");
   Register(base + " --step_tolerance=-1", "--step_tolerance");
-  Register(base + " --num_frames_typo=3", "num_frames_typo");
-  Register(base + " --max_iterations=many", "max_iterations");
+  Register(base + " --num_frames_typo=3", "--num_frames_typo=3: unknown flag");
+  Register(base + " --max_iterations=many", "--max_iterations=many: not a valid int32");
   Register(base + " --mode=dba --memory_budget_mb=0.01", "--mode=dsr");
   Register(base + " --min_kept_overlap=-0.1", "--min_kept_overlap");
   Register(base + " --max_misfit_ratio=nan", "--max_misfit_ratio");

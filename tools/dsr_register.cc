@@ -56,17 +56,6 @@ namespace {
 
 using dsr::Fail;
 
-// The pipeline names frames by index; a message that starts with "frame N" also gets the
-// file, so that the line names what to fix.
-std::string WithFrameFile(const std::string& message, const std::vector<std::string>& paths) {
-  int frame = -1, consumed = 0;
-  if (std::sscanf(message.c_str(), "frame %d %n", &frame, &consumed) < 1 || consumed == 0 ||
-      frame < 0 || frame >= static_cast<int>(paths.size())) {
-    return message;
-  }
-  return paths[frame] + ": " + message;
-}
-
 // One line: each frame's estimated gain and offset and, when the ground truth has them
 // (on frame 0's scale, as MatchPosesToImages leaves them), the mean absolute errors over
 // frames 1..m-1.
@@ -407,12 +396,12 @@ int Main(int argc, char** argv) {
   // The pipeline's own checks of the frames first (Register repeats them), so that a
   // broken header or pose is named as such, not as a panorama too large for memory.
   if (!dsr::CheckRegistrationInputs(images, initial, options, &error)) {
-    return Fail(WithFrameFile(error, in.image_paths));
+    return Fail(dsr::WithFrameFile(error, in.image_paths));
   }
   if (!CheckPanoramaMemory(images, masks, initial, &error)) return Fail(error);
   dsr::RegistrationResult result;
   if (!dsr::Register(images, masks, initial, options, &result, &error)) {
-    return Fail(WithFrameFile(error, in.image_paths));
+    return Fail(dsr::WithFrameFile(error, in.image_paths));
   }
   PrintRecoveries(result);
   if (!result.usable) return Fail(result.failure, dsr::kExitFailed);

@@ -155,6 +155,43 @@ TEST_F(ToolFront, UnknownFlagInFlagfileIsRefusedLikeOnTheCommandLine) {
   EXPECT_EQ(Written({"typo.flags", "no_value.flags"}).size(), 0u);
 }
 
+// gflags printed its own "ERROR: ..." lines for an unknown flag or a value that is not of
+// the flag's type; every tool now prints them as its other errors (and as the Python
+// module raises them), in command-line order, with gflags' argument forms still taken.
+TEST_F(ToolFront, UnknownFlagsAndUntypedValuesGetTheToolsErrorLine) {
+  // Each tool with an int32 flag it has.
+  for (const auto& [tool, flag] : std::vector<std::pair<std::string, std::string>>{
+           {DSR_REGISTER_BIN, "--num_threads"},
+           {DSR_FUSE_BIN, "--num_threads"},
+           {DSR_SIMULATE_BIN, "--num_frames"},
+           {DSR_COMPARE_BIN, "--num_threads"}}) {
+    SCOPED_TRACE(tool);
+    const std::string name = fs::path(tool).filename().string();
+    for (const auto& [args, line] : std::vector<std::pair<std::string, std::string>>{
+             {"--num_frames_typo=3", "--num_frames_typo=3: unknown flag"},
+             {"--nosuch_switch", "--nosuch_switch: unknown flag"},
+             {flag + "=many", flag + "=many: not a valid int32"},
+             {flag + " many", flag + "=many: not a valid int32"},
+             {flag + "=2 " + flag, flag + ": needs a value (" + flag + "=VALUE)"},
+             {flag + "=-2 --typo=1", flag + "=-2: must be"},
+             {"--typo=1 " + flag + "=-2", "--typo=1: unknown flag"}}) {
+      SCOPED_TRACE(args);
+      const ToolRun run = RunTool(tool, args, Root());
+      ExpectOneError(run, 2, {});
+      EXPECT_EQ(run.error_lines[0].rfind(name + ": error: " + line, 0), 0u) << run.error_lines[0];
+    }
+  }
+  // The forms gflags takes still work: --bool, --nobool, "--flag value".
+  const ToolRun run = RunTool(DSR_SIMULATE_BIN,
+                              "--out_dir " + Out("forms") + " --nowrite_source --num_frames 2 "
+                              "--phantom_size=32 --frame_size=16,16,16 --min_depth_voxels=1 "
+                              "--max_translation_voxels=1",
+                              Root());
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  EXPECT_TRUE(fs::exists(Out("forms/frame_01.nii.gz")));
+  EXPECT_FALSE(fs::exists(Out("forms/source.nii.gz")));
+}
+
 // F01: gflags reads a first line without "--" as a program-name filter.
 TEST_F(ToolFront, FlagfileLineThatIsNoFlagIsRefused) {
   const std::string junk = Write("junk.flags", "dsr_simulate\n--num_frames=2\n");

@@ -40,6 +40,11 @@ std::string& ToolName() {
   return name;
 }
 
+// Whether RefuseFlag exits (SetBadFlagsExit), and the latest message it did not exit with.
+std::atomic<bool> bad_flags_exit{true};
+std::mutex last_bad_flag_mutex;
+std::string last_bad_flag;
+
 void ExitWithBadInput(int) { std::exit(kExitBadInput); }
 void ExitAfterHelp(int) { std::exit(EXIT_SUCCESS); }
 
@@ -123,6 +128,54 @@ bool ReadsFlagfileFromEnvironment(const std::string& name, const std::string& va
     if (item == "flagfile") return true;
   }
   return false;
+}
+
+// Sets each --name=value of `args` (after argv[0], up to "--") with SetFlagValue under a
+// FlagSaver, so that nothing stays set: the first refusal's message. The forms gflags also
+// takes are followed: --bool, --nobool, and "--name value" for a flag that is not a bool.
+// With --undefok (names gflags lets pass unknown) or flags gflags acts on when set
+// (--fromenv, --tryfromenv), the unknown-name check is left to gflags.
+bool CheckFlagArguments(const std::vector<std::string>& args, std::string* error) {
+  std::string name, value;
+  bool has_value = false;
+  bool check_unknown = true;
+  for (size_t a = 1; a < args.size() && args[a] != "--"; ++a) {
+    if (SplitFlagArgument(args[a], &name, &value, &has_value) &&
+        (name == "undefok" || name == "fromenv" || name == "tryfromenv")) {
+      check_unknown = false;
+    }
+  }
+  const bool exit_before = bad_flags_exit.exchange(false);
+  gflags::FlagSaver saver;
+  bool ok = true;
+  for (size_t a = 1; ok && a < args.size() && args[a] != "--"; ++a) {
+    if (!SplitFlagArgument(args[a], &name, &value, &has_value)) continue;  // gflags: positional
+    if (name == "fromenv" || name == "tryfromenv" || name == "undefok") continue;
+    gflags::CommandLineFlagInfo info;
+    const bool known = gflags::GetCommandLineFlagInfo(name.c_str(), &info);
+    if (!known && name.compare(0, 2, "no") == 0 && !has_value &&
+        gflags::GetCommandLineFlagInfo(name.substr(2).c_str(), &info) && info.type == "bool") {
+      continue;  // --nobool
+    }
+    if (!known) {
+      if (!check_unknown) continue;
+      *error = "--" + name + (has_value ? "=" + value : "") + ": unknown flag";
+      ok = false;
+      break;
+    }
+    if (!has_value) {
+      if (info.type == "bool") continue;  // --bool
+      if (a + 1 == args.size()) {
+        *error = "--" + name + ": needs a value (--" + name + "=VALUE)";
+        ok = false;
+        break;
+      }
+      value = args[++a];
+    }
+    ok = SetFlagValue(name, value, error);
+  }
+  bad_flags_exit = exit_before;
+  return ok;
 }
 
 // Expands --flagfile arguments in place (InitTool step 2).
@@ -358,6 +411,11 @@ void InitTool(const char* usage,
   *argc = static_cast<int>(expanded->size());
   *argv = expanded_argv->data();
 
+  // Unknown flags and values that are not of their flag's type get the one-line error
+  // the rest of the tool's errors have (gflags' own lines differ, and the Python module
+  // prints these), checked in command-line order as gflags would.
+  if (!CheckFlagArguments(*expanded, &error)) std::exit(Fail(error));
+
   void (*const previous_exit)(int) = GFLAGS_NAMESPACE::gflags_exitfunc;
   GFLAGS_NAMESPACE::gflags_exitfunc = &ExitWithBadInput;
   gflags::ParseCommandLineNonHelpFlags(argc, argv, /*remove_flags=*/true);
@@ -416,12 +474,6 @@ int Fail(const std::string& message, int code) {
   return code;
 }
 
-namespace {
-std::atomic<bool> bad_flags_exit{true};
-std::mutex last_bad_flag_mutex;
-std::string last_bad_flag;
-}  // namespace
-
 bool RefuseFlag(const char* flag, const std::string& value, const std::string& rule) {
   const std::string message = std::string("--") + flag + "=" + value + ": " + rule;
   if (bad_flags_exit) std::exit(Fail(message));
@@ -437,6 +489,29 @@ std::string TakeLastBadFlag() {
   std::string message;
   message.swap(last_bad_flag);
   return message;
+}
+
+bool SetFlagValue(const std::string& name, const std::string& value, std::string* error) {
+  gflags::CommandLineFlagInfo info;
+  if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
+    *error = "--" + name + "=" + value + ": unknown flag";
+    return false;
+  }
+  TakeLastBadFlag();  // only this value's refusal counts
+  if (!gflags::SetCommandLineOption(name.c_str(), value.c_str()).empty()) return true;
+  // The validator's message, or gflags refused the text itself (not a number).
+  *error = TakeLastBadFlag();
+  if (error->empty()) *error = "--" + name + "=" + value + ": not a valid " + info.type;
+  return false;
+}
+
+std::string WithFrameFile(const std::string& message, const std::vector<std::string>& paths) {
+  int frame = -1, consumed = 0;
+  if (std::sscanf(message.c_str(), "frame %d %n", &frame, &consumed) < 1 || consumed == 0 ||
+      frame < 0 || frame >= static_cast<int>(paths.size())) {
+    return message;
+  }
+  return paths[frame] + ": " + message;
 }
 
 bool CheckInputFileFlag(const char* flag, const std::string& path) {

@@ -97,6 +97,19 @@ void SetBadFlagsExit(bool exit);
 // none); the next call returns "" unless another value was refused in between.
 std::string TakeLastBadFlag();
 
+// Sets flag `name` to `value` as a command line would (--name=value): false with the
+// message when no flag has that name ("--name=value: unknown flag"), the text is not a
+// value of the flag's type ("--name=value: not a valid int32") or its validator refuses it
+// (RefuseFlag's message). Needs SetBadFlagsExit(false) for the validator's message to come
+// back rather than exit. The tools check their command lines with it before gflags parses
+// them, and the Python module sets its options with it, so both print the same lines.
+bool SetFlagValue(const std::string& name, const std::string& value, std::string* error);
+
+// The pipeline names frames by index: a message that starts with "frame N " also gets
+// frame N's file in front ("a.nii.gz: frame 1 has ..."), so that the line names what to
+// fix. Other messages are returned as they are.
+std::string WithFrameFile(const std::string& message, const std::vector<std::string>& paths);
+
 // For DEFINE_validator functions: returns true when `ok`, else RefuseFlag. (A validator
 // that returns false makes gflags print "failed validation of new value" without saying
 // which rule failed.) gflags also runs validators on unchanged defaults, so defaults must

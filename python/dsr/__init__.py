@@ -182,7 +182,8 @@ class Result:
     predicted_tre_mm: List[float]
 
     def save(self, path: Union[str, "os.PathLike[str]"]) -> None:
-        """Writes the poses JSON dsr_register writes (atomically)."""
+        """Writes the poses JSON dsr_register writes (atomically; OSError when it cannot,
+        leaving no file)."""
         write_poses(path, self.poses, images=self.images, gain=self.gain, offset=self.offset,
                     covariance=self.covariance, predicted_tre_mm=self.predicted_tre_mm)
 
@@ -216,8 +217,9 @@ def register(images: Sequence[ImageLike],
     progress_bar: a tqdm bar on stderr (tqdm must be installed): one step per iteration,
         the solve's label and cost beside it.
 
-    Raises ValueError for bad input (the command line's message) and RegistrationError when
-    the registration gives no result.
+    Raises ValueError for bad input (the message dsr_register prints for it, e.g.
+    "--max_iterations=0: must be > 0" or "b.nii.gz: frame 1 has ...") and RegistrationError
+    when the registration gives no result.
     """
     core_images, core_masks, image_names = _inputs(images, masks, names)
     callback = on_iteration
@@ -304,7 +306,7 @@ def fuse(images: Sequence[ImageLike],
         table = {"images": poses.images, "frame_from_world": poses.poses, "gain": poses.gain,
                  "offset": poses.offset}
     elif _as_path(poses) is not None:
-        table = read_poses(poses)
+        table = _as_path(poses)  # read and checked as dsr_fuse reads --poses
     else:
         table = {"images": [""] * len(poses),
                  "frame_from_world": [np.asarray(p, dtype=float) for p in poses]}
@@ -315,7 +317,7 @@ def fuse(images: Sequence[ImageLike],
 
 def write_tfm(pose: np.ndarray, path: Union[str, "os.PathLike[str]"]) -> None:
     """Writes a frame's pose (4x4, world -> frame) as the ITK transform file dsr_register
-    writes for it (--out_tfm_dir), atomically."""
+    writes for it (--out_tfm_dir), atomically (OSError when it cannot, leaving no file)."""
     _core.write_tfm(np.asarray(pose, dtype=float), os.fspath(path))
 
 
@@ -352,7 +354,8 @@ def read_image(path: Union[str, "os.PathLike[str]"]) -> Image:
 
 
 def write_image(image: ImageLike, path: Union[str, "os.PathLike[str]"]) -> None:
-    """Writes a 3D image (float32; the format from the file name), atomically."""
+    """Writes a 3D image (float32; the format from the file name), atomically (OSError when
+    it cannot, leaving no file)."""
     im = _as_image(image, "image")
     _core.write_image(np.asarray(im.array, dtype=np.float32), im.geometry(), os.fspath(path))
 
@@ -371,7 +374,7 @@ def write_poses(path: Union[str, "os.PathLike[str]"],
                 offset: Sequence[float] = (),
                 covariance: Sequence[np.ndarray] = (),
                 predicted_tre_mm: Sequence[float] = ()) -> None:
-    """Writes a poses JSON as dsr_register does (atomically)."""
+    """Writes a poses JSON as dsr_register does (atomically; OSError when it cannot)."""
     poses = [np.asarray(p, dtype=float) for p in poses]
     _core.write_poses({
         "images": list(images) if images is not None else [""] * len(poses),

@@ -13,6 +13,7 @@
 #include <filesystem>
 #include <memory>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -47,19 +48,16 @@ PyObject* registration_error = nullptr;
 
 // Sets each (flag, value) for the current call; a FlagSaver in the caller restores them.
 void SetFlags(const std::vector<std::pair<std::string, std::string>>& flags) {
+  std::string error;
   for (const auto& [name, value] : flags) {
-    gflags::CommandLineFlagInfo info;
-    if (!gflags::GetCommandLineFlagInfo(name.c_str(), &info)) {
-      BadInput("unknown option '" + name + "'");
-    }
-    TakeLastBadFlag();  // only this value's refusal counts
-    if (gflags::SetCommandLineOption(name.c_str(), value.c_str()).empty()) {
-      // The validator's message, or gflags refused the text itself (not a number).
-      const std::string refused = TakeLastBadFlag();
-      BadInput(!refused.empty() ? refused
-                                : "--" + name + "=" + value + ": not a valid " + info.type);
-    }
+    if (!SetFlagValue(name, value, &error)) BadInput(error);
   }
+}
+
+// A write that failed (a missing folder, a full disk): OSError with the writer's message.
+[[noreturn]] void WriteFailed(const std::string& message) {
+  PyErr_SetString(PyExc_OSError, message.c_str());
+  throw py::error_already_set();
 }
 
 // A 3D image: the voxels as a C-ordered array indexed [k][j][i] (numpy's and SimpleITK's
@@ -101,6 +99,9 @@ Volume<T> ToVolume(const py::array_t<T, py::array::c_style | py::array::forcecas
   std::string error;
   if (!out.geometry.Validate(what, &error)) BadInput(error);
   std::copy(array.data(), array.data() + out.voxels.size(), out.voxels.begin());
+  if constexpr (std::is_same_v<T, float>) {
+    if (!CheckFiniteVoxels(out, what, &error)) BadInput(error);
+  }
   return out;
 }
 
@@ -221,12 +222,13 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   return s;
 }
 
-// The images and masks of a call, read while its flags hold (--images and --masks for
+// The images and masks of a call (at least `min_frames`), read while its flags hold (--images and --masks for
 // paths, --mask_erosion, --num_threads): file paths, read as the tools read them (masks
 // too), or (array, geometry) pairs; `masks` the same kind, or empty for each image's
 // non-zero voxels eroded by --mask_erosion. `match_names`: what a poses file's entries are
 // matched to (the paths, or `names`).
-void ReadInputs(const py::list& images,
+void ReadInputs(int min_frames,
+                const py::list& images,
                 const py::list& masks,
                 const std::vector<std::string>& names,
                 std::vector<Image>* frames,
@@ -234,14 +236,9 @@ void ReadInputs(const py::list& images,
                 std::vector<std::string>* match_names) {
   std::string error;
   const int m = static_cast<int>(images.size());
-  if (m < 2) BadInput("need at least 2 images, got " + std::to_string(m));
-  if (static_cast<int>(names.size()) != m) BadInput("need one name per image");
-  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
-    BadInput("need one mask per image: " + std::to_string(m) + " images, " +
-             std::to_string(masks.size()) + " masks");
-  }
+  if (static_cast<int>(names.size()) != m) BadInput("names: need one name per image");
   *match_names = names;
-  if (py::isinstance<py::str>(images[0])) {
+  if (m > 0 && py::isinstance<py::str>(images[0])) {
     // As --images and --masks, so that the paths get dsr_register's checks and messages.
     const auto join = [](const std::vector<std::string>& paths) {
       std::string out;
@@ -251,13 +248,22 @@ void ReadInputs(const py::list& images,
     SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
               {"masks", join(masks.cast<std::vector<std::string>>())}});
     std::vector<std::string> image_paths, mask_paths;
-    if (!FrameFilesFromFlags(2, &image_paths, &mask_paths, &error)) BadInput(error);
+    if (!FrameFilesFromFlags(min_frames, &image_paths, &mask_paths, &error)) BadInput(error);
     *match_names = image_paths;
     if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, frames,
                     frame_masks, &error)) {
       BadInput(error);
     }
   } else {
+    // The rules FrameFilesFromFlags has for --images and --masks, named by argument.
+    if (m < min_frames) {
+      BadInput("images: need at least " + std::to_string(min_frames) + " images, got " +
+               std::to_string(m));
+    }
+    if (!masks.empty() && static_cast<int>(masks.size()) != m) {
+      BadInput("masks: " + std::to_string(masks.size()) + " masks for " + std::to_string(m) +
+               " images");
+    }
     for (int i = 0; i < m; ++i) {
       const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
       frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
@@ -281,6 +287,7 @@ void ReadInputs(const py::list& images,
 // What a registration starts from: its options, frames, masks and initial poses.
 struct Run {
   RegistrationOptions options;
+  std::vector<std::string> paths;  // the images' files (none for images in memory)
   std::vector<Image> frames;
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> start;
@@ -302,8 +309,9 @@ Run PrepareRun(const py::list& images,
   Run run;
   if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
   std::vector<std::string> match_names;
-  ReadInputs(images, masks, names, &run.frames, &run.masks, &match_names);
+  ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names);
   const int m = static_cast<int>(images.size());
+  if (py::isinstance<py::str>(images[0])) run.paths = match_names;
   run.start.assign(m, Eigen::Isometry3d::Identity());
   if (!init_file.empty()) {
     PosesFile poses;
@@ -337,7 +345,10 @@ py::dict RegisterImages(const py::list& images,
       }
     };
   }
-  if (!CheckRegistrationInputs(run.frames, run.start, options, &error)) BadInput(error);
+  // As dsr_register: a message about frame N also names its file.
+  if (!CheckRegistrationInputs(run.frames, run.start, options, &error)) {
+    BadInput(WithFrameFile(error, run.paths));
+  }
   RegistrationResult result;
   bool ok = false;
   {
@@ -345,7 +356,7 @@ py::dict RegisterImages(const py::list& images,
     ok = Register(run.frames, run.masks, run.start, options, &result, &error);
   }
   if (callback_error) std::rethrow_exception(callback_error);
-  if (!ok) BadInput(error);
+  if (!ok) BadInput(WithFrameFile(error, run.paths));
   if (!result.usable) {
     PyErr_SetString(registration_error, FieldPathsAsFlags(result.failure).c_str());
     throw py::error_already_set();
@@ -402,13 +413,27 @@ py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>
 }
 
 // fuse(images, masks, names, poses, flags): dsr_fuse's panorama (mean, count and the
-// field-of-view enlargement) of the images at the poses (the poses dict of read_poses or a
-// registration; gains and offsets correct the intensities as in dsr_fuse).
+// field-of-view enlargement) of the images at the poses: a poses file's path (read and
+// checked as dsr_fuse reads --poses) or the poses dict of read_poses or a registration;
+// gains and offsets correct the intensities as in dsr_fuse.
 py::tuple FuseImages(const py::list& images,
                      const py::list& masks,
                      const std::vector<std::string>& names,
-                     const py::dict& poses_dict,
+                     const py::object& poses_in,
                      const std::vector<std::pair<std::string, std::string>>& flags) {
+  const int m = static_cast<int>(images.size());
+  std::string error, poses_name = "poses";
+  PosesFile poses;
+  if (py::isinstance<py::str>(poses_in)) {
+    poses_name = poses_in.cast<std::string>();
+    if (!ReadPoses(poses_name, m, &poses, &error)) BadInput("--poses: " + error);
+  } else {
+    poses = PosesFromDict(poses_in.cast<py::dict>());
+    if (static_cast<int>(poses.frame_from_world.size()) != m) {
+      BadInput("poses: " + std::to_string(poses.frame_from_world.size()) + " poses for " +
+               std::to_string(m) + " images");
+    }
+  }
   std::vector<Image> frames_in;
   std::vector<Mask> masks_in;
   std::vector<std::string> match_names;
@@ -418,20 +443,13 @@ py::tuple FuseImages(const py::list& images,
   {
     gflags::FlagSaver saver;  // the flags' values only while the inputs are read
     SetFlags(flags);
-    ReadInputs(images, masks, names, &frames_in, &masks_in, &match_names);
+    ReadInputs(1, images, masks, names, &frames_in, &masks_in, &match_names);
     spacing = FLAGS_panorama_spacing;
     feather = FeatherBlend();
     feather_voxels = FLAGS_feather_voxels;
     num_threads = FLAGS_num_threads;
   }
-  PosesFile poses = PosesFromDict(poses_dict);
-  const int m = static_cast<int>(frames_in.size());
-  std::string error;
-  if (static_cast<int>(poses.frame_from_world.size()) != m) {
-    BadInput("poses: " + std::to_string(poses.frame_from_world.size()) + " poses for " +
-             std::to_string(m) + " images");
-  }
-  if (!MatchPosesToImages("poses", "poses", match_names, &poses, &error)) BadInput(error);
+  if (!MatchPosesToImages("poses", poses_name, match_names, &poses, &error)) BadInput(error);
   std::vector<Frame> frames;
   std::vector<Eigen::Isometry3d> relative;
   ImageGeometry grid;
@@ -452,7 +470,7 @@ py::tuple FuseImages(const py::list& images,
 
 void WriteTransformFile(const py::array& pose, const std::string& path) {
   std::string error;
-  if (!WriteItkTransform(ToPose(pose), path, &error)) BadInput(error);
+  if (!WriteItkTransform(ToPose(pose), path, &error)) WriteFailed(error);
 }
 
 py::tuple ReadImageFile(const std::string& path) {
@@ -464,9 +482,7 @@ py::tuple ReadImageFile(const std::string& path) {
 
 void WriteImageFile(const py::array& array, const Geometry& geometry, const std::string& path) {
   std::string error;
-  if (!WriteImage(ToVolume<float>(array, geometry, "image"), path, &error)) {
-    throw std::runtime_error(error);
-  }
+  if (!WriteImage(ToVolume<float>(array, geometry, "image"), path, &error)) WriteFailed(error);
 }
 
 py::dict ReadPosesFile(const std::string& path, int expected_frames) {
@@ -478,7 +494,7 @@ py::dict ReadPosesFile(const std::string& path, int expected_frames) {
 
 void WritePosesFile(const py::dict& poses, const std::string& path) {
   std::string error;
-  if (!WritePoses(PosesFromDict(poses), path, &error)) throw std::runtime_error(error);
+  if (!WritePoses(PosesFromDict(poses), path, &error)) WriteFailed(error);
 }
 
 // The flags an option may be given as: each with its type, default and help.
