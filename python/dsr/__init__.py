@@ -70,6 +70,17 @@ class Image:
             [float(v) for v in np.asarray(self.direction, dtype=float).reshape(9)],
         )
 
+    def to_simpleitk(self):
+        """This image as a SimpleITK image (the same voxels, spacing, origin and direction;
+        needs SimpleITK)."""
+        import SimpleITK as sitk  # noqa: PLC0415 (only when asked for)
+
+        image = sitk.GetImageFromArray(np.ascontiguousarray(self.array))
+        image.SetSpacing([float(v) for v in self.spacing])
+        image.SetOrigin([float(v) for v in self.origin])
+        image.SetDirection([float(v) for v in np.asarray(self.direction, dtype=float).reshape(9)])
+        return image
+
     @staticmethod
     def _from_core(pair) -> "Image":
         array, (spacing, origin, direction) = pair
@@ -292,7 +303,8 @@ def fuse(images: Sequence[ImageLike],
          names: Optional[Sequence[str]] = None,
          **options: Any) -> Tuple[Image, Image]:
     """The panorama of the images at the poses, as ``dsr_fuse`` writes it: (mean, count),
-    count being the number of frames that observe each voxel.
+    count being the number of frames that observe each voxel, as dsr.Image (numpy array and
+    grid; ``.to_simpleitk()`` makes a SimpleITK image of each).
 
     poses: a Result (its gains and offsets correct the intensities, as dsr_fuse does with a
         poses file that has them), a poses file, or one 4x4 array per image. A file's or a

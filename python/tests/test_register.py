@@ -295,6 +295,15 @@ def test_fuse_writes_dsr_fuses_panorama(sequence, tmp_path):
             assert np.array_equal(mean.array, dsr.read_image(tmp_path / "pano.nii.gz").array)
             assert np.array_equal(count.array, dsr.read_image(tmp_path / "n.nii.gz").array)
             assert count.array.max() == 3
+    # As SimpleITK images: the same voxels and grid as dsr_fuse's file.
+    import SimpleITK as sitk
+    mean, count = dsr.fuse(frames, result, masks, blend="mean")
+    written = sitk.ReadImage(str(tmp_path / "pano.nii.gz"))
+    ours = mean.to_simpleitk()
+    assert np.array_equal(sitk.GetArrayFromImage(ours), sitk.GetArrayFromImage(written))
+    for get in ("GetSpacing", "GetOrigin", "GetDirection"):
+        assert np.allclose(getattr(ours, get)(), getattr(written, get)(), atol=1e-5)
+    assert count.to_simpleitk().GetSize() == written.GetSize()
     # Arrays and plain pose matrices give the same panorama as the files.
     images = [dsr.read_image(p) for p in frames]
     mean, _ = dsr.fuse(images, result.poses, [dsr.read_image(p) for p in masks], blend="mean")
