@@ -229,7 +229,7 @@ def register(images: Sequence[ImageLike],
         the solve's label and cost beside it.
 
     Raises ValueError for bad input (the message dsr_register prints for it, e.g.
-    "--max_iterations=0: must be > 0" or "b.nii.gz: frame 1 has ...") and RegistrationError
+    "--max_iterations=0: must be >= 1" or "b.nii.gz: frame 1 has ...") and RegistrationError
     when the registration gives no result.
     """
     core_images, core_masks, image_names = _inputs(images, masks, names)

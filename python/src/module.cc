@@ -222,11 +222,11 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   return s;
 }
 
-// The images and masks of a call (at least `min_frames`), read while its flags hold (--images and --masks for
-// paths, --mask_erosion, --num_threads): file paths, read as the tools read them (masks
-// too), or (array, geometry) pairs; `masks` the same kind, or empty for each image's
-// non-zero voxels eroded by --mask_erosion. `match_names`: what a poses file's entries are
-// matched to (the paths, or `names`).
+// The images and masks of a call (at least `min_frames`), read while its flags hold
+// (--images and --masks for paths, --mask_erosion, --num_threads): file paths, read as the
+// tools read them (masks too), or (array, geometry) pairs; `masks` the same kind, or empty
+// for each image's non-zero voxels eroded by --mask_erosion. `match_names`: what a poses
+// file's entries are matched to (the paths, or `names`).
 void ReadInputs(int min_frames,
                 const py::list& images,
                 const py::list& masks,
