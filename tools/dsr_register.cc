@@ -273,12 +273,8 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
     // With photometric parameters, of the corrected intensities (result.photometric;
     // empty otherwise).
     const dsr::PanoramaImages fused =
-        dsr::FeatherBlend()
-            ? dsr::FusePanoramaFeather(frames, result.frame_from_world, result.grid,
-                                       FLAGS_feather_voxels, options.solve.num_threads,
-                                       result.photometric)
-            : dsr::FusePanoramaMean(frames, result.frame_from_world, result.grid,
-                                    options.solve.num_threads, result.photometric);
+        dsr::FusePanorama(frames, result.frame_from_world, result.grid, dsr::FeatherBlend(),
+                          FLAGS_feather_voxels, options.solve.num_threads, result.photometric);
     written->enlargement = fused.EnlargementRatio();
     panorama = options.mode == dsr::Mode::kDba && !dsr::FeatherBlend() ? result.dba_intensities
                                                                        : fused.mean;
