@@ -226,8 +226,8 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
 // (--images and --masks for paths, --mask_erosion, --num_threads): file paths, read as the
 // tools read them (masks too), or (array, geometry) pairs; `masks` the same kind, or empty
 // for each image's non-zero voxels eroded by --mask_erosion. `match_names`: what a poses
-// file's entries are matched to (the paths, or `names`).
-void ReadInputs(int min_frames,
+// file's entries are matched to (the paths, or `names`). True when the images are files.
+bool ReadInputs(int min_frames,
                 const py::list& images,
                 const py::list& masks,
                 const std::vector<std::string>& names,
@@ -254,6 +254,7 @@ void ReadInputs(int min_frames,
                     frame_masks, &error)) {
       BadInput(error);
     }
+    return true;
   } else {
     // The rules FrameFilesFromFlags has for --images and --masks, named by argument.
     if (m < min_frames) {
@@ -282,6 +283,7 @@ void ReadInputs(int min_frames,
       }
     }
   }
+  return false;
 }
 
 // What a registration starts from: its options, frames, masks and initial poses.
@@ -309,9 +311,10 @@ Run PrepareRun(const py::list& images,
   Run run;
   if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
   std::vector<std::string> match_names;
-  ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names);
+  if (ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names)) {
+    run.paths = match_names;
+  }
   const int m = static_cast<int>(images.size());
-  if (py::isinstance<py::str>(images[0])) run.paths = match_names;
   run.start.assign(m, Eigen::Isometry3d::Identity());
   if (!init_file.empty()) {
     PosesFile poses;
