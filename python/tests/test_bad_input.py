@@ -3,18 +3,12 @@ that applies to the package raises ValueError with the message the command-line 
 for the same input, and leaves no file behind. The inputs are crafted as the catalogue's
 are: MetaImage headers by hand, NIfTI files written by the tools and then damaged."""
 import math
-import os
-import pathlib
-import subprocess
 
 import numpy as np
 import pytest
 
 import dsr
-
-TOOLS = pathlib.Path(
-    os.environ.get("DSR_TOOLS", pathlib.Path(__file__).parents[2] / "build" / "tools")).resolve()
-
+from cli import cli_flags, error_line, run_tool
 
 def write_mha(path, ndims="3", size="16 16 16", spacing="1 1 1", matrix="1 0 0 0 1 0 0 0 1",
               offset="0 0 0", channels=None, count=16 * 16 * 16, special=None):
@@ -37,10 +31,9 @@ def write_mha(path, ndims="3", size="16 16 16", spacing="1 1 1", matrix="1 0 0 0
 def inputs(tmp_path_factory):
     """The catalogue's inputs: a small simulated sequence and damaged or odd files."""
     d = tmp_path_factory.mktemp("catalogue")
-    run = subprocess.run([str(TOOLS / "dsr_simulate"), f"--out_dir={d}", "--phantom_size=48",
-                          "--frame_size=20,20,16", "--num_frames=3", "--max_rotation_deg=4",
-                          "--max_translation_voxels=1", "--min_depth_voxels=2", "--sigma=5"],
-                         capture_output=True, text=True)
+    run = run_tool("dsr_simulate", f"--out_dir={d}", "--phantom_size=48",
+                   "--frame_size=20,20,16", "--num_frames=3", "--max_rotation_deg=4",
+                   "--max_translation_voxels=1", "--min_depth_voxels=2", "--sigma=5")
     assert run.returncode == 0, run.stderr
     data = (d / "frame_01.nii.gz").read_bytes()
     (d / "truncated.nii.gz").write_bytes(data[:len(data) // 2])
@@ -88,24 +81,6 @@ def inputs(tmp_path_factory):
     dsr.write_poses(d / "strangers.json", [np.eye(4)] * 3,
                     images=["x.nii.gz", "y.nii.gz", "z.nii.gz"])
     return d
-
-
-def cli_error(tool, args, cwd):
-    """The one error line `tool` prints for `args` (after "error: "), checking exit code 2."""
-    run = subprocess.run([str(TOOLS / tool), *args], capture_output=True, text=True, cwd=cwd)
-    assert run.returncode == 2, run.stderr
-    lines = [line for line in run.stderr.splitlines() if ": error: " in line]
-    assert len(lines) == 1, run.stderr
-    return lines[0].split(": error: ", 1)[1]
-
-
-def flag_args(options):
-    out = []
-    for name, value in options.items():
-        if isinstance(value, (list, tuple)):
-            value = ",".join(str(v) for v in value)
-        out.append(f"--{name}={value}")
-    return out
 
 
 FRAMES = ["frame_00.nii.gz", "frame_01.nii.gz", "frame_02.nii.gz"]
@@ -185,10 +160,10 @@ def entry_id(entry):
 def test_register_raises_the_clis_message(inputs, entry, tmp_path, monkeypatch):
     images, masks, options = entry
     cli = ["--images=" + ",".join(images), f"--out_poses={tmp_path / 'poses.json'}",
-           "--pyramid_levels=1", "--progress=false", *flag_args(options)]
+           "--pyramid_levels=1", "--progress=false", *cli_flags(options)]
     if masks is not None:
         cli.append("--masks=" + ",".join(masks))
-    expected = cli_error("dsr_register", cli, inputs)
+    expected = error_line("dsr_register", *cli, cwd=inputs)
     monkeypatch.chdir(inputs)  # the same relative paths in both messages
     python_options = {"pyramid_levels": 1, **options}
     with pytest.raises(ValueError) as raised:
@@ -231,8 +206,8 @@ SIMULATE = [
 
 @pytest.mark.parametrize("options", SIMULATE, ids=[str(o) for o in SIMULATE])
 def test_simulate_raises_the_clis_message(inputs, options, tmp_path, monkeypatch):
-    expected = cli_error("dsr_simulate", [f"--out_dir={tmp_path / 's'}", *flag_args(options)],
-                         inputs)
+    expected = error_line("dsr_simulate", f"--out_dir={tmp_path / 's'}", *cli_flags(options),
+                          cwd=inputs)
     monkeypatch.chdir(inputs)
     with pytest.raises(ValueError) as raised:
         dsr.simulate(**options)
@@ -253,10 +228,10 @@ def test_fuse_raises_the_clis_message(inputs, entry, tmp_path, monkeypatch):
     images, poses, options = entry
     masks = MASKS if len(images) == 3 else None
     cli = ["--images=" + ",".join(images), f"--poses={poses}", f"--out={tmp_path / 'p.nii.gz'}",
-           *flag_args(options)]
+           *cli_flags(options)]
     if masks:
         cli.append("--masks=" + ",".join(masks))
-    expected = cli_error("dsr_fuse", cli, inputs)
+    expected = error_line("dsr_fuse", *cli, cwd=inputs)
     monkeypatch.chdir(inputs)
     with pytest.raises(ValueError) as raised:
         dsr.fuse(images, poses, masks, **options)

@@ -3,7 +3,6 @@ bit, the same one-line messages for bad input, and its own inputs (arrays, in-me
 simulation) giving the same results as files."""
 import os
 import pathlib
-import subprocess
 import threading
 import time
 
@@ -11,20 +10,11 @@ import numpy as np
 import pytest
 
 import dsr
+from cli import cli_flags, error_line, run_tool
 
-TOOLS = pathlib.Path(
-    os.environ.get("DSR_TOOLS", pathlib.Path(__file__).parents[2] / "build" / "tools"))
 SMALL = {"phantom_size": 64, "frame_size": "32,32,28", "max_rotation_deg": 6,
          "max_translation_voxels": 3, "min_depth_voxels": 2, "sigma": 10}
 LEVELS = {"pyramid_levels": 2, "pyramid_min_size": 8}
-
-
-def run_tool(tool, *args):
-    return subprocess.run([str(TOOLS / tool), *args], capture_output=True, text=True)
-
-
-def cli_flags(options):
-    return [f"--{name}={value}" for name, value in options.items()]
 
 
 @pytest.fixture(scope="module")
@@ -107,14 +97,6 @@ def test_registration_finds_the_simulated_poses():
         relative = truth @ world_from_frame0  # the truth in frame 0's world
         assert np.abs(estimate[:3, 3] - relative[:3, 3]).max() < 0.2  # mm
         assert np.abs(estimate[:3, :3] - relative[:3, :3]).max() < 5e-3
-
-
-def error_line(tool, *args):
-    run = run_tool(tool, *args)
-    assert run.returncode == 2, run.stderr
-    lines = [line for line in run.stderr.splitlines() if ": error: " in line]
-    assert len(lines) == 1, run.stderr
-    return lines[0].split(": error: ", 1)[1]
 
 
 @pytest.mark.parametrize("options", [
