@@ -6,6 +6,7 @@
 #   bash bench/accuracy.sh [--seeds=20] [--sources=phantom,mni] [--protocols=paper,wide,walk]
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
 #                          [--uncertainty] [--photometric=none|affine]
+#                          [--intensity_transform=none|sqrt]
 #                          [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
@@ -18,12 +19,14 @@
 # predicted against the measured error (runs go to OUT/runs/INIT-uncertainty).
 # --photometric=affine: per-frame gain and offset estimated with the poses (dsr_compare
 # --photometric; runs go to OUT/runs/INIT-affine, the table to OUT/accuracy_INIT_affine.md).
+# --intensity_transform=sqrt: register sqrt(c I) (dsr_compare --intensity_transform; runs
+# go to OUT/runs/INIT[-affine]-sqrt, the table to OUT/accuracy_INIT[_affine]_sqrt.md).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
-uncertainty="" photometric=none
+uncertainty="" photometric=none transform=none
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -36,14 +39,18 @@ for arg in "$@"; do
     --out=*) out=${arg#*=} ;;
     --uncertainty) uncertainty=--uncertainty ;;
     --photometric=*) photometric=${arg#*=} ;;
+    --intensity_transform=*) transform=${arg#*=} ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
 [[ "$seeds" =~ ^[0-9]+$ && "$seeds" -ge 1 ]] || { echo "accuracy.sh: --seeds=$seeds: must be >= 1" >&2; exit 2; }
 [[ "$photometric" == none || "$photometric" == affine ]] || {
   echo "accuracy.sh: --photometric=$photometric: must be none or affine" >&2; exit 2; }
+[[ "$transform" == none || "$transform" == sqrt ]] || {
+  echo "accuracy.sh: --intensity_transform=$transform: must be none or sqrt" >&2; exit 2; }
 suffix="${uncertainty:+-uncertainty}"
 [[ "$photometric" == affine ]] && suffix="$suffix-affine"
+[[ "$transform" == sqrt ]] && suffix="$suffix-sqrt"
 tools=${DSR_TOOLS:-build/tools}
 if [[ ! -x "$tools/dsr_compare" ]]; then bash scripts/build.sh; fi
 mni=""
@@ -82,7 +89,8 @@ for source in "${source_list[@]}"; do
       mkdir -p "$run"
       echo "accuracy.sh: $source $protocol masks=$mask init=$init ($seeds sequences)" >&2
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
-        --sequence_masks="$use" --init="$init" --photometric="$photometric" $uncertainty \
+        --sequence_masks="$use" --init="$init" --photometric="$photometric" \
+        --intensity_transform="$transform" $uncertainty \
         2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
       csvs+=("$source,$protocol,$mask,$run/results.csv")

@@ -297,6 +297,17 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   return true;
 }
 
+// options.initial_photometric is empty or has one entry per frame; else false with `error`.
+bool InitialPhotometricCountMatches(const DsrOptions& options, size_t num_frames,
+                                    std::string* error) {
+  if (options.initial_photometric.empty() || options.initial_photometric.size() == num_frames) {
+    return true;
+  }
+  *error = "initial photometric parameters: " + std::to_string(options.initial_photometric.size()) +
+           " for " + std::to_string(num_frames) + " frames";
+  return false;
+}
+
 }  // namespace
 
 bool SolveDsr(const std::vector<Frame>& frames,
@@ -305,13 +316,7 @@ bool SolveDsr(const std::vector<Frame>& frames,
               const DsrOptions& options,
               SolveReport* report,
               std::string* error) {
-  if (!options.initial_photometric.empty() &&
-      options.initial_photometric.size() != frames.size()) {
-    *error = "initial photometric parameters: " +
-             std::to_string(options.initial_photometric.size()) + " for " +
-             std::to_string(frames.size()) + " frames";
-    return false;
-  }
+  if (!InitialPhotometricCountMatches(options, frames.size(), error)) return false;
   if (!options.loss.Validate(error)) {
     *error = PrefixFieldPaths("loss", *error);
     return false;
@@ -321,6 +326,42 @@ bool SolveDsr(const std::vector<Frame>& frames,
                      error);
   }
   return SolveReweighted(frames, candidates, initial_frame_from_world, options, report, error);
+}
+
+bool SolvePhotometricAtPoses(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const DsrOptions& options,
+                             SolveReport* report,
+                             std::string* error) {
+  DsrOptions photometric_options = options;
+  photometric_options.photometric = true;
+  photometric_options.loss = RobustLoss();
+  if (!photometric_options.Validate(error)) return false;
+  if (!InitialPhotometricCountMatches(options, frames.size(), error)) return false;
+  DsrProblem dsr(frames, candidates, frame_from_world, photometric_options);
+  for (size_t i = 1; i < frames.size(); ++i) {
+    dsr.problem().SetParameterBlockConstant(dsr.pose_parameters(i));
+  }
+  ceres::Solver::Options solver_options;
+  options.solve.ToCeres(options.reference_cost ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_QR,
+                        &solver_options);
+  if (!options.reference_cost) solver_options.num_threads = 1;  // as SolveOnce
+  ProgressCallback progress(options.solve.progress_prefix + "photometric", options.solve.progress,
+                            options.solve.on_iteration);
+  solver_options.callbacks.push_back(&progress);
+  std::string why;
+  if (!solver_options.IsValid(&why)) {
+    *error = "invalid solver options: " + why;
+    return false;
+  }
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &dsr.problem(), &summary);
+  FillReport(summary, progress, report);
+  report->frame_from_world = frame_from_world;
+  report->photometric = dsr.PhotometricParameters();
+  report->observations_per_iteration = dsr.LastObservations();
+  return true;
 }
 
 }  // namespace dsr

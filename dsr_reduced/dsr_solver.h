@@ -100,6 +100,22 @@ bool SolveDsr(const std::vector<Frame>& frames,
               SolveReport* report,
               std::string* error);
 
+// The gains and offsets that minimise DSR's cost f with photometric parameters at fixed
+// poses (docs/design.md section 2.9): one Ceres solve over the photometric blocks only,
+// the pose blocks constant, from options.initial_photometric (empty: gain 1, offset 0),
+// with the squared loss and without the pose step rule (options.loss and
+// solve.step_tolerance are not used; options.photometric need not be set). The pipeline
+// uses it to state the photometric parameters on the input's grey levels when it
+// registered transformed intensities (model/intensity_transform.h). A solve that ran but
+// is not usable returns true with report->usable = false; report->photometric holds the
+// estimate, report->frame_from_world the given poses.
+bool SolvePhotometricAtPoses(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const DsrOptions& options,
+                             SolveReport* report,
+                             std::string* error);
+
 }  // namespace dsr
 
 #endif  // DSR_DSR_REDUCED_DSR_SOLVER_H_

@@ -421,6 +421,84 @@ TEST(ReducedCost, PhotometricFastPathRecoversSimulatedGains) {
   }
 }
 
+// The gains and offsets at fixed poses (SolvePhotometricAtPoses, what the pipeline states
+// on the input's grey levels after registering transformed intensities): at the truth they
+// are the simulated ones, with the fast path and the per-voxel reference alike, and the
+// poses are left as given; at other poses they minimise the cost in the gains and offsets.
+TEST(ReducedCost, PhotometricAtFixedPosesMinimisesTheCostInGainsAndOffsets) {
+  const Case c{4, 16, 0.0, 1};
+  auto s = MakeSequence(LatticeOptionsFor(c, 131));
+  const double g[] = {1.0, 1.2, 0.85, 1.1}, o[] = {0.0, -7.0, 9.0, 4.0};
+  for (int i = 1; i < c.num_frames; ++i) {
+    Image image = s.images[i];
+    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
+    s.frames[i] = Frame(image, s.masks[i]);
+  }
+  const CandidateSet at_truth = InteriorCandidates(s, s.ground_truth, 1.5);
+  std::string error;
+  for (bool reference : {false, true}) {
+    DsrOptions dsr;
+    dsr.reference_cost = reference;
+    dsr.solve = FixedPointOptions(100);
+    SolveReport report;
+    ASSERT_TRUE(SolvePhotometricAtPoses(s.frames, at_truth, s.ground_truth, dsr, &report, &error))
+        << error;
+    ASSERT_TRUE(report.usable) << report.termination;
+    ASSERT_EQ(report.photometric.size(), 4u);
+    EXPECT_EQ(report.photometric[0].log_gain, 0.0);
+    EXPECT_EQ(report.photometric[0].offset, 0.0);
+    for (int i = 1; i < c.num_frames; ++i) {
+      EXPECT_NEAR(report.photometric[i].gain(), 1.0 / g[i], 1e-6) << i << " " << reference;
+      // Offsets to the float round-off of intensities near 100 (the frames are stored as float).
+      EXPECT_NEAR(report.photometric[i].offset, -o[i] / g[i], 1e-4) << i << " " << reference;
+    }
+    EXPECT_THAT(report.frame_from_world, FramesFromWorldNear(s.ground_truth, 0.0, 0.0));
+  }
+  // At other poses, on generic frames with noise: the fast path and the reference agree,
+  // and the cost's gradient in the photometric parameters vanishes there (the Jacobians of
+  // the gains and offsets are exact: docs/design.md 2.8).
+  auto noisy = MakeSequence(OptionsFor({4, 16, 5.0, 1}, 133));
+  for (int i = 1; i < c.num_frames; ++i) {
+    Image image = noisy.images[i];
+    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
+    noisy.frames[i] = Frame(image, noisy.masks[i]);
+  }
+  const auto poses = Perturbed(noisy.ground_truth, 0.01, 0.3, 134);
+  const CandidateSet cand = InteriorCandidates(noisy, poses, 1.5);
+  std::vector<SolveReport> reports(2);
+  for (int reference = 0; reference < 2; ++reference) {
+    DsrOptions dsr;
+    dsr.reference_cost = reference == 1;
+    dsr.solve = FixedPointOptions(100);
+    ASSERT_TRUE(SolvePhotometricAtPoses(noisy.frames, cand, poses, dsr, &reports[reference],
+                                        &error))
+        << error;
+    ASSERT_TRUE(reports[reference].usable) << reports[reference].termination;
+  }
+  const auto gradient = [&](const std::vector<Photometric>& photometric) {
+    DsrOptions dsr;
+    dsr.reference_cost = true;
+    dsr.photometric = true;
+    dsr.initial_photometric = photometric;
+    DsrProblem problem(noisy.frames, cand, poses, dsr);
+    ceres::Problem::EvaluateOptions evaluate;
+    for (int i = 1; i < c.num_frames; ++i) {
+      evaluate.parameter_blocks.push_back(problem.photometric_parameters(i));
+    }
+    double cost = 0.0;
+    std::vector<double> g;
+    EXPECT_TRUE(problem.problem().Evaluate(evaluate, &cost, nullptr, &g, nullptr));
+    return Eigen::Map<Eigen::VectorXd>(g.data(), static_cast<int>(g.size())).eval();
+  };
+  const Eigen::VectorXd at_start = gradient(std::vector<Photometric>(c.num_frames));
+  const Eigen::VectorXd at_estimate = gradient(reports[1].photometric);
+  EXPECT_LT(at_estimate.norm(), 1e-6 * at_start.norm()) << at_estimate.transpose();
+  for (int i = 1; i < c.num_frames; ++i) {
+    EXPECT_NEAR(reports[0].photometric[i].log_gain, reports[1].photometric[i].log_gain, 1e-9) << i;
+    EXPECT_NEAR(reports[0].photometric[i].offset, reports[1].photometric[i].offset, 1e-7) << i;
+  }
+}
+
 // The photometric reference cost's Jacobians against Ceres's numeric differentiation, on
 // a voxel with three observers, at poses and parameters away from the identity. The frames
 // are a linear ramp, where the gradient volumes' central differences are the exact

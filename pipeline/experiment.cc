@@ -229,6 +229,9 @@ std::string MethodLabel(const RegistrationOptions& options) {
           : options.max_recoveries > 0            ? "+auto"
                                                   : "") +
          (options.photometric == PhotometricModel::kAffine ? "+affine" : "") +
+         (options.intensity_transform == IntensityTransform::kNone
+              ? ""
+              : std::string("+") + IntensityTransformToString(options.intensity_transform)) +
          (options.loss.IsSquared() ? "" : std::string("+") + RobustLossKindName(options.loss.kind));
 }
 

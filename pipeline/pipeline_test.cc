@@ -223,6 +223,79 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
             10.0 * errors.tre_max_mm);
 }
 
+// --intensity_transform=sqrt (model/intensity_transform.h): the solves register sqrt(c I),
+// the result's gains, offsets, misfits and DBA intensities are on the input's grey levels.
+// Noise-free lattice frames seen through gains: T keeps a gain a gain, so the truth is
+// still the minimum, and the gains are found on the input's scale as without the transform.
+TEST(Pipeline, SqrtTransformStatesGainsOnTheInputsGreyLevels) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  testing_problems::SequenceOptions so;
+  so.num_frames = 4;
+  so.size = 20;
+  so.lattice = true;
+  so.seed = 3;
+  const testing_problems::TestSequence s = testing_problems::MakeSequence(so);
+  const double g[] = {1.0, 1.25, 0.8, 1.1};
+  std::vector<Image> images = s.images;
+  for (int i = 0; i < so.num_frames; ++i) {
+    for (float& v : images[i].voxels) {
+      ASSERT_GE(v, 0.0f);  // the square root's domain
+      v = static_cast<float>(g[i] * v);
+    }
+  }
+  const std::vector<Eigen::Isometry3d> start =
+      testing_problems::Perturbed(s.ground_truth, 0.03, 1.0, 7);
+  for (const std::string mode : {"dsr", "dba"}) {
+    RegistrationOptions o = Options(mode);
+    o.photometric = PhotometricModel::kAffine;
+    o.intensity_transform = IntensityTransform::kSqrt;
+    o.max_misfit_ratio = 0.0;  // at the exact minimum the misfits are round-off
+    RegistrationResult result;
+    std::string error;
+    ASSERT_TRUE(Register(images, s.masks, start, o, &result, &error)) << error;
+    ASSERT_TRUE(result.usable) << result.failure;
+    EXPECT_EQ(result.intensity_transform, IntensityTransform::kSqrt);
+    EXPECT_EQ(result.intensity_transform_scale, IntensityTransformScale(images, s.masks));
+    EXPECT_LT(ComparePoses(result.frame_from_world, s.ground_truth, s.masks).tre_max_mm, 0.02)
+        << mode;
+    ASSERT_EQ(result.photometric.size(), 4u);
+    for (int i = 1; i < so.num_frames; ++i) {
+      EXPECT_NEAR(result.photometric[i].gain(), 1.0 / g[i], 1e-4 / g[i]) << mode << " " << i;
+      EXPECT_NEAR(result.photometric[i].offset, 0.0, 0.01) << mode << " " << i;
+    }
+    // Misfits of the corrected input intensities: round-off, not the transform's scale.
+    ASSERT_EQ(result.frame_misfits.size(), 4u);
+    for (double misfit : result.frame_misfits) EXPECT_LT(misfit, 1e-3) << mode;
+    if (mode == "dba") {
+      // DBA's panorama intensities on the input's scale: those of the run without the
+      // transform, to what the stopping rule leaves of the poses (0.005 voxels of motion on
+      // gradients of up to ~30 grey levels per voxel); on T's scale they would be tens of
+      // grey levels off (T(100) = 10 sqrt(c)).
+      RegistrationOptions plain = o;
+      plain.intensity_transform = IntensityTransform::kNone;
+      RegistrationResult reference;
+      ASSERT_TRUE(Register(images, s.masks, start, plain, &reference, &error)) << error;
+      ASSERT_EQ(result.dba_intensities.voxels.size(), reference.dba_intensities.voxels.size());
+      double largest = 0.0;
+      for (size_t v = 0; v < reference.dba_intensities.voxels.size(); ++v) {
+        largest = std::max(largest, std::abs(double{result.dba_intensities.voxels[v]} -
+                                             reference.dba_intensities.voxels[v]));
+      }
+      EXPECT_LT(largest, 0.5);
+    }
+  }
+  // A negative intensity inside a mask is refused, naming the frame and the field.
+  images[2].voxels[images[2].geometry.LinearIndex(10, 10, 10)] = -1.0f;
+  RegistrationOptions o = Options("dsr");
+  o.intensity_transform = IntensityTransform::kSqrt;
+  RegistrationResult result;
+  std::string error;
+  EXPECT_FALSE(Register(images, s.masks, start, o, &result, &error));
+  EXPECT_EQ(error.rfind("frame 2 has a negative intensity (-1) at voxel (10,10,10)", 0), 0u)
+      << error;
+  EXPECT_NE(error.find("intensity_transform=sqrt"), std::string::npos) << error;
+}
+
 TEST(Pipeline, DsrDenseSolversGiveTheSamePoses) {
   SequenceSetup setup;
   setup.num_frames = 4;

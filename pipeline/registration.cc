@@ -7,12 +7,16 @@
 
 #include <glog/logging.h>
 
+#include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/image/pyramid.h"
 #include "dsr/init/pair_graph.h"
 #include "dsr/init/recovery.h"
+#include "dsr/model/panorama.h"
 #include "dsr/pipeline/coarse_to_fine.h"
 #include "dsr/pipeline/input_checks.h"
 #include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {
@@ -193,6 +197,7 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.init = InitialPoses::kGiven;
   init_options.max_recoveries = 0;
   init_options.photometric = PhotometricModel::kNone;  // a baseline's run
+  init_options.intensity_transform = IntensityTransform::kNone;  // `images` already are T(I)
   // The initial poses are judged by this run's own checks of its final poses.
   init_options.min_kept_overlap = 0.0;
   init_options.max_misfit_ratio = 0.0;
@@ -371,6 +376,94 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
 
 }  // namespace
 
+namespace {
+
+// Register on intensities `images` (the input's, or their transform): those far from a
+// usual scale are brought to it by a power of two (pipeline/input_checks.h); the reported
+// costs are scaled back at the end.
+bool RegisterOnUsualScale(const std::vector<Image>& images,
+                          const std::vector<Mask>& masks,
+                          const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                          const RegistrationOptions& options,
+                          std::chrono::steady_clock::time_point start,
+                          RegistrationResult* result,
+                          std::string* error) {
+  const int exponent = IntensityScaleExponent(IntensitySpread(images, masks));
+  if (exponent == 0) {
+    return RegisterScaled(images, masks, initial_frame_from_world, options, start, result, error);
+  }
+  LOG(INFO) << "intensities scaled by 2^" << exponent
+            << " for the solves (their spread is far from a usual scale); the costs printed "
+               "during the solves are in those units";
+  std::vector<Image> scaled = images;
+  for (Image& image : scaled) {
+    for (float& v : image.voxels) v = std::ldexp(v, exponent);
+  }
+  // The loss's scale is in grey levels: it follows the intensities.
+  RegistrationOptions scaled_options = options;
+  scaled_options.loss.scale = std::ldexp(options.loss.scale, exponent);
+  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, start, result,
+                      error)) {
+    return false;
+  }
+  UnscaleResult(exponent, result);
+  return true;
+}
+
+// After registering transformed intensities: the result's photometric parameters and
+// misfits on the input's grey levels, at the final poses, on the finest level of the
+// input (RegistrationOptions::intensity_transform), and DBA's intensities mapped back.
+// When no panorama holds the final poses (a registration that diverged), the photometric
+// parameters and misfits are dropped rather than left on the transform's scale.
+bool ResultOnInputIntensities(const std::vector<Image>& input_images,
+                              const std::vector<Mask>& masks,
+                              const RegistrationOptions& options,
+                              RegistrationResult* result,
+                              std::string* error) {
+  const double c = result->intensity_transform_scale;
+  for (float& v : result->dba_intensities.voxels) {
+    v = c > 0.0 ? static_cast<float>(InverseIntensity(std::max(0.0f, v), c)) : 0.0f;
+  }
+  if (result->photometric.empty() && result->frame_misfits.empty()) return true;
+  const int m = static_cast<int>(input_images.size());
+  std::vector<Frame> frames(m);
+  ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
+    const std::vector<ImageLevel> finest =
+        BuildPyramid(input_images[i], masks[i], 1, options.pyramid_sigma, options.smoothing,
+                     options.pyramid_min_size, /*num_threads=*/1);
+    frames[i] = finest[0].image.empty() ? Frame(input_images[i], masks[i])
+                                        : Frame(finest[0].image, finest[0].mask);
+  });
+  const std::vector<Eigen::Isometry3d>& poses = result->frame_from_world;
+  ImageGeometry grid;
+  std::string grid_error;
+  if (poses.size() != input_images.size() ||
+      !BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, &grid_error)) {
+    result->photometric.clear();
+    result->frame_misfits.clear();
+    return true;
+  }
+  const CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
+  if (!result->photometric.empty()) {
+    DsrOptions dsr = ToDsrOptions(options, options.solve);
+    dsr.solve.progress_prefix += "input's grey levels ";
+    SolveReport report;
+    if (!SolvePhotometricAtPoses(frames, candidates, poses, dsr, &report, error)) return false;
+    result->photometric = report.photometric;
+    if (!report.usable && result->usable) {
+      result->usable = false;
+      result->failure = "the gains and offsets on the input's grey levels: " + report.termination;
+    }
+  }
+  if (!result->frame_misfits.empty()) {
+    result->frame_misfits = FrameMisfits(frames, candidates, poses,
+                                         StreamContextFor(options.solve), result->photometric);
+  }
+  return true;
+}
+
+}  // namespace
+
 bool Register(const std::vector<Image>& input_images,
               const std::vector<Mask>& masks,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
@@ -394,28 +487,25 @@ bool Register(const std::vector<Image>& input_images,
     return false;
   }
   *result = RegistrationResult();
-  // Intensities far from a usual scale are brought to it by a power of two
-  // (pipeline/input_checks.h); the reported costs are scaled back at the end.
-  const int exponent = IntensityScaleExponent(IntensitySpread(input_images, masks));
-  if (exponent == 0) {
-    return RegisterScaled(input_images, masks, initial_frame_from_world, options, start, result,
-                          error);
+  if (options.intensity_transform == IntensityTransform::kNone) {
+    return RegisterOnUsualScale(input_images, masks, initial_frame_from_world, options, start,
+                                result, error);
   }
-  LOG(INFO) << "intensities scaled by 2^" << exponent
-            << " for the solves (their spread is far from a usual scale); the costs printed "
-               "during the solves are in those units";
-  std::vector<Image> scaled = input_images;
-  for (Image& image : scaled) {
-    for (float& v : image.voxels) v = std::ldexp(v, exponent);
-  }
-  // The loss's scale is in grey levels: it follows the intensities.
-  RegistrationOptions scaled_options = options;
-  scaled_options.loss.scale = std::ldexp(options.loss.scale, exponent);
-  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, start, result,
-                      error)) {
+  const double c = IntensityTransformScale(input_images, masks);
+  std::vector<Image> transformed;
+  if (!ApplyIntensityTransform(input_images, masks, options.intensity_transform, c,
+                               &transformed, error)) {
     return false;
   }
-  UnscaleResult(exponent, result);
+  if (!RegisterOnUsualScale(transformed, masks, initial_frame_from_world, options, start, result,
+                            error)) {
+    return false;
+  }
+  transformed = std::vector<Image>();  // freed before the input's frames are built
+  result->intensity_transform = options.intensity_transform;
+  result->intensity_transform_scale = c;
+  if (!ResultOnInputIntensities(input_images, masks, options, result, error)) return false;
+  result->seconds = SecondsSince(start);
   return true;
 }
 

@@ -25,6 +25,7 @@
 #include "dsr/image/frame.h"
 #include "dsr/init/placement_search.h"
 #include "dsr/init/recovery.h"
+#include "dsr/model/intensity_transform.h"
 #include "dsr/model/observation.h"
 #include "dsr/model/photometric.h"
 #include "dsr/model/robust_loss.h"
@@ -140,6 +141,18 @@ struct RegistrationOptions {
   // kNone; the tools' is kDefaultPhotometricModel.
   PhotometricModel photometric = PhotometricModel::kNone;
 
+  // The intensities the solves register (model/intensity_transform.h; docs/design.md
+  // section 2.9): the input's (kNone, default), or T(I) = sqrt(c I) for linear-envelope
+  // ultrasound, whose speckle multiplies the intensity (a variance-stabilising transform;
+  // it needs intensities >= 0 inside the masks). Every stage (start, solves, checks,
+  // recovery, uncertainty) then works on T(I): the solves' costs, loss.scale and
+  // uncertainty.noise_sigma are on T's scale. The result's photometric parameters, misfits
+  // and DBA intensities are on the input's grey levels: with photometric kAffine the gains
+  // and offsets are estimated again on the input's intensities at the final poses
+  // (SolvePhotometricAtPoses), which is what fusion needs; T keeps a gain a gain but not an
+  // offset an offset, so the solves' own model of offsets is an approximation.
+  IntensityTransform intensity_transform = IntensityTransform::kNone;
+
   // The loss of the intensity differences (modes dsr and dba; model/robust_loss.h):
   // squared (default), or huber / cauchy with a scale in the input's grey levels, for
   // outliers such as shadows and reverberation. DBA applies it through Ceres; DSR by
@@ -217,6 +230,10 @@ struct RegistrationResult {
   // covariance is empty when not estimated, with the reason in uncertainty_note.
   PoseUncertainty uncertainty;
   std::string uncertainty_note;
+  // The intensity transform the solves registered (RegistrationOptions) and its constant
+  // c (0 without).
+  IntensityTransform intensity_transform = IntensityTransform::kNone;
+  double intensity_transform_scale = 0.0;
   // The last solve's panorama grid and, for --mode=dba, its optimised intensities on that
   // grid (0 at voxels that are not candidates); empty for other modes.
   ImageGeometry grid;

@@ -307,7 +307,14 @@ std::string ReportIndex(const ReportInputs& in, const std::string& pair_picture)
   std::ostringstream md;
   md << "# Registration report\n\n"
      << "Mode `" << in.mode << "`, " << m << " frames, " << r.total_iterations
-     << " iterations in " << r.solves.size() << " solves, " << r.seconds << " s.\n\n"
+     << " iterations in " << r.solves.size() << " solves, " << r.seconds << " s.\n\n";
+  if (r.intensity_transform != IntensityTransform::kNone) {
+    md << "Registered on " << IntensityTransformToString(r.intensity_transform) << "(c I), c = "
+       << r.intensity_transform_scale
+       << " (intensity_transform): the convergence plot's costs are on that scale; gains, "
+          "offsets and pictures are on the input's grey levels.\n\n";
+  }
+  md
      << "## Panorama with fields of view\n\n![panorama slices](panorama_slices.png)\n\n"
      << "Outlined: the field of view of each listed frame, in its colour.\n\n"
      << "## Frames " << in.pair_a << " and " << in.pair_b << ", before and after\n\n![pair]("

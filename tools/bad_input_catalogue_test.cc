@@ -33,8 +33,9 @@ struct MhaOptions {
   std::string offset = "0 0 0";
   std::string channels;  // ElementNumberOfChannels, empty = not written
   int count = 16 * 16 * 16;
-  float special = 0.0f;   // written into voxel 100 when non-zero (NaN, Inf)
+  float special = 0.0f;   // written into voxel special_voxel when use_special (NaN, Inf)
   bool use_special = false;
+  int special_voxel = 100;
 };
 
 // A MetaImage with inline float data: a textured cube (values 1..), so it is a valid frame
@@ -50,7 +51,7 @@ void WriteMha(const fs::path& path, const MhaOptions& o) {
   const int channels = o.channels.empty() ? 1 : std::stoi(o.channels);
   std::vector<float> data(static_cast<size_t>(o.count) * channels);
   for (size_t v = 0; v < data.size(); ++v) data[v] = 1.0f + static_cast<float>((v * 37) % 101);
-  if (o.use_special) data[100] = o.special;
+  if (o.use_special) data[o.special_voxel] = o.special;
   out.write(reinterpret_cast<const char*>(data.data()), data.size() * sizeof(float));
 }
 
@@ -114,6 +115,9 @@ class BadInputCatalogue : public ::testing::Test {
     WriteMha(In("nan.mha"), o);
     o.special = std::numeric_limits<float>::infinity();
     WriteMha(In("inf.mha"), o);
+    o.special = -5.0f;  // a negative intensity inside, refused by --intensity_transform=sqrt
+    o.special_voxel = 8 + 16 * (8 + 16 * 8);
+    WriteMha(In("negative.mha"), o);
     // A mask of another size, and a mask with no inside voxel on frame_00's grid.
     o = MhaOptions();
     WriteMha(In("mask_other_size.mha"), o);
@@ -280,6 +284,10 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --init=no_such_start", "no_such_start");
   Register(base + " --smoothing=1e6", "--smoothing");
   Register(base + " --panorama_spacing=1e300", "--panorama_spacing");
+  Register(base + " --intensity_transform=log", "--intensity_transform=log: must be none or sqrt");
+  Register("--images=" + In("good.mha") + "," + In("negative.mha") + " --intensity_transform=sqrt",
+           "negative.mha: frame 1 has a negative intensity (-5) at voxel (8,8,8) inside its mask: "
+           "--intensity_transform=sqrt needs intensities >= 0");
 }
 
 TEST_F(BadInputCatalogue, OutputPaths) {

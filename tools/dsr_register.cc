@@ -338,6 +338,12 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
               seconds, load_seconds, result.pyramid_seconds,
               result.seconds - result.pyramid_seconds,
               static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
+  if (result.intensity_transform != dsr::IntensityTransform::kNone) {
+    std::printf("dsr_register: registered %s(c I), c = %g (--intensity_transform): the cost "
+                "above is on that scale, gains, offsets and images on the input's\n",
+                dsr::IntensityTransformToString(result.intensity_transform),
+                result.intensity_transform_scale);
+  }
   if (!result.photometric.empty()) {
     std::printf("dsr_register: %s\n",
                 PhotometricSummary(result.photometric, FLAGS_gt_poses.empty() ? nullptr : &gt)

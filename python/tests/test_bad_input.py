@@ -11,7 +11,8 @@ import dsr
 from cli import cli_flags, error_line, run_tool
 
 def write_mha(path, ndims="3", size="16 16 16", spacing="1 1 1", matrix="1 0 0 0 1 0 0 0 1",
-              offset="0 0 0", channels=None, count=16 * 16 * 16, special=None):
+              offset="0 0 0", channels=None, count=16 * 16 * 16, special=None,
+              special_voxel=100):
     """A MetaImage with inline float data: a textured cube, valid apart from what the
     arguments break."""
     header = (f"ObjectType = Image\nNDims = {ndims}\nBinaryData = True\n"
@@ -23,7 +24,7 @@ def write_mha(path, ndims="3", size="16 16 16", spacing="1 1 1", matrix="1 0 0 0
     header += "ElementType = MET_FLOAT\nElementDataFile = LOCAL\n"
     data = 1.0 + ((np.arange(count * (channels or 1)) * 37) % 101).astype(np.float32)
     if special is not None:
-        data[100] = special
+        data[special_voxel] = special
     path.write_bytes(header.encode() + data.astype("<f4").tobytes())
 
 
@@ -53,6 +54,7 @@ def inputs(tmp_path_factory):
     write_mha(d / "huge_spacing.mha", spacing="1e9 1e9 1e9")
     write_mha(d / "nan.mha", special=math.nan)
     write_mha(d / "inf.mha", special=math.inf)
+    write_mha(d / "negative.mha", special=-5.0, special_voxel=8 + 16 * (8 + 16 * 8))
     write_mha(d / "mask_other_size.mha")
     frame0 = dsr.read_image(d / "frame_00.nii.gz")
     zero = dsr.Image(np.zeros_like(frame0.array), frame0.spacing, frame0.origin,
@@ -147,6 +149,8 @@ REGISTER = [
     (FRAMES, MASKS, {"search_rotation_deg": 200}),
     (FRAMES, MASKS, {"search_max_axis": 4}),
     (FRAMES, MASKS, {"smoothing": 1e6}),
+    (FRAMES, MASKS, {"intensity_transform": "log"}),
+    (["good.mha", "negative.mha"], None, {"intensity_transform": "sqrt"}),
 ]
 
 

@@ -44,6 +44,7 @@ DECLARE_int32(max_recoveries);
 DECLARE_string(loss);
 DECLARE_double(loss_scale);
 DECLARE_string(photometric);
+DECLARE_string(intensity_transform);
 DECLARE_double(search_rotation_deg);
 DECLARE_int32(search_rotations);
 DECLARE_int32(search_pair_rotations);

@@ -36,6 +36,16 @@ DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometri
               "check compares them, and --uncertainty is not estimated; dsr_compare names "
               "the rows METHOD+affine and adds the mean absolute gain and offset errors "
               "(mae_gain, mae_offset) when the ground truth has them.");
+DEFINE_string(intensity_transform, "none",
+              "Intensities the registration works on (docs/design.md section 2.9): none, or "
+              "sqrt: sqrt(c I), c the largest intensity inside the masks, a variance-"
+              "stabilising transform for linear-envelope ultrasound, whose speckle multiplies "
+              "the intensity (log-compressed B-mode does not need it). Needs intensities >= 0 "
+              "inside the masks. The solves' costs and --loss_scale are then on the "
+              "transform's scale; gains, offsets, misfits, the panorama and every output image "
+              "stay on the input's grey levels (with --photometric=affine the gains and offsets "
+              "are estimated again on them at the final poses). dsr_compare names the rows "
+              "METHOD+sqrt.");
 DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
               "within this angle of frame 0's orientation, in (0, 180].");
 DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
@@ -105,6 +115,11 @@ bool ValidatePhotometric(const char* flag, const std::string& v) {
   return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
                         "must be none or affine");
 }
+bool ValidateIntensityTransform(const char* flag, const std::string& v) {
+  dsr::IntensityTransform transform;
+  return dsr::CheckFlag(dsr::StringToIntensityTransform(v, &transform), flag, v,
+                        "must be none or sqrt");
+}
 bool ValidateLinearSolver(const char* flag, const std::string& v) {
   ceres::LinearSolverType type;
   return dsr::CheckFlag(v.empty() || ceres::StringToLinearSolverType(v, &type), flag, v,
@@ -128,6 +143,7 @@ bool ValidateMemoryBudget(const char* flag, double v) {
 }
 }  // namespace
 DEFINE_validator(photometric, &ValidatePhotometric);
+DEFINE_validator(intensity_transform, &ValidateIntensityTransform);
 DEFINE_validator(linear_solver, &ValidateLinearSolver);
 DEFINE_validator(trust_region, &ValidateTrustRegion);
 DEFINE_validator(kernels, &ValidateKernels);
@@ -179,6 +195,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   options->dsr.reference_cost = FLAGS_reference_cost;
   options->dba.memory_budget_mb = FLAGS_memory_budget_mb;
   options->uncertainty = FLAGS_uncertainty;
+  StringToIntensityTransform(FLAGS_intensity_transform, &options->intensity_transform);  // validated
   if (!MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options->loss, error)) return false;
   init_file->clear();
   if (!SetInitialisation(FLAGS_init, FLAGS_max_recoveries, options)) *init_file = FLAGS_init;

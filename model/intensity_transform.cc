@@ -1,0 +1,60 @@
+#include "dsr/model/intensity_transform.h"
+
+#include <algorithm>
+#include <sstream>
+
+namespace dsr {
+
+bool StringToIntensityTransform(const std::string& name, IntensityTransform* transform) {
+  for (IntensityTransform t : {IntensityTransform::kNone, IntensityTransform::kSqrt}) {
+    if (name == IntensityTransformToString(t)) {
+      *transform = t;
+      return true;
+    }
+  }
+  return false;
+}
+
+double IntensityTransformScale(const std::vector<Image>& images, const std::vector<Mask>& masks) {
+  double scale = 0.0;
+  for (size_t i = 0; i < images.size(); ++i) {
+    for (size_t l = 0; l < images[i].voxels.size(); ++l) {
+      if (masks[i].voxels[l] != 0) scale = std::max(scale, double{images[i].voxels[l]});
+    }
+  }
+  return scale;
+}
+
+bool ApplyIntensityTransform(const std::vector<Image>& images,
+                             const std::vector<Mask>& masks,
+                             IntensityTransform transform,
+                             double scale,
+                             std::vector<Image>* transformed,
+                             std::string* error) {
+  *transformed = images;
+  if (transform == IntensityTransform::kNone) return true;
+  for (size_t i = 0; i < images.size(); ++i) {
+    const Image& image = images[i];
+    for (size_t l = 0; l < image.voxels.size(); ++l) {
+      if (masks[i].voxels[l] == 0 || image.voxels[l] >= 0.0f) continue;
+      const int64_t nx = image.geometry.size[0];
+      const int64_t nxy = nx * image.geometry.size[1];
+      const int64_t v = static_cast<int64_t>(l);
+      std::ostringstream s;
+      s << "frame " << i << " has a negative intensity (" << image.voxels[l] << ") at voxel ("
+        << v % nx << "," << (v % nxy) / nx << "," << v / nxy
+        << ") inside its mask: intensity_transform=" << IntensityTransformToString(transform)
+        << " needs intensities >= 0";
+      *error = s.str();
+      return false;
+    }
+  }
+  for (Image& image : *transformed) {
+    for (float& v : image.voxels) {
+      v = static_cast<float>(ForwardIntensity(std::max(0.0, double{v}), scale));
+    }
+  }
+  return true;
+}
+
+}  // namespace dsr
