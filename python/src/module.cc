@@ -215,6 +215,11 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
     recoveries.append(FieldPathsAsFlags(r.why));
   }
   s["recovery_reasons"] = recoveries;
+  if (result.intensity_transform != IntensityTransform::kNone) {
+    // The final cost above is on the transform's scale (docs/design.md 2.9).
+    s["intensity_transform"] = IntensityTransformToString(result.intensity_transform);
+    s["intensity_transform_scale"] = result.intensity_transform_scale;
+  }
   if (options.uncertainty) {
     s["uncertainty"] = FieldPathsAsFlags(UncertaintySummary(result.uncertainty,
                                                             result.uncertainty_note));

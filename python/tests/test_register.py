@@ -47,6 +47,26 @@ def test_register_from_files_writes_the_clis_poses_file_bit_for_bit(sequence, tm
     assert np.array_equal(result.poses[0], np.eye(4))
 
 
+def test_intensity_transform_gives_the_clis_poses_and_gains(sequence, tmp_path):
+    """--intensity_transform=sqrt with --photometric=affine: the same poses file (gains and
+    offsets on the input's grey levels) and the transform in the summary."""
+    options = {**LEVELS, "intensity_transform": "sqrt", "photometric": "affine"}
+    cli_poses = tmp_path / "cli.json"
+    run = run_tool("dsr_register", "--images=" + ",".join(files(sequence, "frame")),
+                   "--masks=" + ",".join(files(sequence, "mask")), f"--out_poses={cli_poses}",
+                   "--progress=false", *cli_flags(options))
+    assert run.returncode == 0, run.stderr
+    assert "registered sqrt(c I)" in run.stdout
+    result = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **options)
+    result.save(tmp_path / "python.json")
+    assert (tmp_path / "python.json").read_bytes() == cli_poses.read_bytes()
+    assert result.summary["intensity_transform"] == "sqrt"
+    assert result.summary["intensity_transform_scale"] > 0
+    assert len(result.gain) == 3 and result.gain[0] == 1.0
+    # No brightness change was simulated: the gains on the input's scale are near 1.
+    assert all(abs(g - 1.0) < 0.05 for g in result.gain)
+
+
 def test_arrays_register_as_their_files_do(sequence):
     from_files = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
     images = [dsr.read_image(p) for p in files(sequence, "frame")]
