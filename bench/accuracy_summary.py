@@ -20,7 +20,9 @@ covariance is calibrated; docs/design.md section 8.6), and the spread of the per
 ratio measured / predicted TRE (its range, and how many sequences exceed 1.2).
 With several methods on the same sequences a head-to-head table compares the first method
 with each other one on the sequences where both succeed: on how many the first is more
-accurate, and the median and largest per-sequence TRE ratio first / other.
+accurate, and the median and largest per-sequence TRE ratio first / other. Arguments with the
+same SOURCE,PROTOCOL,MASKS add their methods to one group, so that runs of other tools on the
+same sequences compare too (e.g. dsr's results.csv, then bench/elastix.sh's).
 """
 import csv
 import statistics
@@ -62,7 +64,8 @@ def main(argv):
         by_method = {}
         for r in rows:
             by_method.setdefault(r["method"], []).append(r)
-        by_group[(source, protocol, masks)] = by_method
+        for method, runs in by_method.items():
+            by_group.setdefault((source, protocol, masks), {}).setdefault(method, []).extend(runs)
         threshold = success_mm(protocol)
         for method, runs in by_method.items():
             ok = [r for r in runs if r["ok"] == "1" and float(r["tre_mean_mm"]) < threshold]
@@ -95,6 +98,8 @@ def main(argv):
                     f"{statistics.mean(nees) / 6.0:.2f} | "
                     f"{min(ratios):.2f}-{max(ratios):.2f} | "
                     f"{sum(r > 1.2 for r in ratios)}/{len(ratios)} |")
+    for (source, protocol, masks), by_method in by_group.items():
+        threshold = success_mm(protocol)
         methods = list(by_method)
         succeeded = {m: {r["sequence"]: float(r["tre_mean_mm"]) for r in by_method[m]
                          if r["ok"] == "1" and float(r["tre_mean_mm"]) < threshold}

@@ -148,6 +148,35 @@ std::vector<Eigen::Isometry3d> DsrProblem::Poses() const {
 
 namespace {
 
+// Runs Ceres on `dsr` with options.solve's settings and fills the report's solver fields
+// (FillReport). The fast path's chunk costs thread internally over fixed voxel blocks
+// (deterministic), so Ceres itself evaluates the few chunks one after another. `stop` (may
+// be null) is the pose step rule.
+bool RunCeres(const DsrOptions& options,
+              const std::string& label,
+              PoseStepCallback* stop,
+              DsrProblem* dsr,
+              SolveReport* report,
+              std::string* error) {
+  ceres::Solver::Options solver_options;
+  options.solve.ToCeres(options.reference_cost ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_QR,
+                        &solver_options);
+  if (!options.reference_cost) solver_options.num_threads = 1;
+  ProgressCallback progress(options.solve.progress_prefix + label, options.solve.progress,
+                            options.solve.on_iteration);
+  solver_options.callbacks.push_back(&progress);
+  if (stop != nullptr) stop->AddTo(&solver_options);
+  std::string why;
+  if (!solver_options.IsValid(&why)) {
+    *error = "invalid solver options: " + why;
+    return false;
+  }
+  ceres::Solver::Summary summary;
+  ceres::Solve(solver_options, &dsr->problem(), &summary);
+  FillReport(summary, progress, report);
+  return true;
+}
+
 // One Ceres solve of f (weights null) or of f_w.
 bool SolveOnce(const std::vector<Frame>& frames,
                const CandidateSet& candidates,
@@ -160,31 +189,14 @@ bool SolveOnce(const std::vector<Frame>& frames,
   // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
   // it is set for this solve only (stream/streamed_cost.h).
   dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
-  ceres::Solver::Options solver_options;
-  options.solve.ToCeres(options.reference_cost ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_QR,
-                        &solver_options);
-  if (!options.reference_cost) {
-    // The chunk costs thread internally over fixed voxel blocks (deterministic); Ceres
-    // itself evaluates the few chunks one after another.
-    solver_options.num_threads = 1;
-  }
-  ProgressCallback progress(
-      options.solve.progress_prefix + (options.reference_cost ? "dsr-ref" : "dsr"),
-      options.solve.progress, options.solve.on_iteration);
-  solver_options.callbacks.push_back(&progress);
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
   for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
-  stop.AddTo(&solver_options);
-  std::string why;
-  if (!solver_options.IsValid(&why)) {
-    *error = "invalid solver options: " + why;
+  if (!RunCeres(options, options.reference_cost ? "dsr-ref" : "dsr", &stop, &dsr, report,
+                error)) {
     return false;
   }
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver_options, &dsr.problem(), &summary);
-  FillReport(summary, progress, report);
   if (!stop.reason().empty()) report->termination = stop.reason();
   report->frame_from_world = dsr.Poses();
   report->photometric = dsr.PhotometricParameters();
@@ -343,21 +355,7 @@ bool SolvePhotometricAtPoses(const std::vector<Frame>& frames,
   for (size_t i = 1; i < frames.size(); ++i) {
     dsr.problem().SetParameterBlockConstant(dsr.pose_parameters(i));
   }
-  ceres::Solver::Options solver_options;
-  options.solve.ToCeres(options.reference_cost ? ceres::SPARSE_NORMAL_CHOLESKY : ceres::DENSE_QR,
-                        &solver_options);
-  if (!options.reference_cost) solver_options.num_threads = 1;  // as SolveOnce
-  ProgressCallback progress(options.solve.progress_prefix + "photometric", options.solve.progress,
-                            options.solve.on_iteration);
-  solver_options.callbacks.push_back(&progress);
-  std::string why;
-  if (!solver_options.IsValid(&why)) {
-    *error = "invalid solver options: " + why;
-    return false;
-  }
-  ceres::Solver::Summary summary;
-  ceres::Solve(solver_options, &dsr.problem(), &summary);
-  FillReport(summary, progress, report);
+  if (!RunCeres(options, "photometric", nullptr, &dsr, report, error)) return false;
   report->frame_from_world = frame_from_world;
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();
