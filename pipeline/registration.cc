@@ -296,11 +296,12 @@ bool Recover(const std::vector<Frame>& search_frames,
 
 // Register on intensities already brought to a usual scale (see Register): the start
 // (given, pairwise or global), then rounds of coarse-to-fine solves with a recovery
-// between them.
+// between them. `search_images` (null: `images`) are what the search level is built from.
 bool RegisterScaled(const std::vector<Image>& images,
                     const std::vector<Mask>& masks,
                     const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
                     const RegistrationOptions& options,
+                    const std::vector<Image>* search_images,
                     std::chrono::steady_clock::time_point start,
                     RegistrationResult* result,
                     std::string* error) {
@@ -328,8 +329,17 @@ bool RegisterScaled(const std::vector<Image>& images,
     return false;
   }
   // The coarse search level: of the global search, recovery and the pair check (built
-  // before any solve releases the coarsest level; small).
-  const std::vector<Frame> search_frames = SearchFrames(images, masks, pyramids, options);
+  // before any solve releases the coarsest level; small). With an intensity transform, of
+  // the input's intensities: NCC ignores gains and offsets but not the transform, which
+  // weighs the dark tissue's noise more and put phantom pairs of the ultrasound-like
+  // protocol over the pair check's limit (docs/design.md 2.9).
+  std::vector<Frame> search_frames;
+  if (search_images == nullptr) {
+    search_frames = SearchFrames(images, masks, pyramids, options);
+  } else {
+    search_frames = SearchFrames(*search_images, masks,
+                                 BuildPyramids(*search_images, masks, options), options);
+  }
   RecoveryState recovery;
   recovery.misfit_exempt.assign(m, false);
   recovery.global_used = options.init == InitialPoses::kGlobal;
@@ -380,17 +390,19 @@ namespace {
 
 // Register on intensities `images` (the input's, or their transform): those far from a
 // usual scale are brought to it by a power of two (pipeline/input_checks.h); the reported
-// costs are scaled back at the end.
+// costs are scaled back at the end. `search_images`: as RegisterScaled's.
 bool RegisterOnUsualScale(const std::vector<Image>& images,
                           const std::vector<Mask>& masks,
                           const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
                           const RegistrationOptions& options,
+                          const std::vector<Image>* search_images,
                           std::chrono::steady_clock::time_point start,
                           RegistrationResult* result,
                           std::string* error) {
   const int exponent = IntensityScaleExponent(IntensitySpread(images, masks));
   if (exponent == 0) {
-    return RegisterScaled(images, masks, initial_frame_from_world, options, start, result, error);
+    return RegisterScaled(images, masks, initial_frame_from_world, options, search_images, start,
+                          result, error);
   }
   LOG(INFO) << "intensities scaled by 2^" << exponent
             << " for the solves (their spread is far from a usual scale); the costs printed "
@@ -402,8 +414,8 @@ bool RegisterOnUsualScale(const std::vector<Image>& images,
   // The loss's scale is in grey levels: it follows the intensities.
   RegistrationOptions scaled_options = options;
   scaled_options.loss.scale = std::ldexp(options.loss.scale, exponent);
-  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, start, result,
-                      error)) {
+  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, search_images,
+                      start, result, error)) {
     return false;
   }
   UnscaleResult(exponent, result);
@@ -488,8 +500,8 @@ bool Register(const std::vector<Image>& input_images,
   }
   *result = RegistrationResult();
   if (options.intensity_transform == IntensityTransform::kNone) {
-    return RegisterOnUsualScale(input_images, masks, initial_frame_from_world, options, start,
-                                result, error);
+    return RegisterOnUsualScale(input_images, masks, initial_frame_from_world, options, nullptr,
+                                start, result, error);
   }
   const double c = IntensityTransformScale(input_images, masks);
   std::vector<Image> transformed;
@@ -497,8 +509,8 @@ bool Register(const std::vector<Image>& input_images,
                                &transformed, error)) {
     return false;
   }
-  if (!RegisterOnUsualScale(transformed, masks, initial_frame_from_world, options, start, result,
-                            error)) {
+  if (!RegisterOnUsualScale(transformed, masks, initial_frame_from_world, options, &input_images,
+                            start, result, error)) {
     return false;
   }
   transformed = std::vector<Image>();  // freed before the input's frames are built
