@@ -144,9 +144,10 @@ struct RegistrationOptions {
   // The intensities the solves register (model/intensity_transform.h; docs/design.md
   // section 2.9): the input's (kNone, default), or T(I) = sqrt(c I) for linear-envelope
   // ultrasound, whose speckle multiplies the intensity (a variance-stabilising transform;
-  // it needs intensities >= 0 inside the masks). Every stage (start, solves, checks,
-  // recovery, uncertainty) then works on T(I): the solves' costs, loss.scale and
-  // uncertainty.noise_sigma are on T's scale. The result's photometric parameters, misfits
+  // it needs intensities >= 0 inside the masks). The solves, the misfit check and the
+  // uncertainty then work on T(I): the solves' costs, loss.scale and
+  // uncertainty.noise_sigma are on T's scale; the search level (global search, recovery,
+  // pair check) stays on the input's intensities. The result's photometric parameters, misfits
   // and DBA intensities are on the input's grey levels: with photometric kAffine the gains
   // and offsets are estimated again on the input's intensities at the final poses
   // (SolvePhotometricAtPoses), which is what fusion needs; T keeps a gain a gain but not an
