@@ -250,6 +250,8 @@ TEST(Pipeline, SqrtTransformStatesGainsOnTheInputsGreyLevels) {
     o.photometric = PhotometricModel::kAffine;
     o.intensity_transform = IntensityTransform::kSqrt;
     o.max_misfit_ratio = 0.0;  // at the exact minimum the misfits are round-off
+    // DBA's Schur solver is not the pose-only solve's that states the gains afterwards.
+    if (mode == "dba") o.solve.linear_solver = ceres::DENSE_SCHUR;
     RegistrationResult result;
     std::string error;
     ASSERT_TRUE(Register(images, s.masks, start, o, &result, &error)) << error;

@@ -384,10 +384,6 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
   result->uncertainty.noise_sigma = std::ldexp(result->uncertainty.noise_sigma, -exponent);
 }
 
-}  // namespace
-
-namespace {
-
 // Register on intensities `images` (the input's, or their transform): those far from a
 // usual scale are brought to it by a power of two (pipeline/input_checks.h); the reported
 // costs are scaled back at the end. `search_images`: as RegisterScaled's.
@@ -458,6 +454,7 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   const CandidateSet candidates = BuildCandidates(frames, poses, grid, /*margin_cells=*/0);
   if (!result->photometric.empty()) {
     DsrOptions dsr = ToDsrOptions(options, options.solve);
+    dsr.solve.linear_solver.reset();  // mode dba's may be a Schur type
     dsr.solve.progress_prefix += "input's grey levels ";
     SolveReport report;
     if (!SolvePhotometricAtPoses(frames, candidates, poses, dsr, &report, error)) return false;
