@@ -43,6 +43,17 @@ double IntensityTransformScale(const std::vector<Image>& images, const std::vect
 inline double ForwardIntensity(double value, double scale) { return std::sqrt(scale * value); }
 inline double InverseIntensity(double value, double scale) { return value * value / scale; }
 
+// A frame's gain and offset on the input's grey levels from its gain g and offset b on T's
+// scale (its corrected intensity g T(I) + b), matched to first order at the frame's mean
+// intensity `mean` (> 0): T^-1(g T(I) + b) = g^2 I + 2 g b sqrt(I / c) + b^2 / c, with sqrt(I)
+// linearised at `mean`, is (g^2 + g b / sqrt(c mean)) I + g b sqrt(mean / c) + b^2 / c.
+// Exact for b = 0; a start for the estimate on the input's grey levels, not the estimate.
+inline void GainAndOffsetOnInputScale(double g, double b, double mean, double scale,
+                                      double* gain, double* offset) {
+  *gain = g * g + g * b / std::sqrt(scale * mean);
+  *offset = g * b * std::sqrt(mean / scale) + b * b / scale;
+}
+
 // `images` with T applied to every voxel, given `scale` = IntensityTransformScale. The
 // square root needs intensities >= 0 inside the masks: otherwise false, with `error`
 // naming the field (intensity_transform), the image (0-based) and its voxel. Voxels outside

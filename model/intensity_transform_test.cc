@@ -58,6 +58,24 @@ TEST(IntensityTransform, SqrtOfTheScaledIntensities) {
   EXPECT_EQ(out[1].voxels, images[1].voxels);
 }
 
+// The start of the gains on the input's scale: exact for a pure gain, and for a gain and
+// an offset the tangent of T^-1(g T(I) + b) at the frame's mean intensity.
+TEST(IntensityTransform, GainAndOffsetOnTheInputsScaleMatchAtTheMean) {
+  const double c = 255.0, mean = 90.0;
+  double gain = 0.0, offset = 0.0;
+  GainAndOffsetOnInputScale(1.1, 0.0, mean, c, &gain, &offset);
+  EXPECT_DOUBLE_EQ(gain, 1.21);
+  EXPECT_EQ(offset, 0.0);
+  const double g = 0.93, b = 4.0;
+  GainAndOffsetOnInputScale(g, b, mean, c, &gain, &offset);
+  const auto mapped = [&](double v) { return InverseIntensity(g * ForwardIntensity(v, c) + b, c); };
+  EXPECT_NEAR(gain * mean + offset, mapped(mean), 1e-9);
+  const double h = 1e-3;
+  EXPECT_NEAR(gain, (mapped(mean + h) - mapped(mean - h)) / (2.0 * h), 1e-6);
+  // Away from the mean only to first order.
+  EXPECT_GT(std::abs(gain * 200.0 + offset - mapped(200.0)), 1e-3);
+}
+
 // A negative intensity inside a mask is refused, naming the frame, the voxel and the field;
 // one outside every mask is never observed and becomes 0.
 TEST(IntensityTransform, RefusesNegativeIntensitiesInsideTheMask) {

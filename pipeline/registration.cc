@@ -456,6 +456,26 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
     DsrOptions dsr = ToDsrOptions(options, options.solve);
     dsr.solve.linear_solver.reset();  // mode dba's may be a Schur type
     dsr.solve.progress_prefix += "input's grey levels ";
+    // Started from the estimate on T's scale, mapped (saves Ceres iterations, ~0.1 s each).
+    dsr.initial_photometric.assign(m, Photometric());
+    for (int i = 1; i < m; ++i) {
+      double sum = 0.0;
+      int64_t count = 0;
+      for (size_t l = 0; l < input_images[i].voxels.size(); ++l) {
+        if (masks[i].voxels[l] == 0) continue;
+        sum += input_images[i].voxels[l];
+        ++count;
+      }
+      const double mean = count > 0 ? sum / count : 0.0;
+      double gain = 1.0, offset = 0.0;
+      if (mean > 0.0 && c > 0.0) {
+        GainAndOffsetOnInputScale(result->photometric[i].gain(), result->photometric[i].offset,
+                                  mean, c, &gain, &offset);
+      }
+      if (gain > 0.0 && std::isfinite(gain) && std::isfinite(offset)) {
+        dsr.initial_photometric[i] = {std::log(gain), offset};
+      }
+    }
     SolveReport report;
     if (!SolvePhotometricAtPoses(frames, candidates, poses, dsr, &report, error)) return false;
     result->photometric = report.photometric;
