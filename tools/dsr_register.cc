@@ -340,7 +340,8 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
               static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
   if (result.intensity_transform != dsr::IntensityTransform::kNone) {
     std::printf("dsr_register: registered %s(c I), c = %g (--intensity_transform): the cost "
-                "above is on that scale, gains, offsets and images on the input's\n",
+                "above is on that scale; gains, offsets and images are on the input's grey "
+                "levels\n",
                 dsr::IntensityTransformToString(result.intensity_transform),
                 result.intensity_transform_scale);
   }
