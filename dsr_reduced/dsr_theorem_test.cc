@@ -128,6 +128,16 @@ TEST(Theorem, DbaSchurStepEqualsReducedStepForAnyIntensities) {
   }
 }
 
+// Frames 1.. of `s` seen through gains `g` and offsets `o` (one per frame; frame 0's are
+// not used): frame i's intensities become g_i I + o_i.
+void SeeThroughGains(const double* g, const double* o, testing_problems::TestSequence* s) {
+  for (size_t i = 1; i < s->frames.size(); ++i) {
+    Image image = s->images[i];
+    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
+    s->frames[i] = Frame(image, s->masks[i]);
+  }
+}
+
 // Photometric parameters away from the gauge: log gains within +/-0.2, offsets +/-10.
 std::vector<Photometric> RandomPhotometric(int m, uint64_t seed) {
   std::mt19937_64 rng(seed);
@@ -336,11 +346,7 @@ TEST(Theorem, PhotometricFullSolvesOfBothModesAgree) {
   const Case c{4, 16, 5.0, 1};
   auto s = MakeSequence(LatticeOptionsFor(c, 71));
   const double g[] = {1.0, 1.25, 0.85, 1.1}, o[] = {0.0, 9.0, -6.0, 3.0};
-  for (int i = 1; i < c.num_frames; ++i) {
-    Image image = s.images[i];
-    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
-    s.frames[i] = Frame(image, s.masks[i]);
-  }
+  SeeThroughGains(g, o, &s);
   const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 72);
   const CandidateSet cand = InteriorCandidates(s, init, 1.5);
   ASSERT_GT(cand.num_voxels(), 200);
@@ -393,11 +399,7 @@ TEST(ReducedCost, PhotometricFastPathRecoversSimulatedGains) {
   const Case c{4, 18, 0.0, 1};
   auto s = MakeSequence(LatticeOptionsFor(c, 121));
   const double g[] = {1.0, 0.85, 1.2, 1.1}, o[] = {0.0, -8.0, 6.0, 10.0};
-  for (int i = 1; i < c.num_frames; ++i) {
-    Image image = s.images[i];
-    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
-    s.frames[i] = Frame(image, s.masks[i]);
-  }
+  SeeThroughGains(g, o, &s);
   const auto init = Perturbed(s.ground_truth, 0.017, 0.5, 122);
   const CandidateSet cand = InteriorCandidates(s, init, 1.5);
   DsrOptions dsr;
@@ -429,11 +431,7 @@ TEST(ReducedCost, PhotometricAtFixedPosesMinimisesTheCostInGainsAndOffsets) {
   const Case c{4, 16, 0.0, 1};
   auto s = MakeSequence(LatticeOptionsFor(c, 131));
   const double g[] = {1.0, 1.2, 0.85, 1.1}, o[] = {0.0, -7.0, 9.0, 4.0};
-  for (int i = 1; i < c.num_frames; ++i) {
-    Image image = s.images[i];
-    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
-    s.frames[i] = Frame(image, s.masks[i]);
-  }
+  SeeThroughGains(g, o, &s);
   const CandidateSet at_truth = InteriorCandidates(s, s.ground_truth, 1.5);
   std::string error;
   for (bool reference : {false, true}) {
@@ -458,11 +456,7 @@ TEST(ReducedCost, PhotometricAtFixedPosesMinimisesTheCostInGainsAndOffsets) {
   // and the cost's gradient in the photometric parameters vanishes there (the Jacobians of
   // the gains and offsets are exact: docs/design.md 2.8).
   auto noisy = MakeSequence(OptionsFor({4, 16, 5.0, 1}, 133));
-  for (int i = 1; i < c.num_frames; ++i) {
-    Image image = noisy.images[i];
-    for (float& v : image.voxels) v = static_cast<float>(g[i] * v + o[i]);
-    noisy.frames[i] = Frame(image, noisy.masks[i]);
-  }
+  SeeThroughGains(g, o, &noisy);
   const auto poses = Perturbed(noisy.ground_truth, 0.01, 0.3, 134);
   const CandidateSet cand = InteriorCandidates(noisy, poses, 1.5);
   std::vector<SolveReport> reports(2);
