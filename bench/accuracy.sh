@@ -6,7 +6,7 @@
 #   bash bench/accuracy.sh [--seeds=20] [--sources=phantom,mni] [--protocols=paper,wide,walk]
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
 #                          [--uncertainty] [--photometric=none|affine]
-#                          [--intensity_transform=none|sqrt]
+#                          [--intensity_transform=none|sqrt] [--panorama_sampling=half_voxel|all_phases]
 #                          [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
@@ -21,12 +21,14 @@
 # --photometric; runs go to OUT/runs/INIT-affine, the table to OUT/accuracy_INIT_affine.md).
 # --intensity_transform=sqrt: register sqrt(c I) (dsr_compare --intensity_transform; runs
 # go to OUT/runs/INIT[-affine]-sqrt, the table to OUT/accuracy_INIT[_affine]_sqrt.md).
+# --panorama_sampling=all_phases: frame 0 sampled at every sub-voxel phase (dsr_compare
+# --panorama_sampling; the suffix -all_phases after the others).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
-uncertainty="" photometric=none transform=none
+uncertainty="" photometric=none transform=none sampling=half_voxel
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -40,6 +42,7 @@ for arg in "$@"; do
     --uncertainty) uncertainty=--uncertainty ;;
     --photometric=*) photometric=${arg#*=} ;;
     --intensity_transform=*) transform=${arg#*=} ;;
+    --panorama_sampling=*) sampling=${arg#*=} ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
@@ -51,6 +54,9 @@ done
 suffix="${uncertainty:+-uncertainty}"
 [[ "$photometric" == affine ]] && suffix="$suffix-affine"
 [[ "$transform" == sqrt ]] && suffix="$suffix-sqrt"
+[[ "$sampling" == half_voxel || "$sampling" == all_phases ]] || {
+  echo "accuracy.sh: --panorama_sampling=$sampling: must be half_voxel or all_phases" >&2; exit 2; }
+[[ "$sampling" == all_phases ]] && suffix="$suffix-all_phases"
 tools=${DSR_TOOLS:-build/tools}
 if [[ ! -x "$tools/dsr_compare" ]]; then bash scripts/build.sh; fi
 mni=""
@@ -90,7 +96,7 @@ for source in "${source_list[@]}"; do
       echo "accuracy.sh: $source $protocol masks=$mask init=$init ($seeds sequences)" >&2
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
         --sequence_masks="$use" --init="$init" --photometric="$photometric" \
-        --intensity_transform="$transform" $uncertainty \
+        --intensity_transform="$transform" --panorama_sampling="$sampling" $uncertainty \
         2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
       csvs+=("$source,$protocol,$mask,$run/results.csv")

@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include "dsr/model/panorama.h"
 
 namespace dsr {
@@ -87,6 +89,59 @@ TEST(BuildPanoramaGrid, SamplesFrame0HalfwayBetweenItsVoxels) {
       }
     }
   }
+}
+
+// PanoramaSampling::kAllPhases: the grid's step is 1 + 1/n frame-0 voxels (n = 9, frame
+// 0's valid extent), so that across frame 0 its samples fall at every sub-voxel phase, in
+// steps of 1/n, from the same origin; the grid still covers every field of view.
+TEST(BuildPanoramaGrid, AllPhasesSamplesFrame0AtEveryPhase) {
+  TwoFrames t = MakeTwoFrames(1, 2);
+  t.poses[1] = Translation(-5.3, 0.2, 7.9);
+  ImageGeometry half, all;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &half, &error)) << error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &all, &error,
+                                PanoramaSampling::kAllPhases))
+      << error;
+  EXPECT_LT((all.origin_mm - half.origin_mm).norm(), 1e-12);
+  const double n = 9.0;
+  for (int a = 0; a < 3; ++a) {
+    EXPECT_NEAR(all.spacing_mm[a], 1.0 + 1.0 / n, 1e-12) << a;
+    std::vector<double> phases;
+    for (int k = 0; k < all.size[a]; ++k) {
+      const double u = t.frames[0].geometry().PhysicalToIndex(
+          all.origin_mm + k * all.spacing_mm[a] * Eigen::Vector3d::Unit(a))[a];
+      if (u < 0.0 || u > n) continue;  // outside frame 0
+      phases.push_back(u - std::floor(u));
+    }
+    // About n^2 / (n + 1) samples across frame 0, whose phase advances 1/n each: one sweep
+    // of [0, 1) in steps of 1/n, short of the steps the few missing samples would take
+    // (the half-voxel grid's phases leave a gap of 1).
+    std::sort(phases.begin(), phases.end());
+    ASSERT_GE(phases.size(), 7u) << a;
+    double largest_gap = phases.front() + 1.0 - phases.back();
+    for (size_t q = 1; q < phases.size(); ++q) {
+      largest_gap = std::max(largest_gap, phases[q] - phases[q - 1]);
+    }
+    EXPECT_LT(largest_gap, (n + 1.0 - phases.size()) / n + 1e-9) << a;
+    const double box_min = std::min(0.0, -Eigen::Vector3d(-5.3, 0.2, 7.9)[a]);
+    const double box_max = std::max(9.0, 9.0 - Eigen::Vector3d(-5.3, 0.2, 7.9)[a]);
+    EXPECT_LE(all.origin_mm[a], box_min + 1e-12);
+    EXPECT_GE(all.origin_mm[a] + (all.size[a] - 1) * all.spacing_mm[a], box_max - 1e-9);
+  }
+  // The half-voxel grid's phases are all 1/2.
+  const double u = t.frames[0].geometry().PhysicalToIndex(half.origin_mm + 3.0 * half.spacing_mm)[0];
+  EXPECT_NEAR(u - std::floor(u), 0.5, 1e-9);
+  // The names round-trip.
+  for (PanoramaSampling p : {PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases}) {
+    PanoramaSampling parsed = p == PanoramaSampling::kHalfVoxel ? PanoramaSampling::kAllPhases
+                                                                : PanoramaSampling::kHalfVoxel;
+    ASSERT_TRUE(StringToPanoramaSampling(PanoramaSamplingToString(p), &parsed));
+    EXPECT_EQ(parsed, p);
+  }
+  PanoramaSampling untouched = PanoramaSampling::kAllPhases;
+  EXPECT_FALSE(StringToPanoramaSampling("dither", &untouched));
+  EXPECT_EQ(untouched, PanoramaSampling::kAllPhases);
 }
 
 // A frame 0 whose axes are not world axes has no lattice to align to: the origin is the

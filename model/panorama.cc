@@ -25,11 +25,22 @@ bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, st
   return false;
 }
 
+bool StringToPanoramaSampling(const std::string& name, PanoramaSampling* sampling) {
+  for (PanoramaSampling p : {PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases}) {
+    if (name == PanoramaSamplingToString(p)) {
+      *sampling = p;
+      return true;
+    }
+  }
+  return false;
+}
+
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
                        double spacing_factor,
                        ImageGeometry* grid,
-                       std::string* error) {
+                       std::string* error,
+                       PanoramaSampling sampling) {
   CHECK(!frames.empty());
   CHECK_EQ(frames.size(), frame_from_world.size());
   Eigen::AlignedBox3d box;
@@ -64,6 +75,14 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
       const double step = g0.spacing_mm[a];
       g.origin_mm[a] =
           anchor[a] + step * (std::floor((box.min()[a] - anchor[a]) / step - 0.5 + 1e-9) + 0.5);
+    }
+    // kAllPhases: the same origin, and a step of 1 + 1/n frame-0 voxels (times the factor;
+    // with factor 1 the phase in frame 0's lattice advances by 1/n per voxel).
+    if (sampling == PanoramaSampling::kAllPhases) {
+      const Eigen::Vector3d extent = frames[0].ValidIndexBox().sizes();
+      for (int a = 0; a < 3; ++a) {
+        g.spacing_mm[a] *= 1.0 + 1.0 / std::max(1.0, std::round(extent[a]));
+      }
     }
   }
   double num_voxels = 1.0;

@@ -28,13 +28,37 @@ constexpr int64_t kMaxPanoramaVoxels = int64_t{1} << 31;
 // extent. False with `error` naming panorama_spacing and the largest factor allowed.
 bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error);
 
-// Builds the grid. Fails when a frame has no valid cell or the grid would exceed
-// kMaxPanoramaVoxels (error names the spacing and the extent).
+// Where the registration's panorama grid samples frame 0, whose lattice it is built on
+// (docs/design.md section 2.5), when frame 0's axes are world axes:
+//   kHalfVoxel  half a voxel off frame 0's lattice on every axis, at every voxel: frame 0's
+//               samples are averages of its 8 neighbours (the default; best where the
+//               frames' fine detail is independent noise, as in the paper's protocol);
+//   kAllPhases  at every sub-voxel phase, like any other frame: the grid's spacing along
+//               each axis is frame 0's times (1 + 1/n), n frame 0's valid extent in voxels
+//               along that axis, so that the phase sweeps [0, 1) once across frame 0 (for
+//               texture the frames share, such as ultrasound speckle, where smoothing frame
+//               0 alone and not the others biases every frame-0-relative pose).
+enum class PanoramaSampling {
+  kHalfVoxel,
+  kAllPhases,
+};
+// "half_voxel" / "all_phases" (the tools' --panorama_sampling values).
+constexpr const char* PanoramaSamplingToString(PanoramaSampling sampling) {
+  return sampling == PanoramaSampling::kAllPhases ? "all_phases" : "half_voxel";
+}
+// The inverse of PanoramaSamplingToString; false (and *sampling untouched) otherwise.
+bool StringToPanoramaSampling(const std::string& name, PanoramaSampling* sampling);
+
+// Builds the grid: frame 0's axes, spacing frame 0's times `spacing_factor` (times the
+// factors of kAllPhases), covering every frame's valid field of view at the poses. Fails
+// when a frame has no valid cell or the grid would exceed kMaxPanoramaVoxels (error names
+// the spacing and the extent).
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
                        double spacing_factor,
                        ImageGeometry* grid,
-                       std::string* error);
+                       std::string* error,
+                       PanoramaSampling sampling = PanoramaSampling::kHalfVoxel);
 
 struct PanoramaImages {
   Image mean;        // mu_j = (1/k_j) sum_i sigma_ij I_i(p_ij); 0 where k_j = 0

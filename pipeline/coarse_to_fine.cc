@@ -253,7 +253,8 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
                                                    CandidateSet* candidates,
                                                    ImageGeometry* grid) {
   const int last_level = result_->solves.empty() ? level : result_->solves.back().level;
-  if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, grid, error_)) {
+  if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, grid, error_,
+                         options_.panorama_sampling)) {
     if (result_->solves.empty()) return Next::kError;  // the initial poses: bad input
     // The poses a solve reached spread the frames over a space no panorama can hold.
     const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
@@ -419,7 +420,8 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
     final_candidates = std::move(last_candidates_);
   } else {
     ImageGeometry final_grid;
-    if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, &final_grid, error_)) {
+    if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, &final_grid, error_,
+                           options_.panorama_sampling)) {
       const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
       error_->clear();
       return Diverged(0, why, {});

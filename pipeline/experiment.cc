@@ -232,6 +232,9 @@ std::string MethodLabel(const RegistrationOptions& options) {
          (options.intensity_transform == IntensityTransform::kNone
               ? ""
               : std::string("+") + IntensityTransformToString(options.intensity_transform)) +
+         (options.panorama_sampling == PanoramaSampling::kHalfVoxel
+              ? ""
+              : std::string("+") + PanoramaSamplingToString(options.panorama_sampling)) +
          (options.loss.IsSquared() ? "" : std::string("+") + RobustLossKindName(options.loss.kind));
 }
 

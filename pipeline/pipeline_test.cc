@@ -85,6 +85,16 @@ TEST(Pipeline, DsrRecoversGroundTruthWithoutNoise) {
   EXPECT_LT(errors.mae_rotation_rad, 1e-3);
   // Frame 0 is the gauge.
   EXPECT_TRUE(result.frame_from_world[0].isApprox(Eigen::Isometry3d::Identity(), 1e-15));
+  // Frame 0 sampled at every sub-voxel phase (model/panorama.h): the same floor, on the
+  // grid of that rule.
+  RegistrationOptions all_phases = Options("dsr");
+  all_phases.panorama_sampling = PanoramaSampling::kAllPhases;
+  RegistrationResult swept;
+  const PoseErrorSummary swept_errors = RegisterAndCompare(sequence, all_phases, &swept);
+  EXPECT_LT(swept_errors.mae_translation_voxels, 0.01);
+  EXPECT_LT(swept_errors.mae_rotation_rad, 1e-3);
+  EXPECT_GT(swept.grid.spacing_mm.minCoeff(), 1.0 + 1.0 / 64.0);  // 1 + 1/n, n <= 48
+  EXPECT_EQ(result.grid.spacing_mm, Eigen::Vector3d::Ones());
 }
 
 TEST(Pipeline, DsrRecoversGroundTruthWithPaperNoise) {

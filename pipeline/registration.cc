@@ -446,7 +446,8 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   ImageGeometry grid;
   std::string grid_error;
   if (poses.size() != input_images.size() ||
-      !BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, &grid_error)) {
+      !BuildPanoramaGrid(frames, poses, options.panorama_spacing, &grid, &grid_error,
+                         options.panorama_sampling)) {
     result->photometric.clear();
     result->frame_misfits.clear();
     return true;

@@ -27,6 +27,7 @@
 #include "dsr/init/recovery.h"
 #include "dsr/model/intensity_transform.h"
 #include "dsr/model/observation.h"
+#include "dsr/model/panorama.h"
 #include "dsr/model/photometric.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/pipeline/modes.h"
@@ -90,6 +91,10 @@ struct RegistrationOptions {
   int search_max_axis = 32;
   SolveOptions solve;             // per solve; max_iterations is the finest level's limit
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
+  // Where the solves' panorama grids sample frame 0 (model/panorama.h): half a voxel off
+  // its lattice (default), or at every sub-voxel phase (for texture the frames share, such
+  // as ultrasound speckle; docs/accuracy_us.md). Fusion's grid is not affected.
+  PanoramaSampling panorama_sampling = PanoramaSampling::kHalfVoxel;
 
   // Pyramid (image/pyramid.h). Level 0 is the input resolution.
   int pyramid_levels = 3;

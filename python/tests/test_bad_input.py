@@ -150,6 +150,7 @@ REGISTER = [
     (FRAMES, MASKS, {"search_max_axis": 4}),
     (FRAMES, MASKS, {"smoothing": 1e6}),
     (FRAMES, MASKS, {"intensity_transform": "log"}),
+    (FRAMES, MASKS, {"panorama_sampling": "dither"}),
     (["good.mha", "negative.mha"], None, {"intensity_transform": "sqrt"}),
 ]
 
