@@ -76,13 +76,12 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
       g.origin_mm[a] =
           anchor[a] + step * (std::floor((box.min()[a] - anchor[a]) / step - 0.5 + 1e-9) + 0.5);
     }
-    // kAllPhases: the same origin, and a step of 1 + 1/n frame-0 voxels (times the factor;
-    // with factor 1 the phase in frame 0's lattice advances by 1/n per voxel).
+    // kAllPhases: the same origin, and a spacing 1 + 1/n times larger on every axis, n frame
+    // 0's longest valid extent in voxels: with factor 1 the phase in frame 0's lattice
+    // advances by 1/n per voxel, one sweep across its longest axis (less across shorter ones).
     if (sampling == PanoramaSampling::kAllPhases) {
-      const Eigen::Vector3d extent = frames[0].ValidIndexBox().sizes();
-      for (int a = 0; a < 3; ++a) {
-        g.spacing_mm[a] *= 1.0 + 1.0 / std::max(1.0, std::round(extent[a]));
-      }
+      const double n = std::max(1.0, std::round(frames[0].ValidIndexBox().sizes().maxCoeff()));
+      g.spacing_mm *= 1.0 + 1.0 / n;
     }
   }
   double num_voxels = 1.0;

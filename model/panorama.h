@@ -33,11 +33,11 @@ bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, st
 //   kHalfVoxel  half a voxel off frame 0's lattice on every axis, at every voxel: frame 0's
 //               samples are averages of its 8 neighbours (the default; best where the
 //               frames' fine detail is independent noise, as in the paper's protocol);
-//   kAllPhases  at every sub-voxel phase, like any other frame: the grid's spacing along
-//               each axis is frame 0's times (1 + 1/n), n frame 0's valid extent in voxels
-//               along that axis, so that the phase sweeps [0, 1) once across frame 0 (for
-//               texture the frames share, such as ultrasound speckle, where smoothing frame
-//               0 alone and not the others biases every frame-0-relative pose).
+//   kAllPhases  at every sub-voxel phase, like any other frame: the grid's spacing is
+//               frame 0's times (1 + 1/n) on every axis, n frame 0's longest valid extent in
+//               voxels, so that the phase sweeps [0, 1) once across frame 0's longest axis
+//               (for texture the frames share, such as ultrasound speckle, where smoothing
+//               frame 0 alone and not the others biases every frame-0-relative pose).
 enum class PanoramaSampling {
   kHalfVoxel,
   kAllPhases,

@@ -51,7 +51,7 @@ DEFINE_string(panorama_sampling, "half_voxel",
               "half_voxel (half a voxel off its lattice everywhere: its samples average 8 "
               "voxels; best where fine detail is independent noise, as in the paper's "
               "protocol) or all_phases (every sub-voxel phase, like the other frames: the "
-              "grid's spacing is frame 0's times 1 + 1/n, n its extent in voxels; for "
+              "grid's spacing is frame 0's times 1 + 1/n, n its longest extent in voxels; for "
               "texture the frames share, such as ultrasound speckle). The fused panorama's "
               "grid is not affected.");
 DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
