@@ -3,16 +3,13 @@
 #include <algorithm>
 #include <sstream>
 
+#include "dsr/util/option_fields.h"
+
 namespace dsr {
 
 bool StringToIntensityTransform(const std::string& name, IntensityTransform* transform) {
-  for (IntensityTransform t : {IntensityTransform::kNone, IntensityTransform::kSqrt}) {
-    if (name == IntensityTransformToString(t)) {
-      *transform = t;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(name, {IntensityTransform::kNone, IntensityTransform::kSqrt},
+                   IntensityTransformToString, transform);
 }
 
 double IntensityTransformScale(const std::vector<Image>& images, const std::vector<Mask>& masks) {

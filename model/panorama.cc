@@ -7,6 +7,7 @@
 
 #include <glog/logging.h>
 
+#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -26,13 +27,8 @@ bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, st
 }
 
 bool StringToPanoramaSampling(const std::string& name, PanoramaSampling* sampling) {
-  for (PanoramaSampling p : {PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases}) {
-    if (name == PanoramaSamplingToString(p)) {
-      *sampling = p;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(name, {PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases},
+                   PanoramaSamplingToString, sampling);
 }
 
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,

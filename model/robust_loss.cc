@@ -33,12 +33,10 @@ const char* RobustLossKindName(RobustLoss::Kind kind) {
 }
 
 bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std::string* error) {
-  for (RobustLoss::Kind k :
-       {RobustLoss::Kind::kSquared, RobustLoss::Kind::kHuber, RobustLoss::Kind::kCauchy}) {
-    if (name == RobustLossKindName(k)) {
-      *kind = k;
-      return true;
-    }
+  if (FindNamed(name,
+                {RobustLoss::Kind::kSquared, RobustLoss::Kind::kHuber, RobustLoss::Kind::kCauchy},
+                RobustLossKindName, kind)) {
+    return true;
   }
   *error = "loss=" + name + ": must be squared, huber or cauchy";
   return false;

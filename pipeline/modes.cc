@@ -3,6 +3,7 @@
 #include <glog/logging.h>
 
 #include "dsr/pipeline/registration.h"
+#include "dsr/util/option_fields.h"
 
 namespace dsr {
 
@@ -24,13 +25,7 @@ const char* ModeToString(Mode mode) {
 }
 
 bool StringToMode(const std::string& name, Mode* mode) {
-  for (Mode m : kModes) {
-    if (name == ModeToString(m)) {
-      *mode = m;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(name, kModes, ModeToString, mode);
 }
 
 std::vector<std::string> ModeNames() {

@@ -38,13 +38,8 @@ int ConstantFrame(const std::vector<Image>& images, const std::vector<Mask>& mas
 }  // namespace
 
 bool StringToPhotometricModel(const std::string& name, PhotometricModel* model) {
-  for (PhotometricModel m : {PhotometricModel::kNone, PhotometricModel::kAffine}) {
-    if (name == PhotometricModelToString(m)) {
-      *model = m;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(name, {PhotometricModel::kNone, PhotometricModel::kAffine},
+                   PhotometricModelToString, model);
 }
 
 std::vector<std::string> InitialisationNames() {

@@ -12,6 +12,7 @@
 #include <glog/logging.h>
 
 #include "dsr/image/frame.h"
+#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -415,13 +416,8 @@ const char* SourceInterpolationToString(SourceInterpolation interpolation) {
 
 bool StringToSourceInterpolation(const std::string& text, SourceInterpolation* interpolation) {
   CHECK(interpolation != nullptr);
-  for (SourceInterpolation m : {SourceInterpolation::kLinear, SourceInterpolation::kCubic}) {
-    if (text == SourceInterpolationToString(m)) {
-      *interpolation = m;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(text, {SourceInterpolation::kLinear, SourceInterpolation::kCubic},
+                   SourceInterpolationToString, interpolation);
 }
 
 double CubicInterpolateValue(const Image& image, const Eigen::Vector3d& ijk) {
@@ -468,13 +464,7 @@ const char* PoseModelToString(PoseModel model) {
 
 bool StringToPoseModel(const std::string& text, PoseModel* model) {
   CHECK(model != nullptr);
-  for (PoseModel m : {PoseModel::kRandom, PoseModel::kWalk}) {
-    if (text == PoseModelToString(m)) {
-      *model = m;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(text, {PoseModel::kRandom, PoseModel::kWalk}, PoseModelToString, model);
 }
 
 bool SimulationOptions::Validate(std::string* error) const {

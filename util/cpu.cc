@@ -1,6 +1,8 @@
 // CPU feature checks and kernel-path names (util/cpu.h).
 #include "dsr/util/cpu.h"
 
+#include "dsr/util/option_fields.h"
+
 namespace dsr {
 namespace {
 
@@ -63,13 +65,7 @@ const char* KernelPathToString(KernelPath path) {
 }
 
 bool StringToKernelPath(const std::string& name, KernelPath* path) {
-  for (KernelPath candidate : kAllPaths) {
-    if (name == KernelPathToString(candidate)) {
-      *path = candidate;
-      return true;
-    }
-  }
-  return false;
+  return FindNamed(name, kAllPaths, KernelPathToString, path);
 }
 
 std::string KernelPathNames() {

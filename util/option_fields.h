@@ -12,6 +12,7 @@
 #define DSR_UTIL_OPTION_FIELDS_H_
 
 #include <functional>
+#include <initializer_list>
 #include <sstream>
 #include <string>
 
@@ -31,6 +32,24 @@ bool RefuseField(std::string* error, const std::string& field, const T& value,
                  const std::string& rule) {
   *error = FieldError(field, value, rule);
   return false;
+}
+
+// The value among `values` whose name to_string(value) is `name`: true with *value set, or
+// false with *value untouched. How the options' enum names (the tools' flag values) parse.
+template <typename E, typename Values, typename ToString>
+bool FindNamed(const std::string& name, const Values& values, ToString to_string, E* value) {
+  for (const E& candidate : values) {
+    if (name == to_string(candidate)) {
+      *value = candidate;
+      return true;
+    }
+  }
+  return false;
+}
+template <typename E, typename ToString>
+bool FindNamed(const std::string& name, std::initializer_list<E> values, ToString to_string,
+               E* value) {
+  return FindNamed<E, std::initializer_list<E>, ToString>(name, values, to_string, value);
 }
 
 // `message` with every field path replaced by rewrite(path).
