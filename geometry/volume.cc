@@ -21,15 +21,19 @@ bool ImageGeometry::SameGrid(const ImageGeometry& other, double tolerance_mm) co
          (direction - other.direction).cwiseAbs().maxCoeff() <= 1e-6;
 }
 
+std::string VoxelName(int64_t linear, int64_t nx, int64_t ny) {
+  const int64_t nxy = nx * ny;
+  return "voxel (" + std::to_string(linear % nx) + "," + std::to_string((linear % nxy) / nx) + "," +
+         std::to_string(linear / nxy) + ")";
+}
+
 bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string* error) {
   const auto bad = std::find_if(image.voxels.begin(), image.voxels.end(),
                                 [](float v) { return !std::isfinite(v); });
   if (bad == image.voxels.end()) return true;
-  const int64_t v = bad - image.voxels.begin();
-  const int64_t nx = image.geometry.size[0];
-  const int64_t nxy = nx * image.geometry.size[1];
-  *error = what + ": voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) +
-           "," + std::to_string(v / nxy) + ") is " + (std::isnan(*bad) ? "NaN" : "Inf");
+  *error = what + ": " +
+           VoxelName(bad - image.voxels.begin(), image.geometry.size[0], image.geometry.size[1]) +
+           " is " + (std::isnan(*bad) ? "NaN" : "Inf");
   return false;
 }
 

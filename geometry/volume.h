@@ -79,6 +79,10 @@ struct Volume {
 using Image = Volume<float>;   // intensities
 using Mask = Volume<uint8_t>;  // field of view: 1 inside, 0 outside
 
+// "voxel (i,j,k)" for the voxel at `linear` (x-fastest) of a grid nx voxels wide and ny
+// high, as error messages name voxels.
+std::string VoxelName(int64_t linear, int64_t nx, int64_t ny);
+
 // Checks that every voxel is finite (the registration's sums take no NaN or Inf). On
 // failure `error` names the first bad voxel by index, "<what>: voxel (i,j,k) is NaN". The
 // front ends check what they read or are given (io_image's ReadImage, the Python module).

@@ -34,13 +34,10 @@ bool ApplyIntensityTransform(const std::vector<Image>& images,
     const Image& image = images[i];
     for (size_t l = 0; l < image.voxels.size(); ++l) {
       if (masks[i].voxels[l] == 0 || image.voxels[l] >= 0.0f) continue;
-      const int64_t nx = image.geometry.size[0];
-      const int64_t nxy = nx * image.geometry.size[1];
-      const int64_t v = static_cast<int64_t>(l);
       std::ostringstream s;
-      s << "frame " << i << " has a negative intensity (" << image.voxels[l] << ") at voxel ("
-        << v % nx << "," << (v % nxy) / nx << "," << v / nxy
-        << ") inside its mask: intensity_transform=" << IntensityTransformToString(transform)
+      s << "frame " << i << " has a negative intensity (" << image.voxels[l] << ") at "
+        << VoxelName(static_cast<int64_t>(l), image.geometry.size[0], image.geometry.size[1])
+        << " inside its mask: intensity_transform=" << IntensityTransformToString(transform)
         << " needs intensities >= 0";
       *error = s.str();
       return false;
