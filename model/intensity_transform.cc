@@ -22,6 +22,30 @@ double IntensityTransformScale(const std::vector<Image>& images, const std::vect
   return scale;
 }
 
+std::vector<Photometric> PhotometricOnInputScale(const std::vector<Photometric>& on_transform,
+                                                 const std::vector<Image>& images,
+                                                 const std::vector<Mask>& masks, double scale) {
+  std::vector<Photometric> start(on_transform.size());
+  for (size_t i = 1; i < on_transform.size(); ++i) {
+    double sum = 0.0;
+    int64_t count = 0;
+    for (size_t l = 0; l < images[i].voxels.size(); ++l) {
+      if (masks[i].voxels[l] == 0) continue;
+      sum += images[i].voxels[l];
+      ++count;
+    }
+    const double mean = count > 0 ? sum / count : 0.0;
+    if (!(mean > 0.0 && scale > 0.0)) continue;
+    double gain = 1.0, offset = 0.0;
+    GainAndOffsetOnInputScale(on_transform[i].gain(), on_transform[i].offset, mean, scale, &gain,
+                              &offset);
+    if (gain > 0.0 && std::isfinite(gain) && std::isfinite(offset)) {
+      start[i] = {std::log(gain), offset};
+    }
+  }
+  return start;
+}
+
 bool ApplyIntensityTransform(const std::vector<Image>& images,
                              const std::vector<Mask>& masks,
                              IntensityTransform transform,

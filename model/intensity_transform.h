@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "dsr/geometry/volume.h"
+#include "dsr/model/photometric.h"
 
 namespace dsr {
 
@@ -53,6 +54,14 @@ inline void GainAndOffsetOnInputScale(double g, double b, double mean, double sc
   *gain = g * g + g * b / std::sqrt(scale * mean);
   *offset = g * b * std::sqrt(mean / scale) + b * b / scale;
 }
+
+// GainAndOffsetOnInputScale for every frame, at each frame's mean intensity inside its
+// mask: a start for the photometric parameters on the input's grey levels from
+// `on_transform` (one per frame, on T's scale). Frame 0 keeps the gauge; a frame whose mean
+// is not positive, or whose mapped gain is not, starts at gain 1 and offset 0.
+std::vector<Photometric> PhotometricOnInputScale(const std::vector<Photometric>& on_transform,
+                                                 const std::vector<Image>& images,
+                                                 const std::vector<Mask>& masks, double scale);
 
 // `images` with T applied to every voxel, given `scale` = IntensityTransformScale. The
 // square root needs intensities >= 0 inside the masks: otherwise false, with `error`

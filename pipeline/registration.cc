@@ -430,12 +430,12 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   if (result->photometric.empty() && result->frame_misfits.empty()) return true;
   const int m = static_cast<int>(input_images.size());
   std::vector<Frame> frames(m);
+  // The finest pyramid level of the input (image/pyramid.h: smoothed by options.smoothing).
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
-    const std::vector<ImageLevel> finest =
-        BuildPyramid(input_images[i], masks[i], 1, options.pyramid_sigma, options.smoothing,
-                     options.pyramid_min_size, /*num_threads=*/1);
-    frames[i] = finest[0].image.empty() ? Frame(input_images[i], masks[i])
-                                        : Frame(finest[0].image, finest[0].mask);
+    frames[i] = options.smoothing > 0.0
+                    ? Frame(SmoothInsideMask(input_images[i], masks[i], options.smoothing, 1),
+                            masks[i])
+                    : Frame(input_images[i], masks[i]);
   });
   const std::vector<Eigen::Isometry3d>& poses = result->frame_from_world;
   ImageGeometry grid;
@@ -453,25 +453,7 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
     dsr.solve.linear_solver.reset();  // mode dba's may be a Schur type
     dsr.solve.progress_prefix += "input's grey levels ";
     // Started from the estimate on T's scale, mapped (saves Ceres iterations, ~0.1 s each).
-    dsr.initial_photometric.assign(m, Photometric());
-    for (int i = 1; i < m; ++i) {
-      double sum = 0.0;
-      int64_t count = 0;
-      for (size_t l = 0; l < input_images[i].voxels.size(); ++l) {
-        if (masks[i].voxels[l] == 0) continue;
-        sum += input_images[i].voxels[l];
-        ++count;
-      }
-      const double mean = count > 0 ? sum / count : 0.0;
-      double gain = 1.0, offset = 0.0;
-      if (mean > 0.0 && c > 0.0) {
-        GainAndOffsetOnInputScale(result->photometric[i].gain(), result->photometric[i].offset,
-                                  mean, c, &gain, &offset);
-      }
-      if (gain > 0.0 && std::isfinite(gain) && std::isfinite(offset)) {
-        dsr.initial_photometric[i] = {std::log(gain), offset};
-      }
-    }
+    dsr.initial_photometric = PhotometricOnInputScale(result->photometric, input_images, masks, c);
     SolveReport report;
     if (!SolvePhotometricAtPoses(frames, candidates, poses, dsr, &report, error)) return false;
     result->photometric = report.photometric;
