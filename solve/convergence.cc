@@ -25,6 +25,16 @@ double MaxCornerMotionVoxels(const Frame& frame,
   return motion;
 }
 
+double RemainingMotionVoxels(double motion, double previous_motion) {
+  constexpr double kMinContraction = 0.5;
+  constexpr double kMaxContraction = 0.95;
+  double rho = kMinContraction;
+  if (previous_motion > 0.0) {
+    rho = std::clamp(motion / previous_motion, kMinContraction, kMaxContraction);
+  }
+  return motion * rho / (1.0 - rho);
+}
+
 PoseStepCallback::PoseStepCallback(const std::vector<Frame>* frames,
                                    std::vector<const double*> pose_blocks,
                                    double tolerance_voxels,
@@ -70,12 +80,14 @@ ceres::CallbackReturnType PoseStepCallback::operator()(const ceres::IterationSum
     motion = std::max(motion, MaxCornerMotionVoxels((*frames_)[i], previous_[i], now[i]));
   }
   previous_ = now;
-  if (tolerance_voxels_ > 0.0 && motion < tolerance_voxels_) {
-    char text[160];
+  const double remaining = RemainingMotionVoxels(motion, previous_motion_);
+  previous_motion_ = motion;
+  if (tolerance_voxels_ > 0.0 && remaining < tolerance_voxels_) {
+    char text[200];
     std::snprintf(text, sizeof(text),
                   "pose step tolerance: the last step moved no field of view by more than "
-                  "%.2e voxels (< %.2e)",
-                  motion, tolerance_voxels_);
+                  "%.2e voxels, %.2e voxels estimated still to go (< %.2e)",
+                  motion, remaining, tolerance_voxels_);
     reason_ = text;
     return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
   }

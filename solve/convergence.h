@@ -1,8 +1,9 @@
-// A stopping rule in image units, shared by every mode: a solve has converged when an
-// accepted step moves no frame's field of view by more than a tolerance (in voxels), or
-// when Levenberg-Marquardt / dogleg rejects several steps in a row (the cost no longer
-// decreases measurably: at the noise floor, the Gauss-Newton model built from the
-// interpolated gradient volumes no longer predicts the trilinear cost's change).
+// A stopping rule in image units, shared by every mode: a solve has converged when the
+// distance still to go to its fixed point, estimated from its last accepted steps, moves no
+// frame's field of view by more than a tolerance (in voxels), or when Levenberg-Marquardt /
+// dogleg rejects several steps in a row (the cost no longer decreases measurably: at the
+// noise floor, the Gauss-Newton model built from the interpolated gradient volumes no
+// longer predicts the trilinear cost's change). docs/design.md 7.4.
 //
 // Ceres's own tolerances stay active; they are relative to the cost and to the parameter
 // vector, whose size depends on where the world origin lies, so they are poor rules for
@@ -28,6 +29,16 @@ double MaxCornerMotionVoxels(const Frame& frame,
                              const Eigen::Isometry3d& a,
                              const Eigen::Isometry3d& b);
 
+// The distance, in voxels of field-of-view motion, a solve still has to go after an
+// accepted step that moved a field of view by at most `motion`, the accepted step before it
+// having moved one by `previous_motion` (0: there was none). With noise, Gauss-Newton
+// converges linearly near its fixed point (J^T J holds the noise gradients' energy, which
+// the cost's curvature does not, so every step falls short by about the same fraction): each
+// step is about rho times the one before, and the steps still to come add up to
+// motion rho / (1 - rho). rho is motion / previous_motion clamped to [1/2, 19/20] (1/2 with
+// no previous step), so the estimate lies between the step itself and 19 times it.
+double RemainingMotionVoxels(double motion, double previous_motion);
+
 // Terminates a Ceres solve by the rule above. `pose_blocks[i]` points to frame i's
 // ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for a frame that is
 // not a parameter (frame 0). Requires Solver::Options::update_state_every_iteration.
@@ -52,6 +63,7 @@ class PoseStepCallback final : public ceres::IterationCallback {
   double tolerance_voxels_;
   int max_rejected_steps_;
   std::vector<Eigen::Isometry3d> previous_;
+  double previous_motion_ = 0.0;  // the last accepted step's motion (0: none yet)
   int rejected_in_a_row_ = 0;
   std::string reason_;
 };

@@ -105,14 +105,16 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
     if (!same_point) {
       // Would this step end the solve if accepted (solve/convergence.h's rule)?
       bool final_step = false;
+      pass_motion_ = 0.0;
       if (policy_.frames != nullptr && policy_.step_tolerance_voxels > 0.0 &&
           static_cast<int>(accepted_poses_.size()) == m) {
-        double motion = 0.0;
         for (int i = 1; i < m; ++i) {
-          motion = std::max(motion,
-                            MaxCornerMotionVoxels((*policy_.frames)[i], accepted_poses_[i], poses[i]));
+          pass_motion_ = std::max(
+              pass_motion_,
+              MaxCornerMotionVoxels((*policy_.frames)[i], accepted_poses_[i], poses[i]));
         }
-        final_step = motion < policy_.step_tolerance_voxels;
+        final_step = RemainingMotionVoxels(pass_motion_, accepted_motion_) <
+                     policy_.step_tolerance_voxels;
       }
       const bool speculate = policy_.speculate && speculate_next_ && !final_step;
       Accumulate(poses, photometric, speculate, &pass_);
@@ -131,7 +133,10 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
   // The current point (iteration 0, or a step Ceres accepted).
   const bool accepted_trial = last_was_cost_only_ && same_point;
   last_was_cost_only_ = false;
-  if (accepted_trial) speculate_next_ = true;
+  if (accepted_trial) {
+    speculate_next_ = true;
+    accepted_motion_ = pass_motion_;
+  }
   if (same_point && pass_has_jacobian_) {
     accepted_ = pass_;
   } else if (same_point && pass_is_final_ && static_cast<int>(accepted_poses_.size()) == m) {

@@ -49,8 +49,8 @@ void CompressNormalEquations(const Eigen::MatrixXd& hessian,
 //    two. After a rejected step the next trial is evaluated cost-only, and speculation
 //    resumes after the next accepted step.
 //  * lazy final Jacobian (when `frames` is set and step_tolerance_voxels > 0): a trial
-//    point whose step moves no field of view by `step_tolerance_voxels` or more ends the
-//    solve if it is accepted (the rule of solve/convergence.h, which then stops Ceres before
+//    point whose step leaves less than `step_tolerance_voxels` still to go
+//    (RemainingMotionVoxels) ends the solve if it is accepted (the rule of solve/convergence.h, which then stops Ceres before
 //    it uses the Jacobians again). Its pass is cost-only, and the Jacobians Ceres asks for
 //    there are those of the previous point with the new point's exact cost.
 // Neither changes any cost Ceres sees or any pose it reaches (the cost-only and the
@@ -127,9 +127,11 @@ class StreamedPoseCost : public ceres::CostFunction {
   mutable NormalEquations pass_;
   mutable bool pass_has_jacobian_ = false;
   mutable bool pass_is_final_ = false;
+  mutable double pass_motion_ = 0.0;  // the latest trial's step, in field-of-view voxels
   // The latest evaluation with Jacobians (the current accepted point) and its poses.
   mutable NormalEquations accepted_;
   mutable std::vector<Eigen::Isometry3d> accepted_poses_;
+  mutable double accepted_motion_ = 0.0;  // the step that reached them (0: none)
   mutable bool last_was_cost_only_ = false;
   mutable bool speculate_next_ = true;
 };

@@ -75,8 +75,9 @@ DEFINE_int32(coarse_max_iterations, 50, "Iteration limit of each solve on coarse
 DEFINE_double(function_tolerance, 1e-8, "Ceres function tolerance (relative cost change).");
 DEFINE_double(gradient_tolerance, 1e-12, "Ceres gradient tolerance.");
 DEFINE_double(parameter_tolerance, 1e-10, "Ceres parameter tolerance (relative step).");
-DEFINE_double(step_tolerance, 5e-3, "A solve stops when an accepted step moves no frame's field "
-              "of view by more than this many voxels (0 = off), >= 0.");
+DEFINE_double(step_tolerance, 5e-3, "A solve stops when the distance still to go to its fixed "
+              "point, estimated from the last accepted steps (docs/design.md 7.4), moves no "
+              "frame's field of view by more than this many voxels (0 = off), >= 0.");
 DEFINE_int32(max_rejected_steps, 5, "A solve stops after this many rejected steps in a row "
              "(0 = off), >= 0.");
 DEFINE_int32(pyramid_levels, 3, "Pyramid levels (1 = full resolution only), in 1..8.");
