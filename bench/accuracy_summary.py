@@ -78,8 +78,9 @@ def main(argv):
             plain = [float(r["seconds"]) for r in runs if r.get("recoveries", "") == "0"]
             recovered = [float(r["seconds"]) for r in runs
                          if r.get("recoveries", "") not in ("", "0")]
-            split = (f"{max(plain) if plain else float('nan'):.2f} ({len(plain)}) / "
-                     f"{max(recovered) if recovered else float('nan'):.2f} ({len(recovered)})"
+            def longest(seconds):  # "-" where no run falls in the group
+                return f"{max(seconds):.2f}" if seconds else "-"
+            split = (f"{longest(plain)} ({len(plain)}) / {longest(recovered)} ({len(recovered)})"
                      if plain or recovered else "-")
             print(f"| {method} | {source} | {protocol} | {masks} | {len(ok)}/{len(runs)} | "
                   f"{statistics.median(tre_ok) if tre_ok else float('nan'):.4f} | "
