@@ -37,57 +37,49 @@ Frame UnitFrame() {
   return Frame(image, Mask(g, 1));
 }
 
-TEST(PoseStepCallback, StopsWhenTheEstimatedDistanceLeftIsBelowTheTolerance) {
-  const std::vector<Frame> frames = {UnitFrame(), UnitFrame()};
+// Runs a PoseStepCallback with `tolerance` over accepted steps that translate frame 1 of
+// `frames` by first * ratio^k voxels at step k; returns the k whose step ended the solve
+// (-1: none in `max_steps`) and the callback's reason.
+int StepThatEndsTheSolve(const std::vector<Frame>& frames, double tolerance, double first,
+                         double ratio, int max_steps, std::string* reason) {
   double x[kPoseAmbientSize];
-  PoseToParameters(Eigen::Isometry3d::Identity(), x);
-  const double tolerance = 0.02;
+  Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+  PoseToParameters(pose, x);
   PoseStepCallback stop(&frames, {nullptr, x}, tolerance, /*max_rejected_steps=*/5);
   ceres::IterationSummary summary;
   summary.iteration = 0;
-  ASSERT_EQ(stop(summary), ceres::SOLVER_CONTINUE);
-  // Frame 1 translates by 0.01 * 0.9^k voxels at step k: every step is below the
-  // tolerance, but 9 steps' worth is still to go until 9 * 0.01 * 0.9^k < 0.02.
-  double position = 0.0;
-  int stopped_at = -1;
-  for (int k = 0; k < 40 && stopped_at < 0; ++k) {
-    position += 0.01 * std::pow(0.9, k);
-    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-    pose.translation().x() = position;
+  EXPECT_EQ(stop(summary), ceres::SOLVER_CONTINUE);
+  summary.step_is_successful = true;
+  int ended = -1;
+  for (int k = 0; k < max_steps && ended < 0; ++k) {
+    pose.translation().x() += first * std::pow(ratio, k);
     PoseToParameters(pose, x);
     summary.iteration = k + 1;
-    summary.step_is_successful = true;
-    if (stop(summary) == ceres::SOLVER_TERMINATE_SUCCESSFULLY) stopped_at = k;
+    if (stop(summary) == ceres::SOLVER_TERMINATE_SUCCESSFULLY) ended = k;
   }
-  // Step 0 has no step before it (estimate: the step, 0.01 < 0.02) and ends the solve as
-  // the former rule did; so start again from a second callback that has seen a step.
-  EXPECT_EQ(stopped_at, 0);
-  EXPECT_NE(stop.reason().find("estimated still to go"), std::string::npos) << stop.reason();
-
-  PoseToParameters(Eigen::Isometry3d::Identity(), x);
-  PoseStepCallback slow(&frames, {nullptr, x}, tolerance, 5);
-  summary.iteration = 0;
-  ASSERT_EQ(slow(summary), ceres::SOLVER_CONTINUE);
-  position = 0.0;
-  stopped_at = -1;
-  int first_step_below = -1;
-  for (int k = 0; k < 60 && stopped_at < 0; ++k) {
-    const double step = 0.05 * std::pow(0.9, k);
-    if (first_step_below < 0 && step < tolerance) first_step_below = k;
-    position += step;
-    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
-    pose.translation().x() = position;
-    PoseToParameters(pose, x);
-    summary.iteration = k + 1;
-    if (slow(summary) == ceres::SOLVER_TERMINATE_SUCCESSFULLY) stopped_at = k;
-  }
-  // It goes on past the first step under the tolerance (k = 9), to the first k with
-  // 9 * 0.05 * 0.9^k < 0.02 (k = 30).
-  EXPECT_EQ(first_step_below, 9);
-  EXPECT_EQ(stopped_at, 30);
+  *reason = stop.reason();
+  return ended;
 }
 
-TEST(PoseStepCallback, RejectedStepsDoNotCountAsSteps) {
+TEST(PoseStepCallback, StopsWhenTheEstimatedDistanceLeftIsBelowTheTolerance) {
+  const std::vector<Frame> frames = {UnitFrame(), UnitFrame()};
+  const double tolerance = 0.02;
+  std::string reason;
+  // Steps of 0.05 * 0.9^k: every step from k = 9 on is below the tolerance, but 9 steps'
+  // worth is still to go until 9 * 0.05 * 0.9^k < 0.02, at k = 30.
+  EXPECT_LT(0.05 * std::pow(0.9, 9), tolerance);
+  EXPECT_EQ(StepThatEndsTheSolve(frames, tolerance, 0.05, 0.9, 60, &reason), 30);
+  EXPECT_NE(reason.find("estimated still to go"), std::string::npos) << reason;
+  // A solve's first step has no step before it to estimate rho from: the estimate is the
+  // step itself, so a first step below the tolerance ends the solve, as under the former
+  // rule.
+  EXPECT_EQ(StepThatEndsTheSolve(frames, tolerance, 0.01, 0.9, 60, &reason), 0);
+  // Steps that halve: the estimate is the step, and the solve ends at the first step below
+  // the tolerance (0.05 / 2^2 = 0.0125), as under the former rule.
+  EXPECT_EQ(StepThatEndsTheSolve(frames, tolerance, 0.05, 0.5, 60, &reason), 2);
+}
+
+TEST(PoseStepCallback, EndsAfterTheRejectedStepsLimit) {
   const std::vector<Frame> frames = {UnitFrame(), UnitFrame()};
   double x[kPoseAmbientSize];
   PoseToParameters(Eigen::Isometry3d::Identity(), x);
