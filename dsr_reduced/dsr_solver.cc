@@ -282,11 +282,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
       why = "weighted solve " + std::to_string(solves) + " not usable";
       break;
     }
-    double motion = 0.0;
-    for (int i = 1; i < m; ++i) {
-      motion = std::max(motion,
-                        MaxCornerMotionVoxels(frames[i], poses[i], part.frame_from_world[i]));
-    }
+    const double motion = LargestMotionVoxels(frames, poses, part.frame_from_world);
     poses = part.frame_from_world;
     if (options.photometric) photometric = part.photometric;
     UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, context,

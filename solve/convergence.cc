@@ -25,6 +25,18 @@ double MaxCornerMotionVoxels(const Frame& frame,
   return motion;
 }
 
+double LargestMotionVoxels(const std::vector<Frame>& frames,
+                           const std::vector<Eigen::Isometry3d>& a,
+                           const std::vector<Eigen::Isometry3d>& b) {
+  CHECK_EQ(a.size(), frames.size());
+  CHECK_EQ(b.size(), frames.size());
+  double motion = 0.0;
+  for (size_t i = 1; i < frames.size(); ++i) {
+    motion = std::max(motion, MaxCornerMotionVoxels(frames[i], a[i], b[i]));
+  }
+  return motion;
+}
+
 double RemainingMotionVoxels(double motion, double previous_motion) {
   constexpr double kMinContraction = 0.5;
   constexpr double kMaxContraction = 0.95;
@@ -44,6 +56,7 @@ PoseStepCallback::PoseStepCallback(const std::vector<Frame>* frames,
       tolerance_voxels_(tolerance_voxels),
       max_rejected_steps_(max_rejected_steps) {
   CHECK_EQ(frames_->size(), pose_blocks_.size());
+  for (size_t i = 1; i < pose_blocks_.size(); ++i) CHECK(pose_blocks_[i] != nullptr) << i;
   previous_ = Current();
 }
 
@@ -74,11 +87,7 @@ ceres::CallbackReturnType PoseStepCallback::operator()(const ceres::IterationSum
   }
   rejected_in_a_row_ = 0;
   const std::vector<Eigen::Isometry3d> now = Current();
-  double motion = 0.0;
-  for (size_t i = 0; i < now.size(); ++i) {
-    if (pose_blocks_[i] == nullptr) continue;
-    motion = std::max(motion, MaxCornerMotionVoxels((*frames_)[i], previous_[i], now[i]));
-  }
+  const double motion = LargestMotionVoxels(*frames_, previous_, now);
   previous_ = now;
   const double remaining = RemainingMotionVoxels(motion, previous_motion_);
   previous_motion_ = motion;

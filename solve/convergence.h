@@ -29,6 +29,12 @@ double MaxCornerMotionVoxels(const Frame& frame,
                              const Eigen::Isometry3d& a,
                              const Eigen::Isometry3d& b);
 
+// The largest MaxCornerMotionVoxels of frames 1..m-1 between two sets of poses (frame 0,
+// the gauge, does not move): how far a step moved the fields of view.
+double LargestMotionVoxels(const std::vector<Frame>& frames,
+                           const std::vector<Eigen::Isometry3d>& a,
+                           const std::vector<Eigen::Isometry3d>& b);
+
 // The distance, in voxels of field-of-view motion, a solve still has to go after an
 // accepted step that moved a field of view by at most `motion`, the accepted step before it
 // having moved one by `previous_motion` (0: there was none). With noise, Gauss-Newton
@@ -40,8 +46,9 @@ double MaxCornerMotionVoxels(const Frame& frame,
 double RemainingMotionVoxels(double motion, double previous_motion);
 
 // Terminates a Ceres solve by the rule above. `pose_blocks[i]` points to frame i's
-// ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for a frame that is
-// not a parameter (frame 0). Requires Solver::Options::update_state_every_iteration.
+// ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for frame 0 (the
+// gauge, not a parameter) and only for it. Requires
+// Solver::Options::update_state_every_iteration.
 class PoseStepCallback final : public ceres::IterationCallback {
  public:
   PoseStepCallback(const std::vector<Frame>* frames,

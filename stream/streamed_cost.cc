@@ -108,11 +108,7 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
       pass_motion_ = 0.0;
       if (policy_.frames != nullptr && policy_.step_tolerance_voxels > 0.0 &&
           static_cast<int>(accepted_poses_.size()) == m) {
-        for (int i = 1; i < m; ++i) {
-          pass_motion_ = std::max(
-              pass_motion_,
-              MaxCornerMotionVoxels((*policy_.frames)[i], accepted_poses_[i], poses[i]));
-        }
+        pass_motion_ = LargestMotionVoxels(*policy_.frames, accepted_poses_, poses);
         final_step = RemainingMotionVoxels(pass_motion_, accepted_motion_) <
                      policy_.step_tolerance_voxels;
       }
