@@ -3,6 +3,8 @@
 
 #include <gtest/gtest.h>
 
+#include "dsr/tests/support/enum_names.h"
+
 namespace dsr {
 namespace {
 
@@ -18,16 +20,9 @@ void TwoFrames(std::vector<Image>* images, std::vector<Mask>* masks) {
 }
 
 TEST(IntensityTransform, NamesRoundTrip) {
-  for (IntensityTransform t : {IntensityTransform::kNone, IntensityTransform::kSqrt}) {
-    IntensityTransform parsed = t == IntensityTransform::kNone ? IntensityTransform::kSqrt
-                                                               : IntensityTransform::kNone;
-    ASSERT_TRUE(StringToIntensityTransform(IntensityTransformToString(t), &parsed));
-    EXPECT_EQ(parsed, t);
-  }
-  IntensityTransform untouched = IntensityTransform::kSqrt;
-  EXPECT_FALSE(StringToIntensityTransform("log", &untouched));
-  EXPECT_FALSE(StringToIntensityTransform("SQRT", &untouched));
-  EXPECT_EQ(untouched, IntensityTransform::kSqrt);
+  testing_enums::ExpectNamesRoundTrip({IntensityTransform::kNone, IntensityTransform::kSqrt},
+                                      IntensityTransformToString, StringToIntensityTransform,
+                                      {"log", "SQRT"});
 }
 
 // c is the largest intensity inside any mask (frame 1's 400 is outside its mask), and

@@ -6,6 +6,7 @@
 #include <algorithm>
 
 #include "dsr/model/panorama.h"
+#include "dsr/tests/support/enum_names.h"
 
 namespace dsr {
 namespace {
@@ -133,15 +134,9 @@ TEST(BuildPanoramaGrid, AllPhasesSamplesFrame0AtEveryPhase) {
   const double u = t.frames[0].geometry().PhysicalToIndex(half.origin_mm + 3.0 * half.spacing_mm)[0];
   EXPECT_NEAR(u - std::floor(u), 0.5, 1e-9);
   // The names round-trip.
-  for (PanoramaSampling p : {PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases}) {
-    PanoramaSampling parsed = p == PanoramaSampling::kHalfVoxel ? PanoramaSampling::kAllPhases
-                                                                : PanoramaSampling::kHalfVoxel;
-    ASSERT_TRUE(StringToPanoramaSampling(PanoramaSamplingToString(p), &parsed));
-    EXPECT_EQ(parsed, p);
-  }
-  PanoramaSampling untouched = PanoramaSampling::kAllPhases;
-  EXPECT_FALSE(StringToPanoramaSampling("dither", &untouched));
-  EXPECT_EQ(untouched, PanoramaSampling::kAllPhases);
+  testing_enums::ExpectNamesRoundTrip({PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases},
+                                      PanoramaSamplingToString, StringToPanoramaSampling,
+                                      {"dither"});
 }
 
 // A frame 0 whose axes are not world axes has no lattice to align to: the origin is the
