@@ -56,6 +56,7 @@ def main(argv):
           "| median time (s) | max time (s), runs without / with a recovery | failures |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     calibration = []
+    shared = []
     head_to_head = []
     by_group = {}  # (source, protocol, masks) -> {method: [rows]}
     for source, protocol, masks, path in groups:
@@ -87,6 +88,17 @@ def main(argv):
                   f"{max(tre_all) if tre_all else float('nan'):.3g} | "
                   f"{statistics.median(times) if times else float('nan'):.2f} | {split} | "
                   f"{' '.join(failed) if failed else '-'} |")
+            offsets = [[float(r[f"shared_offset_{a}_mm"]) for a in "xyz"] for r in ok
+                       if r.get("shared_offset_x_mm")]
+            if offsets and len(offsets) == len(ok):
+                n = len(offsets)
+                mean = [sum(o[a] for o in offsets) / n for a in range(3)]
+                along = sum(sum(o[a] * mean[a] for a in range(3)) > 0.0 for o in offsets)
+                shared.append(
+                    f"| {method} | {source} | {protocol} | {masks} | {n} | "
+                    f"{statistics.median(float(r['shared_offset_mm']) for r in ok):.4f} | "
+                    f"{mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f} | {along}/{n} | "
+                    f"{statistics.median(float(r['frame_spread_mm']) for r in ok):.4f} |")
             predicted = [float(r["predicted_tre_mm"]) for r in ok if r.get("predicted_tre_mm")]
             nees = [float(r["nees"]) for r in ok if r.get("nees")]
             if predicted and len(predicted) == len(ok):
@@ -161,6 +173,15 @@ def main(argv):
               "| sequences above 1.2 |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for line in calibration:
+            print(line)
+    if shared:
+        print("\nThe frames' errors at their fields of view's centres, split into the offset they "
+              "share (frame 0 off against the rest) and their spread about it (successful runs; "
+              "mm, frame 0's axes).\n")
+        print("| method | source | protocol | masks | runs | median shared offset | mean shared "
+              "offset (x y z) | sequences along the mean | median spread |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for line in shared:
             print(line)
     if head_to_head:
         print("\nHead to head on the sequences where both succeed (TRE ratio < 1: the first "

@@ -64,7 +64,8 @@ IMAGE_EXTENSIONS = (".nii.gz", ".nii", ".mha", ".mhd", ".nrrd", ".nhdr")
 CSV_COLUMNS = ("method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
                "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
                "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
-               "failure")
+               "failure,shared_offset_mm,shared_offset_x_mm,shared_offset_y_mm,"
+               "shared_offset_z_mm,frame_spread_mm")
 CONVENTION = "T maps world points to frame physical points (frame_from_world, LPS, mm)"
 # Grids must agree like dsr's ImageGeometry::SameGrid (1e-4 mm, direction 1e-6).
 GRID_TOLERANCE_MM = 1e-4
@@ -347,7 +348,9 @@ def wrap(a):
 def compare_poses(estimated, truth, masks, geom, tre_stride=2):
     """Frame-0-relative errors as dsr's ComparePoses: per frame i >= 1 the translation error
     (mm, voxels), Euler angle error, and the TRE over every `tre_stride`-th voxel (along each
-    axis, from index 0) of frame i's mask: |T_est^-1 x - T_gt^-1 x| in world mm."""
+    axis, from index 0) of frame i's mask: |T_est^-1 x - T_gt^-1 x| in world mm, and the mean
+    of T_est^-1 x - T_gt^-1 x (the centre error); over frames, the centre errors' mean (the
+    shared offset, in frame 0's axes) and mean distance from it (the spread)."""
     est0_inv, gt0_inv = rigid_inverse(estimated[0]), rigid_inverse(truth[0])
     est = [t @ est0_inv for t in estimated]
     gt = [t @ gt0_inv for t in truth]
@@ -367,16 +370,19 @@ def compare_poses(estimated, truth, masks, geom, tre_stride=2):
         pe = est_inv[:3, :3] @ x + est_inv[:3, 3:4]
         pg = gt_inv[:3, :3] @ x + gt_inv[:3, 3:4]
         d = np.sqrt(((pe - pg) ** 2).sum(axis=0))
+        centre = (pe - pg).mean(axis=1) if d.size else np.zeros(3)
         frames.append({
             "translation_mm": translation_mm, "translation_voxels": translation_voxels,
             "euler_rad": euler,
             "tre_mean_mm": float(d.sum() / d.size) if d.size else 0.0,
             "tre_max_mm": float(d.max()) if d.size else 0.0,
+            "centre_error_mm": centre,
         })
     n = max(1, m - 1)
 
     def mae(key):  # mean over frames of the mean absolute component
         return sum(np.abs(f[key]).sum() / 3.0 for f in frames) / n
+    shared = sum((f["centre_error_mm"] for f in frames), np.zeros(3)) / n
     return {
         "frames": frames,
         "mae_translation_voxels": mae("translation_voxels"),
@@ -384,6 +390,9 @@ def compare_poses(estimated, truth, masks, geom, tre_stride=2):
         "mae_rotation_rad": mae("euler_rad"),
         "tre_mean_mm": sum(f["tre_mean_mm"] for f in frames) / n,
         "tre_max_mm": max((f["tre_max_mm"] for f in frames), default=0.0),
+        "shared_offset_mm": shared,
+        "frame_spread_mm": sum(float(np.linalg.norm(f["centre_error_mm"] - shared))
+                               for f in frames) / n,
     }
 
 
@@ -614,6 +623,9 @@ def csv_row(method, sequence, ok, errors, run):
               fmt(e.get("tre_max_mm", "")), fmt(run.get("iterations", "")), "", "",
               fmt(run.get("seconds", "")), fmt(run.get("peak_memory_mb", "")), "",
               csv_field(run.get("failure", ""))]
+    shared = e.get("shared_offset_mm")
+    fields += ([fmt(float(np.linalg.norm(shared)))] + [fmt(float(v)) for v in shared] +
+               [fmt(e["frame_spread_mm"])]) if shared is not None else [""] * 5
     return ",".join(fields)
 
 

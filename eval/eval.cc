@@ -52,13 +52,16 @@ PoseErrorSummary ComparePoses(const std::vector<Eigen::Isometry3d>& estimated,
     const Eigen::Isometry3d est_inv = est[i].inverse(), gt_inv = gt[i].inverse();
     const ImageGeometry& g = masks[i].geometry;
     double sum = 0.0;
+    Eigen::Vector3d displacement_sum = Eigen::Vector3d::Zero();
     int64_t count = 0;
     for (int k = 0; k < g.size[2]; k += tre_stride) {
       for (int j = 0; j < g.size[1]; j += tre_stride) {
         for (int ii = 0; ii < g.size[0]; ii += tre_stride) {
           if (masks[i].at(ii, j, k) == 0) continue;
           const Eigen::Vector3d x = g.IndexToPhysical(Eigen::Vector3d(ii, j, k));
-          const double d = (est_inv * x - gt_inv * x).norm();
+          const Eigen::Vector3d displacement = est_inv * x - gt_inv * x;
+          const double d = displacement.norm();
+          displacement_sum += displacement;
           sum += d;
           e.tre_max_mm = std::max(e.tre_max_mm, d);
           ++count;
@@ -66,6 +69,7 @@ PoseErrorSummary ComparePoses(const std::vector<Eigen::Isometry3d>& estimated,
       }
     }
     e.tre_mean_mm = count > 0 ? sum / count : 0.0;
+    if (count > 0) e.centre_error_mm = displacement_sum / static_cast<double>(count);
   }
   if (m > 1) {
     for (int i = 1; i < m; ++i) {
@@ -75,11 +79,17 @@ PoseErrorSummary ComparePoses(const std::vector<Eigen::Isometry3d>& estimated,
       out.mae_rotation_rad += e.euler_rad.cwiseAbs().sum() / 3.0;
       out.tre_mean_mm += e.tre_mean_mm;
       out.tre_max_mm = std::max(out.tre_max_mm, e.tre_max_mm);
+      out.shared_offset_mm += e.centre_error_mm;
     }
     out.mae_translation_voxels /= m - 1;
     out.mae_translation_mm /= m - 1;
     out.mae_rotation_rad /= m - 1;
     out.tre_mean_mm /= m - 1;
+    out.shared_offset_mm /= m - 1;
+    for (int i = 1; i < m; ++i) {
+      out.frame_spread_mm += (out.frames[i].centre_error_mm - out.shared_offset_mm).norm();
+    }
+    out.frame_spread_mm /= m - 1;
   }
   return out;
 }
@@ -103,6 +113,12 @@ std::string PoseErrorSummary::Table() const {
                 "max %.4f mm\n",
                 mae_translation_voxels, mae_translation_mm, mae_rotation_rad, tre_mean_mm,
                 tre_max_mm);
+  s << line;
+  std::snprintf(line, sizeof(line),
+                "Centre errors: shared offset %.4f mm (%.4f %.4f %.4f in frame 0's axes), "
+                "spread about it %.4f mm\n",
+                shared_offset_mm.norm(), shared_offset_mm[0], shared_offset_mm[1],
+                shared_offset_mm[2], frame_spread_mm);
   s << line;
   return s.str();
 }

@@ -6,8 +6,12 @@
 //   Euler angle error   angles(R_est) - angles(R_gt), R = Rz(gamma) Ry(beta) Rx(alpha)
 //                       (the simulator's convention), wrapped to (-pi, pi],
 //   target registration error (TRE): for the centres x of frame i's field-of-view voxels,
-//                       |T_est^-1 x - T_gt^-1 x| in world mm (mean and max).
-// Summaries average the absolute component errors over frames 1..m-1 (the paper's MAE).
+//                       |T_est^-1 x - T_gt^-1 x| in world mm (mean and max);
+//   centre error        the mean of T_est^-1 x - T_gt^-1 x over the same points (the error
+//                       at the field of view's centroid: a rigid error moves points affinely).
+// Summaries average the absolute component errors over frames 1..m-1 (the paper's MAE),
+// and split the centre errors into the part every frame shares (the mean over frames
+// 1..m-1: frame 0 off against the rest) and the spread about it (docs/design.md 6).
 #ifndef DSR_EVAL_EVAL_H_
 #define DSR_EVAL_EVAL_H_
 
@@ -31,6 +35,7 @@ struct FramePoseError {
   double rotation_angle_rad = 0.0;  // angle of R_est R_gt^T
   double tre_mean_mm = 0.0;
   double tre_max_mm = 0.0;
+  Eigen::Vector3d centre_error_mm = Eigen::Vector3d::Zero();  // world (frame 0's) axes
 };
 
 struct PoseErrorSummary {
@@ -40,6 +45,11 @@ struct PoseErrorSummary {
   double mae_rotation_rad = 0.0;
   double tre_mean_mm = 0.0;  // mean over frames of each frame's mean TRE
   double tre_max_mm = 0.0;   // max over frames and points
+  // Mean of the centre errors over frames 1..m-1, in frame 0's physical axes (what every
+  // frame shares: frame 0's own error against the rest), and the mean distance of the
+  // centre errors from it (the frames' errors against each other).
+  Eigen::Vector3d shared_offset_mm = Eigen::Vector3d::Zero();
+  double frame_spread_mm = 0.0;
   // A per-frame table (one line per frame) for terminals and reports.
   std::string Table() const;
 };

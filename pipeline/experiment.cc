@@ -34,7 +34,8 @@ std::string Serialize(const ComparisonRow& row) {
   s.precision(17);
   s << row.ok << ' ' << row.mae_translation_voxels << ' ' << row.mae_translation_mm << ' '
     << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
-    << row.iterations << ' ' << row.recoveries << ' ' << row.seconds_per_iteration << ' '
+    << row.shared_offset_mm[0] << ' ' << row.shared_offset_mm[1] << ' '
+    << row.shared_offset_mm[2] << ' ' << row.frame_spread_mm << ' ' << row.iterations << ' ' << row.recoveries << ' ' << row.seconds_per_iteration << ' '
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
@@ -53,7 +54,9 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   std::istringstream s(text);
   size_t poses = 0;
   s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
-      row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->iterations >>
+      row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->shared_offset_mm[0] >>
+      row->shared_offset_mm[1] >> row->shared_offset_mm[2] >> row->frame_spread_mm >>
+      row->iterations >>
       row->recoveries >> row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
       row->added_memory_mb;
   std::string predicted, nees, mae_gain, mae_offset;
@@ -111,6 +114,8 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   row.mae_rotation_rad = errors.mae_rotation_rad;
   row.tre_mean_mm = errors.tre_mean_mm;
   row.tre_max_mm = errors.tre_max_mm;
+  row.shared_offset_mm = errors.shared_offset_mm;
+  row.frame_spread_mm = errors.frame_spread_mm;
   row.iterations = result.total_iterations;
   double finest_seconds = 0.0, finest_differences = 0.0;
   int finest_iterations = 0, finest_solves = 0;
@@ -244,7 +249,9 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
   s << "method,sequence,ok,mae_translation_voxels,mae_translation_mm,mae_rotation_rad,"
        "tre_mean_mm,tre_max_mm,iterations,seconds_per_iteration,"
        "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
-       "predicted_tre_mm,nees,mae_gain,mae_offset,failure,recoveries\n";
+       "predicted_tre_mm,nees,mae_gain,mae_offset,failure,recoveries,"
+       "shared_offset_mm,shared_offset_x_mm,shared_offset_y_mm,shared_offset_z_mm,"
+       "frame_spread_mm\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
@@ -256,7 +263,9 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
       s << ',';
       if (!std::isnan(v)) s << v;
     }
-    s << ',' << CsvField(r.failure) << ',' << r.recoveries << '\n';
+    s << ',' << CsvField(r.failure) << ',' << r.recoveries << ',' << r.shared_offset_mm.norm()
+      << ',' << r.shared_offset_mm[0] << ',' << r.shared_offset_mm[1] << ','
+      << r.shared_offset_mm[2] << ',' << r.frame_spread_mm << '\n';
   }
   return s.str();
 }

@@ -34,6 +34,10 @@ struct ComparisonRow {
   std::string failure;          // why not ok
   double mae_translation_voxels = 0.0, mae_translation_mm = 0.0, mae_rotation_rad = 0.0;
   double tre_mean_mm = 0.0, tre_max_mm = 0.0;
+  // The frames' centre errors split into what they share (frame 0 off against the rest; its
+  // length and components in frame 0's axes) and their spread about it (eval/eval.h).
+  Eigen::Vector3d shared_offset_mm = Eigen::Vector3d::Zero();
+  double frame_spread_mm = 0.0;
   int iterations = 0;               // every solve of every level (initialiser excluded)
   int recoveries = 0;               // recovery rounds (RegistrationResult::recoveries)
   double seconds_per_iteration = 0.0;   // finest level: solve time / iterations
