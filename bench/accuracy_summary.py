@@ -72,7 +72,7 @@ def main(argv):
             ok = [r for r in runs if r["ok"] == "1" and float(r["tre_mean_mm"]) < threshold]
             tre_ok = [float(r["tre_mean_mm"]) for r in ok]
             tre_all = [float(r["tre_mean_mm"]) for r in runs if r["ok"] == "1"]
-            times = [float(r["seconds"]) for r in ok]
+            times = [float(r["seconds"]) for r in ok if r.get("seconds")]  # empty: not timed
             failed = sorted(r["sequence"] for r in runs if r not in ok)
             # Every run's time, split by whether it needed a recovery round (columns of
             # dsr_compare; other tools' rows have none).
