@@ -11,7 +11,7 @@
 //                       at the field of view's centroid: a rigid error moves points affinely).
 // Summaries average the absolute component errors over frames 1..m-1 (the paper's MAE),
 // and split the centre errors into the part every frame shares (the mean over frames
-// 1..m-1: frame 0 off against the rest) and the spread about it (docs/design.md 6).
+// 1..m-1: frame 0 off against the rest) and the spread about it (docs/design.md 6.5).
 #ifndef DSR_EVAL_EVAL_H_
 #define DSR_EVAL_EVAL_H_
 

@@ -20,7 +20,7 @@ Mask TestMask() {
   return mask;
 }
 
-// Frames 1..3 at known poses; `moved` applies a world-side error to the estimate of each.
+// Frame 0 at the world origin and frames 1..3 at known poses, the truth the tests perturb.
 std::vector<Eigen::Isometry3d> Truth() {
   std::vector<Eigen::Isometry3d> truth(4, Eigen::Isometry3d::Identity());
   for (int i = 1; i < 4; ++i) {
