@@ -25,6 +25,7 @@ same SOURCE,PROTOCOL,MASKS add their methods to one group, so that runs of other
 same sequences compare too (e.g. dsr's results.csv, then bench/elastix.sh's).
 """
 import csv
+import math
 import statistics
 import sys
 
@@ -96,7 +97,7 @@ def main(argv):
                 along = sum(sum(o[a] * mean[a] for a in range(3)) > 0.0 for o in offsets)
                 shared.append(
                     f"| {method} | {source} | {protocol} | {masks} | {n} | "
-                    f"{statistics.median(float(r['shared_offset_mm']) for r in ok):.4f} | "
+                    f"{statistics.median(math.hypot(*o) for o in offsets):.4f} | "
                     f"{mean[0]:.4f} {mean[1]:.4f} {mean[2]:.4f} | {along}/{n} | "
                     f"{statistics.median(float(r['frame_spread_mm']) for r in ok):.4f} |")
             predicted = [float(r["predicted_tre_mm"]) for r in ok if r.get("predicted_tre_mm")]

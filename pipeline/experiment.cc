@@ -35,7 +35,8 @@ std::string Serialize(const ComparisonRow& row) {
   s << row.ok << ' ' << row.mae_translation_voxels << ' ' << row.mae_translation_mm << ' '
     << row.mae_rotation_rad << ' ' << row.tre_mean_mm << ' ' << row.tre_max_mm << ' '
     << row.shared_offset_mm[0] << ' ' << row.shared_offset_mm[1] << ' '
-    << row.shared_offset_mm[2] << ' ' << row.frame_spread_mm << ' ' << row.iterations << ' ' << row.recoveries << ' ' << row.seconds_per_iteration << ' '
+    << row.shared_offset_mm[2] << ' ' << row.frame_spread_mm << ' ' << row.iterations << ' '
+    << row.recoveries << ' ' << row.seconds_per_iteration << ' '
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
@@ -56,9 +57,8 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   s >> row->ok >> row->mae_translation_voxels >> row->mae_translation_mm >>
       row->mae_rotation_rad >> row->tre_mean_mm >> row->tre_max_mm >> row->shared_offset_mm[0] >>
       row->shared_offset_mm[1] >> row->shared_offset_mm[2] >> row->frame_spread_mm >>
-      row->iterations >>
-      row->recoveries >> row->seconds_per_iteration >> row->differences_per_iteration >> row->seconds >>
-      row->added_memory_mb;
+      row->iterations >> row->recoveries >> row->seconds_per_iteration >>
+      row->differences_per_iteration >> row->seconds >> row->added_memory_mb;
   std::string predicted, nees, mae_gain, mae_offset;
   s >> predicted >> nees >> mae_gain >> mae_offset >> poses;
   if (!s || poses > 1000) return false;

@@ -46,7 +46,8 @@ struct SolveOptions {
   double min_relative_decrease = 1e-3;
   // The pose stopping rule of solve/convergence.h: stop when the distance still to go,
   // estimated from the last accepted steps, moves no field of view by more than this many
-  // voxels (0 = off), or after this many rejected steps in a row (0 = off). Tests that converge to 1e-8 turn both off.
+  // voxels (0 = off), or after this many rejected steps in a row (0 = off). Tests that
+  // converge to 1e-8 turn both off.
   double step_tolerance = 5e-3;
   int max_rejected_steps = 5;
   // Streamed costs (DSR, APE, pair registrations): compute Jacobians along with a trial

@@ -50,9 +50,10 @@ void CompressNormalEquations(const Eigen::MatrixXd& hessian,
 //    resumes after the next accepted step.
 //  * lazy final Jacobian (when `frames` is set and step_tolerance_voxels > 0): a trial
 //    point whose step leaves less than `step_tolerance_voxels` still to go
-//    (RemainingMotionVoxels) ends the solve if it is accepted (the rule of solve/convergence.h, which then stops Ceres before
-//    it uses the Jacobians again). Its pass is cost-only, and the Jacobians Ceres asks for
-//    there are those of the previous point with the new point's exact cost.
+//    (RemainingMotionVoxels) ends the solve if it is accepted (the rule of
+//    solve/convergence.h, which then stops Ceres before it uses the Jacobians again). Its
+//    pass is cost-only, and the Jacobians Ceres asks for there are those of the previous
+//    point with the new point's exact cost.
 // Neither changes any cost Ceres sees or any pose it reaches (the cost-only and the
 // Jacobian passes give bit-identical costs); tests compare solves with and without.
 struct StreamedEvaluationPolicy {

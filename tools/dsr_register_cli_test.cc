@@ -286,7 +286,9 @@ TEST_F(DsrRegisterCli, CompareCarriesGainsAndOffsets) {
   ASSERT_TRUE(ReadPoses(out + "/poses/seq_gain_ape.json", 3, &poses, &error)) << error;
   EXPECT_TRUE(poses.gain.empty());
   const std::string csv = testing_cli::ReadText(out + "/results.csv");
-  EXPECT_NE(csv.find(",mae_gain,mae_offset,failure,recoveries,shared_offset_mm,"), std::string::npos) << csv;
+  EXPECT_NE(csv.find(",mae_gain,mae_offset,failure,recoveries,shared_offset_mm,"),
+            std::string::npos)
+      << csv;
   const size_t row = csv.find("\ndba+affine,seq_gain,1,");
   ASSERT_NE(row, std::string::npos) << csv;
   const std::string line = csv.substr(row + 1, csv.find('\n', row + 1) - row - 1);
