@@ -7,6 +7,7 @@
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
 #                          [--uncertainty] [--photometric=none|affine]
 #                          [--intensity_transform=none|sqrt] [--panorama_sampling=half_voxel|all_phases]
+#                          [--gauge=mean|frame0]
 #                          [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom and the MNI152 T1 template (scripts/fetch_anatomy.sh, a
@@ -23,12 +24,14 @@
 # go to OUT/runs/INIT[-affine]-sqrt, the table to OUT/accuracy_INIT[_affine]_sqrt.md).
 # --panorama_sampling=all_phases: frame 0 sampled at every sub-voxel phase (dsr_compare
 # --panorama_sampling; the suffix -all_phases after the others).
+# --gauge=frame0: DSR's solves with frame 0 constant rather than in the default mean gauge
+# (dsr_compare --gauge; the suffix -frame0_gauge last).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
-uncertainty="" photometric=none transform=none sampling=half_voxel
+uncertainty="" photometric=none transform=none sampling=half_voxel gauge=mean
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -43,6 +46,7 @@ for arg in "$@"; do
     --photometric=*) photometric=${arg#*=} ;;
     --intensity_transform=*) transform=${arg#*=} ;;
     --panorama_sampling=*) sampling=${arg#*=} ;;
+    --gauge=*) gauge=${arg#*=} ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
@@ -57,6 +61,9 @@ suffix="${uncertainty:+-uncertainty}"
 [[ "$sampling" == half_voxel || "$sampling" == all_phases ]] || {
   echo "accuracy.sh: --panorama_sampling=$sampling: must be half_voxel or all_phases" >&2; exit 2; }
 [[ "$sampling" == all_phases ]] && suffix="$suffix-all_phases"
+[[ "$gauge" == frame0 || "$gauge" == mean ]] || {
+  echo "accuracy.sh: --gauge=$gauge: must be frame0 or mean" >&2; exit 2; }
+[[ "$gauge" == frame0 ]] && suffix="$suffix-frame0_gauge"
 tools=${DSR_TOOLS:-build/tools}
 if [[ ! -x "$tools/dsr_compare" ]]; then bash scripts/build.sh; fi
 mni=""
@@ -96,7 +103,8 @@ for source in "${source_list[@]}"; do
       echo "accuracy.sh: $source $protocol masks=$mask init=$init ($seeds sequences)" >&2
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
         --sequence_masks="$use" --init="$init" --photometric="$photometric" \
-        --intensity_transform="$transform" --panorama_sampling="$sampling" $uncertainty \
+        --intensity_transform="$transform" --panorama_sampling="$sampling" --gauge="$gauge" \
+        $uncertainty \
         2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
       csvs+=("$source,$protocol,$mask,$run/results.csv")

@@ -59,11 +59,42 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     }
   }
 
+  const bool mean_gauge = options.gauge == Gauge::kMean;
+  if (mean_gauge) {
+    // The prior's stiffness, from the data's normal equations at the initial poses.
+    const StreamContext context = StreamContextFor(options.solve);
+    std::vector<Photometric> photometric = PhotometricParameters();
+    ReducedSystem system;
+    if (weights != nullptr) {
+      AccumulateWeightedReducedSystem(frames, candidates, frame_from_world, photometric, *weights,
+                                      0, candidates.num_voxels(), true, context, &system);
+    } else if (options.photometric) {
+      AccumulateReducedPhotometricSystem(frames, candidates, frame_from_world, photometric, 0,
+                                         candidates.num_voxels(), true, context, &system);
+    } else {
+      AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
+                              true, context, &system);
+    }
+    const int p = options.photometric ? kWideJacobianSize : kJacobianSize;
+    gauge_stiffness_ = MeanGaugeStiffness(system.hessian, m, p);
+  }
+  std::vector<double*> all_poses;
+  std::vector<Eigen::Vector3d> centres;  // of the fields of view, for the mean gauge's prior
+  for (int i = 0; i < m; ++i) {
+    all_poses.push_back(poses_[i].data());
+    centres.push_back(frames[i].geometry().IndexToPhysical(frames[i].ValidIndexBox().center()));
+  }
+
   if (options.reference_cost) {
     for (int i = 0; i < m; ++i) {
       problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
     }
-    problem_->SetParameterBlockConstant(poses_[0].data());
+    if (mean_gauge) {
+      problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, centres, gauge_stiffness_),
+                                 nullptr, all_poses);
+    } else {
+      problem_->SetParameterBlockConstant(poses_[0].data());
+    }
     if (options.photometric) {
       for (int i = 0; i < m; ++i) problem_->AddParameterBlock(photometric_[i].data(), 2);
       problem_->SetParameterBlockConstant(photometric_[0].data());
@@ -100,7 +131,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     return;
   }
   std::vector<double*> free_blocks;
-  for (int i = 1; i < m; ++i) {
+  for (int i = mean_gauge ? 0 : 1; i < m; ++i) {
     problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
     free_blocks.push_back(poses_[i].data());
   }
@@ -117,9 +148,13 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
                                        StreamContextFor(options.solve), options.photometric,
-                                       weights);
+                                       weights, options.gauge);
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
+  }
+  if (mean_gauge) {
+    problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, centres, gauge_stiffness_),
+                               nullptr, all_poses);
   }
 }
 
@@ -189,8 +224,11 @@ bool SolveOnce(const std::vector<Frame>& frames,
   // Reuse of passes relies on Ceres's trust-region loop and the pose step rule below, so
   // it is set for this solve only (stream/streamed_cost.h).
   dsr.SetEvaluationPolicy(EvaluationPolicyFor(frames, options.solve));
+  const bool mean_gauge = options.gauge == Gauge::kMean;
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
-  for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dsr.pose_parameters(i);
+  for (size_t i = mean_gauge ? 0 : 1; i < frames.size(); ++i) {
+    pose_blocks[i] = dsr.pose_parameters(i);
+  }
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
   if (!RunCeres(options, options.reference_cost ? "dsr-ref" : "dsr", &stop, &dsr, report,
@@ -198,13 +236,16 @@ bool SolveOnce(const std::vector<Frame>& frames,
     return false;
   }
   if (!stop.reason().empty()) report->termination = stop.reason();
-  report->frame_from_world = dsr.Poses();
+  if (mean_gauge) ++report->jacobian_passes;  // the prior's stiffness
+  report->frame_from_world = mean_gauge ? RelativeToFrame0(dsr.Poses()) : dsr.Poses();
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();
   std::vector<const double*> free_blocks, photometric_blocks;
-  for (size_t i = 1; i < frames.size(); ++i) {
-    free_blocks.push_back(dsr.pose_parameters(i));
-    if (options.photometric) photometric_blocks.push_back(dsr.photometric_parameters(i));
+  for (size_t i = 0; i < frames.size(); ++i) {
+    if (pose_blocks[i] != nullptr) free_blocks.push_back(pose_blocks[i]);
+    if (options.photometric && i > 0) {
+      photometric_blocks.push_back(dsr.photometric_parameters(i));
+    }
   }
   // The weighted per-frame costs are not the misfits' sums of squares: none with weights.
   bool final_pass = !dsr.chunks().empty() && weights == nullptr;
@@ -345,6 +386,7 @@ bool SolvePhotometricAtPoses(const std::vector<Frame>& frames,
   DsrOptions photometric_options = options;
   photometric_options.photometric = true;
   photometric_options.loss = RobustLoss();
+  photometric_options.gauge = Gauge::kFrame0;  // the poses are constant
   if (!photometric_options.Validate(error)) return false;
   if (!InitialPhotometricCountMatches(options, frames.size(), error)) return false;
   DsrProblem dsr(frames, candidates, frame_from_world, photometric_options);

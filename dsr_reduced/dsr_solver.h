@@ -14,6 +14,7 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/solve/solve_options.h"
 
 namespace dsr {
@@ -34,6 +35,11 @@ struct DsrOptions {
   // The loss (model/robust_loss.h). Squared: one solve of f. Huber or Cauchy: iteratively
   // reweighted solves of the weighted cost f_w (dsr_reduced/reduced_cost.h), with either cost.
   RobustLoss loss;
+  // The pose gauge (solve/gauge.h). kMean: every pose is free, with a prior on their mean
+  // displacement whose stiffness comes from the data's normal equations at the initial
+  // poses (one extra pass, MeanGaugeStiffness); SolveDsr returns the poses relative to frame
+  // 0's. Frame 0's photometric parameters stay the photometric gauge in both.
+  Gauge gauge = Gauge::kFrame0;
   bool Validate(std::string* error) const;
 };
 
@@ -45,8 +51,9 @@ constexpr int kMaxReweightings = 30;
 // stop moving at all.
 constexpr double kWeightChangeTolerance = 2.5e-7;
 
-// The reduced Ceres problem over free poses (frame 0 constant, not a parameter block of
-// the fast cost; a constant block of the reference cost).
+// The reduced Ceres problem over free poses (in the frame-0 gauge frame 0 is constant: not a
+// parameter block of the fast cost, a constant block of the reference cost; in the mean
+// gauge it is free in both, and a MeanPosePrior block holds the frames' common motion).
 class DsrProblem {
  public:
   // With `weights` (built for `candidates`; not owned, must outlive the problem and not
@@ -78,6 +85,7 @@ class DsrProblem {
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
   std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
   std::vector<ReducedChunkCost*> chunks_;  // owned by problem_
+  Vector6d gauge_stiffness_ = Vector6d::Zero();  // the mean gauge's prior
 };
 
 // Solves. A solve that runs but is not usable returns true with report->usable = false.

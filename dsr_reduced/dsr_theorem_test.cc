@@ -19,6 +19,7 @@
 #include "dsr/dba/dba_problem.h"
 #include "dsr/dsr_reduced/dsr_solver.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/tests/support/fixed_point_options.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
 #include "dsr/tests/support/kernel_paths.h"
@@ -36,6 +37,7 @@ using testing_problems::MaxPoseDifference;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
 using testing_poses::FramesFromWorldNear;
+using testing_solve::FixedPointOptions;
 using testing_tolerances::kFixedPointRotationRad;
 using testing_tolerances::kFixedPointTranslationMm;
 using testing_tolerances::kStepRelativeTolerance;
@@ -231,19 +233,6 @@ TEST(Theorem, ReducedCostIsTheDbaCostMinimisedOverIntensities) {
   }
 }
 
-// Solves as far as Ceres goes: every tolerance at its floor and the pose stopping rule off.
-SolveOptions FixedPointOptions(int max_iterations) {
-  SolveOptions o;
-  o.progress = getenv("DSR_TEST_LOG") != nullptr;
-  o.num_threads = 2;
-  o.max_iterations = max_iterations;
-  o.function_tolerance = 1e-20;
-  o.gradient_tolerance = 1e-20;
-  o.parameter_tolerance = 1e-15;
-  o.step_tolerance = 0.0;
-  o.max_rejected_steps = 0;
-  return o;
-}
 
 struct ModePoses {
   std::vector<Eigen::Isometry3d> dba, dsr_fast, dsr_reference;

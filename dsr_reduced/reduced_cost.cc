@@ -573,8 +573,9 @@ ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    int64_t end,
                                    const StreamContext& context,
                                    bool photometric,
-                                   const ObservationWeights* weights)
-    : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric),
+                                   const ObservationWeights* weights,
+                                   Gauge gauge)
+    : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric, gauge),
       frames_(frames),
       candidates_(candidates),
       begin_(begin),

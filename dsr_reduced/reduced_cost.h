@@ -193,9 +193,10 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
                               ReweightStats* stats);
 
 // Fast path: a chunk of voxels [begin, end) as one streamed residual block over the free
-// poses (frames 1..m-1, in order; stream/streamed_cost.h) and, with `photometric`, their
-// photometric blocks after them. Frame 0's pose is the constant `frame0_from_world`, its
-// photometric parameters the gauge. num_residuals = p (m - 1) + 1, p = 6 or 8. With
+// poses (frames 1..m-1, in order, or 0..m-1 in the mean gauge; stream/streamed_cost.h) and,
+// with `photometric`, the photometric blocks of frames 1..m-1 after them. In the frame-0
+// gauge frame 0's pose is the constant `frame0_from_world`; its photometric parameters are
+// the gauge in either. num_residuals = p (m - 1) + 1, p = 6 or 8. With
 // `weights` (not owned; must not change while the block lives, since its passes are
 // cached), the weighted cost f_w.
 class ReducedChunkCost final : public StreamedPoseCost {
@@ -207,7 +208,8 @@ class ReducedChunkCost final : public StreamedPoseCost {
                    int64_t end,
                    const StreamContext& context,
                    bool photometric = false,
-                   const ObservationWeights* weights = nullptr);
+                   const ObservationWeights* weights = nullptr,
+                   Gauge gauge = Gauge::kFrame0);
 
   // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
   static void Compress(const Eigen::MatrixXd& hessian_free,

@@ -27,6 +27,7 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/solve/convergence.h"
+#include "dsr/tests/support/fixed_point_options.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
 #include "dsr/tests/support/sanitizer.h"
@@ -44,6 +45,7 @@ using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
 using testing_problems::TestSequence;
 using testing_poses::FramesFromWorldNear;
+using testing_solve::FixedPointOptions;
 using testing_tolerances::kStepRelativeTolerance;
 using testing_tolerances::kSystemRelativeTolerance;
 
@@ -701,20 +703,6 @@ TEST(RobustTheorem, DbaSchurStepWithLossEqualsWeightedReducedStep) {
   }
 }
 
-// Solves as far as Ceres goes: every tolerance at its floor and the pose stopping rule off
-// (IRLS then stops when the weights stop changing).
-SolveOptions FixedPointOptions(int max_iterations) {
-  SolveOptions o;
-  o.progress = getenv("DSR_TEST_LOG") != nullptr;
-  o.num_threads = 2;
-  o.max_iterations = max_iterations;
-  o.function_tolerance = 1e-20;
-  o.gradient_tolerance = 1e-20;
-  o.parameter_tolerance = 1e-15;
-  o.step_tolerance = 0.0;
-  o.max_rejected_steps = 0;
-  return o;
-}
 
 // A problem whose robust fixed point is sharp although residuals do not vanish there.
 //

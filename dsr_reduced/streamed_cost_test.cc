@@ -3,6 +3,8 @@
 // streamed, never what Ceres sees: DSR (several chunks) and APE solves with and without
 // it take the same steps, reach bit-identical poses and costs, and stop for the same
 // reason, with fewer passes.
+#include <cstdlib>
+
 #include <gtest/gtest.h>
 
 #include "dsr/baselines/baselines.h"
@@ -61,30 +63,36 @@ void SolveBothWays(Options options, const Solve& solve, SolveReport* with, Solve
   ASSERT_TRUE(solve(options, without, &error)) << error;
 }
 
+// In either pose gauge (solve/gauge.h): in the mean gauge frame 0's pose is a block too, and
+// the lazy final point measures the step against frame 0's, like the stopping rule.
 TEST(StreamedCost, ReusingPassesDoesNotChangeDsrSolves) {
-  int by_step_rule = 0;
-  for (uint64_t seed : {3, 4}) {
-    const auto s = Sequence(seed);
-    const auto init = Perturbed(s.ground_truth, 0.04, 1.5, seed + 10);
-    const CandidateSet cand = Candidates(s, init);
-    DsrOptions options;
-    options.num_chunks = 3;
-    options.solve.progress = false;
-    options.solve.max_iterations = 30;
-    // Coarse enough that the pose step rule can end these small noisy solves.
-    options.solve.step_tolerance = 0.3;
-    SolveReport with, without;
-    SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
-      return SolveDsr(s.frames, cand, init, o, r, e);
-    }, &with, &without);
-    ASSERT_GT(without.num_iterations, 2);
-    EXPECT_EQ(without.cost_passes, without.num_iterations * 3);  // one per trial, per chunk
-    if (without.termination.find("pose step tolerance") != std::string::npos) ++by_step_rule;
-    ExpectSameSolve(with, without, /*fewer_passes=*/true);
+  for (Gauge gauge : {Gauge::kFrame0, Gauge::kMean}) {
+    int by_step_rule = 0;
+    const uint64_t first_seed = gauge == Gauge::kFrame0 ? 3 : 6;
+    for (uint64_t seed : {first_seed, uint64_t{4}}) {
+      const auto s = Sequence(seed);
+      const auto init = Perturbed(s.ground_truth, 0.04, 1.5, seed + 10);
+      const CandidateSet cand = Candidates(s, init);
+      DsrOptions options;
+      options.num_chunks = 3;
+      options.gauge = gauge;
+      options.solve.progress = getenv("DSR_TEST_LOG") != nullptr;
+      options.solve.max_iterations = 30;
+      // Coarse enough that the pose step rule can end these small noisy solves.
+      options.solve.step_tolerance = 0.3;
+      SolveReport with, without;
+      SolveBothWays(options, [&](const DsrOptions& o, SolveReport* r, std::string* e) {
+        return SolveDsr(s.frames, cand, init, o, r, e);
+      }, &with, &without);
+      ASSERT_GT(without.num_iterations, 2);
+      EXPECT_EQ(without.cost_passes, without.num_iterations * 3);  // one per trial, per chunk
+      if (without.termination.find("pose step tolerance") != std::string::npos) ++by_step_rule;
+      ExpectSameSolve(with, without, /*fewer_passes=*/true);
+    }
+    // Seed 3 (frame-0 gauge) or 6 (mean gauge) ends by the pose step rule (the lazy final
+    // point is taken), seed 4 by rejected steps: both endings are compared.
+    EXPECT_EQ(by_step_rule, 1) << GaugeToString(gauge);
   }
-  // Seed 3 ends by the pose step rule (the lazy final point is taken), seed 4 by rejected
-  // steps: both endings are compared.
-  EXPECT_EQ(by_step_rule, 1);
 }
 
 TEST(StreamedCost, ReusingPassesDoesNotChangeApeSolves) {

@@ -56,6 +56,7 @@ DsrOptions ToDsrOptions(const RegistrationOptions& options, const SolveOptions& 
   dsr.reference_cost = options.dsr.reference_cost;
   dsr.photometric = options.photometric == PhotometricModel::kAffine;
   dsr.loss = options.loss;
+  dsr.gauge = options.gauge;
   return dsr;
 }
 

@@ -83,7 +83,7 @@ TEST(Pipeline, DsrRecoversGroundTruthWithoutNoise) {
   const PoseErrorSummary errors = RegisterAndCompare(sequence, Options("dsr"), &result);
   EXPECT_LT(errors.mae_translation_voxels, 0.01);
   EXPECT_LT(errors.mae_rotation_rad, 1e-3);
-  // Frame 0 is the gauge.
+  // The poses are relative to frame 0 (every pose is free in the default mean gauge).
   EXPECT_TRUE(result.frame_from_world[0].isApprox(Eigen::Isometry3d::Identity(), 1e-15));
   // Frame 0 sampled at every sub-voxel phase (model/panorama.h): the same floor, on the
   // grid of that rule.
@@ -95,6 +95,15 @@ TEST(Pipeline, DsrRecoversGroundTruthWithoutNoise) {
   EXPECT_LT(swept_errors.mae_rotation_rad, 1e-3);
   EXPECT_GT(swept.grid.spacing_mm.minCoeff(), 1.0 + 1.0 / 64.0);  // 1 + 1/n, n <= 48
   EXPECT_EQ(result.grid.spacing_mm, Eigen::Vector3d::Ones());
+  // Frame 0 constant rather than every pose free with a prior on their mean (the default,
+  // solve/gauge.h): the same floor, and the poses relative to frame 0 in both.
+  RegistrationOptions frame0_gauge = Options("dsr");
+  frame0_gauge.gauge = Gauge::kFrame0;
+  RegistrationResult held;
+  const PoseErrorSummary held_errors = RegisterAndCompare(sequence, frame0_gauge, &held);
+  EXPECT_LT(held_errors.mae_translation_voxels, 0.01);
+  EXPECT_LT(held_errors.mae_rotation_rad, 1e-3);
+  EXPECT_TRUE(held.frame_from_world[0].matrix() == Eigen::Matrix4d::Identity());
 }
 
 TEST(Pipeline, DsrRecoversGroundTruthWithPaperNoise) {
@@ -143,9 +152,11 @@ TEST(Pipeline, DbaRecoversGroundTruth) {
     const PoseErrorSummary dba_errors = RegisterAndCompare(sequence, Options("dba"), &dba);
     EXPECT_LT(dba_errors.mae_translation_voxels, sigma == 0.0 ? 0.01 : 0.1) << "sigma " << sigma;
     EXPECT_LT(dba_errors.mae_rotation_rad, 1e-3) << "sigma " << sigma;
-    // Same pipeline, same function: DSR lands on (nearly) the same poses. The stopping
-    // rule (1e-3 voxel steps) bounds how close.
-    const PoseErrorSummary dsr_errors = RegisterAndCompare(sequence, Options("dsr"), &dsr);
+    // Same pipeline, same function, same gauge (DBA holds frame 0 constant): DSR lands on
+    // (nearly) the same poses. The stopping rule (1e-3 voxel steps) bounds how close.
+    RegistrationOptions dsr_options = Options("dsr");
+    dsr_options.gauge = Gauge::kFrame0;
+    const PoseErrorSummary dsr_errors = RegisterAndCompare(sequence, dsr_options, &dsr);
     const PoseErrorSummary between =
         ComparePoses(dba.frame_from_world, dsr.frame_from_world, sequence.masks);
     EXPECT_LT(between.tre_max_mm, 0.05) << "sigma " << sigma;

@@ -32,6 +32,7 @@
 #include "dsr/model/robust_loss.h"
 #include "dsr/pipeline/modes.h"
 #include "dsr/pipeline/uncertainty.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/solve/solve_options.h"
 
 namespace dsr {
@@ -95,6 +96,10 @@ struct RegistrationOptions {
   // its lattice (default), or at every sub-voxel phase (for texture the frames share, such
   // as ultrasound speckle; docs/accuracy_us.md). Fusion's grid is not affected.
   PanoramaSampling panorama_sampling = PanoramaSampling::kHalfVoxel;
+  // The pose gauge of the DSR solves (solve/gauge.h; docs/design.md 4.8): every pose free
+  // with a prior on their mean (default), or frame 0 constant. The other modes hold frame 0
+  // constant whatever it says. The poses of every level are relative to frame 0's in either.
+  Gauge gauge = Gauge::kMean;
 
   // Pyramid (image/pyramid.h). Level 0 is the input resolution.
   int pyramid_levels = 3;

@@ -30,9 +30,14 @@ double LargestMotionVoxels(const std::vector<Frame>& frames,
                            const std::vector<Eigen::Isometry3d>& b) {
   CHECK_EQ(a.size(), frames.size());
   CHECK_EQ(b.size(), frames.size());
+  // Frame 0 moved (the mean gauge): compare the poses against frame 0's.
+  const bool relative = a[0].matrix() != b[0].matrix();
+  const Eigen::Isometry3d a0_inverse = a[0].inverse(), b0_inverse = b[0].inverse();
   double motion = 0.0;
   for (size_t i = 1; i < frames.size(); ++i) {
-    motion = std::max(motion, MaxCornerMotionVoxels(frames[i], a[i], b[i]));
+    motion = std::max(motion, relative ? MaxCornerMotionVoxels(frames[i], a[i] * a0_inverse,
+                                                               b[i] * b0_inverse)
+                                       : MaxCornerMotionVoxels(frames[i], a[i], b[i]));
   }
   return motion;
 }

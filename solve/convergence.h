@@ -29,8 +29,9 @@ double MaxCornerMotionVoxels(const Frame& frame,
                              const Eigen::Isometry3d& a,
                              const Eigen::Isometry3d& b);
 
-// The largest MaxCornerMotionVoxels of frames 1..m-1 between two sets of poses (frame 0,
-// the gauge, does not move): how far a step moved the fields of view.
+// The largest MaxCornerMotionVoxels of frames 1..m-1 between two sets of poses, each taken
+// relative to its frame 0 (T_i T_0^-1) when frame 0's pose differs between them (a solve in
+// the mean gauge, solve/gauge.h): how far a step moved the fields of view against frame 0's.
 double LargestMotionVoxels(const std::vector<Frame>& frames,
                            const std::vector<Eigen::Isometry3d>& a,
                            const std::vector<Eigen::Isometry3d>& b);
@@ -46,8 +47,8 @@ double LargestMotionVoxels(const std::vector<Frame>& frames,
 double RemainingMotionVoxels(double motion, double previous_motion);
 
 // Terminates a Ceres solve by the rule above. `pose_blocks[i]` points to frame i's
-// ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for frame 0 (the
-// gauge, not a parameter) and only for it. Requires
+// ambient pose parameters ([qx qy qz qw tx ty tz], geometry/se3.h); null for frame 0 when it
+// is the gauge (not a parameter: the identity), and only for it. Requires
 // Solver::Options::update_state_every_iteration.
 class PoseStepCallback final : public ceres::IterationCallback {
  public:

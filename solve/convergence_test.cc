@@ -37,6 +37,27 @@ Frame UnitFrame() {
   return Frame(image, Mask(g, 1));
 }
 
+// When frame 0 moves too (the mean gauge), the motion is measured against frame 0's: every
+// frame moved by one world motion has not moved; frame 0 moved alone moves the others.
+TEST(LargestMotionVoxels, MeasuresAgainstFrame0WhenFrame0Moves) {
+  const std::vector<Frame> frames = {UnitFrame(), UnitFrame(), UnitFrame()};
+  Vector6d d;
+  d << 0.3, -0.2, 0.5, 0.01, -0.02, 0.015;
+  std::vector<Eigen::Isometry3d> a = {Eigen::Isometry3d::Identity(), ExpSE3(0.5 * d),
+                                      ExpSE3(-d)};
+  std::vector<Eigen::Isometry3d> together = a;
+  for (auto& pose : together) pose = pose * ExpSE3(d);
+  EXPECT_LT(LargestMotionVoxels(frames, a, together), 1e-12);
+  std::vector<Eigen::Isometry3d> frame0_alone = a;
+  frame0_alone[0] = Eigen::Isometry3d(Eigen::Translation3d(0.25, 0.0, 0.0));
+  // Frames 1 and 2 now sit 0.25 voxel further along -x against frame 0 (unit voxels).
+  EXPECT_NEAR(LargestMotionVoxels(frames, a, frame0_alone), 0.25, 1e-9);
+  // With frame 0 fixed, the former rule: frame 1's own motion.
+  std::vector<Eigen::Isometry3d> frame1_moved = a;
+  frame1_moved[1] = Eigen::Isometry3d(Eigen::Translation3d(0.0, 0.125, 0.0)) * a[1];
+  EXPECT_NEAR(LargestMotionVoxels(frames, a, frame1_moved), 0.125, 1e-12);
+}
+
 // Runs a PoseStepCallback with `tolerance` over accepted steps that translate frame 1 of
 // `frames` by first * ratio^k voxels at step k; returns the k whose step ended the solve
 // (-1: none in `max_steps`) and the callback's reason.

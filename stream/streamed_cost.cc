@@ -51,15 +51,33 @@ int FrameParameters(bool photometric) { return photometric ? kWideJacobianSize :
 
 StreamedPoseCost::StreamedPoseCost(int num_frames,
                                    const Eigen::Isometry3d& frame0_from_world,
-                                   bool photometric)
-    : num_frames_(num_frames), frame0_from_world_(frame0_from_world), photometric_(photometric) {
+                                   bool photometric,
+                                   Gauge gauge)
+    : num_frames_(num_frames),
+      frame0_from_world_(frame0_from_world),
+      photometric_(photometric),
+      gauge_(gauge),
+      first_pose_block_frame_(gauge == Gauge::kMean ? 0 : 1),
+      num_pose_blocks_(num_frames - first_pose_block_frame_) {
   const int free = num_frames - 1;
   CHECK_GE(free, 1);
-  set_num_residuals(FrameParameters(photometric) * free + 1);
-  for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
+  set_num_residuals(static_cast<int>(KeptParameters().size()) + 1);
+  for (int i = 0; i < num_pose_blocks_; ++i) {
+    mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
+  }
   if (photometric) {
     for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(2);
   }
+}
+
+std::vector<int> StreamedPoseCost::KeptParameters() const {
+  const int p = FrameParameters(photometric_);
+  std::vector<int> kept;
+  if (gauge_ == Gauge::kMean) {
+    for (int k = 0; k < kPoseTangentSize; ++k) kept.push_back(k);
+  }
+  for (int k = p; k < p * num_frames_; ++k) kept.push_back(k);
+  return kept;
 }
 
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
@@ -77,23 +95,26 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
                                 double** jacobians) const {
   const int m = num_frames_;
   const int free = m - 1;
-  const int n = FrameParameters(photometric_) * free;
+  const int blocks = num_pose_blocks_;
+  const int first = first_pose_block_frame_;
+  const int n = num_residuals() - 1;
   // The point: every free parameter, poses first (what a pass is cached by).
-  std::vector<double> flat(static_cast<size_t>(free) * (kPoseAmbientSize + (photometric_ ? 2 : 0)));
-  for (int i = 0; i < free; ++i) {
-    std::copy(parameters[i], parameters[i] + kPoseAmbientSize, flat.begin() + i * kPoseAmbientSize);
+  std::vector<double> flat(static_cast<size_t>(blocks) * kPoseAmbientSize +
+                           (photometric_ ? 2 * free : 0));
+  for (int b = 0; b < blocks; ++b) {
+    std::copy(parameters[b], parameters[b] + kPoseAmbientSize, flat.begin() + b * kPoseAmbientSize);
   }
   std::vector<Eigen::Isometry3d> poses(m);
   poses[0] = frame0_from_world_;
-  for (int i = 1; i < m; ++i) poses[i] = ParametersToPose(parameters[i - 1]);
+  for (int i = first; i < m; ++i) poses[i] = ParametersToPose(parameters[i - first]);
   std::vector<Photometric> photometric;
   if (photometric_) {
     photometric.resize(m);  // frame 0: the gauge
     for (int i = 1; i < m; ++i) {
-      const double* x = parameters[free + i - 1];
+      const double* x = parameters[blocks + i - 1];
       photometric[i] = {x[0], x[1]};
-      flat[free * kPoseAmbientSize + 2 * (i - 1)] = x[0];
-      flat[free * kPoseAmbientSize + 2 * (i - 1) + 1] = x[1];
+      flat[blocks * kPoseAmbientSize + 2 * (i - 1)] = x[0];
+      flat[blocks * kPoseAmbientSize + 2 * (i - 1) + 1] = x[1];
     }
   }
   const bool with_jacobian = jacobians != nullptr;
@@ -162,11 +183,12 @@ const NormalEquations* StreamedPoseCost::PassAt(
     const std::vector<const double*>& free_blocks,
     const std::vector<const double*>& photometric_blocks) const {
   const size_t free = num_frames_ - 1;
-  if (pass_parameters_.empty() || free_blocks.size() != free ||
+  const size_t blocks = num_pose_blocks_;
+  if (pass_parameters_.empty() || free_blocks.size() != blocks ||
       photometric_blocks.size() != (photometric_ ? free : 0)) {
     return nullptr;
   }
-  for (size_t i = 0; i < free; ++i) {
+  for (size_t i = 0; i < blocks; ++i) {
     if (!std::equal(free_blocks[i], free_blocks[i] + kPoseAmbientSize,
                     pass_parameters_.begin() + i * kPoseAmbientSize)) {
       return nullptr;
@@ -174,7 +196,7 @@ const NormalEquations* StreamedPoseCost::PassAt(
   }
   for (size_t i = 0; i < photometric_blocks.size(); ++i) {
     if (!std::equal(photometric_blocks[i], photometric_blocks[i] + 2,
-                    pass_parameters_.begin() + free * kPoseAmbientSize + 2 * i)) {
+                    pass_parameters_.begin() + blocks * kPoseAmbientSize + 2 * i)) {
       return nullptr;
     }
   }
@@ -188,11 +210,17 @@ bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
                                                double** jacobians) const {
   const int m = num_frames_;
   const int p = FrameParameters(photometric_);
-  const int n = p * (m - 1);
+  const int n = num_residuals() - 1;
   Eigen::VectorXd r;
   Eigen::MatrixXd jac;
-  CompressNormalEquations(system.hessian.bottomRightCorner(n, n), system.gradient.tail(n),
-                          system.cost, &r, &jac);
+  if (gauge_ == Gauge::kFrame0) {
+    CompressNormalEquations(system.hessian.bottomRightCorner(n, n), system.gradient.tail(n),
+                            system.cost, &r, &jac);
+  } else {
+    const std::vector<int> kept = KeptParameters();
+    CompressNormalEquations(system.hessian(kept, kept), system.gradient(kept), system.cost, &r,
+                            &jac);
+  }
   if (exact_cost) {
     // A model taken from another point may explain more than this point's cost: shrink
     // it so that |r'|^2 is the cost (the step it implies is never taken).
@@ -204,16 +232,21 @@ bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
   }
   if (!r.allFinite() || !jac.allFinite()) return false;
   Eigen::Map<Eigen::VectorXd>(residuals, n + 1) = r;
-  for (int i = 1; i < m; ++i) {
-    if (jacobians[i - 1] != nullptr) {
+  const int first = first_pose_block_frame_;
+  // Frame i's first column in the kept parameters (frame 0 keeps only its pose).
+  const int shift = first == 0 ? kPoseTangentSize : 0;
+  for (int i = first; i < m; ++i) {
+    const int column = i == 0 ? 0 : shift + p * (i - 1);
+    if (jacobians[i - first] != nullptr) {
       Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, kPoseAmbientSize, Eigen::RowMajor>> out(
-          jacobians[i - 1], n + 1, kPoseAmbientSize);
-      out.noalias() = jac.middleCols<6>(p * (i - 1)) * TangentToAmbientJacobian(parameters[i - 1]);
+          jacobians[i - first], n + 1, kPoseAmbientSize);
+      out.noalias() = jac.middleCols<6>(column) * TangentToAmbientJacobian(parameters[i - first]);
     }
     // [log_gain, offset] are their own tangent coordinates.
-    if (photometric_ && jacobians[m - 1 + i - 1] != nullptr) {
+    const int photometric_block = num_pose_blocks_ + i - 1;
+    if (photometric_ && i > 0 && jacobians[photometric_block] != nullptr) {
       Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, 2, Eigen::RowMajor>>(
-          jacobians[m - 1 + i - 1], n + 1, 2) = jac.middleCols<2>(p * (i - 1) + 6);
+          jacobians[photometric_block], n + 1, 2) = jac.middleCols<2>(column + 6);
     }
   }
   return true;

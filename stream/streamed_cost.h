@@ -10,11 +10,13 @@
 // landmark marginalisation).
 //
 // Parameter blocks: the poses of frames 1..m-1 in order (7 ambient each, geometry/se3.h);
-// frame 0 is the constant pose given at construction (the gauge). With photometric
-// parameters (docs/design.md section 2.8), then the [log_gain, offset] blocks of frames
-// 1..m-1 (frame 0's: the gauge, 0 and 0), and the subclass's normal equations have 8
-// parameters per frame (the pose tangent, log gain, offset). num_residuals = p (m - 1) + 1,
-// p = 6 or 8.
+// frame 0 is the constant pose given at construction (the gauge). In the mean gauge
+// (solve/gauge.h) frame 0's pose is a block too, first, and the pose gauge is a prior
+// elsewhere in the problem. With photometric parameters (docs/design.md section 2.8), then
+// the [log_gain, offset] blocks of frames 1..m-1 (frame 0's: the gauge, 0 and 0, in either
+// pose gauge), and the subclass's normal equations have 8 parameters per frame (the pose
+// tangent, log gain, offset). num_residuals = n + 1 with n = p (m - 1), p = 6 or 8, plus 6
+// in the mean gauge.
 #ifndef DSR_STREAM_STREAMED_COST_H_
 #define DSR_STREAM_STREAMED_COST_H_
 
@@ -29,6 +31,7 @@
 
 #include "dsr/image/frame.h"
 #include "dsr/model/photometric.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/solve/solve_options.h"
 #include "dsr/stream/voxel_stream.h"
 
@@ -80,8 +83,9 @@ inline StreamContext StreamContextFor(const SolveOptions& solve) {
 
 class StreamedPoseCost : public ceres::CostFunction {
  public:
+  // `frame0_from_world` is not used in the mean gauge (frame 0's pose is a block).
   StreamedPoseCost(int num_frames, const Eigen::Isometry3d& frame0_from_world,
-                   bool photometric = false);
+                   bool photometric = false, Gauge gauge = Gauge::kFrame0);
   bool Evaluate(double const* const* parameters,
                 double* residuals,
                 double** jacobians) const final;
@@ -91,12 +95,13 @@ class StreamedPoseCost : public ceres::CostFunction {
   int64_t last_observations() const { return last_observations_; }
   void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
   const StreamedPassCounts& pass_counts() const { return counts_; }
-  // The latest pass when it was made at exactly these free parameters (the poses of
-  // frames 1..m-1, 7 each, and with photometric parameters their 2 each), else null: e.g.
+  // The latest pass when it was made at exactly these free parameters (the pose blocks,
+  // 7 each, and with photometric parameters the 2 each of frames 1..m-1), else null: e.g.
   // the pass at the final poses of a solve, whose per-frame costs the caller may reuse.
   const NormalEquations* PassAt(const std::vector<const double*>& free_blocks,
                                 const std::vector<const double*>& photometric_blocks = {}) const;
   bool photometric() const { return photometric_; }
+  Gauge gauge() const { return gauge_; }
 
  protected:
   // Normal equations over all m frames (p m x p m; p = 6, or 8 with photometric
@@ -116,9 +121,16 @@ class StreamedPoseCost : public ceres::CostFunction {
                                double* residuals,
                                double** jacobians) const;
 
+  // The tangent parameters' positions in the subclass's (p m)-sized normal equations:
+  // every frame's but frame 0's photometric ones, and frame 0's pose too in the mean gauge.
+  std::vector<int> KeptParameters() const;
+
   int num_frames_;
   Eigen::Isometry3d frame0_from_world_;
   bool photometric_;
+  Gauge gauge_;
+  int first_pose_block_frame_;  // 0 in the mean gauge, else 1
+  int num_pose_blocks_;
   StreamedEvaluationPolicy policy_;
   mutable int64_t last_observations_ = 0;
   mutable StreamedPassCounts counts_;

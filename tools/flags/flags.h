@@ -46,6 +46,7 @@ DECLARE_double(loss_scale);
 DECLARE_string(photometric);
 DECLARE_string(intensity_transform);
 DECLARE_string(panorama_sampling);
+DECLARE_string(gauge);
 DECLARE_double(search_rotation_deg);
 DECLARE_int32(search_rotations);
 DECLARE_int32(search_pair_rotations);

@@ -19,6 +19,12 @@ bool RunOptionsFromFlags(RegistrationOptions* options, std::string* init_file,
   }
   if (!RegistrationOptionsFromFlags(options, init_file, error)) return false;
   options->photometric = PhotometricFromFlags(options->mode);
+  if (!FlagIsDefault("gauge") && options->gauge != Gauge::kFrame0 &&
+      options->mode != Mode::kDsr) {
+    *error = "--gauge=" + FLAGS_gauge + ": needs --mode=dsr (--mode=" + FLAGS_mode +
+             " holds frame 0 constant)";
+    return false;
+  }
   if (FLAGS_uncertainty && !ModeEstimatesPhotometric(options->mode)) {
     *error = "--uncertainty: needs --mode=dsr or dba (got --mode=" + FLAGS_mode + ")";
     return false;

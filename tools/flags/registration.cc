@@ -54,6 +54,12 @@ DEFINE_string(panorama_sampling, "half_voxel",
               "grid's spacing is frame 0's times 1 + 1/n, n its longest extent in voxels; for "
               "texture the frames share, such as ultrasound speckle). The fused panorama's "
               "grid is not affected.");
+DEFINE_string(gauge, "mean",
+              "The pose gauge of the DSR solves (docs/design.md 4.8): mean (every pose free, "
+              "frame 0's too, with a prior holding the frames' mean centre and orientation in "
+              "the world, so that no frame alone takes the pull of what moves all frames "
+              "together) or frame0 (frame 0's pose constant, the rule before; DBA and the "
+              "baselines always use it). Output poses are relative to frame 0 either way.");
 DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
               "within this angle of frame 0's orientation, in (0, 180].");
 DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
@@ -134,6 +140,10 @@ bool ValidatePanoramaSampling(const char* flag, const std::string& v) {
   return dsr::CheckFlag(dsr::StringToPanoramaSampling(v, &sampling), flag, v,
                         "must be half_voxel or all_phases");
 }
+bool ValidateGauge(const char* flag, const std::string& v) {
+  dsr::Gauge gauge;
+  return dsr::CheckFlag(dsr::StringToGauge(v, &gauge), flag, v, "must be frame0 or mean");
+}
 bool ValidateLinearSolver(const char* flag, const std::string& v) {
   ceres::LinearSolverType type;
   return dsr::CheckFlag(v.empty() || ceres::StringToLinearSolverType(v, &type), flag, v,
@@ -159,6 +169,7 @@ bool ValidateMemoryBudget(const char* flag, double v) {
 DEFINE_validator(photometric, &ValidatePhotometric);
 DEFINE_validator(intensity_transform, &ValidateIntensityTransform);
 DEFINE_validator(panorama_sampling, &ValidatePanoramaSampling);
+DEFINE_validator(gauge, &ValidateGauge);
 DEFINE_validator(linear_solver, &ValidateLinearSolver);
 DEFINE_validator(trust_region, &ValidateTrustRegion);
 DEFINE_validator(kernels, &ValidateKernels);
@@ -197,6 +208,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   solve.progress = FLAGS_progress;
   options->panorama_spacing = FLAGS_panorama_spacing;
   StringToPanoramaSampling(FLAGS_panorama_sampling, &options->panorama_sampling);  // validated
+  StringToGauge(FLAGS_gauge, &options->gauge);  // validated
   options->pyramid_levels = FLAGS_pyramid_levels;
   options->pyramid_sigma = FLAGS_pyramid_sigma;
   options->pyramid_min_size = FLAGS_pyramid_min_size;
