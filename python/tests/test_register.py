@@ -261,6 +261,14 @@ def test_options_hold_for_their_call_only(sequence):
                zip(dsr.register(images, **LEVELS).poses, first.poses))
 
 
+# A registration started from its own result lands within this (mm, and rotation matrix
+# entries) of it: in the default mean gauge each solve's prior holds the frames' mean where
+# that solve starts, and the cost is not exactly invariant under moving every frame
+# together, so the fixed point moves with the start by a few thousandths of a voxel
+# (docs/design.md 4.8; 4e-3 mm measured here, below 1e-3 with --gauge=frame0).
+RESTART_TOLERANCE = 1e-2
+
+
 def test_init_file_is_matched_to_the_images_by_name(sequence, tmp_path):
     images = files(sequence, "frame")
     result = dsr.register(images, **LEVELS)
@@ -270,7 +278,7 @@ def test_init_file_is_matched_to_the_images_by_name(sequence, tmp_path):
                     images=[os.path.basename(images[i]) for i in order])
     again = dsr.register(images, init=tmp_path / "init.json", **LEVELS)
     for a, b in zip(again.poses, result.poses):
-        assert np.abs(a - b).max() < 1e-3
+        assert np.abs(a - b).max() < RESTART_TOLERANCE
 
 
 def test_initial_poses_start_the_registration(sequence):
@@ -278,7 +286,7 @@ def test_initial_poses_start_the_registration(sequence):
     result = dsr.register(images, **LEVELS)
     again = dsr.register(images, initial_poses=result.poses, **LEVELS)
     for a, b in zip(again.poses, result.poses):
-        assert np.abs(a - b).max() < 1e-3
+        assert np.abs(a - b).max() < RESTART_TOLERANCE
     with pytest.raises(ValueError, match="images: 3 entries for 2 poses"):
         dsr.register(images, initial_poses=result.poses[:2], **LEVELS)
 
