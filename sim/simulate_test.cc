@@ -1502,6 +1502,9 @@ TEST(SimulateWorldSpeckle, WorldGridCoversEveryFieldOfViewOnTheWorldLattice) {
 }
 
 TEST(SimulateWorldSpeckle, KeepsMeanOneAndVarianceOneOverLooks) {
+  DSR_SKIP_UNDER_SANITIZER("statistics over 8 x 2 speckle fields of 237000 voxels: run by the "
+                           "Release pass; SpeckleFields runs under the sanitizers in "
+                           "IsIndependentOfThreadsAndKeepsThePerFrameDraws");
   // Over the ~237000 field-of-view voxels of frame 1 (rotated against the world lattice):
   // as SpeckleHasMeanOneVarianceOneOverLooksAndItsCorrelation, about 15000 independent
   // values at c = 1, so standard errors about 0.8% of the mean and 2% of the variance
@@ -1534,6 +1537,9 @@ TEST(SimulateWorldSpeckle, KeepsMeanOneAndVarianceOneOverLooks) {
 }
 
 TEST(SimulateWorldSpeckle, FramesShareTheSquareOfTheWorldFraction) {
+  DSR_SKIP_UNDER_SANITIZER("correlations over 200000 voxel pairs of 3 speckle field pairs: "
+                           "run by the Release pass; SpeckleFields runs under the sanitizers "
+                           "in IsIndependentOfThreadsAndKeepsThePerFrameDraws");
   // Frames 0 and 1 of WorldSpecklePoses: 5 degrees and about 5.7 voxels apart. At one world
   // point the intensities of one look correlate by |rho k|^2, k the world part's complex
   // correlation between the two sample points (1 at one point), whatever the looks.
