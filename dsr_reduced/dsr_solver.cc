@@ -63,18 +63,9 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   if (mean_gauge) {
     // The prior's stiffness, from the data's normal equations at the initial poses.
     const StreamContext context = StreamContextFor(options.solve);
-    std::vector<Photometric> photometric = PhotometricParameters();
     ReducedSystem system;
-    if (weights != nullptr) {
-      AccumulateWeightedReducedSystem(frames, candidates, frame_from_world, photometric, *weights,
-                                      0, candidates.num_voxels(), true, context, &system);
-    } else if (options.photometric) {
-      AccumulateReducedPhotometricSystem(frames, candidates, frame_from_world, photometric, 0,
-                                         candidates.num_voxels(), true, context, &system);
-    } else {
-      AccumulateReducedSystem(frames, candidates, frame_from_world, 0, candidates.num_voxels(),
-                              true, context, &system);
-    }
+    AccumulateDsrCostSystem(frames, candidates, frame_from_world, PhotometricParameters(), weights,
+                            0, candidates.num_voxels(), true, context, &system);
     const int p = options.photometric ? kWideJacobianSize : kJacobianSize;
     gauge_stiffness_ = MeanGaugeStiffness(system.hessian, m, p);
   }
@@ -82,7 +73,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   std::vector<Eigen::Vector3d> centres;  // of the fields of view, for the mean gauge's prior
   for (int i = 0; i < m; ++i) {
     all_poses.push_back(poses_[i].data());
-    centres.push_back(frames[i].geometry().IndexToPhysical(frames[i].ValidIndexBox().center()));
+    centres.push_back(frames[i].ValidCentre());
   }
 
   if (options.reference_cost) {

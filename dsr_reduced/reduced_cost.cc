@@ -566,6 +566,28 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
   }
 }
 
+void AccumulateDsrCostSystem(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const std::vector<Photometric>& photometric,
+                             const ObservationWeights* weights,
+                             int64_t begin,
+                             int64_t end,
+                             bool with_jacobian,
+                             const StreamContext& context,
+                             ReducedSystem* out) {
+  if (weights != nullptr) {
+    AccumulateWeightedReducedSystem(frames, candidates, frame_from_world, photometric, *weights,
+                                    begin, end, with_jacobian, context, out);
+  } else if (!photometric.empty()) {
+    AccumulateReducedPhotometricSystem(frames, candidates, frame_from_world, photometric, begin,
+                                       end, with_jacobian, context, out);
+  } else {
+    AccumulateReducedSystem(frames, candidates, frame_from_world, begin, end, with_jacobian,
+                            context, out);
+  }
+}
+
 ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    const CandidateSet* candidates,
                                    const Eigen::Isometry3d& frame0_from_world,
@@ -587,18 +609,8 @@ void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_fr
                                   const std::vector<Photometric>& photometric,
                                   bool with_jacobian,
                                   NormalEquations* out) const {
-  if (weights_ != nullptr) {
-    AccumulateWeightedReducedSystem(*frames_, *candidates_, frame_from_world, photometric,
-                                    *weights_, begin_, end_, with_jacobian, context_, out);
-    return;
-  }
-  if (!photometric.empty()) {
-    AccumulateReducedPhotometricSystem(*frames_, *candidates_, frame_from_world, photometric,
-                                       begin_, end_, with_jacobian, context_, out);
-    return;
-  }
-  AccumulateReducedSystem(*frames_, *candidates_, frame_from_world, begin_, end_, with_jacobian,
-                          context_, out);
+  AccumulateDsrCostSystem(*frames_, *candidates_, frame_from_world, photometric, weights_, begin_,
+                          end_, with_jacobian, context_, out);
 }
 
 }  // namespace dsr

@@ -162,6 +162,20 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
                                      const StreamContext& context,
                                      ReducedSystem* out);
 
+// The system of the cost a DSR problem solves, over voxels [begin, end): with `weights`
+// (non-null) f_w, else with `photometric` (one per frame) f with photometric parameters,
+// else (photometric empty) f. One of the three functions above.
+void AccumulateDsrCostSystem(const std::vector<Frame>& frames,
+                             const CandidateSet& candidates,
+                             const std::vector<Eigen::Isometry3d>& frame_from_world,
+                             const std::vector<Photometric>& photometric,
+                             const ObservationWeights* weights,
+                             int64_t begin,
+                             int64_t end,
+                             bool with_jacobian,
+                             const StreamContext& context,
+                             ReducedSystem* out);
+
 // What a reweighting pass measured at its poses.
 struct ReweightStats {
   // sum_j sum_i rho(r_ij^2) with r_ij = c_ij - mu_j, mu_j the weighted mean with the new

@@ -89,6 +89,10 @@ class Frame {
   // Bounding box (continuous index) of the valid cells: [min cell, max cell + 1]; empty
   // when no cell is valid.
   const Eigen::AlignedBox3d& ValidIndexBox() const { return valid_index_box_; }
+  // The centre of that box in the frame's physical coordinates (mm).
+  Eigen::Vector3d ValidCentre() const {
+    return geometry_.IndexToPhysical(valid_index_box_.center());
+  }
 
   // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell bit map (see above;
   // one spare zero byte at the end), for fast paths.

@@ -318,7 +318,7 @@ TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
   for (size_t f = 0; f < s.frames.size(); ++f) frames.push_back(Coarse({s.frames[f], s.masks[f]}, 1));
   std::vector<Eigen::Isometry3d> poses = truth;
   const int off = 3;
-  const Eigen::Vector3d centre = frames[off].geometry().IndexToPhysical(frames[off].ValidIndexBox().center());
+  const Eigen::Vector3d centre = frames[off].ValidCentre();
   Eigen::Isometry3d turn = Eigen::Isometry3d::Identity();
   turn.linear() = ExpSO3(Eigen::Vector3d(1.0, 1.0, 0.0).normalized() * 60.0 * kDegree);
   turn.translation() = centre - turn.linear() * centre;

@@ -90,11 +90,6 @@ std::vector<Eigen::Vector3d> ValidHullCandidates(const Frame& frame) {
   return points;
 }
 
-// Physical centre of the frame's valid cells' bounding box.
-Eigen::Vector3d ValidCentre(const Frame& frame) {
-  return frame.geometry().IndexToPhysical(frame.ValidIndexBox().center());
-}
-
 // Pearson correlation from sums over n pairs (a, b) shifted by reference values.
 struct Correlation {
   double sa = 0, sb = 0, saa = 0, sbb = 0, sab = 0;
@@ -203,7 +198,7 @@ std::vector<Placement> BestTranslations(const Frame& fixed,
   const Eigen::Matrix3d fixed_physical_from_index = fg.IndexToPhysicalMatrix();
   std::vector<Placement> peaks(rotations.size());
   if (fixed.num_valid_cells() == 0 || moving.num_valid_cells() == 0) return peaks;
-  const Eigen::Vector3d c_m = ValidCentre(moving);
+  const Eigen::Vector3d c_m = moving.ValidCentre();
 
   // One grid W for every rotation (MaskedNcc prepares the fixed side for one moving size):
   // large enough for the moving field of view under any sampled rotation (the hull of its
@@ -360,7 +355,7 @@ std::vector<Placement> SearchPlacement(const Frame& fixed,
   const std::vector<Placement> peaks = SearchPeaks(fixed, moving, centre, options);
   // The best distinct peaks: a peak close to a chosen one (rotation and moving centre in
   // the fixed volume) is the same basin.
-  const Eigen::Vector3d c_m = ValidCentre(moving);
+  const Eigen::Vector3d c_m = moving.ValidCentre();
   const double same_translation_mm = 3.0 * fixed.geometry().spacing_mm.maxCoeff();
   std::vector<Placement> starts;
   for (const Placement& p : peaks) {

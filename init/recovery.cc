@@ -134,8 +134,7 @@ bool ReplaceFrames(const std::vector<Frame>& frames,
     const Placement* best = candidates.empty() ? nullptr : &candidates.front();
     if (best != nullptr && best->extra_start != 0) {
       const Eigen::Isometry3d& chosen = best->moving_from_fixed;
-      const Eigen::Vector3d centre_in_frame =
-          frames[f].geometry().IndexToPhysical(frames[f].ValidIndexBox().center());
+      const Eigen::Vector3d centre_in_frame = frames[f].ValidCentre();
       record.moved = true;
       record.ncc_after = best->ncc;
       record.rotation_change_deg =

@@ -56,28 +56,22 @@ StreamedPoseCost::StreamedPoseCost(int num_frames,
     : num_frames_(num_frames),
       frame0_from_world_(frame0_from_world),
       photometric_(photometric),
-      gauge_(gauge),
       first_pose_block_frame_(gauge == Gauge::kMean ? 0 : 1),
       num_pose_blocks_(num_frames - first_pose_block_frame_) {
   const int free = num_frames - 1;
   CHECK_GE(free, 1);
-  set_num_residuals(static_cast<int>(KeptParameters().size()) + 1);
+  const int p = FrameParameters(photometric_);
+  if (gauge == Gauge::kMean) {
+    for (int k = 0; k < kPoseTangentSize; ++k) kept_parameters_.push_back(k);
+  }
+  for (int k = p; k < p * num_frames_; ++k) kept_parameters_.push_back(k);
+  set_num_residuals(static_cast<int>(kept_parameters_.size()) + 1);
   for (int i = 0; i < num_pose_blocks_; ++i) {
     mutable_parameter_block_sizes()->push_back(kPoseAmbientSize);
   }
   if (photometric) {
     for (int i = 0; i < free; ++i) mutable_parameter_block_sizes()->push_back(2);
   }
-}
-
-std::vector<int> StreamedPoseCost::KeptParameters() const {
-  const int p = FrameParameters(photometric_);
-  std::vector<int> kept;
-  if (gauge_ == Gauge::kMean) {
-    for (int k = 0; k < kPoseTangentSize; ++k) kept.push_back(k);
-  }
-  for (int k = p; k < p * num_frames_; ++k) kept.push_back(k);
-  return kept;
 }
 
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
@@ -213,13 +207,12 @@ bool StreamedPoseCost::WriteJacobianEvaluation(const NormalEquations& system,
   const int n = num_residuals() - 1;
   Eigen::VectorXd r;
   Eigen::MatrixXd jac;
-  if (gauge_ == Gauge::kFrame0) {
+  if (first_pose_block_frame_ == 1) {  // the kept parameters are the trailing n
     CompressNormalEquations(system.hessian.bottomRightCorner(n, n), system.gradient.tail(n),
                             system.cost, &r, &jac);
   } else {
-    const std::vector<int> kept = KeptParameters();
-    CompressNormalEquations(system.hessian(kept, kept), system.gradient(kept), system.cost, &r,
-                            &jac);
+    CompressNormalEquations(system.hessian(kept_parameters_, kept_parameters_),
+                            system.gradient(kept_parameters_), system.cost, &r, &jac);
   }
   if (exact_cost) {
     // A model taken from another point may explain more than this point's cost: shrink

@@ -101,7 +101,6 @@ class StreamedPoseCost : public ceres::CostFunction {
   const NormalEquations* PassAt(const std::vector<const double*>& free_blocks,
                                 const std::vector<const double*>& photometric_blocks = {}) const;
   bool photometric() const { return photometric_; }
-  Gauge gauge() const { return gauge_; }
 
  protected:
   // Normal equations over all m frames (p m x p m; p = 6, or 8 with photometric
@@ -121,16 +120,15 @@ class StreamedPoseCost : public ceres::CostFunction {
                                double* residuals,
                                double** jacobians) const;
 
-  // The tangent parameters' positions in the subclass's (p m)-sized normal equations:
-  // every frame's but frame 0's photometric ones, and frame 0's pose too in the mean gauge.
-  std::vector<int> KeptParameters() const;
-
   int num_frames_;
   Eigen::Isometry3d frame0_from_world_;
   bool photometric_;
-  Gauge gauge_;
   int first_pose_block_frame_;  // 0 in the mean gauge, else 1
   int num_pose_blocks_;
+  // The tangent parameters' positions in the subclass's (p m)-sized normal equations:
+  // frames 1..m-1's, and frame 0's pose too in the mean gauge (never frame 0's photometric
+  // parameters, the gauge).
+  std::vector<int> kept_parameters_;
   StreamedEvaluationPolicy policy_;
   mutable int64_t last_observations_ = 0;
   mutable StreamedPassCounts counts_;
