@@ -228,7 +228,7 @@ bool SolveOnce(const std::vector<Frame>& frames,
   }
   if (!stop.reason().empty()) report->termination = stop.reason();
   if (mean_gauge) ++report->jacobian_passes;  // the prior's stiffness
-  report->frame_from_world = mean_gauge ? RelativeToFrame0(dsr.Poses()) : dsr.Poses();
+  report->frame_from_world = dsr.Poses();
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();
   std::vector<const double*> free_blocks, photometric_blocks;

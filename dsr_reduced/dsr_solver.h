@@ -37,8 +37,10 @@ struct DsrOptions {
   RobustLoss loss;
   // The pose gauge (solve/gauge.h). kMean: every pose is free, with a prior on their mean
   // displacement whose stiffness comes from the data's normal equations at the initial
-  // poses (one extra pass, MeanGaugeStiffness); SolveDsr returns the poses relative to frame
-  // 0's. Frame 0's photometric parameters stay the photometric gauge in both.
+  // poses (one extra pass, MeanGaugeStiffness); frame 0 moves too, and SolveDsr returns
+  // every pose in the world of the initial poses (the candidates' world; RelativeToFrame0
+  // gives the outputs' convention). Frame 0's photometric parameters stay the photometric
+  // gauge in both.
   Gauge gauge = Gauge::kFrame0;
   bool Validate(std::string* error) const;
 };
@@ -89,6 +91,8 @@ class DsrProblem {
 };
 
 // Solves. A solve that runs but is not usable returns true with report->usable = false.
+// report->frame_from_world are the final poses in the world of `initial_frame_from_world`
+// (frame 0's is its initial pose unless options.gauge is kMean).
 // With a robust loss (options.loss not squared), iteratively reweighted least squares:
 // weights w_ij = rho'(r_ij^2) from the robust location of each voxel at the start
 // (UpdateObservationWeights), then repeatedly one Ceres solve of f_w with the weights fixed

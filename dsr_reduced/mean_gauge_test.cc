@@ -4,13 +4,13 @@
 //  * the fast chunk cost against the per-voxel reference, through Ceres (cost, gradient and
 //    Gauss-Newton matrix, frame 0's pose block included, with and without photometric
 //    parameters);
+//  * the mean frame a registration's solves run in;
 //  * full solves of both costs reach the same poses, which are the ground truth on exact
-//    problems and are returned relative to frame 0;
+//    problems relative to frame 0 (they are returned in the start's world, frame 0 moved);
 // Reusing passes in the mean gauge: streamed_cost_test.
 #include <array>
 #include <random>
 #include <vector>
-
 
 #include <ceres/ceres.h>
 #include <gmock/gmock.h>
@@ -150,6 +150,51 @@ TEST(PoseDisplacement, IsTheSameForEveryFrameUnderOneWorldMotion) {
   }
 }
 
+// The mean frame: one world motion G of every frame moves it by G^-1 (so the world a solve
+// runs in, built on it, is the same whatever world the poses came in); orientations spread
+// symmetrically about R average to R; frames of one orientation give it exactly, and the
+// origin is the mean of the centres' world positions.
+TEST(MeanFrame, FollowsAWorldMotionAndAveragesOrientationsAndCentres) {
+  std::mt19937_64 rng(17);
+  std::vector<Eigen::Isometry3d> poses;
+  std::vector<Eigen::Vector3d> centres;
+  for (int i = 0; i < 4; ++i) {
+    poses.push_back(ExpSE3(RandomTangent(&rng, 20.0, 0.4)));
+    centres.push_back(RandomTangent(&rng, 40.0, 0.0).head<3>());
+  }
+  const Eigen::Isometry3d mean = MeanFrame(poses, centres);
+  EXPECT_LT((mean.linear().transpose() * mean.linear() - Eigen::Matrix3d::Identity()).norm(),
+            1e-12);
+  EXPECT_NEAR(mean.linear().determinant(), 1.0, 1e-12);
+  const Eigen::Isometry3d world_motion = ExpSE3(RandomTangent(&rng, 30.0, 1.0));
+  std::vector<Eigen::Isometry3d> moved = poses;
+  for (auto& pose : moved) pose = pose * world_motion;
+  EXPECT_LT((MeanFrame(moved, centres).matrix() - (world_motion.inverse() * mean).matrix())
+                .norm(),
+            1e-9);
+
+  const Eigen::Isometry3d orientation = ExpSE3(RandomTangent(&rng, 0.0, 1.5));
+  const Vector6d spread = RandomTangent(&rng, 0.0, 0.3);
+  std::vector<Eigen::Isometry3d> symmetric;
+  Eigen::Vector3d world_centres = Eigen::Vector3d::Zero();
+  for (int i = 0; i < 4; ++i) {
+    // frame_from_world = (R Exp(+-phi) + shift)^-1, with the shifts' mean world centre.
+    Eigen::Isometry3d world_from_frame = orientation * ExpSE3((i % 2 == 0 ? 1.0 : -1.0) * spread);
+    world_from_frame.translation() = RandomTangent(&rng, 25.0, 0.0).head<3>();
+    world_centres += world_from_frame * centres[i];
+    symmetric.push_back(world_from_frame.inverse());
+  }
+  const Eigen::Isometry3d symmetric_mean = MeanFrame(symmetric, centres);
+  EXPECT_LT((symmetric_mean.linear() - orientation.linear()).norm(), 1e-12);
+  EXPECT_LT((symmetric_mean.translation() - world_centres / 4.0).norm(), 1e-12);
+
+  const std::vector<Eigen::Isometry3d> one(3, poses[1]);
+  EXPECT_LT((MeanFrame(one, {centres[0], centres[1], centres[2]}).linear() -
+             poses[1].inverse().linear())
+                .norm(),
+            1e-12);
+}
+
 TEST(MeanGaugeStiffness, IsMTimesTheMeanDiagonalPerKind) {
   const int m = 3, p = 8;
   Eigen::MatrixXd h = Eigen::MatrixXd::Zero(p * m, p * m);
@@ -176,7 +221,8 @@ TEST(MeanGauge, FastPathMatchesPerVoxelReference) {
       o.noise_sigma = 5.0;
       o.seed = seed++;
       const auto s = MakeSequence(o);
-      const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.03, 1.0, seed++), seed++);
+      const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.03, 1.0, seed), seed + 1);
+      seed += 2;
       const CandidateSet cand = Candidates(s, poses);
       DsrOptions ref_options;
       ref_options.reference_cost = true;
@@ -242,7 +288,8 @@ TEST(MeanGauge, SolvesOfBothCostsReachTheGroundTruthRelativeToFrame0) {
     o.lattice = true;
     o.seed = seed++;
     const auto s = MakeSequence(o);
-    const auto init = MovedTogether(Perturbed(s.ground_truth, 0.02, 0.5, seed++), seed++);
+    const auto init = MovedTogether(Perturbed(s.ground_truth, 0.02, 0.5, seed), seed + 1);
+    seed += 2;
     const CandidateSet cand = InteriorCandidates(s, init, 1.5);
     ASSERT_GT(cand.num_voxels(), 200);
     std::vector<std::vector<Eigen::Isometry3d>> results;
@@ -255,12 +302,13 @@ TEST(MeanGauge, SolvesOfBothCostsReachTheGroundTruthRelativeToFrame0) {
       std::string error;
       ASSERT_TRUE(SolveDsr(s.frames, cand, init, options, &report, &error)) << error;
       ASSERT_TRUE(report.usable) << report.termination;
-      EXPECT_TRUE(report.frame_from_world[0].matrix() == Eigen::Matrix4d::Identity());
-      EXPECT_THAT(report.frame_from_world,
-                  FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
-                                      kFixedPointTranslationMm))
+      // The poses come back in the start's world, where frame 0 moved too.
+      EXPECT_GT((report.frame_from_world[0].matrix() - init[0].matrix()).norm(), 1e-6);
+      const std::vector<Eigen::Isometry3d> relative = RelativeToFrame0(report.frame_from_world);
+      EXPECT_THAT(relative, FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
+                                                kFixedPointTranslationMm))
           << "m=" << num_frames << " reference=" << reference;
-      results.push_back(report.frame_from_world);
+      results.push_back(relative);
     }
     EXPECT_THAT(results[0],
                 FramesFromWorldNear(results[1], kFixedPointRotationRad, kFixedPointTranslationMm));

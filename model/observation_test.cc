@@ -139,9 +139,12 @@ TEST(BuildPanoramaGrid, AllPhasesSamplesFrame0AtEveryPhase) {
                                       {"dither"});
 }
 
-// A frame 0 whose axes are not world axes has no lattice to align to: the origin is the
-// box's minimum, as for any other placement.
-TEST(BuildPanoramaGrid, RotatedFrame0KeepsTheBoxMinimum) {
+// A frame 0 whose axes are not world axes (a rotated direction matrix, or the registration's
+// mean-gauge grids on the frames' mean frame) has no lattice to align to: the origin is the
+// box's minimum, and kAllPhases still makes the grid's step 1 + 1/n frame-0 voxels, so
+// that no frame nearly parallel to the grid is sampled at one near-constant phase
+// (docs/design.md 2.5).
+TEST(BuildPanoramaGrid, RotatedFrame0KeepsTheBoxMinimumAndAllPhasesSweeps) {
   TwoFrames t = MakeTwoFrames(1, 2);
   const Eigen::Isometry3d rotation(Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()));
   t.poses = {rotation, rotation * t.poses[1]};
@@ -158,6 +161,12 @@ TEST(BuildPanoramaGrid, RotatedFrame0KeepsTheBoxMinimum) {
     }
   }
   EXPECT_LT((grid.origin_mm - box.min()).norm(), 1e-9);
+  EXPECT_EQ(grid.spacing_mm, Eigen::Vector3d::Ones());
+  ImageGeometry all;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &all, &error,
+                                PanoramaSampling::kAllPhases));
+  EXPECT_EQ(all.origin_mm, grid.origin_mm);
+  EXPECT_EQ(all.spacing_mm, Eigen::Vector3d::Constant(1.0 + 1.0 / 9.0));
 }
 
 TEST(BuildPanoramaGrid, RefusesAbsurdSizes) {

@@ -65,20 +65,24 @@ bool BuildPanoramaGrid(const std::vector<Frame>& frames,
   const ImageGeometry& g0 = frames[0].geometry();
   const Eigen::Isometry3d world_from_frame0 = frame_from_world[0].inverse();
   const Eigen::Matrix3d axes0 = world_from_frame0.linear() * g0.direction;
-  if ((axes0.cwiseAbs() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-9) {
+  const bool frame0_aligned =
+      (axes0.cwiseAbs() - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() < 1e-9;
+  if (frame0_aligned) {
     const Eigen::Vector3d anchor = world_from_frame0 * g0.IndexToPhysical(Eigen::Vector3d::Zero());
     for (int a = 0; a < 3; ++a) {
       const double step = g0.spacing_mm[a];
       g.origin_mm[a] =
           anchor[a] + step * (std::floor((box.min()[a] - anchor[a]) / step - 0.5 + 1e-9) + 0.5);
     }
-    // kAllPhases: the same origin, and a spacing 1 + 1/n times larger on every axis, n frame
-    // 0's longest valid extent in voxels: with factor 1 the phase in frame 0's lattice
-    // advances by 1/n per voxel, one sweep across its longest axis (less across shorter ones).
-    if (sampling == PanoramaSampling::kAllPhases) {
-      const double n = std::max(1.0, std::round(frames[0].ValidIndexBox().sizes().maxCoeff()));
-      g.spacing_mm *= 1.0 + 1.0 / n;
-    }
+  }
+  // kAllPhases: the same origin, and a spacing 1 + 1/n times larger on every axis, n frame
+  // 0's longest valid extent in voxels: with factor 1 the phase in frame 0's lattice
+  // advances by 1/n per voxel, one sweep across its longest axis (less across shorter ones).
+  // Also where frame 0 is not aligned (no half voxel to keep): a frame nearly parallel to a
+  // grid of its own spacing would be sampled at one near-constant phase.
+  if (sampling == PanoramaSampling::kAllPhases) {
+    const double n = std::max(1.0, std::round(frames[0].ValidIndexBox().sizes().maxCoeff()));
+    g.spacing_mm *= 1.0 + 1.0 / n;
   }
   double num_voxels = 1.0;
   for (int a = 0; a < 3; ++a) {

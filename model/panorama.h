@@ -29,7 +29,9 @@ constexpr int64_t kMaxPanoramaVoxels = int64_t{1} << 31;
 bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error);
 
 // Where the registration's panorama grid samples frame 0, whose lattice it is built on
-// (docs/design.md section 2.5), when frame 0's axes are world axes:
+// (docs/design.md section 2.5), when frame 0's axes are world axes (otherwise the origin
+// is the fields of view's box corner, and kAllPhases still sweeps the phases; the
+// registration's mean gauge builds its grids so, on the frames' mean frame):
 //   kHalfVoxel  half a voxel off frame 0's lattice on every axis, at every voxel: frame 0's
 //               samples are averages of its 8 neighbours (the default; best where the
 //               frames' fine detail is independent noise, as in the paper's protocol);
@@ -49,8 +51,8 @@ constexpr const char* PanoramaSamplingToString(PanoramaSampling sampling) {
 // The inverse of PanoramaSamplingToString; false (and *sampling untouched) otherwise.
 bool StringToPanoramaSampling(const std::string& name, PanoramaSampling* sampling);
 
-// Builds the grid: frame 0's axes, spacing frame 0's times `spacing_factor` (times the
-// factors of kAllPhases), covering every frame's valid field of view at the poses. Fails
+// Builds the grid: the world's axes, spacing frame 0's times `spacing_factor` (times the
+// factor of kAllPhases), covering every frame's valid field of view at the poses. Fails
 // when a frame has no valid cell or the grid would exceed kMaxPanoramaVoxels (error names
 // the spacing and the extent).
 bool BuildPanoramaGrid(const std::vector<Frame>& frames,

@@ -13,6 +13,7 @@
 #include "dsr/pipeline/pair_check.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/convergence.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/stream/streamed_cost.h"
 #include "dsr/util/parallel.h"
 
@@ -148,6 +149,8 @@ CoarseToFine::CoarseToFine(const std::vector<Image>& images,
       solver_(MakeLevelSolver(options)),
       m_(static_cast<int>(images.size())),
       affine_(options.photometric == PhotometricModel::kAffine),
+      mean_world_(options.mode == Mode::kDsr && options.gauge == Gauge::kMean),
+      solve_sampling_(mean_world_ ? PanoramaSampling::kAllPhases : options.panorama_sampling),
       guard_(options.min_kept_overlap) {}
 
 bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
@@ -156,6 +159,7 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   result_ = result;
   error_ = error;
   poses_ = start_poses;
+  solve_world_ = Eigen::Isometry3d::Identity();
   photometric_.clear();
   result->photometric.clear();
   result->usable = true;
@@ -190,6 +194,28 @@ CoarseToFine::Next CoarseToFine::Diverged(int level,
   result_->frame_from_world = poses_;
   result_->photometric = photometric_;
   return Next::kEnd;
+}
+
+ImageGeometry CoarseToFine::OutputGrid(const std::vector<Frame>& frames,
+                                       const ImageGeometry& solve_grid) const {
+  if (!mean_world_) return solve_grid;
+  ImageGeometry grid;
+  std::string error;
+  if (BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, &grid, &error,
+                        options_.panorama_sampling)) {
+    return grid;
+  }
+  // The solve's grid itself, placed in frame 0's world (oblique there).
+  grid = solve_grid;
+  grid.direction = solve_world_.linear() * solve_grid.direction;
+  grid.origin_mm = solve_world_ * solve_grid.origin_mm;
+  return grid;
+}
+
+std::vector<Eigen::Isometry3d> CoarseToFine::SolvePoses() const {
+  std::vector<Eigen::Isometry3d> poses = poses_;
+  for (Eigen::Isometry3d& pose : poses) pose = pose * solve_world_;
+  return poses;
 }
 
 CoarseToFine::Next CoarseToFine::BuildLevelFrames(int level, std::vector<Frame>* frames) {
@@ -253,8 +279,16 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
                                                    CandidateSet* candidates,
                                                    ImageGeometry* grid) {
   const int last_level = result_->solves.empty() ? level : result_->solves.back().level;
-  if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, grid, error_,
-                         options_.panorama_sampling)) {
+  Eigen::Isometry3d world = Eigen::Isometry3d::Identity();
+  if (mean_world_) {
+    std::vector<Eigen::Vector3d> centres;
+    for (const Frame& frame : frames) centres.push_back(frame.ValidCentre());
+    world = MeanFrame(poses_, centres);
+  }
+  std::vector<Eigen::Isometry3d> poses = poses_;
+  for (Eigen::Isometry3d& pose : poses) pose = pose * world;
+  if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, grid, error_,
+                         solve_sampling_)) {
     if (result_->solves.empty()) return Next::kError;  // the initial poses: bad input
     // The poses a solve reached spread the frames over a space no panorama can hold.
     const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
@@ -262,7 +296,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     return Diverged(last_level, why, {});
   }
   record->panorama_spacing_mm = grid->spacing_mm;
-  *candidates = BuildCandidates(frames, poses_, *grid, /*margin_cells=*/0);
+  *candidates = BuildCandidates(frames, poses, *grid, /*margin_cells=*/0);
   record->candidate_voxels = candidates->num_voxels();
   record->candidate_observations = candidates->NumObservations();
   const Eigen::MatrixXi overlap = CandidateOverlap(*candidates);
@@ -275,7 +309,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     // pair graph is the only remedy left).
     if (check_every_level_) {
       const std::vector<double> misfits =
-          FrameMisfits(frames, *candidates, poses_, stream_, photometric_);
+          FrameMisfits(frames, *candidates, poses, stream_, photometric_);
       for (int f : MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_)) {
         if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
       }
@@ -298,8 +332,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
   // levels see the same overlap with more detail.
   if (rebuild == 0 && !determined_checked_) {
     double conditioning = 0.0;
-    if (!PosesDetermined(frames, *candidates, poses_, stream_, &conditioning,
-                         &why)) {
+    if (!PosesDetermined(frames, *candidates, poses, stream_, &conditioning, &why)) {
       if (level > 0) {
         LOG(INFO) << "skipping pyramid level " << level << ": " << why;
         return Next::kSkipLevel;
@@ -310,6 +343,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
     determined_checked_ = true;
   }
+  solve_world_ = world;
   return Next::kGoOn;
 }
 
@@ -323,10 +357,12 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
   level_solve_.progress_prefix = options_.solve.progress_prefix + prefix.str();
   std::vector<float> intensities;
   const bool want_intensities = options_.mode == Mode::kDba && level == 0;
-  if (!solver_(level_solve_, frames, candidates, poses_, photometric_, &record.report,
+  if (!solver_(level_solve_, frames, candidates, SolvePoses(), photometric_, &record.report,
                want_intensities ? &intensities : nullptr, error_)) {
     return Next::kError;
   }
+  // The solver's poses are in the problem's world (frame 0 moved in the mean gauge).
+  const Eigen::Isometry3d solved_frame0 = record.report.frame_from_world[0];
   const std::vector<Eigen::Isometry3d> next = RelativeToFrame0(record.report.frame_from_world);
   std::vector<double> frame_motion(m_, 0.0);
   for (int i = 1; i < m_; ++i) {
@@ -337,6 +373,7 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
   const bool usable = record.report.usable;
   if (usable) {
     poses_ = next;
+    solve_world_ = solved_frame0;  // next[i] * frame 0's pose = the solver's pose i
     if (affine_) {
       CHECK_EQ(static_cast<int>(record.report.photometric.size()), m_)
           << "a photometric solve returned no estimate";
@@ -344,7 +381,7 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
     }
   }
   if (level == 0) {
-    result_->grid = grid;
+    result_->grid = OutputGrid(frames, grid);
     if (!intensities.empty()) {
       result_->dba_intensities = Image(grid, 0.0f);
       for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
@@ -375,7 +412,7 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   // solve's candidates (at the poses it reached, up to the rebuild tolerance).
   if (!check_every_level_ || !solved_) return Next::kGoOn;
   const std::vector<double> misfits =
-      FrameMisfits(frames, last_candidates_, poses_, stream_, photometric_);
+      FrameMisfits(frames, last_candidates_, SolvePoses(), stream_, photometric_);
   std::string why;
   if (MisfitOutlier(misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
     result_->flagged_by_misfit = true;
@@ -415,18 +452,20 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // When the last solve moved no field-of-view corner by more than the rebuild tolerance,
   // its candidates stand for the final poses' (as the rebuild rule has it); otherwise
   // candidates are built at the final poses.
+  // Both in the last problem's world (the poses relative to frame 0 are the same in any).
+  const std::vector<Eigen::Isometry3d> poses = SolvePoses();
   CandidateSet final_candidates;
   if (last_motion_ <= options_.rebuild_tolerance) {
     final_candidates = std::move(last_candidates_);
   } else {
     ImageGeometry final_grid;
-    if (!BuildPanoramaGrid(frames, poses_, options_.panorama_spacing, &final_grid, error_,
-                           options_.panorama_sampling)) {
+    if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, &final_grid, error_,
+                           solve_sampling_)) {
       const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
       error_->clear();
       return Diverged(0, why, {});
     }
-    final_candidates = BuildCandidates(frames, poses_, final_grid, 0);
+    final_candidates = BuildCandidates(frames, poses, final_grid, 0);
   }
   std::string why;
   std::vector<int> slid;
@@ -445,7 +484,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
         MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
   } else {
     result_->frame_misfits =
-        FrameMisfits(frames, final_candidates, poses_, stream_, photometric_);
+        FrameMisfits(frames, final_candidates, poses, stream_, photometric_);
   }
   if (MisfitOutlier(result_->frame_misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
     result_->flagged_by_misfit = true;
@@ -457,12 +496,13 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(0, why, flagged);
   }
-  EstimateUncertainty(frames, final_candidates);
+  EstimateUncertainty(frames, final_candidates, poses);
   return Next::kGoOn;
 }
 
 void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
-                                       const CandidateSet& candidates) {
+                                       const CandidateSet& candidates,
+                                       const std::vector<Eigen::Isometry3d>& poses) {
   if (!options_.uncertainty) return;
   if (affine_) {
     // The estimate linearises the poses' stopping rule alone (pipeline/uncertainty.h); the
@@ -475,7 +515,7 @@ void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
     result_->uncertainty_note = "the pose uncertainty does not model the robust loss (loss=" +
                                 std::string(RobustLossKindName(options_.loss.kind)) + ")";
   } else if (options_.mode == Mode::kDsr || options_.mode == Mode::kDba) {
-    if (!EstimatePoseUncertainty(frames, candidates, poses_, masks_, stream_,
+    if (!EstimatePoseUncertainty(frames, candidates, poses, masks_, stream_,
                                  &result_->uncertainty, &result_->uncertainty_note)) {
       result_->uncertainty = PoseUncertainty();
     }

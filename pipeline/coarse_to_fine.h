@@ -6,7 +6,8 @@
 //     BuildLevelFrames     the level's frames; a level where a frame has no valid cell is
 //                          skipped (an error at the finest)
 //     SolveLevel           repeat at most max_rebuilds + 1 times:
-//       BuildLevelProblem    panorama grid and candidates at the current poses, the
+//       BuildLevelProblem    the solve's world (mean gauge: the frames' mean frame),
+//                            panorama grid and candidates at the current poses, the
 //                            divergence guard, the overlap's connectivity, and (once) that
 //                            the overlap determines every pose
 //       SolveOnce            the mode's solver (pipeline/modes.h) with the candidates fixed
@@ -101,9 +102,18 @@ class CoarseToFine {
                  LevelSolve record);
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
   Next CheckFinalPoses(const std::vector<Frame>& frames);
-  void EstimateUncertainty(const std::vector<Frame>& frames, const CandidateSet& candidates);
+  // At `poses` in the candidates' world.
+  void EstimateUncertainty(const std::vector<Frame>& frames,
+                           const CandidateSet& candidates,
+                           const std::vector<Eigen::Isometry3d>& poses);
   // Ends the round as not usable after the solves of `level`, naming `flagged`.
   Next Diverged(int level, const std::string& why, std::vector<int> flagged);
+  // The result's grid, in frame 0's world, from the finest level's last solve grid: that
+  // grid itself, or in the mean gauge one built on frame 0's lattice at poses_ (should the
+  // grid be too large there, the solve's grid placed in frame 0's world).
+  ImageGeometry OutputGrid(const std::vector<Frame>& frames, const ImageGeometry& solve_grid) const;
+  // poses_ in the world of the current level problem: poses_[i] * solve_world_.
+  std::vector<Eigen::Isometry3d> SolvePoses() const;
 
   const std::vector<Image>& images_;
   const std::vector<Mask>& masks_;
@@ -116,11 +126,24 @@ class CoarseToFine {
   const LevelSolver solver_;
   const int m_;
   const bool affine_;
+  // DSR in the mean gauge: each level problem is built in the frames' mean frame, its grid
+  // sampling every frame at every phase (no frame has a lattice the grid could keep half a
+  // voxel off, and one nearly parallel to a grid of its own spacing would be sampled at a
+  // near-constant phase; docs/design.md 4.8). Else options' sampling.
+  const bool mean_world_;
+  const PanoramaSampling solve_sampling_;
 
   // The round's state.
   RegistrationResult* result_ = nullptr;
   std::string* error_ = nullptr;
-  std::vector<Eigen::Isometry3d> poses_;
+  std::vector<Eigen::Isometry3d> poses_;  // relative to frame 0's
+  // The world the current level problem (grid, candidates, solve) is built in, as a map to
+  // frame 0's coordinates: the identity, or in the mean gauge the frames' mean frame
+  // (MeanFrame, solve/gauge.h) at the problem's start and, after a solve, where the solve
+  // left it (frame 0 moves in that gauge). So no frame's axes and lattice are the grid's, as
+  // no frame is held by the gauge. Every check with the problem's candidates evaluates
+  // SolvePoses().
+  Eigen::Isometry3d solve_world_ = Eigen::Isometry3d::Identity();
   // The current gains and offsets (empty: 1 and 0, or no photometric parameters). The
   // checks compare frames on frame 0's intensity scale through them (FrameMisfits).
   std::vector<Photometric> photometric_;

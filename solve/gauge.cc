@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include <Eigen/SVD>
 #include <glog/logging.h>
 
 namespace dsr {
@@ -34,6 +35,27 @@ Vector6d PoseDisplacement(const Eigen::Isometry3d& pose, const Eigen::Isometry3d
         (q.w() * Eigen::Matrix3d::Identity() + Hat(q.vec())) * rotation_t;
   }
   return e;
+}
+
+Eigen::Isometry3d MeanFrame(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                            const std::vector<Eigen::Vector3d>& centres) {
+  CHECK(!frame_from_world.empty());
+  CHECK_EQ(frame_from_world.size(), centres.size());
+  Eigen::Matrix3d sum = Eigen::Matrix3d::Zero();
+  Eigen::Vector3d origin = Eigen::Vector3d::Zero();
+  for (size_t i = 0; i < frame_from_world.size(); ++i) {
+    const Eigen::Isometry3d world_from_frame = frame_from_world[i].inverse();
+    sum += world_from_frame.linear();
+    origin += world_from_frame * centres[i];
+  }
+  // The nearest rotation to `sum`: U diag(1, 1, det(U V^T)) V^T.
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(sum, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Matrix3d u = svd.matrixU();
+  if ((u * svd.matrixV().transpose()).determinant() < 0.0) u.col(2) = -u.col(2);
+  Eigen::Isometry3d mean = Eigen::Isometry3d::Identity();
+  mean.linear() = u * svd.matrixV().transpose();
+  mean.translation() = origin / static_cast<double>(frame_from_world.size());
+  return mean;
 }
 
 MeanPosePrior::MeanPosePrior(std::vector<Eigen::Isometry3d> initial_frame_from_world,

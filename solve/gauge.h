@@ -39,6 +39,16 @@ bool StringToGauge(const std::string& name, Gauge* gauge);
 Vector6d PoseDisplacement(const Eigen::Isometry3d& pose, const Eigen::Isometry3d& initial,
                           const Eigen::Vector3d& centre, Matrix6d* tangent_jacobian = nullptr);
 
+// The frames' mean frame in the world, world_from_mean: its rotation is the chordal mean of
+// the frames' orientations (the rotation nearest to sum_i R_i^T in the Frobenius norm, R_i
+// frame_from_world's), its origin the mean of the world positions T_i^-1 centres[i]. Moving
+// every frame by one world motion G (T_i -> T_i G) gives G^-1 times it; frames that share
+// an orientation give that orientation. The registration's mean gauge builds each solve's
+// panorama grid on it (pipeline/coarse_to_fine.h), so that the grid's axes and lattice are
+// no one frame's.
+Eigen::Isometry3d MeanFrame(const std::vector<Eigen::Isometry3d>& frame_from_world,
+                            const std::vector<Eigen::Vector3d>& centres);
+
 // The prior of Gauge::kMean: 6 residuals r = S (1/m) sum_i e_i (PoseDisplacement of each
 // frame from its pose at construction, about `centres[i]`), S = diag(sqrt(stiffness)): the
 // frames' mean centre and mean orientation stay put in the world. Parameter blocks: the m
