@@ -91,6 +91,13 @@ bool PosesDetermined(const std::vector<Frame>& frames,
   return false;
 }
 
+// `frame_from_world` in another world: T_i W, W mapping that world to this one.
+std::vector<Eigen::Isometry3d> InWorld(std::vector<Eigen::Isometry3d> frame_from_world,
+                                       const Eigen::Isometry3d& world) {
+  for (Eigen::Isometry3d& pose : frame_from_world) pose = pose * world;
+  return frame_from_world;
+}
+
 }  // namespace
 
 Pyramids BuildPyramids(const std::vector<Image>& images,
@@ -213,9 +220,7 @@ ImageGeometry CoarseToFine::OutputGrid(const std::vector<Frame>& frames,
 }
 
 std::vector<Eigen::Isometry3d> CoarseToFine::SolvePoses() const {
-  std::vector<Eigen::Isometry3d> poses = poses_;
-  for (Eigen::Isometry3d& pose : poses) pose = pose * solve_world_;
-  return poses;
+  return InWorld(poses_, solve_world_);
 }
 
 CoarseToFine::Next CoarseToFine::BuildLevelFrames(int level, std::vector<Frame>* frames) {
@@ -285,8 +290,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     for (const Frame& frame : frames) centres.push_back(frame.ValidCentre());
     world = MeanFrame(poses_, centres);
   }
-  std::vector<Eigen::Isometry3d> poses = poses_;
-  for (Eigen::Isometry3d& pose : poses) pose = pose * world;
+  const std::vector<Eigen::Isometry3d> poses = InWorld(poses_, world);
   if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, grid, error_,
                          solve_sampling_)) {
     if (result_->solves.empty()) return Next::kError;  // the initial poses: bad input
