@@ -156,8 +156,8 @@ CoarseToFine::CoarseToFine(const std::vector<Image>& images,
       solver_(MakeLevelSolver(options)),
       m_(static_cast<int>(images.size())),
       affine_(options.photometric == PhotometricModel::kAffine),
-      mean_world_(options.mode == Mode::kDsr && options.gauge == Gauge::kMean),
-      solve_sampling_(mean_world_ ? PanoramaSampling::kAllPhases : options.panorama_sampling),
+      mean_world_(options.mode == Mode::kDsr && options.gauge == Gauge::kMean &&
+                  options.panorama_sampling == PanoramaSampling::kAllPhases),
       guard_(options.min_kept_overlap) {}
 
 bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
@@ -292,7 +292,7 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
   }
   const std::vector<Eigen::Isometry3d> poses = InWorld(poses_, world);
   if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, grid, error_,
-                         solve_sampling_)) {
+                         options_.panorama_sampling)) {
     if (result_->solves.empty()) return Next::kError;  // the initial poses: bad input
     // The poses a solve reached spread the frames over a space no panorama can hold.
     const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
@@ -464,7 +464,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   } else {
     ImageGeometry final_grid;
     if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, &final_grid, error_,
-                           solve_sampling_)) {
+                           options_.panorama_sampling)) {
       const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
       error_->clear();
       return Diverged(0, why, {});

@@ -6,7 +6,8 @@
 //     BuildLevelFrames     the level's frames; a level where a frame has no valid cell is
 //                          skipped (an error at the finest)
 //     SolveLevel           repeat at most max_rebuilds + 1 times:
-//       BuildLevelProblem    the solve's world (mean gauge: the frames' mean frame),
+//       BuildLevelProblem    the solve's world (mean gauge with every phase sampled: the
+//                            frames' mean frame),
 //                            panorama grid and candidates at the current poses, the
 //                            divergence guard, the overlap's connectivity, and (once) that
 //                            the overlap determines every pose
@@ -109,8 +110,8 @@ class CoarseToFine {
   // Ends the round as not usable after the solves of `level`, naming `flagged`.
   Next Diverged(int level, const std::string& why, std::vector<int> flagged);
   // The result's grid, in frame 0's world, from the finest level's last solve grid: that
-  // grid itself, or in the mean gauge one built on frame 0's lattice at poses_ (should the
-  // grid be too large there, the solve's grid placed in frame 0's world).
+  // grid itself, or where solves ran in the mean frame one built on frame 0's lattice at
+  // poses_ (should the grid be too large there, the solve's grid placed in frame 0's world).
   ImageGeometry OutputGrid(const std::vector<Frame>& frames, const ImageGeometry& solve_grid) const;
   // poses_ in the world of the current level problem: poses_[i] * solve_world_.
   std::vector<Eigen::Isometry3d> SolvePoses() const;
@@ -126,12 +127,10 @@ class CoarseToFine {
   const LevelSolver solver_;
   const int m_;
   const bool affine_;
-  // DSR in the mean gauge: each level problem is built in the frames' mean frame, its grid
-  // sampling every frame at every phase (no frame has a lattice the grid could keep half a
-  // voxel off, and one nearly parallel to a grid of its own spacing would be sampled at a
-  // near-constant phase; docs/design.md 4.8). Else options' sampling.
+  // DSR in the mean gauge with every phase sampled (PanoramaSampling::kAllPhases): each level
+  // problem is built in the frames' mean frame, so that no frame's lattice is the grid's
+  // (docs/design.md 4.8). With the half voxel the grid keeps frame 0's lattice.
   const bool mean_world_;
-  const PanoramaSampling solve_sampling_;
 
   // The round's state.
   RegistrationResult* result_ = nullptr;

@@ -94,15 +94,15 @@ struct RegistrationOptions {
   double panorama_spacing = 1.0;  // multiple of frame 0's spacing (at every level)
   // Where the solves' panorama grids sample frame 0 (model/panorama.h): half a voxel off
   // its lattice (default), or at every sub-voxel phase (for texture the frames share, such
-  // as ultrasound speckle; docs/accuracy_us.md). Fusion's grid is not affected. DSR's
-  // solves in the mean gauge sample every frame at every phase whatever it says (their
-  // grids are on the frames' mean frame, no frame's lattice).
+  // as ultrasound speckle; docs/accuracy_us.md). Fusion's grid is not affected. With every
+  // phase, DSR's solves in the mean gauge build their grids on the frames' mean frame, no
+  // frame's lattice (docs/design.md 4.8).
   PanoramaSampling panorama_sampling = PanoramaSampling::kHalfVoxel;
   // The pose gauge of the DSR solves (solve/gauge.h; docs/design.md 4.8): every pose free
-  // with a prior on their mean, each solve's panorama grid built on the frames' mean frame
-  // (default); or frame 0 constant, the grid on frame 0's lattice. The other modes hold
-  // frame 0 constant whatever it says. The poses of every level are relative to frame 0's
-  // in either.
+  // with a prior on their mean (default; with kAllPhases sampling each solve's grid is then
+  // built on the frames' mean frame); or frame 0 constant. The other modes hold frame 0
+  // constant whatever it says. The poses of every level are relative to frame 0's in
+  // either.
   Gauge gauge = Gauge::kMean;
 
   // Pyramid (image/pyramid.h). Level 0 is the input resolution.
@@ -249,10 +249,10 @@ struct RegistrationResult {
   // c (0 without).
   IntensityTransform intensity_transform = IntensityTransform::kNone;
   double intensity_transform_scale = 0.0;
-  // The last solve's panorama grid in frame 0's world (in the mean gauge, where solves run
-  // in the frames' mean frame, one built at the final poses like the solves' in frame 0's
-  // gauge) and, for --mode=dba, its optimised intensities on that grid (0 at voxels that
-  // are not candidates); empty for other modes.
+  // The last solve's panorama grid in frame 0's world (where solves ran in the frames' mean
+  // frame, one built at the final poses in frame 0's world by the same rule) and, for
+  // --mode=dba, its optimised intensities on that grid (0 at voxels that are not
+  // candidates); empty for other modes.
   ImageGeometry grid;
   Image dba_intensities;
 };
