@@ -154,9 +154,7 @@ bool CheckConnected(const CandidateSet& candidates,
   return CheckConnected(CandidateOverlap(candidates), min_shared_voxels, error);
 }
 
-bool CheckConnected(const Eigen::MatrixXi& overlap,
-                    int64_t min_shared_voxels,
-                    std::string* error) {
+std::vector<int> FramesNotConnected(const Eigen::MatrixXi& overlap, int64_t min_shared_voxels) {
   const int m = static_cast<int>(overlap.rows());
   std::vector<bool> reached(m, false);
   std::queue<int> todo;
@@ -172,15 +170,23 @@ bool CheckConnected(const Eigen::MatrixXi& overlap,
       }
     }
   }
-  std::ostringstream missing;
-  int num_missing = 0;
+  std::vector<int> missing;
   for (int i = 0; i < m; ++i) {
-    if (!reached[i]) missing << (num_missing++ ? "," : "") << i;
+    if (!reached[i]) missing.push_back(i);
   }
-  if (num_missing == 0) return true;
+  return missing;
+}
+
+bool CheckConnected(const Eigen::MatrixXi& overlap,
+                    int64_t min_shared_voxels,
+                    std::string* error) {
+  const std::vector<int> missing = FramesNotConnected(overlap, min_shared_voxels);
+  if (missing.empty()) return true;
   if (error) {
-    *error = (num_missing == 1 ? "frame " + missing.str() + " does not"
-                               : "frames " + missing.str() + " do not") +
+    std::ostringstream list;
+    for (size_t k = 0; k < missing.size(); ++k) list << (k ? "," : "") << missing[k];
+    *error = (missing.size() == 1 ? "frame " + list.str() + " does not"
+                                  : "frames " + list.str() + " do not") +
              std::string(" overlap frame 0 or the frames connected to it at the initial poses "
                          "(fewer than ") +
              std::to_string(min_shared_voxels) +

@@ -86,6 +86,9 @@ bool CheckConnected(const CandidateSet& candidates,
 bool CheckConnected(const Eigen::MatrixXi& overlap,
                     int64_t min_shared_voxels,
                     std::string* error);
+// The frames that overlap graph does not connect to frame 0 (increasing; empty when it
+// connects every frame).
+std::vector<int> FramesNotConnected(const Eigen::MatrixXi& overlap, int64_t min_shared_voxels);
 
 // Re-expresses poses so that world = frame 0's physical space: T_i <- T_i T_0^-1.
 std::vector<Eigen::Isometry3d> RelativeToFrame0(

@@ -212,6 +212,15 @@ TEST(CheckConnected, NamesFramesWithoutOverlap) {
                                           {t.poses[0], t.poses[1]}, grid, 0);
   EXPECT_TRUE(CheckConnected(c2, 1, &error));
   EXPECT_FALSE(CheckConnected(c2, 1000, &error));
+  EXPECT_EQ(FramesNotConnected(CandidateOverlap(c), 1), std::vector<int>({2}));
+  EXPECT_EQ(FramesNotConnected(CandidateOverlap(c2), 1), std::vector<int>());
+  // Connected through frame 1 only: 0-1 and 1-3 overlap, 2 and 4 share only each other.
+  Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(5, 5);
+  overlap(0, 1) = overlap(1, 0) = 50;
+  overlap(1, 3) = overlap(3, 1) = 50;
+  overlap(2, 4) = overlap(4, 2) = 500;
+  EXPECT_EQ(FramesNotConnected(overlap, 10), std::vector<int>({2, 4}));
+  EXPECT_EQ(FramesNotConnected(overlap, 60), std::vector<int>({1, 2, 3, 4}));
 }
 
 TEST(FusePanoramaMean, AveragesTheObservingFrames) {

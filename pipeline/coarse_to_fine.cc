@@ -322,6 +322,19 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
   }
   std::string connect_error;
   if (!CheckConnected(overlap, options_.min_shared_voxels, &connect_error)) {
+    if (level == 0 && !result_->solves.empty()) {
+      // Not the input's poses: solves, or a recovery between rounds, left these frames
+      // apart. The round ends as not usable, naming them (a recovery may re-place them).
+      const std::vector<int> apart = FramesNotConnected(overlap, options_.min_shared_voxels);
+      std::ostringstream why;
+      why << "frame";
+      if (apart.size() > 1) why << "s";
+      for (size_t k = 0; k < apart.size(); ++k) why << (k ? "," : " ") << apart[k];
+      why << (apart.size() > 1 ? " no longer overlap" : " no longer overlaps")
+          << " frame 0 or the frames connected to it (fewer than "
+          << options_.min_shared_voxels << " shared panorama voxels at the finest level)";
+      return Diverged(last_level, why.str(), apart);
+    }
     if (level > 0) {
       // Coarse levels have few voxels: a small overlap may only be countable at finer
       // levels, and a coarse solve on a thin overlap may have drifted. Skip the level and
