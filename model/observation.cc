@@ -177,16 +177,20 @@ std::vector<int> FramesNotConnected(const Eigen::MatrixXi& overlap, int64_t min_
   return missing;
 }
 
+std::string FramesPhrase(const std::vector<int>& frames) {
+  std::ostringstream s;
+  s << (frames.size() == 1 ? "frame " : "frames ");
+  for (size_t k = 0; k < frames.size(); ++k) s << (k ? "," : "") << frames[k];
+  return s.str();
+}
+
 bool CheckConnected(const Eigen::MatrixXi& overlap,
                     int64_t min_shared_voxels,
                     std::string* error) {
   const std::vector<int> missing = FramesNotConnected(overlap, min_shared_voxels);
   if (missing.empty()) return true;
   if (error) {
-    std::ostringstream list;
-    for (size_t k = 0; k < missing.size(); ++k) list << (k ? "," : "") << missing[k];
-    *error = (missing.size() == 1 ? "frame " + list.str() + " does not"
-                                  : "frames " + list.str() + " do not") +
+    *error = FramesPhrase(missing) + (missing.size() == 1 ? " does not" : " do not") +
              std::string(" overlap frame 0 or the frames connected to it at the initial poses "
                          "(fewer than ") +
              std::to_string(min_shared_voxels) +

@@ -89,6 +89,8 @@ bool CheckConnected(const Eigen::MatrixXi& overlap,
 // The frames that overlap graph does not connect to frame 0 (increasing; empty when it
 // connects every frame).
 std::vector<int> FramesNotConnected(const Eigen::MatrixXi& overlap, int64_t min_shared_voxels);
+// "frame 2" or "frames 1,3,4" (messages naming frames; `frames` non-empty).
+std::string FramesPhrase(const std::vector<int>& frames);
 
 // Re-expresses poses so that world = frame 0's physical space: T_i <- T_i T_0^-1.
 std::vector<Eigen::Isometry3d> RelativeToFrame0(

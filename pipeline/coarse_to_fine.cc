@@ -327,10 +327,8 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
       // apart. The round ends as not usable, naming them (a recovery may re-place them).
       const std::vector<int> apart = FramesNotConnected(overlap, options_.min_shared_voxels);
       std::ostringstream why;
-      why << "frame";
-      if (apart.size() > 1) why << "s";
-      for (size_t k = 0; k < apart.size(); ++k) why << (k ? "," : " ") << apart[k];
-      why << (apart.size() > 1 ? " no longer overlap" : " no longer overlaps")
+      why << FramesPhrase(apart)
+          << (apart.size() > 1 ? " no longer overlap" : " no longer overlaps")
           << " frame 0 or the frames connected to it (fewer than "
           << options_.min_shared_voxels << " shared panorama voxels at the finest level)";
       return Diverged(last_level, why.str(), apart);
