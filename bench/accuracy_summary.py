@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Summarises bench/accuracy.sh runs: one Markdown row per (method, source, protocol, masks).
 
-Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv [...]
+Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv[,checks_off.csv] [...]
 A run succeeds when dsr_compare reports it ok and its mean TRE is below 0.1 mm (1 mm on the
 ultrasound-like protocols us, us_flat and us_gain, whose speckle alone puts the poses 0.05-0.4 mm
 off: there success means the right basin, a wrong minimum being millimetres off); TRE and
@@ -18,6 +18,12 @@ predicted with the measured error over the successful runs: the mean predicted a
 TRE, their ratio, and the mean normalised squared pose error e^T C^-1 e over 6 (1 when the
 covariance is calibrated; docs/design.md section 8.6), and the spread of the per-sequence
 ratio measured / predicted TRE (its range, and how many sequences exceed 1.2).
+With a checks_off.csv (bench/accuracy.sh: the refused runs registered again with the misfit
+and pair checks off), a table lists every refusal with the TRE it would have had, and counts
+per row the clear false refusals (refused, below CLEAR_FALSE_REFUSAL_MM with the checks off),
+the refusals in between, the right refusals (above CLEAR_MISS_MM with the checks off, or still
+failing), the clear misses (accepted above CLEAR_MISS_MM) and the accepted runs in between
+(from the success threshold to CLEAR_MISS_MM).
 With several methods on the same sequences a head-to-head table compares the first method
 with each other one on the sequences where both succeed: on how many the first is more
 accurate, and the median and largest per-sequence TRE ratio first / other. Arguments with the
@@ -31,10 +37,52 @@ import sys
 
 SUCCESS_TRE_MM = 0.1
 SUCCESS_TRE_MM_BY_PROTOCOL = {"us": 1.0, "us_flat": 1.0, "us_gain": 1.0}
+# A refusal is clearly false when the run ends below this with the checks off; an accepted
+# run is a clear miss above CLEAR_MISS_MM.
+CLEAR_FALSE_REFUSAL_MM = 0.05
+CLEAR_MISS_MM = 0.5
 
 
 def success_mm(protocol):
     return SUCCESS_TRE_MM_BY_PROTOCOL.get(protocol, SUCCESS_TRE_MM)
+
+
+def refusal_rows(source, protocol, masks, rows, checks_off, out):
+    """Appends one line per method to `out` when the row has a refusal or an accepted run
+    above the success threshold (see the module's doc)."""
+    threshold = success_mm(protocol)
+    by_method = {}
+    for r in rows:
+        by_method.setdefault(r["method"], []).append(r)
+    for method, runs in by_method.items():
+        refused = [r for r in runs if r["ok"] != "1"]
+        above = [r for r in runs if r["ok"] == "1" and not float(r["tre_mean_mm"]) < threshold]
+        if not refused and not above:
+            continue
+        false_refusals = between = right = 0
+        notes = []
+        for r in refused:
+            off = checks_off.get((method, r["sequence"]))
+            if off is None:
+                notes.append(f"{r['sequence']} (not rerun)")
+                continue
+            if off["ok"] != "1":
+                right += 1
+                notes.append(f"{r['sequence']} (fails)")
+                continue
+            tre = float(off["tre_mean_mm"])
+            notes.append(f"{r['sequence']} {tre:.3g}")
+            if tre < CLEAR_FALSE_REFUSAL_MM:
+                false_refusals += 1
+            elif tre > CLEAR_MISS_MM:
+                right += 1
+            else:
+                between += 1
+        misses = sum(float(r["tre_mean_mm"]) > CLEAR_MISS_MM for r in above)
+        notes += [f"{r['sequence']} accepted at {float(r['tre_mean_mm']):.3g}" for r in above]
+        out.append(f"| {method} | {source} | {protocol} | {masks} | {len(refused)} | "
+                   f"{false_refusals} | {between} | {right} | {len(above) - misses} | {misses} | "
+                   f"{'; '.join(notes)} |")
 
 
 def median_or_nan(values):
@@ -49,7 +97,8 @@ def main(argv):
             init = arg.split("=", 1)[1]
             continue
         source, protocol, masks, path = arg.split(",", 3)
-        groups.append((source, protocol, masks, path))
+        path, _, off_path = path.partition(",")
+        groups.append((source, protocol, masks, path, off_path))
     print(f"Initialiser: `--init={init}`. Success: mean TRE < {SUCCESS_TRE_MM} mm "
           f"(< {SUCCESS_TRE_MM_BY_PROTOCOL['us']} mm on "
           f"{', '.join(SUCCESS_TRE_MM_BY_PROTOCOL)}).\n")
@@ -57,12 +106,18 @@ def main(argv):
           "| median time (s) | max time (s), runs without / with a recovery | failures |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     calibration = []
+    refusals = []
     shared = []
     head_to_head = []
     by_group = {}  # (source, protocol, masks) -> {method: [rows]}
-    for source, protocol, masks, path in groups:
+    for source, protocol, masks, path, off_path in groups:
         with open(path, newline="") as f:
             rows = list(csv.DictReader(f))
+        checks_off = {}
+        if off_path:
+            with open(off_path, newline="") as f:
+                checks_off = {(r["method"], r["sequence"]): r for r in csv.DictReader(f)}
+        refusal_rows(source, protocol, masks, rows, checks_off, refusals)
         by_method = {}
         for r in rows:
             by_method.setdefault(r["method"], []).append(r)
@@ -166,6 +221,17 @@ def main(argv):
               "| per-sequence ratio, median (range) | gain MAE | offset MAE |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for line in brightness:
+            print(line)
+    if refusals:
+        print(f"\nRefusals and misses: each refused run with its TRE when registered again "
+              f"with the checks off (clear false refusal: below {CLEAR_FALSE_REFUSAL_MM} mm; "
+              f"right: above {CLEAR_MISS_MM} mm or still failing), and the accepted runs above "
+              f"the success threshold (clear miss: above {CLEAR_MISS_MM} mm).\n")
+        print("| method | source | protocol | masks | refused | clear false refusals "
+              "| refusals in between | right refusals | accepted above the threshold "
+              "| clear misses | runs (TRE with the checks off, mm) |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for line in refusals:
             print(line)
     if calibration:
         print("\nPredicted against measured error (calibrated: both ratios within [0.7, 1.5]).\n")
