@@ -52,6 +52,13 @@ class Frame {
 
   const ImageGeometry& geometry() const { return geometry_; }
   int64_t num_valid_cells() const { return num_valid_cells_; }
+  // The same frame with its physical coordinates moved by `shift` (origin + shift), its data
+  // shared: the pipeline's local frames (docs/design.md 1.2).
+  Frame Translated(const Eigen::Vector3d& shift) const {
+    Frame moved = *this;
+    moved.geometry_.origin_mm += shift;
+    return moved;
+  }
 
   // Continuous index of a physical point (frame coordinates, mm).
   Eigen::Vector3d ToIndex(const Eigen::Vector3d& x_in_frame_mm) const {

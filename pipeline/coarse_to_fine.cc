@@ -33,7 +33,8 @@ std::vector<Frame> LevelFrames(const std::vector<Image>& images,
   ParallelFor(0, m, num_threads, [&](int64_t i) {
     ImageLevel& stored = pyramids->levels[i][level];
     const bool input_is_level = level == 0 && stored.image.empty();
-    frames[i] = input_is_level ? Frame(images[i], masks[i]) : Frame(stored.image, stored.mask);
+    frames[i] = input_is_level ? Frame(images[i], masks[i]).Translated(-pyramids->centre[i])
+                               : Frame(stored.image, stored.mask);
     if (release) stored = ImageLevel();
   });
   return frames;
@@ -100,6 +101,10 @@ std::vector<Eigen::Isometry3d> InWorld(std::vector<Eigen::Isometry3d> frame_from
 
 }  // namespace
 
+Eigen::Vector3d LocalCentre(const ImageGeometry& geometry) {
+  return geometry.IndexToPhysical(0.5 * (geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
+}
+
 Pyramids BuildPyramids(const std::vector<Image>& images,
                        const std::vector<Mask>& masks,
                        const RegistrationOptions& options) {
@@ -113,6 +118,11 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
                                       options.pyramid_min_size, options.solve.num_threads);
     pyramids.num_levels =
         std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
+    pyramids.centre.push_back(LocalCentre(images[i].geometry));
+    for (ImageLevel& level : pyramids.levels[i]) {
+      level.image.geometry.origin_mm -= pyramids.centre[i];
+      level.mask.geometry.origin_mm -= pyramids.centre[i];
+    }
   }
   return pyramids;
 }
@@ -126,7 +136,12 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
   std::vector<Frame> frames(m);
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
     const ImageLevel& stored = pyramids.levels[i][coarsest];
-    ImageLevel level = stored.image.empty() ? ImageLevel{images[i], masks[i]} : stored;
+    ImageLevel level = stored;
+    if (stored.image.empty()) {  // the input is the level: in local coordinates
+      level = ImageLevel{images[i], masks[i]};
+      level.image.geometry.origin_mm -= pyramids.centre[i];
+      level.mask.geometry.origin_mm -= pyramids.centre[i];
+    }
     while (level.image.geometry.size.maxCoeff() > options.search_max_axis &&
            level.image.geometry.size.minCoeff() >= 8) {
       ImageLevel next = Downsample(level.image, level.mask, options.pyramid_sigma, 1);
@@ -433,6 +448,16 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
     result_->flagged_by_misfit = true;
     return Diverged(level, why, MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_));
   }
+  if (options_.max_structure_fraction > 0.0) {
+    const std::vector<FrameStructure> structure =
+        FrameStructures(frames, last_candidates_, SolvePoses(), stream_, photometric_);
+    if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_)) {
+      result_->flagged_by_misfit = true;
+      return Diverged(level, why,
+                      StructureOutliers(structure, options_.max_structure_fraction,
+                                        &misfit_exempt_));
+    }
+  }
   std::vector<int> flagged;
   if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
@@ -505,6 +530,16 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
     result_->flagged_by_misfit = true;
     return Diverged(0, why, MisfitOutliers(result_->frame_misfits, options_.max_misfit_ratio,
                                            &misfit_exempt_));
+  }
+  // The structure statistics are measured on every run (the summary reports them), the
+  // check only where it is on.
+  result_->frame_structure = FrameStructures(frames, final_candidates, poses, stream_, photometric_);
+  if (StructureOutlier(result_->frame_structure, options_.max_structure_fraction, &why,
+                       &misfit_exempt_)) {
+    result_->flagged_by_misfit = true;
+    return Diverged(0, why,
+                    StructureOutliers(result_->frame_structure, options_.max_structure_fraction,
+                                      &misfit_exempt_));
   }
   std::vector<int> flagged;
   if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,

@@ -40,10 +40,18 @@
 namespace dsr {
 
 // The pyramids of every frame, finest level first (level 0 empty: the input itself).
+// Every level of every frame is in the frame's local coordinates: its physical
+// coordinates minus centre[i], the centre of its input grid (LocalCentre), so that the
+// solves' Jacobians, [I, -[p]x] at the sampled points p, and their conditioning do not
+// depend on where the images' origins lie (docs/design.md 1.2).
 struct Pyramids {
   std::vector<std::vector<ImageLevel>> levels;  // [frame][level]
   int num_levels = 0;                           // common to every frame
+  std::vector<Eigen::Vector3d> centre;          // per frame, physical mm
 };
+
+// The centre of a grid in its physical coordinates, o + D S (n - 1) / 2.
+Eigen::Vector3d LocalCentre(const ImageGeometry& geometry);
 
 // The pyramids of `images` for options' levels and smoothing.
 Pyramids BuildPyramids(const std::vector<Image>& images,

@@ -40,6 +40,7 @@ std::string Serialize(const ComparisonRow& row) {
     << row.differences_per_iteration << ' ' << row.seconds << ' ' << row.added_memory_mb << ' '
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
+    << Number(row.structure_fraction) << ' ' << Number(row.structure_significance) << ' '
     << row.frame_from_world.size();
   for (const Eigen::Isometry3d& t : row.frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -59,8 +60,8 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
       row->shared_offset_mm[1] >> row->shared_offset_mm[2] >> row->frame_spread_mm >>
       row->iterations >> row->recoveries >> row->seconds_per_iteration >>
       row->differences_per_iteration >> row->seconds >> row->added_memory_mb;
-  std::string predicted, nees, mae_gain, mae_offset;
-  s >> predicted >> nees >> mae_gain >> mae_offset >> poses;
+  std::string predicted, nees, mae_gain, mae_offset, structure, significance;
+  s >> predicted >> nees >> mae_gain >> mae_offset >> structure >> significance >> poses;
   if (!s || poses > 1000) return false;
   const auto number = [](const std::string& text) {
     return text == "nan" ? std::nan("") : std::stod(text);
@@ -69,6 +70,8 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   row->nees = number(nees);
   row->mae_gain = number(mae_gain);
   row->mae_offset = number(mae_offset);
+  row->structure_fraction = number(structure);
+  row->structure_significance = number(significance);
   row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
   for (Eigen::Isometry3d& t : row->frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -102,8 +105,21 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
   }
   row.seconds = SecondsSince(start);
   row.recoveries = static_cast<int>(result.recoveries.size());
+  for (const FrameStructure& f : result.frame_structure) {
+    if (f.judged && !(f.fraction <= row.structure_fraction)) {
+      row.structure_fraction = f.fraction;
+      row.structure_significance = f.significance;
+    }
+  }
   if (!result.usable) {
     row.failure = result.failure;
+    // The poses it ended at, where it has them: what a refusal would have returned.
+    if (result.frame_from_world.size() == sequence.ground_truth.size()) {
+      const PoseErrorSummary refused =
+          ComparePoses(result.frame_from_world, sequence.ground_truth, sequence.masks);
+      row.tre_mean_mm = refused.tre_mean_mm;
+      row.tre_max_mm = refused.tre_max_mm;
+    }
     return row;
   }
   const PoseErrorSummary errors =
@@ -252,7 +268,7 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
        "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
        "predicted_tre_mm,nees,mae_gain,mae_offset,failure,recoveries,"
        "shared_offset_mm,shared_offset_x_mm,shared_offset_y_mm,shared_offset_z_mm,"
-       "frame_spread_mm\n";
+       "frame_spread_mm,structure_fraction,structure_significance\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
@@ -266,7 +282,11 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
     }
     s << ',' << CsvField(r.failure) << ',' << r.recoveries << ',' << r.shared_offset_mm.norm()
       << ',' << r.shared_offset_mm[0] << ',' << r.shared_offset_mm[1] << ','
-      << r.shared_offset_mm[2] << ',' << r.frame_spread_mm << '\n';
+      << r.shared_offset_mm[2] << ',' << r.frame_spread_mm << ',';
+    if (!std::isnan(r.structure_fraction)) s << r.structure_fraction;
+    s << ',';
+    if (!std::isnan(r.structure_significance)) s << r.structure_significance;
+    s << '\n';
   }
   return s.str();
 }

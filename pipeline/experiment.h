@@ -58,6 +58,11 @@ struct ComparisonRow {
   // ExperimentSequence::ground_truth_photometric (offsets in intensity units).
   double mae_gain = std::numeric_limits<double>::quiet_NaN();
   double mae_offset = std::numeric_limits<double>::quiet_NaN();
+  // The structure check's figures at the final poses (pipeline/structure_check.h): the
+  // largest structure fraction over the judged frames, and that frame's significance (in
+  // standard errors of noise alone); NaN when no frame was judged.
+  double structure_fraction = std::numeric_limits<double>::quiet_NaN();
+  double structure_significance = std::numeric_limits<double>::quiet_NaN();
   std::vector<Eigen::Isometry3d> frame_from_world;
   std::vector<Photometric> photometric;  // the estimate (RegistrationResult::photometric)
 };

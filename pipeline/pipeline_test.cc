@@ -388,6 +388,50 @@ TEST(Pipeline, MeanGaugePosesDoNotDependOnTheFramesOrder) {
   }
 }
 
+// The solves run in each frame's local coordinates (its grid centre at 0, pipeline/
+// coarse_to_fine.h), so the poses do not depend on where the images' origins lie: scanner
+// and patient coordinates are hundreds of millimetres, and a header can put them anywhere.
+// Moving every frame's origin by the same offset s moves the world with them: the poses
+// become Translate(s) T Translate(-s), i.e. every frame maps its points where it did, plus s.
+TEST(Pipeline, PosesDoNotDependOnWhereTheOriginsLie) {
+  SequenceSetup setup;
+  setup.num_frames = 4;
+  setup.sigma = 25.0;
+  setup.seed = 5;
+  const SimulatedSequence sequence = Simulated(setup);
+  const int m = setup.num_frames;
+  const std::vector<Eigen::Isometry3d> identity(m, Eigen::Isometry3d::Identity());
+  RegistrationResult at_zero;
+  std::string error;
+  ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, Options("dsr"), &at_zero,
+                       &error))
+      << error;
+  ASSERT_TRUE(at_zero.usable) << at_zero.failure;
+  // At 1e9 mm a double holds a position to about 1e-7 mm; one voxel of a field of view's
+  // edge that flips between in and out moves the minimiser by far more than that.
+  constexpr double kSameMm = 1e-3;
+  for (double far : {1e5, 1e9}) {
+    const Eigen::Vector3d s(far, -far, far);
+    std::vector<Image> frames = sequence.frames;
+    std::vector<Mask> masks = sequence.masks;
+    for (int i = 0; i < m; ++i) {
+      frames[i].geometry.origin_mm += s;
+      masks[i].geometry.origin_mm += s;
+    }
+    RegistrationResult moved;
+    ASSERT_TRUE(Register(frames, masks, identity, Options("dsr"), &moved, &error)) << error;
+    ASSERT_TRUE(moved.usable) << "origins at " << far << " mm: " << moved.failure;
+    std::vector<Eigen::Isometry3d> back(m);
+    for (int i = 0; i < m; ++i) {
+      back[i] = Eigen::Translation3d(-s) * moved.frame_from_world[i] * Eigen::Translation3d(s);
+    }
+    EXPECT_LT(ComparePoses(back, at_zero.frame_from_world, sequence.masks).tre_max_mm, kSameMm)
+        << "origins at " << far << " mm";
+    // The result's grid is in frame 0's physical coordinates, moved with it.
+    EXPECT_LT((moved.grid.origin_mm - s - at_zero.grid.origin_mm).norm(), kSameMm);
+  }
+}
+
 TEST(Pipeline, PosesAreReproducible) {
   SequenceSetup setup;
   setup.sigma = 25.0;

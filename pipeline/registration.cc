@@ -96,6 +96,10 @@ bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
   if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
     return RefuseField(error, "max_misfit_ratio", o.max_misfit_ratio, "must be 0 (off) or > 1");
   }
+  if (!(o.max_structure_fraction >= 0.0 && o.max_structure_fraction < 1.0)) {
+    return RefuseField(error, "max_structure_fraction", o.max_structure_fraction,
+                       "must be in [0, 1) (0: off)");
+  }
   if (!(o.max_pair_mismatch_ratio == 0.0 ||
         (o.max_pair_mismatch_ratio > 1.0 && std::isfinite(o.max_pair_mismatch_ratio)))) {
     return RefuseField(error, "max_pair_mismatch_ratio", o.max_pair_mismatch_ratio,
@@ -108,10 +112,11 @@ bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
     return RefuseField(error, "max_recoveries", o.max_recoveries, "must be in [0, 10]");
   }
   if (o.max_recoveries > 0 && o.max_misfit_ratio == 0.0 && o.min_kept_overlap == 0.0 &&
-      o.max_pair_mismatch_ratio == 0.0) {
+      o.max_pair_mismatch_ratio == 0.0 && o.max_structure_fraction == 0.0) {
     return RefuseField(error, "max_recoveries", o.max_recoveries,
                        "recovery needs a check that flags frames, but max_misfit_ratio=0, "
-                       "max_pair_mismatch_ratio=0 and min_kept_overlap=0");
+                       "max_pair_mismatch_ratio=0, max_structure_fraction=0 and "
+                       "min_kept_overlap=0");
   }
   return true;
 }
@@ -197,6 +202,7 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.min_kept_overlap = 0.0;
   init_options.max_misfit_ratio = 0.0;
   init_options.max_pair_mismatch_ratio = 0.0;
+  init_options.max_structure_fraction = 0.0;
   init_options.solve.linear_solver.reset();  // the mode's solver may be a Schur type
   init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
   RegistrationResult init;
@@ -289,6 +295,42 @@ bool Recover(const std::vector<Frame>& search_frames,
   return go_on;
 }
 
+// Poses between the frames' physical coordinates and their local ones (Pyramids::centre,
+// c_i): frame i's local coordinates are its physical ones minus c_i, the world's those of
+// frame 0, so T_local = Translate(-c_i) T Translate(c_0).
+std::vector<Eigen::Isometry3d> PosesToLocal(std::vector<Eigen::Isometry3d> frame_from_world,
+                                            const std::vector<Eigen::Vector3d>& centre) {
+  for (size_t i = 0; i < frame_from_world.size(); ++i) {
+    frame_from_world[i] = Eigen::Translation3d(-centre[i]) * frame_from_world[i] *
+                          Eigen::Translation3d(centre[0]);
+  }
+  return frame_from_world;
+}
+std::vector<Eigen::Isometry3d> PosesFromLocal(std::vector<Eigen::Isometry3d> frame_from_world,
+                                              const std::vector<Eigen::Vector3d>& centre) {
+  for (size_t i = 0; i < frame_from_world.size(); ++i) {
+    frame_from_world[i] = Eigen::Translation3d(centre[i]) * frame_from_world[i] *
+                          Eigen::Translation3d(-centre[0]);
+  }
+  return frame_from_world;
+}
+
+// A result of the solves in local coordinates, in the frames' physical ones: the final
+// poses, the grid and DBA's intensities (world: + c_0), and the pose covariances. A left perturbation
+// Exp(delta) of a local pose is Exp(Ad delta) of the physical one, Ad the adjoint of
+// Translate(c_i): [rho; phi] -> [rho + c_i x phi; phi].
+void ResultFromLocal(const std::vector<Eigen::Vector3d>& centre, RegistrationResult* result) {
+  result->frame_from_world = PosesFromLocal(std::move(result->frame_from_world), centre);
+  result->grid.origin_mm += centre[0];
+  result->dba_intensities.geometry.origin_mm += centre[0];
+  std::vector<Matrix6d>& covariance = result->uncertainty.covariance;
+  for (size_t i = 0; i < covariance.size() && i < centre.size(); ++i) {
+    Matrix6d adjoint = Matrix6d::Identity();
+    adjoint.topRightCorner<3, 3>() = Hat(centre[i]);
+    covariance[i] = adjoint * covariance[i] * adjoint.transpose();
+  }
+}
+
 // Register on intensities already brought to a usual scale (see Register): the start
 // (given, pairwise or global), then rounds of coarse-to-fine solves with a recovery
 // between them. `search_images` (null: `images`) are what the search level is built from.
@@ -317,6 +359,8 @@ bool RegisterScaled(const std::vector<Image>& images,
   }
   Pyramids pyramids = BuildPyramids(images, masks, options);
   result->pyramid_seconds = SecondsSince(start) - result->init_seconds;
+  // From here on every pose is in the frames' local coordinates (Pyramids::centre).
+  poses = PosesToLocal(poses, pyramids.centre);
   const int constant = ConstantFrame(images, masks);
   if (constant >= 0) {
     *error = "frame " + std::to_string(constant) +
@@ -346,7 +390,7 @@ bool RegisterScaled(const std::vector<Image>& images,
       return false;
     }
     result->init_seconds = SecondsSince(init_start);
-    result->init_frame_from_world = poses;
+    result->init_frame_from_world = PosesFromLocal(poses, pyramids.centre);
   }
   for (int round = 0;; ++round) {
     CoarseToFine levels(images, masks, options, options.max_recoveries > 0,
@@ -357,6 +401,7 @@ bool RegisterScaled(const std::vector<Image>& images,
       break;
     }
   }
+  ResultFromLocal(pyramids.centre, result);
   result->seconds = SecondsSince(start);
   return true;
 }

@@ -31,6 +31,7 @@
 #include "dsr/model/photometric.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/pipeline/modes.h"
+#include "dsr/pipeline/structure_check.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/gauge.h"
 #include "dsr/solve/solve_options.h"
@@ -135,6 +136,12 @@ struct RegistrationOptions {
   // into groups that do not agree, which the misfit check cannot see). 0 or > 1; 0 turns it
   // off.
   double max_pair_mismatch_ratio = 5.0;
+  // Structure check of the poses after every checked level (pipeline/structure_check.h):
+  // the registration is not usable when more than this fraction of a frame's own structure
+  // (its samples' covariance at a lag beyond noise and interpolation) remains in its
+  // differences to the per-voxel mean, and stands out of what noise alone gives. In [0, 1);
+  // 0 turns it off.
+  double max_structure_fraction = 0.0;
 
   // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
   // and dba, whose estimate it is): one cost pass over the finest level, one for the
@@ -213,6 +220,9 @@ struct RegistrationResult {
   // Per frame, RMS difference to the per-voxel mean at the final poses (FrameMisfits; of the
   // corrected intensities, on frame 0's scale, with photometric parameters).
   std::vector<double> frame_misfits;
+  // Per frame, the structure statistics at the final poses (pipeline/structure_check.h;
+  // corrected intensities with photometric parameters); empty when no final check ran.
+  std::vector<FrameStructure> frame_structure;
   std::string failure;        // why not usable
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;

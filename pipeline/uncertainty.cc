@@ -22,8 +22,9 @@ constexpr int kClusterVoxels = 8;
 constexpr int64_t kMaxTrePoints = 4096;
 constexpr int kTreDraws = 256;
 
-std::vector<Eigen::Vector3d> FieldOfViewPoints(const Mask& mask) {
-  const ImageGeometry& g = mask.geometry;
+// Points of `mask` in the physical coordinates of `g`, the frame's geometry (the mask's
+// grid, in the pipeline's local coordinates).
+std::vector<Eigen::Vector3d> FieldOfViewPoints(const Mask& mask, const ImageGeometry& g) {
   const int64_t inside = CountInside(mask);
   // The same stride along every axis, so that the points spread evenly.
   int stride = 1;
@@ -257,7 +258,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
   std::vector<std::vector<Eigen::Vector3d>> points(m);
   std::vector<double> step_mm(m), step_rad(m);
   for (int i = 0; i < m; ++i) {
-    points[i] = FieldOfViewPoints(masks[i]);
+    points[i] = FieldOfViewPoints(masks[i], frames[i].geometry());
     double radius2 = 0.0;
     for (const Eigen::Vector3d& x : points[i]) radius2 += x.squaredNorm();
     const double radius = std::sqrt(radius2 / std::max<size_t>(1, points[i].size()));

@@ -136,6 +136,7 @@ int Main(int argc, char** argv) {
   dsr::SetFlagDefault("min_kept_overlap", "0");
   dsr::SetFlagDefault("max_misfit_ratio", "0");
   dsr::SetFlagDefault("max_pair_mismatch_ratio", "0");
+  dsr::SetFlagDefault("max_structure_fraction", "0");
   dsr::SetFlagDefault("progress", "false");
   dsr::InitTool(
       "compares registration methods on sequences with ground truth (the paper's Fig. 1).\n"
@@ -173,11 +174,13 @@ int Main(int argc, char** argv) {
   // With recovery, the checks that flag frames are dsr_register's unless one is set.
   const bool recovers = FLAGS_init == "auto" || FLAGS_init == "global";
   if (recovers && dsr::FlagIsDefault("max_misfit_ratio") &&
-      dsr::FlagIsDefault("max_pair_mismatch_ratio") && dsr::FlagIsDefault("min_kept_overlap")) {
+      dsr::FlagIsDefault("max_pair_mismatch_ratio") && dsr::FlagIsDefault("min_kept_overlap") &&
+      dsr::FlagIsDefault("max_structure_fraction")) {
     const dsr::RegistrationOptions defaults;
     base.min_kept_overlap = defaults.min_kept_overlap;
     base.max_misfit_ratio = defaults.max_misfit_ratio;
     base.max_pair_mismatch_ratio = defaults.max_pair_mismatch_ratio;
+    base.max_structure_fraction = defaults.max_structure_fraction;
   }
   // Each method's options: the pairwise baseline started from the pairwise baseline is the
   // baseline itself; photometric parameters for the modes that have them (--gauge is DSR's).

@@ -109,6 +109,11 @@ DEFINE_double(max_pair_mismatch_ratio, 5.0, "Pair check: poses at which two over
               "worse than this multiple of the pairs' lower quartile (frames split into groups "
               "that disagree) are a failure (exit 1), not a result; 0 = off or > 1. "
               "dsr_compare: as --min_kept_overlap (5 with --init=auto or global).");
+DEFINE_double(max_structure_fraction, 0.0, "Structure check: poses at which more than this "
+              "fraction of a frame's own structure (its samples' covariance at a lag beyond "
+              "noise and interpolation) remains in its differences to the panorama, standing "
+              "out of what noise alone gives, are a failure (exit 1), not a result; in [0, 1), "
+              "0 = off. dsr_compare: as --min_kept_overlap.");
 DEFINE_int32(num_chunks, 1, "dsr and ape: residual blocks the candidate voxels are split into, "
              ">= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
@@ -219,6 +224,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   options->min_kept_overlap = FLAGS_min_kept_overlap;
   options->max_misfit_ratio = FLAGS_max_misfit_ratio;
   options->max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
+  options->max_structure_fraction = FLAGS_max_structure_fraction;
   options->dsr.num_chunks = FLAGS_num_chunks;
   options->dsr.reference_cost = FLAGS_reference_cost;
   options->dba.memory_budget_mb = FLAGS_memory_budget_mb;

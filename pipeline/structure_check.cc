@@ -1,0 +1,180 @@
+#include "dsr/pipeline/structure_check.h"
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <memory>
+#include <sstream>
+
+#include <glog/logging.h>
+
+#include "dsr/util/parallel.h"
+
+namespace dsr {
+
+namespace {
+
+// Sums of one block (fixed, so that the result does not depend on the thread count).
+struct StructureSums {
+  std::array<int64_t, kMaxFrames> pairs{};
+  std::array<double, kMaxFrames> rr{}, r2{}, cc{}, c1{}, c2{}, c1c1{};
+};
+
+// The voxels of the last L + 1 columns of the current panorama row, for the lag pairs.
+struct LagSlot {
+  int64_t linear = -1;  // the voxel's linear index in the grid; -1: empty
+  uint32_t observers = 0;
+  std::array<double, kMaxFrames> residual;
+  std::array<double, kMaxFrames> corrected;
+};
+
+// Fixed blocks of candidate voxels (a multiple of any thread count used here).
+constexpr int64_t kBlocks = 64;
+
+}  // namespace
+
+int StructureLagVoxels(const std::vector<Frame>& frames, const ImageGeometry& grid) {
+  double largest = 0.0;
+  for (const Frame& f : frames) largest = std::max(largest, f.geometry().spacing_mm.maxCoeff());
+  const int lag = static_cast<int>(std::ceil(2.0 * std::sqrt(3.0) * largest / grid.spacing_mm[0] -
+                                             1e-9));
+  return std::max(2, lag);
+}
+
+std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
+                                            const CandidateSet& candidates,
+                                            const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                            const StreamContext& context,
+                                            const std::vector<Photometric>& photometric) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
+  CHECK_LE(m, kMaxFrames);
+  const int lag = StructureLagVoxels(frames, candidates.grid);
+  const int64_t nx = candidates.grid.size[0];
+  const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
+  const KernelPath path = StreamKernelPath(context);
+  std::vector<double> gain(m, 1.0), offset(m, 0.0);
+  for (int i = 0; i < m && !photometric.empty(); ++i) {
+    gain[i] = photometric[i].gain();
+    offset[i] = photometric[i].offset;
+  }
+  const int64_t n = candidates.num_voxels();
+  std::vector<StructureSums> blocks(kBlocks);
+  ParallelFor(0, kBlocks, context.num_threads, [&](int64_t b) {
+    StructureSums& sums = blocks[b];
+    std::vector<LagSlot> ring(lag + 1);
+    auto batch = std::make_unique<VoxelBatch>();
+    const int64_t end = n * (b + 1) / kBlocks;
+    for (int64_t v = n * b / kBlocks; v < end;) {
+      v = SampleVoxelBatch(path, posed, candidates, v, end, /*with_jacobian=*/false, batch.get());
+      for (int t = 0; t < batch->num_voxels; ++t) {
+        const int64_t linear = candidates.voxel[batch->voxel[t]];
+        const int64_t x = linear % nx;
+        LagSlot& slot = ring[x % (lag + 1)];
+        // The voxel L before this one on its row sits in the slot of x - L: that slot is
+        // written at column x - L and next at x + 1.
+        const LagSlot& before = ring[(x + 1) % (lag + 1)];
+        const int k = batch->begin[t + 1] - batch->begin[t];
+        slot.linear = linear;
+        slot.observers = batch->observers[t];
+        double mean = 0.0;
+        for (int a = batch->begin[t]; a < batch->begin[t + 1]; ++a) {
+          const int f = batch->frame[a];
+          slot.corrected[f] = gain[f] * batch->value[a] + offset[f];
+          mean += slot.corrected[f];
+        }
+        mean /= k;
+        for (int a = batch->begin[t]; a < batch->begin[t + 1]; ++a) {
+          const int f = batch->frame[a];
+          slot.residual[f] = slot.corrected[f] - mean;
+        }
+        if (x < lag || before.linear != linear - lag) continue;
+        uint32_t both = slot.observers & before.observers;
+        while (both != 0) {
+          const int f = __builtin_ctz(both);
+          both &= both - 1;
+          ++sums.pairs[f];
+          sums.rr[f] += slot.residual[f] * before.residual[f];
+          sums.r2[f] += 0.5 * (slot.residual[f] * slot.residual[f] +
+                               before.residual[f] * before.residual[f]);
+          sums.cc[f] += slot.corrected[f] * before.corrected[f];
+          sums.c1[f] += before.corrected[f];
+          sums.c2[f] += slot.corrected[f];
+          sums.c1c1[f] += 0.5 * (before.corrected[f] * before.corrected[f] +
+                                 slot.corrected[f] * slot.corrected[f]);
+        }
+      }
+    }
+  });
+  StructureSums total;
+  for (const StructureSums& s : blocks) {
+    for (int f = 0; f < m; ++f) {
+      total.pairs[f] += s.pairs[f];
+      total.rr[f] += s.rr[f];
+      total.r2[f] += s.r2[f];
+      total.cc[f] += s.cc[f];
+      total.c1[f] += s.c1[f];
+      total.c2[f] += s.c2[f];
+      total.c1c1[f] += s.c1c1[f];
+    }
+  }
+  std::vector<FrameStructure> out(m);
+  for (int f = 0; f < m; ++f) {
+    FrameStructure& s = out[f];
+    s.pairs = total.pairs[f];
+    if (s.pairs < 2) continue;
+    const double n_pairs = static_cast<double>(s.pairs);
+    s.residual_lag = total.rr[f] / n_pairs;
+    s.residual_variance = total.r2[f] / n_pairs;
+    const double mean1 = total.c1[f] / n_pairs, mean2 = total.c2[f] / n_pairs;
+    const double mean = 0.5 * (mean1 + mean2);
+    s.signal_lag = total.cc[f] / n_pairs - mean1 * mean2;
+    s.signal_variance = total.c1c1[f] / n_pairs - mean * mean;
+    const double root_n = std::sqrt(n_pairs);
+    if (s.residual_variance > 0.0) s.significance = s.residual_lag / (s.residual_variance / root_n);
+    s.judged = s.signal_lag > kStructureSignificance * s.signal_variance / root_n;
+    if (s.judged) s.fraction = s.residual_lag / s.signal_lag;
+  }
+  return out;
+}
+
+std::vector<int> StructureOutliers(const std::vector<FrameStructure>& structure,
+                                   double max_fraction,
+                                   const std::vector<bool>* exempt) {
+  std::vector<int> outliers;
+  if (!(max_fraction > 0.0)) return outliers;
+  for (size_t i = 0; i < structure.size(); ++i) {
+    if (exempt != nullptr && (*exempt)[i]) continue;
+    const FrameStructure& s = structure[i];
+    if (s.judged && s.fraction > max_fraction && s.significance > kStructureSignificance) {
+      outliers.push_back(static_cast<int>(i));
+    }
+  }
+  std::stable_sort(outliers.begin(), outliers.end(), [&](int a, int b) {
+    return structure[a].fraction > structure[b].fraction;
+  });
+  return outliers;
+}
+
+bool StructureOutlier(const std::vector<FrameStructure>& structure,
+                      double max_fraction,
+                      std::string* why,
+                      const std::vector<bool>* exempt) {
+  const std::vector<int> outliers = StructureOutliers(structure, max_fraction, exempt);
+  if (outliers.empty()) return false;
+  const int worst = outliers.front();
+  const FrameStructure& s = structure[worst];
+  std::ostringstream text;
+  text.precision(3);
+  text << "frame " << worst << " does not line up with the others at the poses reached: "
+       << 100.0 * s.fraction << "% of its own structure remains in its differences to the "
+       << "panorama (" << s.significance << " standard errors of noise alone; "
+       << "max_structure_fraction=" << max_fraction << ")";
+  if (outliers.size() > 1) text << "; " << outliers.size() << " frames are above it";
+  text << ": a wrong local minimum; give better initial poses (init)";
+  *why = text.str();
+  return true;
+}
+
+}  // namespace dsr
