@@ -7,16 +7,16 @@
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
 #                          [--uncertainty] [--photometric=none|affine]
 #                          [--intensity_transform=none|sqrt] [--panorama_sampling=half_voxel|all_phases]
-#                          [--gauge=mean|frame0] [--no_checks_off]
+#                          [--gauge=mean|frame0] [--mask_rule=hull|nonzero] [--no_checks_off]
 #                          [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom, the MNI152 T1 template and a chest CT with the heart in view
 # (scripts/fetch_anatomy.sh mni|ct: real anatomy the project did not make; the CT's frames
 # are cut at 1 mm, its lungs are dark tissue inside the fields of view). Protocols: bench/protocols.sh (paper,
 # wide, walk, and the ultrasound-like us and us_flat). Masks: fov = the exact field of view
-# (dsr_simulate --mask_erosion=0), none = each frame's non-zero voxels eroded by one voxel
-# (what dsr_register uses without --masks). Sequences are cached under OUT/sequences
-# (simulated again when their protocol's flags change).
+# (dsr_simulate --mask_erosion=0), none = each frame's field of view by --mask_rule eroded
+# by one voxel (what dsr_register uses without --masks). Sequences are cached under
+# OUT/sequences (simulated again when their protocol's flags change).
 # Every run the checks refuse is registered again with them off (--max_misfit_ratio=0
 # --max_pair_mismatch_ratio=0; the overlap guard stays, so that recovery still runs where a
 # frame slides out; runs in RUN-checks_off), and the summary lists each refusal
@@ -32,13 +32,16 @@
 # --panorama_sampling=all_phases: frame 0 sampled at every sub-voxel phase (dsr_compare
 # --panorama_sampling; the suffix -all_phases after the others).
 # --gauge=frame0: DSR's solves with frame 0 constant rather than in the default mean gauge
-# (dsr_compare --gauge; the suffix -frame0_gauge last).
+# (dsr_compare --gauge; the suffix -frame0_gauge).
+# --mask_rule=nonzero: the none rows' masks by the non-zero rule rather than the default
+# convex hull of the non-zero voxels (dsr_compare --mask_rule; the suffix -nonzero_masks last).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni,ct protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
 uncertainty="" checks_off="" photometric=none transform=none sampling=half_voxel gauge=mean
+mask_rule=hull
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -55,6 +58,7 @@ for arg in "$@"; do
     --intensity_transform=*) transform=${arg#*=} ;;
     --panorama_sampling=*) sampling=${arg#*=} ;;
     --gauge=*) gauge=${arg#*=} ;;
+    --mask_rule=*) mask_rule=${arg#*=} ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
@@ -72,6 +76,9 @@ suffix="${uncertainty:+-uncertainty}"
 [[ "$gauge" == frame0 || "$gauge" == mean ]] || {
   echo "accuracy.sh: --gauge=$gauge: must be frame0 or mean" >&2; exit 2; }
 [[ "$gauge" == frame0 ]] && suffix="$suffix-frame0_gauge"
+[[ "$mask_rule" == hull || "$mask_rule" == nonzero ]] || {
+  echo "accuracy.sh: --mask_rule=$mask_rule: must be hull or nonzero" >&2; exit 2; }
+[[ "$mask_rule" == nonzero ]] && suffix="$suffix-nonzero_masks"
 tools=${DSR_TOOLS:-build/tools}
 if [[ ! -x "$tools/dsr_compare" ]]; then bash scripts/build.sh; fi
 mni="" ct=""
@@ -114,6 +121,7 @@ for source in "${source_list[@]}"; do
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
         --sequence_masks="$use" --init="$init" --photometric="$photometric" \
         --intensity_transform="$transform" --panorama_sampling="$sampling" --gauge="$gauge" \
+        --mask_rule="$mask_rule" \
         $uncertainty \
         2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
@@ -126,7 +134,7 @@ for source in "${source_list[@]}"; do
         "$tools/dsr_compare" --out_dir="$run-checks_off" --methods="$methods" \
           --sequences="$refused" --sequence_masks="$use" --init="$init" \
           --photometric="$photometric" --intensity_transform="$transform" \
-          --panorama_sampling="$sampling" --gauge="$gauge" \
+          --panorama_sampling="$sampling" --gauge="$gauge" --mask_rule="$mask_rule" \
           --max_misfit_ratio=0 --max_pair_mismatch_ratio=0 --min_kept_overlap=0.25 \
           2>"$run-checks_off.log" >/dev/null || {
           echo "accuracy.sh: dsr_compare failed, see $run-checks_off.log" >&2; exit 1; }

@@ -21,7 +21,8 @@ Masks (the same field of view dsr registers and is measured with; TRE is taken o
   --masks=fov   the sequence's mask_XX images (dsr_compare --sequence_masks=true);
   --masks=none  each frame's non-zero voxels eroded by one voxel, computed exactly as dsr's
                 MaskFromNonZero(frame, 1) (what dsr_register and dsr_compare
-                --sequence_masks=false use without masks). Chosen over "no mask at all" so
+                --sequence_masks=false use without masks with --mask_rule=nonzero; their
+                default is the convex hull of the non-zero voxels). Chosen over "no mask at all" so
                 that elastix gets the same information as dsr: outside the field of view
                 the frames are 0, and without a mask elastix would fit those zeros (the
                 cone's edges) as if they were anatomy. dsr's TRE for "none" is measured

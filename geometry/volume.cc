@@ -145,10 +145,13 @@ Mask MaskFromNonZero(const Image& image, int erosion_voxels) {
     if (k > 0) visit(i, j, k - 1);
     if (k + 1 < g.size[2]) visit(i, j, k + 1);
   }
-  if (erosion_voxels > 0) {
-    for (int axis = 0; axis < 3; ++axis) ErodeAlongAxis(axis, erosion_voxels, &mask);
-  }
+  ErodeMask(erosion_voxels, &mask);
   return mask;
+}
+
+void ErodeMask(int erosion_voxels, Mask* mask) {
+  if (erosion_voxels <= 0) return;
+  for (int axis = 0; axis < 3; ++axis) ErodeAlongAxis(axis, erosion_voxels, mask);
 }
 
 int64_t CountInside(const Mask& mask) {

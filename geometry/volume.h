@@ -95,6 +95,10 @@ bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string*
 // a box of half-width `erosion_voxels`). Voxels on the image border count as outside.
 Mask MaskFromNonZero(const Image& image, int erosion_voxels);
 
+// Erodes `mask` by a box of half-width `erosion_voxels` (MaskFromNonZero's erosion; voxels
+// within `erosion_voxels` of the grid border become outside). 0 leaves it as it is.
+void ErodeMask(int erosion_voxels, Mask* mask);
+
 // Number of voxels with mask != 0.
 int64_t CountInside(const Mask& mask);
 

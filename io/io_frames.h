@@ -5,28 +5,32 @@
 #include <string>
 #include <vector>
 
+#include "dsr/geometry/field_of_view.h"
 #include "dsr/geometry/volume.h"
 
 namespace dsr {
 
-// The mask of an image given without one: its non-zero voxels eroded by `mask_erosion`
-// voxels (MaskFromNonZero). False, with an error naming `name`, when no voxel is left.
+// The mask of an image given without one, by `field_of_view`'s rule and erosion
+// (FieldOfViewFromImage); `used` (optional) the rule that built it (the non-zero rule where
+// no hull fits). False, with an error naming `name`, when no voxel is left.
 bool MaskFromImage(const Image& image,
-                   int mask_erosion,
+                   const FieldOfViewOptions& field_of_view,
                    const std::string& name,
                    Mask* mask,
+                   MaskRule* used,
                    std::string* error);
 
 // Reads frames in parallel (decompression dominates) with their masks: `mask_paths` one per
-// image, or empty for each image's non-zero voxels eroded by `mask_erosion` voxels
-// (MaskFromNonZero). The first failing frame in input order is reported (one line naming
-// the file).
+// image, or empty for each image's mask by `field_of_view` (MaskFromImage). `mask_rules`
+// (optional): without mask files, the rule that built each frame's mask; with them, empty.
+// The first failing frame in input order is reported (one line naming the file).
 bool ReadFrames(const std::vector<std::string>& image_paths,
                 const std::vector<std::string>& mask_paths,
-                int mask_erosion,
+                const FieldOfViewOptions& field_of_view,
                 int num_threads,
                 std::vector<Image>* images,
                 std::vector<Mask>* masks,
+                std::vector<MaskRule>* mask_rules,
                 std::string* error);
 
 }  // namespace dsr

@@ -12,6 +12,7 @@
 #include <gflags/gflags.h>
 #include <glog/logging.h>
 
+#include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/pipeline/experiment.h"
@@ -33,8 +34,8 @@ DEFINE_string(sequences, "", "Comma-separated sequence folders written by dsr_si
 DEFINE_int32(num_sequences, 5, "Sequences to simulate when --sequences is empty, in [1, 100] "
              "(the paper: 5); sequence s uses seed --seed + s.");
 DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
-            "false: with each frame's non-zero voxels eroded by --mask_erosion voxels, as "
-            "dsr_register does without --masks.");
+            "false: with each frame's field of view by --mask_rule eroded by --mask_erosion "
+            "voxels, as dsr_register does without --masks.");
 
 
 namespace {
@@ -112,15 +113,23 @@ bool ListSequence(const std::string& folder, SequenceFiles* out, std::string* er
 }
 
 // Reads the frames and masks of a listed sequence (without --sequence_masks, each frame's
-// non-zero voxels eroded by --mask_erosion voxels).
-bool LoadSequence(const SequenceFiles& files, dsr::ExperimentSequence* out, std::string* error) {
+// field of view by --mask_rule eroded by --mask_erosion voxels, as dsr_register makes it;
+// `mask_rules` then says which rule built each).
+bool LoadSequence(const SequenceFiles& files,
+                  dsr::ExperimentSequence* out,
+                  std::vector<dsr::MaskRule>* mask_rules,
+                  std::string* error) {
   out->name = files.name;
   out->frames.resize(files.frames.size());
   out->masks.resize(files.frames.size());
+  mask_rules->assign(FLAGS_sequence_masks ? 0 : files.frames.size(), dsr::MaskRule::kHull);
   for (size_t i = 0; i < files.frames.size(); ++i) {
     if (!dsr::ReadImage(files.frames[i], &out->frames[i], error)) return false;
     if (!FLAGS_sequence_masks) {
-      out->masks[i] = dsr::MaskFromNonZero(out->frames[i], FLAGS_mask_erosion);
+      if (!dsr::MaskFromImage(out->frames[i], dsr::FieldOfViewFromFlags(), files.frames[i],
+                              &out->masks[i], &(*mask_rules)[i], error)) {
+        return false;
+      }
     } else if (!dsr::ReadMask(files.masks[i], out->frames[i].geometry, &out->masks[i], error)) {
       return false;
     }
@@ -263,9 +272,10 @@ int Main(int argc, char** argv) {
   if (!plan.Check(&error)) return Fail(error);
   // The voxels last (every frame and mask is read once here and again for its run, so
   // that only one sequence is held in memory).
+  std::vector<dsr::MaskRule> mask_rules;
   for (const SequenceFiles& files : sequence_files) {
     dsr::ExperimentSequence sequence;
-    if (!LoadSequence(files, &sequence, &error)) return Fail(error);
+    if (!LoadSequence(files, &sequence, &mask_rules, &error)) return Fail(error);
   }
   if (!plan.CreateFolders(&error)) return Fail(error);
 
@@ -281,7 +291,14 @@ int Main(int argc, char** argv) {
     dsr::ExperimentSequence sequence;
     if (!folders.empty()) {
       // Read and checked above: a failure now is a file changed during the run.
-      if (!LoadSequence(sequence_files[s], &sequence, &error)) return Fail(error, dsr::kExitFailed);
+      if (!LoadSequence(sequence_files[s], &sequence, &mask_rules, &error)) {
+        return Fail(error, dsr::kExitFailed);
+      }
+      if (!FLAGS_sequence_masks) {
+        std::fprintf(stderr, "dsr_compare: %s %s\n", sequence.name.c_str(),
+                     dsr::FieldOfViewSummary(mask_rules, dsr::FieldOfViewFromFlags().mask_rule)
+                         .c_str());
+      }
     } else {
       const dsr::SimulationOptions sim = simulation_for(s);
       dsr::SimulatedSequence simulated;

@@ -70,8 +70,10 @@ int Main(int argc, char** argv) {
   if (!dsr::ReadPoses(FLAGS_poses, m, &poses, &error)) return Fail("--poses: " + error);
   std::vector<dsr::Image> images;
   std::vector<dsr::Mask> masks;
-  if (!dsr::ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, &images,
-                       &masks, &error)) {
+  std::vector<dsr::MaskRule> mask_rules;
+  const dsr::FieldOfViewOptions field_of_view = dsr::FieldOfViewFromFlags();
+  if (!dsr::ReadFrames(image_paths, mask_paths, field_of_view, FLAGS_num_threads, &images, &masks,
+                       &mask_rules, &error)) {
     return Fail(error);
   }
   // After the frames, so that a broken frame is reported as such first.
@@ -115,6 +117,8 @@ int Main(int argc, char** argv) {
               grid.spacing_mm[1], grid.spacing_mm[2], fused.EnlargementRatio(),
               static_cast<long long>(fused.seen_voxels), static_cast<long long>(fused.frame0_voxels),
               FLAGS_out.c_str());
+  std::printf("dsr_fuse: %s\n",
+              dsr::FieldOfViewSummary(mask_rules, field_of_view.mask_rule).c_str());
   return EXIT_SUCCESS;
 }
 

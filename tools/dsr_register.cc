@@ -324,8 +324,8 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
 }
 
 void PrintSummary(const dsr::RegistrationOptions& options, const dsr::RegistrationResult& result,
-                  const dsr::PosesFile& gt, const Written& written, double seconds,
-                  double load_seconds) {
+                  const std::vector<dsr::MaskRule>& mask_rules, const dsr::PosesFile& gt,
+                  const Written& written, double seconds, double load_seconds) {
   const dsr::LevelSolve& last = result.solves.back();
   std::printf("dsr_register: %s, %zu frames, %zu solves over %d pyramid levels, %d iterations, "
               "final cost %.6e (%" PRId64 " voxels, %" PRId64 " observations), %s\n",
@@ -333,6 +333,8 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
               result.solves.size(), result.solves.front().level + 1, result.total_iterations,
               last.report.final_cost, last.candidate_voxels, last.candidate_observations,
               last.report.termination.c_str());
+  std::printf("dsr_register: %s\n",
+              dsr::FieldOfViewSummary(mask_rules, dsr::FieldOfViewFromFlags().mask_rule).c_str());
   std::printf("dsr_register: time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s), peak "
               "memory %.0f MiB; wrote %s\n",
               seconds, load_seconds, result.pyramid_seconds,
@@ -390,8 +392,9 @@ int Main(int argc, char** argv) {
   std::vector<dsr::Mask> masks;
   std::vector<Eigen::Isometry3d> initial;
   dsr::PosesFile gt;
-  if (!dsr::ReadFrames(in.image_paths, in.mask_paths, FLAGS_mask_erosion, FLAGS_num_threads,
-                       &images, &masks, &error) ||
+  std::vector<dsr::MaskRule> mask_rules;
+  if (!dsr::ReadFrames(in.image_paths, in.mask_paths, dsr::FieldOfViewFromFlags(),
+                       FLAGS_num_threads, &images, &masks, &mask_rules, &error) ||
       !ReadPoseFiles(in, init_file, &initial, &gt, &error)) {
     return Fail(error);
   }
@@ -412,7 +415,7 @@ int Main(int argc, char** argv) {
   if (!WriteOutputs(in, images, masks, initial, gt, options, result, plan, &written, &error)) {
     return Fail(error, dsr::kExitFailed);
   }
-  PrintSummary(options, result, gt, written, dsr::SecondsSince(start), load_seconds);
+  PrintSummary(options, result, mask_rules, gt, written, dsr::SecondsSince(start), load_seconds);
   return EXIT_SUCCESS;
 }
 

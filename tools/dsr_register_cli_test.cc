@@ -130,6 +130,21 @@ TEST_F(DsrRegisterCli, DbaModeAndMasksFromImages) {
   EXPECT_TRUE(fs::exists(Out("dba.json")));
 }
 
+// The summary says, in one line, which rule built the masks.
+TEST_F(DsrRegisterCli, SummaryNamesTheFieldOfViewRule) {
+  const std::pair<std::string, std::string> cases[] = {
+      {"", "dsr_register: field of view: convex hull of the non-zero voxels (frames 0-2)\n"},
+      {" --mask_rule=nonzero", "dsr_register: field of view: non-zero voxels (frames 0-2)\n"},
+      {" --masks=" + Masks(), "dsr_register: field of view: the given masks\n"},
+  };
+  for (const auto& [flags, line] : cases) {
+    const ToolRun run = Register("--images=" + Images() + flags + " --out_poses=" +
+                                 Out("fov.json") + " --progress=false --max_iterations=3");
+    ASSERT_EQ(run.exit_code, 0) << flags << "\n" << run.err;
+    EXPECT_NE(run.out.find(line), std::string::npos) << flags << "\n" << run.out;
+  }
+}
+
 // --loss=cauchy / huber: both modes register the sequence; the pose uncertainty
 // says it does not model the loss.
 TEST_F(DsrRegisterCli, RobustLossesRegisterInBothModes) {

@@ -29,6 +29,11 @@ TEST(ToolFlags, EachToolListsItsOwnAndItsSharedFlagsOnly) {
     EXPECT_EQ(run->exit_code, 0) << run->err;
     EXPECT_TRUE(Lists(*run, "mask_erosion")) << run->out;  // shared by all four
   }
+  // --mask_rule: only the tools that make masks from images (the simulator's are exact).
+  EXPECT_FALSE(Lists(simulate, "mask_rule"));
+  for (const ToolRun* run : {&registration, &fuse, &compare}) {
+    EXPECT_TRUE(Lists(*run, "mask_rule")) << run->out;
+  }
   EXPECT_TRUE(Lists(simulate, "speckle_looks"));
   EXPECT_FALSE(Lists(simulate, "images"));
   EXPECT_FALSE(Lists(simulate, "pyramid_levels"));

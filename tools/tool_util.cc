@@ -514,6 +514,38 @@ std::string WithFrameFile(const std::string& message, const std::vector<std::str
   return paths[frame] + ": " + message;
 }
 
+namespace {
+
+// "frame 4", "frames 0-3,5-10": consecutive frames as ranges.
+std::string FrameRanges(const std::vector<int>& frames) {
+  std::string out = frames.size() == 1 ? "frame " : "frames ";
+  for (size_t a = 0; a < frames.size();) {
+    size_t b = a;
+    while (b + 1 < frames.size() && frames[b + 1] == frames[b] + 1) ++b;
+    out += (a ? "," : "") + std::to_string(frames[a]);
+    if (b > a) out += "-" + std::to_string(frames[b]);
+    a = b + 1;
+  }
+  return out;
+}
+
+}  // namespace
+
+std::string FieldOfViewSummary(const std::vector<MaskRule>& mask_rules, MaskRule asked) {
+  if (mask_rules.empty()) return "field of view: the given masks";
+  std::vector<int> hull, nonzero;
+  for (size_t i = 0; i < mask_rules.size(); ++i) {
+    (mask_rules[i] == MaskRule::kHull ? hull : nonzero).push_back(static_cast<int>(i));
+  }
+  std::string out = "field of view: ";
+  if (!hull.empty()) out += "convex hull of the non-zero voxels (" + FrameRanges(hull) + ")";
+  if (!nonzero.empty()) {
+    out += std::string(hull.empty() ? "" : "; ") + "non-zero voxels" +
+           (asked == MaskRule::kHull ? ", no 3D hull" : "") + " (" + FrameRanges(nonzero) + ")";
+  }
+  return out;
+}
+
 bool CheckInputFileFlag(const char* flag, const std::string& path) {
   if (path.empty()) return true;
   std::error_code ec;

@@ -13,6 +13,7 @@
 
 #include <Eigen/Core>
 
+#include "dsr/geometry/field_of_view.h"
 #include "dsr/geometry/volume.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/photometric.h"
@@ -109,6 +110,13 @@ bool SetFlagValue(const std::string& name, const std::string& value, std::string
 // frame N's file in front ("a.nii.gz: frame 1 has ..."), so that the line names what to
 // fix. Other messages are returned as they are.
 std::string WithFrameFile(const std::string& message, const std::vector<std::string>& paths);
+
+// The summary line that says where the frames' fields of view came from (dsr_register,
+// the Python module's summary): `mask_rules` is ReadFrames's (empty: masks were given),
+// `asked` the rule of --mask_rule. E.g. "field of view: convex hull of the non-zero voxels
+// (frames 0-10)", "field of view: convex hull of the non-zero voxels (frames 0-3,5-10);
+// non-zero voxels, no 3D hull (frame 4)", "field of view: the given masks".
+std::string FieldOfViewSummary(const std::vector<MaskRule>& mask_rules, MaskRule asked);
 
 // For DEFINE_validator functions: returns true when `ok`, else RefuseFlag. (A validator
 // that returns false makes gflags print "failed validation of new value" without saying

@@ -179,7 +179,8 @@ class Result:
     """A registration's result.
 
     ``poses``: one 4x4 array per frame (world = frame 0 -> frame i; frame 0's is the
-    identity). ``summary``: mode, iterations, final cost, seconds, termination, recoveries.
+    identity). ``summary``: mode, iterations, final cost, seconds, termination, recoveries,
+    and ``field_of_view``: which rule made the masks of images given without one.
     ``gain``/``offset`` (with ``photometric="affine"``): frame i's corrected intensity is
     gain * I_i + offset. ``covariance``/``predicted_tre_mm`` (with ``uncertainty=True``).
     """
@@ -214,7 +215,8 @@ def register(images: Sequence[ImageLike],
     images: file paths (read as dsr_register reads them) or images (dsr.Image, SimpleITK,
         nibabel); frame 0 is the reference.
     masks: one field-of-view mask per image, the same kind as the images; default: each
-        image's non-zero voxels eroded by ``mask_erosion`` voxels.
+        image's field of view by ``mask_rule`` ("hull": the convex hull of its non-zero
+        voxels; "nonzero") eroded by ``mask_erosion`` voxels.
     mode, init, **options: dsr_register's flags by name (e.g. ``pyramid_levels=2``,
         ``photometric="affine"``, ``uncertainty=True``) with its defaults, except
         ``progress`` (its iteration lines on stderr), off here; ``dsr.options()`` lists them.
@@ -311,7 +313,7 @@ def fuse(images: Sequence[ImageLike],
         Result's entries are matched to the images by name.
     blend: "feather" (weights falling to 0 towards each field of view's edge) or "mean".
     **options: dsr_fuse's flags by name (``panorama_spacing``, ``feather_voxels``,
-        ``mask_erosion``, ``num_threads``).
+        ``mask_rule``, ``mask_erosion``, ``num_threads``).
     """
     core_images, core_masks, image_names = _inputs(images, masks, names)
     if isinstance(poses, Result):

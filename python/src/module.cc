@@ -193,9 +193,11 @@ PosesFile PosesFromDict(const py::dict& d) {
   return poses;
 }
 
-py::dict Summary(const RegistrationOptions& options, const RegistrationResult& result) {
+py::dict Summary(const RegistrationOptions& options, const RegistrationResult& result,
+                 const std::string& field_of_view) {
   py::dict s;
   s["mode"] = ModeToString(options.mode);
+  s["field_of_view"] = field_of_view;
   s["frames"] = result.frame_from_world.size();
   s["solves"] = result.solves.size();
   s["levels"] = result.solves.empty() ? 0 : result.solves.front().level + 1;
@@ -228,17 +230,20 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
 }
 
 // The images and masks of a call (at least `min_frames`), read while its flags hold
-// (--images and --masks for paths, --mask_erosion, --num_threads): file paths, read as the
-// tools read them (masks too), or (array, geometry) pairs; `masks` the same kind, or empty
-// for each image's non-zero voxels eroded by --mask_erosion. `match_names`: what a poses
-// file's entries are matched to (the paths, or `names`). True when the images are files.
+// (--images and --masks for paths, --mask_rule, --mask_erosion, --num_threads): file paths,
+// read as the tools read them (masks too), or (array, geometry) pairs; `masks` the same
+// kind, or empty for each image's field of view by --mask_rule eroded by --mask_erosion.
+// `match_names`: what a poses file's entries are matched to (the paths, or `names`).
+// `field_of_view`: FieldOfViewSummary of where the masks came from. True when the images
+// are files.
 bool ReadInputs(int min_frames,
                 const py::list& images,
                 const py::list& masks,
                 const std::vector<std::string>& names,
                 std::vector<Image>* frames,
                 std::vector<Mask>* frame_masks,
-                std::vector<std::string>* match_names) {
+                std::vector<std::string>* match_names,
+                std::string* field_of_view) {
   std::string error;
   const int m = static_cast<int>(images.size());
   if (static_cast<int>(names.size()) != m) BadInput("names: need one name per image");
@@ -255,10 +260,12 @@ bool ReadInputs(int min_frames,
     std::vector<std::string> image_paths, mask_paths;
     if (!FrameFilesFromFlags(min_frames, &image_paths, &mask_paths, &error)) BadInput(error);
     *match_names = image_paths;
-    if (!ReadFrames(image_paths, mask_paths, FLAGS_mask_erosion, FLAGS_num_threads, frames,
-                    frame_masks, &error)) {
+    std::vector<MaskRule> mask_rules;
+    if (!ReadFrames(image_paths, mask_paths, FieldOfViewFromFlags(), FLAGS_num_threads, frames,
+                    frame_masks, &mask_rules, &error)) {
       BadInput(error);
     }
+    *field_of_view = FieldOfViewSummary(mask_rules, FieldOfViewFromFlags().mask_rule);
     return true;
   } else {
     // The rules FrameFilesFromFlags has for --images and --masks, named by argument.
@@ -270,13 +277,14 @@ bool ReadInputs(int min_frames,
       BadInput("masks: " + std::to_string(masks.size()) + " masks for " + std::to_string(m) +
                " images");
     }
+    std::vector<MaskRule> mask_rules(masks.empty() ? m : 0);
     for (int i = 0; i < m; ++i) {
       const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
       frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
       if (masks.empty()) {
         frame_masks->emplace_back();
-        if (!MaskFromImage(frames->back(), FLAGS_mask_erosion, "image " + std::to_string(i),
-                           &frame_masks->back(), &error)) {
+        if (!MaskFromImage(frames->back(), FieldOfViewFromFlags(), "image " + std::to_string(i),
+                           &frame_masks->back(), &mask_rules[i], &error)) {
           BadInput(error);
         }
       } else {
@@ -287,6 +295,7 @@ bool ReadInputs(int min_frames,
         }
       }
     }
+    *field_of_view = FieldOfViewSummary(mask_rules, FieldOfViewFromFlags().mask_rule);
   }
   return false;
 }
@@ -298,14 +307,15 @@ struct Run {
   std::vector<Image> frames;
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> start;
+  std::string field_of_view;  // FieldOfViewSummary of the masks
 };
 
 // The run that `flags` set up for `images` (file paths, read as dsr_register reads them,
 // masks too; or (array, geometry) pairs) and `masks` (the same kind, or empty for each
-// image's non-zero voxels eroded by --mask_erosion). --init's poses file is matched to the
-// images by name as dsr_register matches it (to the paths, or to `names`). The flags hold
-// their values only within this call (the FlagSaver), which runs with the GIL held: a
-// registration in another Python thread never sees them.
+// image's field of view by --mask_rule eroded by --mask_erosion). --init's poses file is
+// matched to the images by name as dsr_register matches it (to the paths, or to `names`).
+// The flags hold their values only within this call (the FlagSaver), which runs with the
+// GIL held: a registration in another Python thread never sees them.
 Run PrepareRun(const py::list& images,
                const py::list& masks,
                const std::vector<std::string>& names,
@@ -316,7 +326,8 @@ Run PrepareRun(const py::list& images,
   Run run;
   if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
   std::vector<std::string> match_names;
-  if (ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names)) {
+  if (ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names,
+                 &run.field_of_view)) {
     run.paths = match_names;
   }
   const int m = static_cast<int>(images.size());
@@ -371,7 +382,7 @@ py::dict RegisterImages(const py::list& images,
   }
   py::dict out;
   out["poses"] = PosesToDict(ResultPoses(result, names));
-  out["summary"] = Summary(options, result);
+  out["summary"] = Summary(options, result, run.field_of_view);
   return out;
 }
 
@@ -451,7 +462,8 @@ py::tuple FuseImages(const py::list& images,
   {
     gflags::FlagSaver saver;  // the flags' values only while the inputs are read
     SetFlags(flags);
-    ReadInputs(1, images, masks, names, &frames_in, &masks_in, &match_names);
+    std::string field_of_view;
+    ReadInputs(1, images, masks, names, &frames_in, &masks_in, &match_names, &field_of_view);
     spacing = FLAGS_panorama_spacing;
     feather = FeatherBlend();
     feather_voxels = FLAGS_feather_voxels;

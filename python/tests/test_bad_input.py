@@ -151,6 +151,7 @@ REGISTER = [
     (FRAMES, MASKS, {"smoothing": 1e6}),
     (FRAMES, MASKS, {"intensity_transform": "log"}),
     (FRAMES, MASKS, {"panorama_sampling": "dither"}),
+    (FRAMES, MASKS, {"mask_rule": "convex"}),
     (["good.mha", "negative.mha"], None, {"intensity_transform": "sqrt"}),
 ]
 

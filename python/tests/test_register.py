@@ -75,10 +75,18 @@ def test_arrays_register_as_their_files_do(sequence):
     from_arrays = dsr.register(images, masks, **LEVELS)
     for a, b in zip(from_arrays.poses, from_files.poses):
         assert np.array_equal(a, b)
-    # Without masks both derive them from the non-zero voxels (mask_erosion).
+    assert from_arrays.summary["field_of_view"] == "field of view: the given masks"
+    # Without masks both derive them from the images (mask_rule, mask_erosion), and the
+    # summary says which rule did.
     no_masks = dsr.register(files(sequence, "frame"), **LEVELS)
-    for a, b in zip(dsr.register(images, **LEVELS).poses, no_masks.poses):
+    from_arrays = dsr.register(images, **LEVELS)
+    for a, b in zip(from_arrays.poses, no_masks.poses):
         assert np.array_equal(a, b)
+    for result in (no_masks, from_arrays):
+        assert (result.summary["field_of_view"] ==
+                "field of view: convex hull of the non-zero voxels (frames 0-2)")
+    nonzero = dsr.register(images, mask_rule="nonzero", **LEVELS)
+    assert nonzero.summary["field_of_view"] == "field of view: non-zero voxels (frames 0-2)"
 
 
 @pytest.mark.parametrize("reader", ["SimpleITK", "nibabel"])

@@ -7,6 +7,7 @@
 // a tool refers to one of their flags or functions.
 //   frames.cc        --images --masks --blend --feather_voxels    dsr_register, dsr_fuse
 //   mask.cc          --mask_erosion                               dsr_simulate, dsr_register, dsr_fuse
+//   field_of_view.cc --mask_rule                                  dsr_register, dsr_fuse, dsr_compare
 //   mode.cc          --mode, one registration run's options       dsr_register, the Python module
 //   panorama.cc      --panorama_spacing --num_threads             dsr_register, dsr_fuse, dsr_compare
 //   registration.cc  the registration's options                   dsr_register, dsr_compare
@@ -21,6 +22,7 @@
 
 #include <gflags/gflags.h>
 
+#include "dsr/geometry/field_of_view.h"
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/registration.h"
 #include "dsr/sim/phantom.h"
@@ -33,6 +35,8 @@ DECLARE_string(blend);
 DECLARE_double(feather_voxels);
 // mask.cc
 DECLARE_int32(mask_erosion);
+// field_of_view.cc
+DECLARE_string(mask_rule);
 // mode.cc
 DECLARE_string(mode);
 // panorama.cc
@@ -118,6 +122,10 @@ bool FrameFilesFromFlags(int min_frames,
                          std::vector<std::string>* image_paths,
                          std::vector<std::string>* mask_paths,
                          std::string* error);
+
+// field_of_view.cc: --mask_rule and --mask_erosion, how a frame given without a mask gets
+// one (validated by their validators).
+FieldOfViewOptions FieldOfViewFromFlags();
 
 // --blend: the panorama's fusion, and whether it is feathered.
 bool FeatherBlend();

@@ -11,8 +11,9 @@ DEFINE_string(images, "", "Frame images (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr
               "path per line (for names that contain commas). At most 32 (kMaxFrames); "
               "dsr_register needs at least 2. Required.");
 DEFINE_string(masks, "", "Field-of-view masks, one per image, on the image's grid (non-zero = "
-              "inside), comma-separated or @LIST as --images. Empty: each image's non-zero "
-              "voxels eroded by --mask_erosion voxels.");
+              "inside), comma-separated or @LIST as --images. Empty: each image's field of view "
+              "by --mask_rule (default: the convex hull of its non-zero voxels) eroded by "
+              "--mask_erosion voxels.");
 DEFINE_string(blend, "mean", "Panorama blending: mean (paper eq. 10: the per-voxel mean of the "
               "observations) or feather (weights fall off towards each field-of-view edge, so "
               "seams vanish).");

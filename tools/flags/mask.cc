@@ -3,7 +3,8 @@
 #include "dsr/tools/tool_util.h"
 
 DEFINE_int32(mask_erosion, 1, "Mask erosion in voxels (6-neighbourhood per voxel), in [0, 50]. "
-             "dsr_register and dsr_fuse without --masks: of each image's non-zero voxels. "
+             "dsr_register and dsr_fuse without --masks: of each image's field of view by "
+             "--mask_rule. "
              "dsr_simulate and dsr_compare: of the masks of the simulated frames; 0 gives the "
              "exact field of view (the registration's gradients never read outside a mask, so "
              "no erosion is needed for them).");
