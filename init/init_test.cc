@@ -361,9 +361,10 @@ TEST(Recovery, AcceptsTheMisfitOfAFrameThatMatchesTheOthers) {
   s.frames[blurred] = SmoothInsideMask(s.frames[blurred], s.masks[blurred], 1.5, 2);
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
   RegistrationOptions o = SmallOptions();
-  // The pair check compares frames two by two, without the panorama's averaging, and flags
-  // this frame on its own (its pairs' NCC is lower); this test is about the misfit check.
-  o.max_pair_mismatch_ratio = 0.0;
+  // This test is about the former misfit check (off by default), whose ratio to the other
+  // frames' lower quartile flags a frame for its content; the structure check leaves the
+  // blurred frame's differences alone (they are fine detail, not structure at its lag).
+  o.max_misfit_ratio = 2.0;
   RegistrationResult refused;
   std::string error;
   ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &refused, &error)) << error;

@@ -109,6 +109,13 @@ class CoarseToFine {
                  const ImageGeometry& grid,
                  CandidateSet candidates,
                  LevelSolve record);
+  // With photometric kAuto, once (the first round whose final poses pass every check):
+  // estimates every frame's gain and offset at the final poses and records in the result
+  // whether some frame's brightness differs from frame 0's (kBrightnessTolerance); the
+  // pipeline then registers again with affine from there (RegisterScaled), and every later
+  // round follows the choice.
+  Next DetectBrightness(const std::vector<Frame>& frames);
+  void UseAffine();
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
   Next CheckFinalPoses(const std::vector<Frame>& frames);
   // At `poses` in the candidates' world.
@@ -132,9 +139,11 @@ class CoarseToFine {
   const std::vector<bool>& misfit_exempt_;
   const std::vector<Frame>& search_frames_;
   Pyramids* pyramids_;
-  const LevelSolver solver_;
+  // The mode's solver, and whether it estimates gains and offsets (photometric kAffine, or
+  // kAuto once brightness differences are detected: DetectBrightness).
+  LevelSolver solver_;
   const int m_;
-  const bool affine_;
+  bool affine_;
   // DSR in the mean gauge with every phase sampled (PanoramaSampling::kAllPhases): each level
   // problem is built in the frames' mean frame, so that no frame's lattice is the grid's
   // (docs/design.md 4.8). With the half voxel the grid keeps frame 0's lattice.

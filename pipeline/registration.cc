@@ -38,7 +38,8 @@ int ConstantFrame(const std::vector<Image>& images, const std::vector<Mask>& mas
 }  // namespace
 
 bool StringToPhotometricModel(const std::string& name, PhotometricModel* model) {
-  return FindNamed(name, {PhotometricModel::kNone, PhotometricModel::kAffine},
+  return FindNamed(name,
+                   {PhotometricModel::kNone, PhotometricModel::kAffine, PhotometricModel::kAuto},
                    PhotometricModelToString, model);
 }
 
@@ -148,7 +149,7 @@ bool RegistrationOptions::Validate(std::string* error) const {
                        "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
                            " is a baseline with squared differences)");
   }
-  const bool affine = photometric == PhotometricModel::kAffine;
+  const bool affine = photometric != PhotometricModel::kNone;
   if (affine && !ModeEstimatesPhotometric(mode)) {
     return RefuseField(error, "photometric", PhotometricModelToString(photometric),
                        "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
@@ -164,8 +165,10 @@ bool RegistrationOptions::Validate(std::string* error) const {
     RegistrationOptions plain = *this;
     plain.photometric = PhotometricModel::kNone;
     if (!valid(plain)) return false;
-    if (affine && !valid(*this)) {
-      *error = "photometric=affine: " + *error;
+    RegistrationOptions with = *this;
+    with.photometric = PhotometricModel::kAffine;
+    if (affine && !valid(with)) {
+      *error = "photometric=" + std::string(PhotometricModelToString(photometric)) + ": " + *error;
       return false;
     }
   } else if (!ToBaselineOptions(*this, solve).Validate(error)) {
@@ -327,7 +330,8 @@ void ResultFromLocal(const std::vector<Eigen::Vector3d>& centre, RegistrationRes
   for (size_t i = 0; i < covariance.size() && i < centre.size(); ++i) {
     Matrix6d adjoint = Matrix6d::Identity();
     adjoint.topRightCorner<3, 3>() = Hat(centre[i]);
-    covariance[i] = adjoint * covariance[i] * adjoint.transpose();
+    const Matrix6d moved = adjoint * covariance[i] * adjoint.transpose();
+    covariance[i] = 0.5 * (moved + moved.transpose());  // exactly symmetric, as written
   }
 }
 
@@ -392,10 +396,19 @@ bool RegisterScaled(const std::vector<Image>& images,
     result->init_seconds = SecondsSince(init_start);
     result->init_frame_from_world = PosesFromLocal(poses, pyramids.centre);
   }
+  bool affine_round = false;  // photometric kAuto: the round after brightness was detected
   for (int round = 0;; ++round) {
     CoarseToFine levels(images, masks, options, options.max_recoveries > 0,
                         recovery.misfit_exempt, search_frames, &pyramids);
     if (!levels.Run(poses, result, error)) return false;
+    if (result->usable && result->photometric_detected && !affine_round) {
+      // Brightness differs between frames: once more with gains and offsets, from the poses
+      // reached (not a recovery: nothing was wrong with them).
+      affine_round = true;
+      poses = result->frame_from_world;
+      --round;
+      continue;
+    }
     if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty() ||
         !Recover(search_frames, options, &recovery, &poses, result, error)) {
       break;

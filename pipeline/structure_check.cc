@@ -17,7 +17,7 @@ namespace {
 // Sums of one block (fixed, so that the result does not depend on the thread count).
 struct StructureSums {
   std::array<int64_t, kMaxFrames> pairs{};
-  std::array<double, kMaxFrames> rr{}, r2{}, cc{}, c1{}, c2{}, c1c1{};
+  std::array<double, kMaxFrames> rr{}, r1{}, r2{}, rsq{}, cc{}, c1{}, c2{}, c1c1{};
 };
 
 // The voxels of the last L + 1 columns of the current panorama row, for the lag pairs.
@@ -96,8 +96,10 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
           both &= both - 1;
           ++sums.pairs[f];
           sums.rr[f] += slot.residual[f] * before.residual[f];
-          sums.r2[f] += 0.5 * (slot.residual[f] * slot.residual[f] +
-                               before.residual[f] * before.residual[f]);
+          sums.r1[f] += before.residual[f];
+          sums.r2[f] += slot.residual[f];
+          sums.rsq[f] += 0.5 * (slot.residual[f] * slot.residual[f] +
+                                before.residual[f] * before.residual[f]);
           sums.cc[f] += slot.corrected[f] * before.corrected[f];
           sums.c1[f] += before.corrected[f];
           sums.c2[f] += slot.corrected[f];
@@ -112,7 +114,9 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
     for (int f = 0; f < m; ++f) {
       total.pairs[f] += s.pairs[f];
       total.rr[f] += s.rr[f];
+      total.r1[f] += s.r1[f];
       total.r2[f] += s.r2[f];
+      total.rsq[f] += s.rsq[f];
       total.cc[f] += s.cc[f];
       total.c1[f] += s.c1[f];
       total.c2[f] += s.c2[f];
@@ -125,8 +129,10 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
     s.pairs = total.pairs[f];
     if (s.pairs < 2) continue;
     const double n_pairs = static_cast<double>(s.pairs);
-    s.residual_lag = total.rr[f] / n_pairs;
-    s.residual_variance = total.r2[f] / n_pairs;
+    // Centred: a frame's mean residual is a brightness offset, not anatomy out of line.
+    const double r_mean1 = total.r1[f] / n_pairs, r_mean2 = total.r2[f] / n_pairs;
+    s.residual_lag = total.rr[f] / n_pairs - r_mean1 * r_mean2;
+    s.residual_variance = total.rsq[f] / n_pairs - 0.25 * (r_mean1 + r_mean2) * (r_mean1 + r_mean2);
     const double mean1 = total.c1[f] / n_pairs, mean2 = total.c2[f] / n_pairs;
     const double mean = 0.5 * (mean1 + mean2);
     s.signal_lag = total.cc[f] / n_pairs - mean1 * mean2;
@@ -175,6 +181,31 @@ bool StructureOutlier(const std::vector<FrameStructure>& structure,
   text << ": a wrong local minimum; give better initial poses (init)";
   *why = text.str();
   return true;
+}
+
+std::string StructureSummary(const std::vector<FrameStructure>& structure) {
+  int worst = -1, flat = 0;
+  for (size_t i = 0; i < structure.size(); ++i) {
+    if (!structure[i].judged) {
+      ++flat;
+    } else if (worst < 0 || structure[i].fraction > structure[worst].fraction) {
+      worst = static_cast<int>(i);
+    }
+  }
+  if (worst < 0 && flat == 0) return "";
+  std::ostringstream text;
+  text.precision(2);
+  text << "structure check (docs/design.md 8.4): ";
+  if (worst >= 0) {
+    text << "at most " << 100.0 * structure[worst].fraction << "% of a frame's own structure "
+         << "remains in its differences to the panorama (frame " << worst << ", "
+         << structure[worst].significance << " standard errors of noise alone)";
+  }
+  if (flat > 0) {
+    text << (worst >= 0 ? "; " : "") << flat << (flat == 1 ? " frame" : " frames")
+         << " too flat to judge";
+  }
+  return text.str();
 }
 
 }  // namespace dsr

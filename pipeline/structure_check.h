@@ -10,7 +10,7 @@
 // L at least 2 sqrt 3 frame voxels, so that they read disjoint trilinear cells of every
 // frame): over the pairs of voxels L apart that frame i observes (both with k >= 2),
 //
-//   residual structure  a_i = mean(r_ij r_ij')                 (0 in expectation for noise)
+//   residual structure  a_i = mean(r_ij r_ij') - mean(r_ij) mean(r_ij')   (0 for noise)
 //   signal structure    b_i = mean(c_ij c_ij') - mean(c_ij) mean(c_ij')
 //
 // and the structure fraction s_i = a_i / b_i is the share of frame i's own lag-L structure
@@ -18,6 +18,8 @@
 // or the content (both are covariances of the same frame's samples, so the intensity unit,
 // the gain and the amount of flat or dark tissue cancel), and a sizeable fraction of
 // (1 - 1/k)^2 2 (1 - rho(d)) for a frame displaced by d, rho the anatomy's autocorrelation.
+// Both are centred: a residual that is the same everywhere is a brightness offset between
+// frames, not anatomy out of line.
 // No noise level is estimated: the lag removes it. What remains at correct poses is the
 // model's own error (trilinear resampling, brightness the photometric model does not have),
 // a small fraction of the structure.
@@ -49,8 +51,8 @@ constexpr double kStructureSignificance = 5.0;
 
 struct FrameStructure {
   int64_t pairs = 0;              // voxel pairs L apart that the frame observes (k >= 2 at both)
-  double residual_lag = 0.0;      // a_i: mean r r' over the pairs
-  double residual_variance = 0.0; // mean r^2 over the pairs' voxels
+  double residual_lag = 0.0;      // a_i: covariance of r and r' over the pairs
+  double residual_variance = 0.0; // variance of r over the pairs' voxels
   double signal_lag = 0.0;        // b_i: lag covariance of the frame's corrected samples
   double signal_variance = 0.0;   // variance of those samples
   // a_i / b_i, or 0 when the frame is not judged (too few pairs, or its signal structure
@@ -88,6 +90,11 @@ bool StructureOutlier(const std::vector<FrameStructure>& structure,
                       double max_fraction,
                       std::string* why,
                       const std::vector<bool>* exempt = nullptr);
+
+// One line for the tools' summaries: the largest structure fraction over the judged frames,
+// its frame and significance, and how many frames were too flat to judge; "" when none was
+// measured.
+std::string StructureSummary(const std::vector<FrameStructure>& structure);
 
 }  // namespace dsr
 

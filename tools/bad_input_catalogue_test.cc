@@ -273,8 +273,13 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --min_kept_overlap=-0.1", "--min_kept_overlap");
   Register(base + " --max_misfit_ratio=nan", "--max_misfit_ratio");
   Register(base + " --max_recoveries=11", "--max_recoveries");
-  Register(base + " --max_misfit_ratio=0 --min_kept_overlap=0 --max_pair_mismatch_ratio=0",
+  Register(base + " --max_misfit_ratio=0 --min_kept_overlap=0 --max_pair_mismatch_ratio=0 "
+                  "--max_structure_fraction=0",
            "--max_recoveries");
+  Register(base + " --max_structure_fraction=1", "--max_structure_fraction=1: must be in [0, 1)");
+  Register(base + " --max_structure_fraction=nan", "--max_structure_fraction");
+  Register(base + " --preset=heart", "--preset=heart: must be none or echo");
+  Register(base + " --photometric=gamma", "--photometric=gamma: must be none, affine or auto");
   Register(base + " --max_pair_mismatch_ratio=1", "--max_pair_mismatch_ratio");
   Register(base + " --max_pair_mismatch_ratio=inf", "--max_pair_mismatch_ratio");
   Register(base + " --search_rotations=0", "--search_rotations=0:");

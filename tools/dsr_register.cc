@@ -347,6 +347,14 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
                 dsr::IntensityTransformToString(result.intensity_transform),
                 result.intensity_transform_scale);
   }
+  if (!dsr::StructureSummary(result.frame_structure).empty()) {
+    std::printf("dsr_register: %s\n", dsr::StructureSummary(result.frame_structure).c_str());
+  }
+  if (!dsr::PresetSummary().empty()) std::printf("dsr_register: %s\n", dsr::PresetSummary().c_str());
+  if (!result.photometric_choice.empty()) {
+    std::printf("dsr_register: photometric model %s\n",
+                dsr::FieldPathsAsFlags(result.photometric_choice).c_str());
+  }
   if (!result.photometric.empty()) {
     std::printf("dsr_register: %s\n",
                 PhotometricSummary(result.photometric, FLAGS_gt_poses.empty() ? nullptr : &gt)

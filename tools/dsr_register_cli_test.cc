@@ -314,7 +314,7 @@ TEST_F(DsrRegisterCli, CompareCarriesGainsAndOffsets) {
                               Dir());
   EXPECT_EQ(bad.exit_code, 2);
   ASSERT_EQ(bad.error_lines.size(), 1u) << bad.err;
-  EXPECT_NE(bad.error_lines[0].find("--photometric=linear: must be none or affine"),
+  EXPECT_NE(bad.error_lines[0].find("--photometric=linear: must be none, affine or auto"),
             std::string::npos) << bad.error_lines[0];
 }
 
@@ -375,7 +375,7 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   ExpectBadInput(images + " --min_kept_overlap=1.5", "--min_kept_overlap");
   ExpectBadInput(images + " --max_misfit_ratio=0.5", "--max_misfit_ratio");
   ExpectBadInput(images + " --unknown_flag=3", "unknown_flag");
-  ExpectBadInput(images + " --photometric=linear", "--photometric=linear: must be none or affine");
+  ExpectBadInput(images + " --photometric=linear", "--photometric=linear: must be none, affine or auto");
   ExpectBadInput(images + " --loss=tukey", "--loss");
   ExpectBadInput(images + " --loss=huber", "--loss_scale");  // no scale
   ExpectBadInput(images + " --loss=cauchy --loss_scale=-1", "--loss_scale");

@@ -222,6 +222,16 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
     s["intensity_transform"] = IntensityTransformToString(result.intensity_transform);
     s["intensity_transform_scale"] = result.intensity_transform_scale;
   }
+  if (!result.frame_structure.empty()) {
+    py::list fractions;
+    for (const FrameStructure& f : result.frame_structure) {
+      fractions.append(f.judged ? py::object(py::float_(f.fraction)) : py::object(py::none()));
+    }
+    s["structure_fraction"] = fractions;  // per frame; None: too flat to judge
+  }
+  if (!result.photometric_choice.empty()) {
+    s["photometric"] = FieldPathsAsFlags(result.photometric_choice);
+  }
   if (options.uncertainty) {
     s["uncertainty"] = FieldPathsAsFlags(UncertaintySummary(result.uncertainty,
                                                             result.uncertainty_note));

@@ -47,6 +47,7 @@ DECLARE_string(init);
 DECLARE_int32(max_recoveries);
 DECLARE_string(loss);
 DECLARE_double(loss_scale);
+DECLARE_string(preset);
 DECLARE_string(photometric);
 DECLARE_string(intensity_transform);
 DECLARE_string(panorama_sampling);
@@ -149,6 +150,11 @@ bool RunOptionsFromFlags(RegistrationOptions* options, std::string* init_file,
 // the modes that estimate photometric parameters (a baseline runs without them unless
 // --photometric is given; then RegistrationOptions::Validate refuses it).
 PhotometricModel PhotometricFromFlags(Mode mode);
+
+// `value`, the value of `flag`, or the one --preset gives it when the flag was not given.
+std::string PresetFlagValue(const char* flag, const std::string& value);
+// "preset echo: --photometric=affine ..." (the flags the preset set), or "" without one.
+std::string PresetSummary();
 
 // The simulation's options and the built-in phantom's from the flags (validated by their
 // validators; `options` is then checked as a whole). False with a one-line `error`.

@@ -26,16 +26,24 @@ DEFINE_string(loss, "squared",
 DEFINE_double(loss_scale, 0.0, "Scale of --loss=huber or cauchy, in grey levels of the input "
               "(residuals larger than about this are down-weighted); > 0.");
 DEFINE_string(photometric, dsr::PhotometricModelToString(dsr::kDefaultPhotometricModel),
-              "Photometric model of the modes dsr and dba (docs/design.md section 2.8): none, "
-              "or affine: every solve also estimates each frame's gain and offset against "
+              "Photometric model of the modes dsr and dba (docs/design.md section 2.8): none; "
+              "affine: every solve also estimates each frame's gain and offset against "
               "frame 0 (frame i's intensities on frame 0's scale are gain * I_i + offset), "
-              "for frames whose brightness differs. The baselines have none: the default "
-              "runs them without, an explicit affine with a baseline mode is refused. With "
-              "affine, the poses files carry each frame's \"gain\" and \"offset\", the "
+              "for frames whose brightness differs; or auto (default): affine where the gains "
+              "and offsets estimated after the coarsest level change some frame's intensities "
+              "by more than 3% of their spread, else none (the summary says which and why). "
+              "The baselines have none: the default runs them without, an explicit affine or "
+              "auto with a baseline mode is refused. With affine, the poses files carry each frame's \"gain\" and \"offset\", the "
               "panorama and the report's pictures use the corrected intensities, the misfit "
               "check compares them, and --uncertainty is not estimated; dsr_compare names "
               "the rows METHOD+affine and adds the mean absolute gain and offset errors "
               "(mae_gain, mae_offset) when the ground truth has them.");
+DEFINE_string(preset, "none",
+              "A named set of defaults for a kind of data (flags given explicitly still win): "
+              "none, or echo, for 3D ultrasound with speckle and brightness changes between "
+              "acquisitions: --photometric=affine --intensity_transform=sqrt "
+              "--panorama_sampling=all_phases (docs/accuracy_us.md). The summary lists what it "
+              "set.");
 DEFINE_string(intensity_transform, "none",
               "Intensities the registration works on (docs/design.md section 2.9): none, or "
               "sqrt: sqrt(c I), c the largest intensity inside the masks, a variance-"
@@ -100,20 +108,19 @@ DEFINE_double(min_kept_overlap, 0.25, "Divergence guard: poses at which a frame'
               "(exit 1), not a result; in [0, 1), 0 = off. dsr_compare: off by default (every "
               "method's poses are measured, diverged or not), 0.25 with --init=auto or global "
               "unless any of the three checks is set.");
-DEFINE_double(max_misfit_ratio, 2.0, "Misfit check: final poses at which a frame's RMS "
-              "difference to the panorama exceeds this multiple of the frames' lower quartile "
-              "(a frame stuck in a wrong minimum) are a failure (exit 1), not a result; 0 = off "
-              "or > 1. dsr_compare: as --min_kept_overlap (2 with --init=auto or global).");
-DEFINE_double(max_pair_mismatch_ratio, 5.0, "Pair check: poses at which two overlapping "
-              "frames match each other (1 - NCC over their overlap, on the coarsest level) "
-              "worse than this multiple of the pairs' lower quartile (frames split into groups "
-              "that disagree) are a failure (exit 1), not a result; 0 = off or > 1. "
-              "dsr_compare: as --min_kept_overlap (5 with --init=auto or global).");
-DEFINE_double(max_structure_fraction, 0.0, "Structure check: poses at which more than this "
-              "fraction of a frame's own structure (its samples' covariance at a lag beyond "
-              "noise and interpolation) remains in its differences to the panorama, standing "
-              "out of what noise alone gives, are a failure (exit 1), not a result; in [0, 1), "
-              "0 = off. dsr_compare: as --min_kept_overlap.");
+DEFINE_double(max_structure_fraction, 0.05, "Structure check (docs/design.md 8.4): poses at "
+              "which more than this fraction of a frame's own structure (its samples' "
+              "covariance at a lag beyond noise and interpolation) remains in its differences "
+              "to the panorama, standing out of what noise alone gives, are a failure (exit 1), "
+              "not a result; in [0, 1), 0 = off. dsr_compare: as --min_kept_overlap (0.05 with "
+              "--init=auto or global).");
+DEFINE_double(max_misfit_ratio, 0.0, "Former misfit check, off by default (docs/design.md "
+              "8.5): poses at which a frame's RMS difference to the panorama exceeds this "
+              "multiple of the frames' lower quartile are a failure (exit 1); 0 = off or > 1.");
+DEFINE_double(max_pair_mismatch_ratio, 0.0, "Former pair check, off by default (docs/design.md "
+              "8.5): poses at which two overlapping frames match each other (1 - NCC over "
+              "their overlap, on the coarsest level) worse than this multiple of the pairs' "
+              "lower quartile are a failure (exit 1); 0 = off or > 1.");
 DEFINE_int32(num_chunks, 1, "dsr and ape: residual blocks the candidate voxels are split into, "
              ">= 1.");
 DEFINE_bool(reference_cost, false, "dsr: use the per-voxel reference cost (stores Jacobians; "
@@ -130,10 +137,13 @@ DEFINE_bool(uncertainty, false, "Estimate each frame's pose covariance and predi
             "not a wrong minimum, brightness changes or interpolation bias.");
 
 namespace {
+bool ValidatePreset(const char* flag, const std::string& v) {
+  return dsr::CheckFlag(v == "none" || v == "echo", flag, v, "must be none or echo");
+}
 bool ValidatePhotometric(const char* flag, const std::string& v) {
   dsr::PhotometricModel model;
   return dsr::CheckFlag(dsr::StringToPhotometricModel(v, &model), flag, v,
-                        "must be none or affine");
+                        "must be none, affine or auto");
 }
 bool ValidateIntensityTransform(const char* flag, const std::string& v) {
   dsr::IntensityTransform transform;
@@ -171,6 +181,7 @@ bool ValidateMemoryBudget(const char* flag, double v) {
   return dsr::CheckFlag(v >= 0.0 && std::isfinite(v), flag, v, "must be >= 0");
 }
 }  // namespace
+DEFINE_validator(preset, &ValidatePreset);
 DEFINE_validator(photometric, &ValidatePhotometric);
 DEFINE_validator(intensity_transform, &ValidateIntensityTransform);
 DEFINE_validator(panorama_sampling, &ValidatePanoramaSampling);
@@ -182,9 +193,38 @@ DEFINE_validator(memory_budget_mb, &ValidateMemoryBudget);
 
 namespace dsr {
 
+namespace {
+// --preset=echo's flags and values.
+constexpr std::pair<const char*, const char*> kEchoPreset[] = {
+    {"photometric", "affine"},
+    {"intensity_transform", "sqrt"},
+    {"panorama_sampling", "all_phases"},
+};
+}  // namespace
+
+std::string PresetFlagValue(const char* flag, const std::string& value) {
+  if (FLAGS_preset != "echo" || !FlagIsDefault(flag)) return value;
+  for (const auto& [name, preset] : kEchoPreset) {
+    if (std::string(name) == flag) return preset;
+  }
+  return value;
+}
+
+std::string PresetSummary() {
+  if (FLAGS_preset == "none") return "";
+  std::string set;
+  for (const auto& [name, value] : kEchoPreset) {
+    if (FlagIsDefault(name)) set += std::string(set.empty() ? "" : " ") + "--" + name + "=" + value;
+  }
+  return "preset " + FLAGS_preset + ": " + (set.empty() ? "every flag it sets was given" : set);
+}
+
 PhotometricModel PhotometricFromFlags(Mode mode) {
   PhotometricModel model = PhotometricModel::kNone;
-  StringToPhotometricModel(FLAGS_photometric, &model);  // validated
+  StringToPhotometricModel(ModeEstimatesPhotometric(mode)
+                               ? PresetFlagValue("photometric", FLAGS_photometric)
+                               : FLAGS_photometric,
+                           &model);  // validated
   if (FlagIsDefault("photometric") && !ModeEstimatesPhotometric(mode)) {
     model = PhotometricModel::kNone;
   }
@@ -212,7 +252,8 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   solve.max_rejected_steps = FLAGS_max_rejected_steps;
   solve.progress = FLAGS_progress;
   options->panorama_spacing = FLAGS_panorama_spacing;
-  StringToPanoramaSampling(FLAGS_panorama_sampling, &options->panorama_sampling);  // validated
+  StringToPanoramaSampling(PresetFlagValue("panorama_sampling", FLAGS_panorama_sampling),
+                           &options->panorama_sampling);  // validated
   StringToGauge(FLAGS_gauge, &options->gauge);  // validated
   options->pyramid_levels = FLAGS_pyramid_levels;
   options->pyramid_sigma = FLAGS_pyramid_sigma;
@@ -229,7 +270,8 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   options->dsr.reference_cost = FLAGS_reference_cost;
   options->dba.memory_budget_mb = FLAGS_memory_budget_mb;
   options->uncertainty = FLAGS_uncertainty;
-  StringToIntensityTransform(FLAGS_intensity_transform, &options->intensity_transform);  // validated
+  StringToIntensityTransform(PresetFlagValue("intensity_transform", FLAGS_intensity_transform),
+                             &options->intensity_transform);  // validated
   if (!MakeRobustLoss(FLAGS_loss, FLAGS_loss_scale, &options->loss, error)) return false;
   init_file->clear();
   if (!SetInitialisation(FLAGS_init, FLAGS_max_recoveries, options)) *init_file = FLAGS_init;
