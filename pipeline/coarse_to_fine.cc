@@ -8,12 +8,12 @@
 
 #include <glog/logging.h>
 
-#include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/pair_check.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/convergence.h"
 #include "dsr/solve/gauge.h"
+#include "dsr/stream/reduced_system.h"
 #include "dsr/stream/streamed_cost.h"
 #include "dsr/util/parallel.h"
 
