@@ -31,8 +31,8 @@
 # go to OUT/runs/INIT[-affine]-sqrt, the table to OUT/accuracy_INIT[_affine]_sqrt.md).
 # --panorama_sampling=all_phases: frame 0 sampled at every sub-voxel phase (dsr_compare
 # --panorama_sampling; the suffix -all_phases after the others).
-# --gauge=frame0: DSR's solves with frame 0 constant rather than in the default mean gauge
-# (dsr_compare --gauge; the suffix -frame0_gauge).
+# --gauge=frame0: DSR's and DBA's solves with frame 0 constant rather than in the default mean
+# gauge (dsr_compare --gauge; the suffix -frame0_gauge last).
 # --mask_rule=nonzero: the none rows' masks by the non-zero rule rather than the default
 # convex hull of the non-zero voxels (dsr_compare --mask_rule; the suffix -nonzero_masks last).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =

@@ -8,7 +8,8 @@
 #include <glog/logging.h>
 
 #include "dsr/solve/convergence.h"
-
+#include "dsr/stream/reduced_system.h"
+#include "dsr/stream/streamed_cost.h"
 #include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
@@ -65,6 +66,26 @@ void EvaluateObservation(const Frame& frame,
 }
 
 double* Block(double** jacobians, int i) { return jacobians != nullptr ? jacobians[i] : nullptr; }
+
+// The mean gauge's stiffness at the start, DSR's (DbaProblem's comment). The weights of a
+// robust loss live only for this pass, before the problem's own storage is built.
+Vector6d GaugeStiffness(const std::vector<Frame>& frames,
+                        const CandidateSet& candidates,
+                        const std::vector<Eigen::Isometry3d>& frame_from_world,
+                        const std::vector<Photometric>& photometric,
+                        const RobustLoss& loss,
+                        const StreamContext& context) {
+  if (loss.IsSquared()) {
+    return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, nullptr,
+                                context);
+  }
+  ObservationWeights weights(candidates);
+  ReweightStats stats;
+  UpdateObservationWeights(frames, candidates, frame_from_world, photometric, loss, context,
+                           &weights, &stats);
+  return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, &weights,
+                              context);
+}
 
 }  // namespace
 
@@ -158,7 +179,9 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
                        const std::vector<Photometric>& photometric,
-                       const RobustLoss& loss)
+                       const RobustLoss& loss,
+                       Gauge gauge,
+                       const StreamContext& context)
     : loss_(loss.CeresLoss()) {
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(candidates.num_frames, m);
@@ -175,11 +198,22 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
   static PoseManifold* const kManifold = new PoseManifold();  // shared, never freed
 
   poses_.resize(m);
+  std::vector<double*> all_poses;
   for (int i = 0; i < m; ++i) {
     PoseToParameters(frame_from_world[i], poses_[i].data());
     problem_->AddParameterBlock(poses_[i].data(), kPoseAmbientSize, kManifold);
+    all_poses.push_back(poses_[i].data());
   }
-  problem_->SetParameterBlockConstant(poses_[0].data());
+  if (gauge == Gauge::kMean) {
+    std::vector<Eigen::Vector3d> centres;
+    for (const Frame& frame : frames) centres.push_back(frame.ValidCentre());
+    const Vector6d stiffness =
+        GaugeStiffness(frames, candidates, frame_from_world, photometric, loss, context);
+    problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, std::move(centres), stiffness),
+                               nullptr, all_poses);
+  } else {
+    problem_->SetParameterBlockConstant(poses_[0].data());
+  }
   if (!photometric.empty()) {
     photometric_.resize(m);
     for (int i = 0; i < m; ++i) {
@@ -305,7 +339,8 @@ bool SolveDba(const std::vector<Frame>& frames,
     *error = PrefixFieldPaths("loss", *error);
     return false;
   }
-  DbaProblem dba(frames, candidates, initial_frame_from_world, start, options.loss);
+  DbaProblem dba(frames, candidates, initial_frame_from_world, start, options.loss, options.gauge,
+                 StreamContextFor(options.solve));
   ceres::Solver::Options solver_options;
   options.solve.ToCeres(ceres::DENSE_SCHUR, &solver_options);
   if (ceres::IsSchurType(solver_options.linear_solver_type)) {
@@ -314,8 +349,11 @@ bool SolveDba(const std::vector<Frame>& frames,
   ProgressCallback progress(options.solve.progress_prefix + "dba", options.solve.progress,
                             options.solve.on_iteration);
   solver_options.callbacks.push_back(&progress);
+  // Frame 0's block too when it is free (the rule measures motion against frame 0's).
   std::vector<const double*> pose_blocks(frames.size(), nullptr);
-  for (size_t i = 1; i < frames.size(); ++i) pose_blocks[i] = dba.pose_parameters(i);
+  for (size_t i = options.gauge == Gauge::kMean ? 0 : 1; i < frames.size(); ++i) {
+    pose_blocks[i] = dba.pose_parameters(i);
+  }
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
   stop.AddTo(&solver_options);

@@ -3,7 +3,8 @@
 //   min over T_1..T_{m-1}, M_1..M_n of  sum_j sum_i sigma_ij (M_j - I_i(p_ij))^2
 //
 // One SE(3) parameter block per frame (PoseManifold, layout [qx qy qz qw tx ty tz], left
-// perturbation, tangent [rho; phi]; frame 0 constant = the gauge), one 1-D block per
+// perturbation, tangent [rho; phi]; frame 0 constant = the gauge, or in the mean gauge
+// every pose free with one MeanPosePrior block over them, solve/gauge.h), one 1-D block per
 // candidate panorama voxel (the CandidateSet of model/observation.h, the rule shared with
 // DSR), one residual block per candidate observation (i, j):
 //   e_ij = M_j - I_i(p_ij),  d e / d delta_i = -J_ij,  d e / d M_j = 1,
@@ -21,6 +22,11 @@
 // With a robust loss (DbaOptions::loss, model/robust_loss.h; docs/design.md section 4.7)
 // every residual block gets the matching ceres::LossFunction: the objective becomes
 // sum_j sum_i rho(e_ij^2).
+//
+// The mean gauge (DbaOptions::gauge; docs/design.md 4.8) is DSR's: the same prior, about
+// the same field-of-view centres, with the same stiffness (MeanGaugeStiffnessAt,
+// stream/reduced_system.h: DSR's Gauss-Newton matrix at the start, which the theorem makes
+// DBA's Schur complement onto the poses), so that both modes minimise one function.
 #ifndef DSR_DBA_DBA_PROBLEM_H_
 #define DSR_DBA_DBA_PROBLEM_H_
 
@@ -36,7 +42,9 @@
 #include "dsr/model/observation.h"
 #include "dsr/model/photometric.h"
 #include "dsr/model/robust_loss.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/solve/solve_options.h"
+#include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
 
@@ -82,6 +90,13 @@ struct DbaOptions {
   // Refuse problems whose estimated memory exceeds this many MiB; <= 0 means half the
   // machine's RAM.
   double memory_budget_mb = 0.0;
+  // The pose gauge (solve/gauge.h), as DsrOptions::gauge: kMean frees frame 0's pose too
+  // and adds DSR's prior on the frames' mean displacement (one extra streamed pass for its
+  // stiffness). SolveDba then returns every pose in the world of the initial poses, the
+  // candidates' world, where the intensities' voxel centres stay (RelativeToFrame0 gives the
+  // outputs' convention; in frame 0's coordinates those centres move with frame 0). Frame
+  // 0's photometric parameters stay the photometric gauge in both.
+  Gauge gauge = Gauge::kFrame0;
   bool Validate(std::string* error) const;
 };
 
@@ -102,17 +117,24 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
 // The Ceres problem, kept as an object so tests can evaluate its Jacobian.
 class DbaProblem {
  public:
-  // Builds the problem at `frame_from_world` (frame 0 held constant). Intensities start at
-  // the per-voxel mean of the observations at these poses (0 where none observes). With
-  // `photometric` (one entry per frame, or empty for none), each frame gets a photometric
-  // block starting there (frame 0's is held constant; give it the gauge, 0 and 0), and the
-  // intensities start at the mean of the corrected observations. Every residual block gets
-  // `loss` (one shared Ceres loss object, owned by this problem; none for squared).
+  // Builds the problem at `frame_from_world`. Intensities start at the per-voxel mean of
+  // the observations at these poses (0 where none observes). With `photometric` (one entry
+  // per frame, or empty for none), each frame gets a photometric block starting there
+  // (frame 0's is held constant; give it the gauge, 0 and 0), and the intensities start at
+  // the mean of the corrected observations. Every residual block gets `loss` (one shared
+  // Ceres loss object, owned by this problem; none for squared).
+  // Gauge::kFrame0 holds frame 0's pose constant. Gauge::kMean leaves it free and adds a
+  // MeanPosePrior over every pose, anchored at `frame_from_world` about the frames'
+  // ValidCentre(), with the stiffness DSR's problem has at these poses and photometric
+  // parameters (MeanGaugeStiffnessAt, streamed with `context`): with a robust `loss`, that
+  // of the weights DSR's first reweighted solve starts from (UpdateObservationWeights).
   DbaProblem(const std::vector<Frame>& frames,
              const CandidateSet& candidates,
              const std::vector<Eigen::Isometry3d>& frame_from_world,
              const std::vector<Photometric>& photometric = {},
-             const RobustLoss& loss = RobustLoss());
+             const RobustLoss& loss = RobustLoss(),
+             Gauge gauge = Gauge::kFrame0,
+             const StreamContext& context = StreamContext());
 
   ceres::Problem& problem() { return *problem_; }
   double* pose_parameters(int frame) { return poses_[frame].data(); }
@@ -141,7 +163,10 @@ class DbaProblem {
 
 // Builds and solves. Fails (false, `error`) when the memory estimate exceeds the budget,
 // naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
-// that runs but is not usable returns true with report->usable = false. With
+// that runs but is not usable returns true with report->usable = false.
+// report->frame_from_world and `intensities` (one per candidate voxel, at its centre) are
+// in the world of `initial_frame_from_world` (frame 0's pose is its initial one unless
+// options.gauge is kMean). With
 // options.photometric, the photometric parameters start at options.initial_photometric (or
 // 1 and 0) and are returned in report->photometric. With a robust loss, the reported costs
 // are Ceres's, 1/2 sum rho(e_ij^2).

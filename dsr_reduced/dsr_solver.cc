@@ -62,12 +62,9 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   const bool mean_gauge = options.gauge == Gauge::kMean;
   if (mean_gauge) {
     // The prior's stiffness, from the data's normal equations at the initial poses.
-    const StreamContext context = StreamContextFor(options.solve);
-    ReducedSystem system;
-    AccumulateDsrCostSystem(frames, candidates, frame_from_world, PhotometricParameters(), weights,
-                            0, candidates.num_voxels(), true, context, &system);
-    const int p = options.photometric ? kWideJacobianSize : kJacobianSize;
-    gauge_stiffness_ = MeanGaugeStiffness(system.hessian, m, p);
+    gauge_stiffness_ = MeanGaugeStiffnessAt(frames, candidates, frame_from_world,
+                                            PhotometricParameters(), weights,
+                                            StreamContextFor(options.solve));
   }
   std::vector<double*> all_poses;
   std::vector<Eigen::Vector3d> centres;  // of the fields of view, for the mean gauge's prior

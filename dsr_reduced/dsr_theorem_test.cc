@@ -19,6 +19,7 @@
 #include "dsr/dba/dba_problem.h"
 #include "dsr/dsr_reduced/dsr_solver.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/tests/support/fixed_point_options.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
@@ -34,7 +35,9 @@ using testing_problems::DenseJacobian;
 using testing_problems::InteriorCandidates;
 using testing_problems::MakeSequence;
 using testing_problems::MaxPoseDifference;
+using testing_problems::MovedTogether;
 using testing_problems::Perturbed;
+using testing_problems::PoseDifference;
 using testing_problems::SequenceOptions;
 using testing_poses::FramesFromWorldNear;
 using testing_solve::FixedPointOptions;
@@ -63,21 +66,17 @@ SequenceOptions OptionsFor(const Case& c, uint64_t seed) {
   return o;
 }
 
-// DBA's Gauss-Newton pose step with the intensities eliminated (Schur complement), solved
-// densely; intensity columns with zero curvature (voxels nobody observes now) are dropped.
-// With `photometric`, each free frame's [log_gain, offset] follows its pose (8 per frame,
-// the layout of the photometric reduced system).
-Eigen::VectorXd DbaSchurStep(DbaProblem* dba, int num_frames, bool photometric = false) {
-  std::vector<double*> blocks;
-  for (int i = 1; i < num_frames; ++i) {
-    blocks.push_back(dba->pose_parameters(i));
-    if (photometric) blocks.push_back(dba->photometric_parameters(i));
-  }
+// DBA's Gauss-Newton step over the free blocks `blocks` (poses and photometric blocks, in
+// the step's order) with the intensities eliminated (Schur complement), solved densely;
+// intensity columns with zero curvature (voxels nobody observes now) are dropped. Every
+// residual block counts (the mean gauge's prior too).
+Eigen::VectorXd DbaSchurStep(DbaProblem* dba, std::vector<double*> blocks) {
+  int np = 0;
+  for (double* block : blocks) np += dba->problem().ParameterBlockTangentSize(block);
   for (int64_t v = 0; v < dba->num_intensities(); ++v) blocks.push_back(dba->intensity(v));
   Eigen::VectorXd e;
   double cost;
   const Eigen::MatrixXd j = DenseJacobian(&dba->problem(), blocks, &e, &cost);
-  const int np = (photometric ? 8 : 6) * (num_frames - 1);
   const Eigen::MatrixXd jp = j.leftCols(np), jm = j.rightCols(j.cols() - np);
   const Eigen::VectorXd hmm = jm.colwise().squaredNorm().transpose();  // diagonal H_MM
   Eigen::MatrixXd s = jp.transpose() * jp;
@@ -90,6 +89,17 @@ Eigen::VectorXd DbaSchurStep(DbaProblem* dba, int num_frames, bool photometric =
     b -= hpm.col(c) * bm[c] / hmm[c];
   }
   return s.ldlt().solve(b);
+}
+
+// The step above in frame 0's gauge. With `photometric`, each free frame's [log_gain,
+// offset] follows its pose (8 per frame, the layout of the photometric reduced system).
+Eigen::VectorXd DbaSchurStep(DbaProblem* dba, int num_frames, bool photometric = false) {
+  std::vector<double*> blocks;
+  for (int i = 1; i < num_frames; ++i) {
+    blocks.push_back(dba->pose_parameters(i));
+    if (photometric) blocks.push_back(dba->photometric_parameters(i));
+  }
+  return DbaSchurStep(dba, std::move(blocks));
 }
 
 // `per_frame`: 6, or 8 with photometric parameters (frame 0's are the gauge).
@@ -181,6 +191,55 @@ TEST(Theorem, PhotometricDbaSchurStepEqualsReducedStep) {
   }
 }
 
+// The theorem's step in the mean gauge (docs/design.md 4.8): every pose free, frame 0's
+// too, and one MeanPosePrior block in each problem, built from the same start, centres and
+// stiffness. DBA's Schur-reduced Gauss-Newton step over every pose (and, with photometric
+// parameters, those of frames 1..m-1) equals DSR's, from a start where frame 0 is not the
+// identity; with photometric parameters at the eliminated intensities (DbaProblem starts
+// there), as in frame 0's gauge.
+TEST(Theorem, MeanGaugeDbaSchurStepEqualsReducedStepWithThePrior) {
+  uint64_t seed = 131;
+  for (bool photometric : {false, true}) {
+    for (const Case& c : Cases()) {
+      const auto s = MakeSequence(OptionsFor(c, seed++));
+      const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.02, 0.7, seed), seed + 1);
+      seed += 2;
+      const std::vector<Photometric> start =
+          photometric ? RandomPhotometric(c.num_frames, seed++) : std::vector<Photometric>();
+      const CandidateSet cand = Candidates(s, poses);
+      DsrOptions options;
+      options.gauge = Gauge::kMean;
+      options.photometric = photometric;
+      options.initial_photometric = start;
+      options.solve.num_threads = 2;
+      DsrProblem dsr(s.frames, cand, poses, options);
+      DbaProblem dba(s.frames, cand, poses, start, RobustLoss(), Gauge::kMean,
+                     StreamContextFor(options.solve));
+      // Both in the order of DSR's fast path: every pose, then the photometric blocks.
+      std::vector<double*> dsr_blocks, dba_blocks;
+      for (int i = 0; i < c.num_frames; ++i) {
+        dsr_blocks.push_back(dsr.pose_parameters(i));
+        dba_blocks.push_back(dba.pose_parameters(i));
+      }
+      for (int i = 1; photometric && i < c.num_frames; ++i) {
+        dsr_blocks.push_back(dsr.photometric_parameters(i));
+        dba_blocks.push_back(dba.photometric_parameters(i));
+      }
+      Eigen::VectorXd r;
+      double cost;
+      const Eigen::MatrixXd j = DenseJacobian(&dsr.problem(), dsr_blocks, &r, &cost);
+      const Eigen::VectorXd dsr_step = (j.transpose() * j).ldlt().solve(-j.transpose() * r);
+      const Eigen::VectorXd dba_step = DbaSchurStep(&dba, dba_blocks);
+      EXPECT_LT(RelativeDifference(dba_step, dsr_step), kStepRelativeTolerance)
+          << "m=" << c.num_frames << " photometric=" << photometric << "\nDBA "
+          << dba_step.transpose() << "\nDSR " << dsr_step.transpose();
+      // Frame 0 takes part in the step.
+      EXPECT_GT(dsr_step.head<6>().norm(), 0.05 * dsr_step.head(6 * c.num_frames).norm())
+          << "m=" << c.num_frames;
+    }
+  }
+}
+
 // With photometric parameters f(T, a, b) is DBA's cost minimised over the intensities too:
 // at M = the u^2-weighted mean of the corrected observations, where DbaProblem starts.
 TEST(Theorem, PhotometricReducedCostIsTheDbaCostMinimisedOverIntensities) {
@@ -241,11 +300,13 @@ struct ModePoses {
 ModePoses SolveAllModes(const testing_problems::TestSequence& s,
                         const CandidateSet& cand,
                         const std::vector<Eigen::Isometry3d>& init,
-                        int max_iterations) {
+                        int max_iterations,
+                        Gauge gauge = Gauge::kFrame0) {
   ModePoses out;
   std::string error;
   SolveReport report;
   DbaOptions dba;
+  dba.gauge = gauge;
   // DBA's damping also acts on every intensity block, which slows its approach (linear
   // convergence with a rate near 0.9 on these problems): give it more iterations.
   dba.solve = FixedPointOptions(max_iterations > 1 ? 10 * max_iterations : 1);
@@ -253,6 +314,7 @@ ModePoses SolveAllModes(const testing_problems::TestSequence& s,
   EXPECT_TRUE(report.usable) << report.termination;
   out.dba = report.frame_from_world;
   DsrOptions fast;
+  fast.gauge = gauge;
   fast.solve = FixedPointOptions(max_iterations);
   EXPECT_TRUE(SolveDsr(s.frames, cand, init, fast, &report, &error)) << error;
   EXPECT_TRUE(report.usable) << report.termination;
@@ -302,6 +364,34 @@ TEST(Theorem, FullSolvesOfBothModesConvergeToTheSamePoses) {
     }
     // The solve moved the poses far more than that: the agreement is not the start's.
     EXPECT_GT(MaxPoseDifference(converged.dba, init).second, 0.1);
+  }
+}
+
+// The same in the mean gauge (docs/design.md 4.8): DBA with the prior and both DSR costs
+// with it, from a start where every frame, frame 0 included, is off, reach the same poses
+// in the start's world (frame 0 moved), and relative to frame 0 the ground truth.
+TEST(Theorem, MeanGaugeFullSolvesOfBothModesConvergeToTheSamePoses) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  uint64_t seed = 81;
+  for (const Case& c : {Case{3, 16, 0.0, 1}, Case{4, 16, 5.0, 1}}) {
+    const auto s = MakeSequence(LatticeOptionsFor(c, seed++));
+    const auto init = MovedTogether(Perturbed(s.ground_truth, 0.02, 0.5, seed), seed + 1);
+    seed += 2;
+    const CandidateSet cand = InteriorCandidates(s, init, 1.5);
+    ASSERT_GT(cand.num_voxels(), 200);
+    const ModePoses converged = SolveAllModes(s, cand, init, 1000, Gauge::kMean);
+    EXPECT_GT(PoseDifference(converged.dba[0], init[0]).second, 1e-3) << "frame 0 stayed";
+    for (const auto* other : {&converged.dsr_fast, &converged.dsr_reference}) {
+      EXPECT_THAT(*other, FramesFromWorldNear(converged.dba, kFixedPointRotationRad,
+                                              kFixedPointTranslationMm))
+          << "m=" << c.num_frames;
+    }
+    for (const auto* poses : {&converged.dba, &converged.dsr_fast, &converged.dsr_reference}) {
+      EXPECT_THAT(RelativeToFrame0(*poses),
+                  FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
+                                      kFixedPointTranslationMm))
+          << "m=" << c.num_frames << " mode " << (poses - &converged.dba);
+    }
   }
 }
 

@@ -33,6 +33,7 @@ using testing_problems::Candidates;
 using testing_problems::DenseJacobian;
 using testing_problems::InteriorCandidates;
 using testing_problems::MakeSequence;
+using testing_problems::MovedTogether;
 using testing_problems::Perturbed;
 using testing_problems::SequenceOptions;
 using testing_poses::FramesFromWorldNear;
@@ -47,14 +48,6 @@ Vector6d RandomTangent(std::mt19937_64* rng, double translation, double rotation
   d << translation * u(*rng), translation * u(*rng), translation * u(*rng), rotation * u(*rng),
       rotation * u(*rng), rotation * u(*rng);
   return d;
-}
-
-// Every pose moved by one world motion: frame 0 is no longer the identity.
-std::vector<Eigen::Isometry3d> MovedTogether(std::vector<Eigen::Isometry3d> poses, uint64_t seed) {
-  std::mt19937_64 rng(seed);
-  const Eigen::Isometry3d world_motion = ExpSE3(RandomTangent(&rng, 0.7, 0.02));
-  for (auto& pose : poses) pose = pose * world_motion;
-  return poses;
 }
 
 TEST(Gauge, NamesRoundTrip) {

@@ -7,7 +7,8 @@
 //     through Ceres, the reweighting pass;
 //  4. the theorem with a robust loss: DBA's Schur-reduced Gauss-Newton step with the Ceres
 //     loss equals the weighted DSR step, and full solves of DBA and of DSR's iteratively
-//     reweighted solves (fast path and reference) reach the same poses;
+//     reweighted solves (fast path and reference) reach the same poses; in the mean gauge
+//     DBA's prior is that of DSR's first weighted solve;
 //  5. with outliers, Huber and Cauchy poses are closer to the truth than squared ones.
 #include <ceres/ceres.h>
 #include <ceres/gradient_checker.h>
@@ -27,6 +28,7 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/solve/convergence.h"
+#include "dsr/solve/gauge.h"
 #include "dsr/tests/support/fixed_point_options.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/tolerances.h"
@@ -703,6 +705,78 @@ TEST(RobustTheorem, DbaSchurStepWithLossEqualsWeightedReducedStep) {
   }
 }
 
+// The residuals of the MeanPosePrior block of `problem` at `frame_from_world`.
+Vector6d PriorResidualAt(const ceres::Problem& problem,
+                         const std::vector<Eigen::Isometry3d>& frame_from_world) {
+  std::vector<ceres::ResidualBlockId> ids;
+  problem.GetResidualBlocks(&ids);
+  const ceres::CostFunction* prior = nullptr;
+  for (ceres::ResidualBlockId id : ids) {
+    const ceres::CostFunction* cost = problem.GetCostFunctionForResidualBlock(id);
+    if (dynamic_cast<const MeanPosePrior*>(cost) != nullptr) {
+      EXPECT_EQ(prior, nullptr) << "two priors";
+      prior = cost;
+    }
+  }
+  Vector6d residual = Vector6d::Constant(std::numeric_limits<double>::quiet_NaN());
+  if (prior == nullptr) {
+    ADD_FAILURE() << "no MeanPosePrior block";
+    return residual;
+  }
+  std::vector<std::array<double, kPoseAmbientSize>> parameters(frame_from_world.size());
+  std::vector<const double*> blocks;
+  for (size_t i = 0; i < frame_from_world.size(); ++i) {
+    PoseToParameters(frame_from_world[i], parameters[i].data());
+    blocks.push_back(parameters[i].data());
+  }
+  prior->Evaluate(blocks.data(), residual.data(), nullptr);
+  return residual;
+}
+
+// DBA with a Ceres loss in the mean gauge takes the prior of DSR's first reweighted solve
+// from the same start: the stiffness of the weighted system with the weights at the
+// voxels' robust locations there (UpdateObservationWeights from unit weights), with and
+// without photometric parameters. The loss matters: the plain system's stiffness differs.
+TEST(RobustTheorem, MeanGaugePriorOfDbaIsThatOfDsrsFirstWeightedSolve) {
+  uint64_t seed = 251;
+  for (bool photometric : {false, true}) {
+    // Scales below the noise: most observations are down-weighted.
+    for (const RobustLoss& loss : {Huber(3.0), Cauchy(3.0)}) {
+      SequenceOptions o;
+      o.num_frames = 3;
+      o.size = 14;
+      o.noise_sigma = 5.0;
+      o.seed = seed++;
+      const auto s = MakeSequence(o);
+      const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
+      const CandidateSet cand = Candidates(s, poses);
+      std::vector<Photometric> start;
+      if (photometric) start = {{0.0, 0.0}, {0.12, 4.0}, {-0.08, -3.0}};
+      const StreamContext context{2};
+      DbaProblem robust(s.frames, cand, poses, start, loss, Gauge::kMean, context);
+      DbaProblem plain(s.frames, cand, poses, start, RobustLoss(), Gauge::kMean, context);
+      ObservationWeights weights(cand);
+      ReweightStats stats;
+      UpdateObservationWeights(s.frames, cand, poses, start, loss, context, &weights, &stats);
+      DsrOptions options;
+      options.gauge = Gauge::kMean;
+      options.photometric = photometric;
+      options.initial_photometric = start;
+      options.solve.num_threads = 2;
+      DsrProblem dsr(s.frames, cand, poses, options, &weights);
+      // At the start the prior's residual is 0: compare it elsewhere.
+      const auto moved = Perturbed(poses, 0.01, 0.3, seed++);
+      const Vector6d dsr_prior = PriorResidualAt(dsr.problem(), moved);
+      ASSERT_GT(dsr_prior.norm(), 0.0);
+      EXPECT_LT((PriorResidualAt(robust.problem(), moved) - dsr_prior).norm(),
+                kSystemRelativeTolerance * dsr_prior.norm())
+          << loss.ToString() << " photometric=" << photometric;
+      EXPECT_GT((PriorResidualAt(plain.problem(), moved) - dsr_prior).norm(),
+                1e-2 * dsr_prior.norm())
+          << loss.ToString() << " photometric=" << photometric;
+    }
+  }
+}
 
 // A problem whose robust fixed point is sharp although residuals do not vanish there.
 //

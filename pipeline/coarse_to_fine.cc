@@ -8,12 +8,12 @@
 
 #include <glog/logging.h>
 
-#include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/pair_check.h"
 #include "dsr/pipeline/uncertainty.h"
 #include "dsr/solve/convergence.h"
 #include "dsr/solve/gauge.h"
+#include "dsr/stream/reduced_system.h"
 #include "dsr/stream/streamed_cost.h"
 #include "dsr/util/parallel.h"
 
@@ -171,7 +171,7 @@ CoarseToFine::CoarseToFine(const std::vector<Image>& images,
       solver_(MakeLevelSolver(options)),
       m_(static_cast<int>(images.size())),
       affine_(options.photometric == PhotometricModel::kAffine),
-      mean_world_(options.mode == Mode::kDsr && options.gauge == Gauge::kMean &&
+      mean_world_(ModeTakesGauge(options.mode) && options.gauge == Gauge::kMean &&
                   options.panorama_sampling == PanoramaSampling::kAllPhases),
       guard_(options.min_kept_overlap) {}
 
@@ -424,7 +424,13 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
   if (level == 0) {
     result_->grid = OutputGrid(frames, grid);
     if (!intensities.empty()) {
-      result_->dba_intensities = Image(grid, 0.0f);
+      // DBA's intensities belong to the candidates' voxel centres in the solve's world,
+      // which frame 0's pose after the solve maps to frame 0's coordinates (the identity
+      // when frame 0 was held there): their image is the solve's grid placed by it.
+      ImageGeometry placed = grid;
+      placed.direction = solved_frame0.linear() * grid.direction;
+      placed.origin_mm = solved_frame0 * grid.origin_mm;
+      result_->dba_intensities = Image(placed, 0.0f);
       for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
         result_->dba_intensities.voxels[candidates.voxel[v]] = intensities[v];
       }

@@ -144,9 +144,9 @@ class CoarseToFine {
   LevelSolver solver_;
   const int m_;
   bool affine_;
-  // DSR in the mean gauge with every phase sampled (PanoramaSampling::kAllPhases): each level
-  // problem is built in the frames' mean frame, so that no frame's lattice is the grid's
-  // (docs/design.md 4.8). With the half voxel the grid keeps frame 0's lattice.
+  // DSR or DBA in the mean gauge with every phase sampled (PanoramaSampling::kAllPhases):
+  // each level problem is built in the frames' mean frame, so that no frame's lattice is the
+  // grid's (docs/design.md 4.8). With the half voxel the grid keeps frame 0's lattice.
   const bool mean_world_;
 
   // The round's state.

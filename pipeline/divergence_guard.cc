@@ -7,7 +7,7 @@
 
 #include <Eigen/Core>
 
-#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/stream/reduced_system.h"
 #include "dsr/stream/voxel_stream.h"
 
 namespace dsr {

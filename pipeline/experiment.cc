@@ -256,7 +256,7 @@ std::string MethodLabel(const RegistrationOptions& options) {
          (options.panorama_sampling == PanoramaSampling::kHalfVoxel
               ? ""
               : std::string("+") + PanoramaSamplingToString(options.panorama_sampling)) +
-         (options.mode == Mode::kDsr && options.gauge == Gauge::kFrame0 ? "+frame0_gauge" : "") +
+         (ModeTakesGauge(options.mode) && options.gauge == Gauge::kFrame0 ? "+frame0_gauge" : "") +
          (options.loss.IsSquared() ? "" : std::string("+") + RobustLossKindName(options.loss.kind));
 }
 

@@ -36,6 +36,8 @@ std::vector<std::string> ModeNames() {
 
 bool ModeEstimatesPhotometric(Mode mode) { return mode == Mode::kDsr || mode == Mode::kDba; }
 
+bool ModeTakesGauge(Mode mode) { return mode == Mode::kDsr || mode == Mode::kDba; }
+
 bool ModeIsPairBased(Mode mode) {
   return mode == Mode::kPairwise || mode == Mode::kLieNormalization || mode == Mode::kSequential;
 }
@@ -66,6 +68,7 @@ DbaOptions ToDbaOptions(const RegistrationOptions& options, const SolveOptions& 
   dba.memory_budget_mb = options.dba.memory_budget_mb;
   dba.photometric = options.photometric == PhotometricModel::kAffine;
   dba.loss = options.loss;
+  dba.gauge = options.gauge;
   return dba;
 }
 

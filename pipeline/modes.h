@@ -44,6 +44,9 @@ bool StringToMode(const std::string& name, Mode* mode);
 std::vector<std::string> ModeNames();
 // Whether the mode can estimate photometric parameters and a robust loss: dsr and dba.
 bool ModeEstimatesPhotometric(Mode mode);
+// Whether the mode's solves take RegistrationOptions::gauge (solve/gauge.h): dsr and dba,
+// in the same gauge so that they minimise one function. The others hold frame 0 constant.
+bool ModeTakesGauge(Mode mode);
 // Whether the mode builds its own pair problems in every solve (pairwise, Lie
 // normalisation, sequential): the shared candidates are not its cost.
 bool ModeIsPairBased(Mode mode);

@@ -108,14 +108,14 @@ struct RegistrationOptions {
   // Where the solves' panorama grids sample frame 0 (model/panorama.h): half a voxel off
   // its lattice (default), or at every sub-voxel phase (for texture the frames share, such
   // as ultrasound speckle; docs/accuracy_us.md). Fusion's grid is not affected. With every
-  // phase, DSR's solves in the mean gauge build their grids on the frames' mean frame, no
-  // frame's lattice (docs/design.md 4.8).
+  // phase, DSR's and DBA's solves in the mean gauge build their grids on the frames' mean
+  // frame, no frame's lattice (docs/design.md 4.8).
   PanoramaSampling panorama_sampling = PanoramaSampling::kHalfVoxel;
-  // The pose gauge of the DSR solves (solve/gauge.h; docs/design.md 4.8): every pose free
-  // with a prior on their mean (default; with kAllPhases sampling each solve's grid is then
-  // built on the frames' mean frame); or frame 0 constant. The other modes hold frame 0
-  // constant whatever it says. The poses of every level are relative to frame 0's in
-  // either.
+  // The pose gauge of the DSR and DBA solves (solve/gauge.h; docs/design.md 4.8), one for
+  // both so that they minimise one function: every pose free with a prior on their mean
+  // (default; with kAllPhases sampling each solve's grid is then built on the frames' mean
+  // frame); or frame 0 constant. The other modes hold frame 0 constant whatever it says.
+  // The poses of every level are relative to frame 0's in either.
   Gauge gauge = Gauge::kMean;
 
   // Pyramid (image/pyramid.h). Level 0 is the input resolution.
@@ -276,8 +276,10 @@ struct RegistrationResult {
   double intensity_transform_scale = 0.0;
   // The last solve's panorama grid in frame 0's world (where solves ran in the frames' mean
   // frame, one built at the final poses in frame 0's world by the same rule) and, for
-  // --mode=dba, its optimised intensities on that grid (0 at voxels that are not
-  // candidates); empty for other modes.
+  // --mode=dba, the last solve's optimised intensities (0 at voxels that are not
+  // candidates; empty for other modes) on that solve's grid placed in frame 0's world by
+  // frame 0's pose after it: `grid` itself with frame 0 held, turned and shifted by frame
+  // 0's last motion in the mean gauge (dba_intensities.geometry).
   ImageGeometry grid;
   Image dba_intensities;
 };

@@ -56,7 +56,7 @@ struct ReportInputs {
   std::vector<Frame> frames;  // full resolution
   std::vector<Eigen::Isometry3d> initial;  // relative to frame 0
   const RegistrationResult* result = nullptr;
-  Image panorama;  // on result->grid
+  Image panorama;  // on result->grid, or DBA's intensities on their own (Image::geometry)
   std::vector<int> outlined;  // frames outlined on the panorama slices
   int pair_a = 0, pair_b = 1;
   const PoseErrorSummary* errors = nullptr;  // ground-truth errors, or null

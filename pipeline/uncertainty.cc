@@ -10,7 +10,7 @@
 #include <Eigen/LU>
 #include <Eigen/Eigenvalues>
 
-#include "dsr/dsr_reduced/reduced_cost.h"
+#include "dsr/stream/reduced_system.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {

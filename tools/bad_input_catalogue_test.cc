@@ -294,7 +294,8 @@ TEST_F(BadInputCatalogue, FlagValues) {
            "--panorama_sampling=dither: must be half_voxel or all_phases");
   Register(base + " --gauge=frame1", "--gauge=frame1: must be frame0 or mean");
   Register(base + " --mask_rule=convex", "--mask_rule=convex: must be hull or nonzero");
-  Register(base + " --mode=dba --gauge=mean", "--gauge=mean: needs --mode=dsr (--mode=dba");
+  Register(base + " --mode=ape --gauge=mean",
+           "--gauge=mean: needs --mode=dsr or dba (--mode=ape holds frame 0 constant)");
   Register("--images=" + In("good.mha") + "," + In("negative.mha") + " --intensity_transform=sqrt",
            "negative.mha: frame 1 has a negative intensity (-5) at voxel (8,8,8) inside its mask: "
            "--intensity_transform=sqrt needs intensities >= 0");

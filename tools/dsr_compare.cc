@@ -192,7 +192,8 @@ int Main(int argc, char** argv) {
     base.max_structure_fraction = defaults.max_structure_fraction;
   }
   // Each method's options: the pairwise baseline started from the pairwise baseline is the
-  // baseline itself; photometric parameters for the modes that have them (--gauge is DSR's).
+  // baseline itself; photometric parameters for the modes that have them (--gauge is DSR's
+  // and DBA's; the baselines hold frame 0 constant).
   const auto options_for = [&](const std::string& method) {
     dsr::RegistrationOptions o = base;
     CHECK(dsr::StringToMode(method, &o.mode)) << method;  // checked against ModeNames

@@ -145,6 +145,23 @@ TEST_F(DsrRegisterCli, SummaryNamesTheFieldOfViewRule) {
   }
 }
 
+// --gauge is DSR's and DBA's (one gauge for both; the baselines refuse it: the bad-input
+// catalogue): DBA registers in either, and frame 0 is the identity in both outputs.
+TEST_F(DsrRegisterCli, DbaTakesEitherGauge) {
+  for (const std::string gauge : {"mean", "frame0"}) {
+    const std::string poses_path = Out("dba_" + gauge + ".json");
+    const ToolRun run = Register("--images=" + Images() + " --masks=" + Masks() +
+                                 " --mode=dba --gauge=" + gauge + " --out_poses=" + poses_path +
+                                 " --progress=false");
+    ASSERT_EQ(run.exit_code, 0) << gauge << "\n" << run.err;
+    PosesFile poses;
+    std::string error;
+    ASSERT_TRUE(ReadPoses(poses_path, 3, &poses, &error)) << error;
+    EXPECT_TRUE(poses.frame_from_world[0].isApprox(Eigen::Isometry3d::Identity(), 1e-15))
+        << gauge;
+  }
+}
+
 // --loss=cauchy / huber: both modes register the sequence; the pose uncertainty
 // says it does not model the loss.
 TEST_F(DsrRegisterCli, RobustLossesRegisterInBothModes) {

@@ -177,6 +177,20 @@ inline std::vector<Eigen::Isometry3d> Perturbed(const std::vector<Eigen::Isometr
   return out;
 }
 
+// `poses` with every frame, frame 0 included, moved by one random world motion G
+// (T_i -> T_i G; up to 0.7 mm and 0.02 rad per tangent component): the same registration
+// in another world, where frame 0 is not the identity (for the mean gauge, solve/gauge.h).
+inline std::vector<Eigen::Isometry3d> MovedTogether(std::vector<Eigen::Isometry3d> poses,
+                                                    uint64_t seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  Vector6d d;
+  d << 0.7 * u(rng), 0.7 * u(rng), 0.7 * u(rng), 0.02 * u(rng), 0.02 * u(rng), 0.02 * u(rng);
+  const Eigen::Isometry3d world_motion = ExpSE3(d);
+  for (Eigen::Isometry3d& pose : poses) pose = pose * world_motion;
+  return poses;
+}
+
 // Candidates and grid at `poses` with the shared rule.
 inline CandidateSet Candidates(const TestSequence& s,
                                const std::vector<Eigen::Isometry3d>& poses,

@@ -20,8 +20,8 @@ bool RunOptionsFromFlags(RegistrationOptions* options, std::string* init_file,
   if (!RegistrationOptionsFromFlags(options, init_file, error)) return false;
   options->photometric = PhotometricFromFlags(options->mode);
   if (!FlagIsDefault("gauge") && options->gauge != Gauge::kFrame0 &&
-      options->mode != Mode::kDsr) {
-    *error = "--gauge=" + FLAGS_gauge + ": needs --mode=dsr (--mode=" + FLAGS_mode +
+      !ModeTakesGauge(options->mode)) {
+    *error = "--gauge=" + FLAGS_gauge + ": needs --mode=dsr or dba (--mode=" + FLAGS_mode +
              " holds frame 0 constant)";
     return false;
   }

@@ -63,11 +63,12 @@ DEFINE_string(panorama_sampling, "half_voxel",
               "texture the frames share, such as ultrasound speckle). The fused panorama's "
               "grid is not affected.");
 DEFINE_string(gauge, "mean",
-              "The pose gauge of the DSR solves (docs/design.md 4.8): mean (every pose free, "
-              "frame 0's too, with a prior holding the frames' mean centre and orientation in "
-              "the world, so that no frame alone takes the pull of what moves all frames "
-              "together) or frame0 (frame 0's pose constant, the rule before; DBA and the "
-              "baselines always use it). Output poses are relative to frame 0 either way.");
+              "The pose gauge of the DSR and DBA solves, one for both so that they minimise "
+              "one function (docs/design.md 4.8): mean (every pose free, frame 0's too, with "
+              "a prior holding the frames' mean centre and orientation in the world, so that "
+              "no frame alone takes the pull of what moves all frames together) or frame0 "
+              "(frame 0's pose constant, the rule before; the baselines always use it). "
+              "Output poses are relative to frame 0 either way.");
 DEFINE_double(search_rotation_deg, 45.0, "Global search (recovery, --init=global): rotations "
               "within this angle of frame 0's orientation, in (0, 180].");
 DEFINE_int32(search_rotations, 200, "Global search: about this many rotations sampled, in "
