@@ -18,7 +18,8 @@
 # by one voxel (what dsr_register uses without --masks). Sequences are cached under
 # OUT/sequences (simulated again when their protocol's flags change).
 # Every run the checks refuse is registered again with them off (--max_structure_fraction=0
-# --max_misfit_ratio=0 --max_pair_mismatch_ratio=0; the overlap guard stays, so that recovery still runs where a
+# --max_pose_error_voxels=0 --max_misfit_ratio=0 --max_pair_mismatch_ratio=0; the overlap
+# guard stays, so that recovery still runs where a
 # frame slides out; runs in RUN-checks_off), and the summary lists each refusal
 # with the TRE it would have had: a refusal of a run that ends below 0.05 mm with the checks
 # off is a clear false refusal, an accepted run above 0.5 mm a clear miss
@@ -135,7 +136,8 @@ for source in "${source_list[@]}"; do
           --sequences="$refused" --sequence_masks="$use" --init="$init" \
           --photometric="$photometric" --intensity_transform="$transform" \
           --panorama_sampling="$sampling" --gauge="$gauge" --mask_rule="$mask_rule" \
-          --max_structure_fraction=0 --max_misfit_ratio=0 --max_pair_mismatch_ratio=0 \
+          --max_structure_fraction=0 --max_pose_error_voxels=0 --max_misfit_ratio=0 \
+          --max_pair_mismatch_ratio=0 \
           --min_kept_overlap=0.25 \
           2>"$run-checks_off.log" >/dev/null || {
           echo "accuracy.sh: dsr_compare failed, see $run-checks_off.log" >&2; exit 1; }

@@ -638,6 +638,22 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(0, why, flagged);
   }
+  // Poses the data do not fix (a symmetric object): refused without naming frames to
+  // re-place, since no start would fix them either.
+  if (options_.max_pose_error_voxels > 0.0 && ModeEstimatesPhotometric(options_.mode) &&
+      !affine_ && options_.loss.IsSquared()) {
+    std::vector<UndeterminedPose> undetermined;
+    std::string not_judged;
+    if (UndeterminedPoses(frames, final_candidates, poses, masks_, stream_,
+                          options_.max_pose_error_voxels, &undetermined, &not_judged,
+                          &result_->pose_error_voxels) &&
+        !undetermined.empty()) {
+      std::ostringstream why;
+      why << UndeterminedPhrase(undetermined)
+          << " (max_pose_error_voxels=" << options_.max_pose_error_voxels << ")";
+      return Diverged(0, why.str(), {});
+    }
+  }
   if (DetectBrightness(frames) == Next::kError) return Next::kError;
   EstimateUncertainty(frames, final_candidates, poses);
   return Next::kGoOn;

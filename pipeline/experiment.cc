@@ -41,6 +41,7 @@ std::string Serialize(const ComparisonRow& row) {
     << Number(row.predicted_tre_mm) << ' ' << Number(row.nees) << ' '
     << Number(row.mae_gain) << ' ' << Number(row.mae_offset) << ' '
     << Number(row.structure_fraction) << ' ' << Number(row.structure_significance) << ' '
+    << Number(row.pose_error_voxels) << ' '
     << row.frame_from_world.size();
   for (const Eigen::Isometry3d& t : row.frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -60,8 +61,9 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
       row->shared_offset_mm[1] >> row->shared_offset_mm[2] >> row->frame_spread_mm >>
       row->iterations >> row->recoveries >> row->seconds_per_iteration >>
       row->differences_per_iteration >> row->seconds >> row->added_memory_mb;
-  std::string predicted, nees, mae_gain, mae_offset, structure, significance;
-  s >> predicted >> nees >> mae_gain >> mae_offset >> structure >> significance >> poses;
+  std::string predicted, nees, mae_gain, mae_offset, structure, significance, pose_error;
+  s >> predicted >> nees >> mae_gain >> mae_offset >> structure >> significance >> pose_error >>
+      poses;
   if (!s || poses > 1000) return false;
   const auto number = [](const std::string& text) {
     return text == "nan" ? std::nan("") : std::stod(text);
@@ -72,6 +74,7 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   row->mae_offset = number(mae_offset);
   row->structure_fraction = number(structure);
   row->structure_significance = number(significance);
+  row->pose_error_voxels = number(pose_error);
   row->frame_from_world.assign(poses, Eigen::Isometry3d::Identity());
   for (Eigen::Isometry3d& t : row->frame_from_world) {
     for (int r = 0; r < 3; ++r)
@@ -110,6 +113,10 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
       row.structure_fraction = f.fraction;
       row.structure_significance = f.significance;
     }
+  }
+  if (!result.pose_error_voxels.empty()) {
+    row.pose_error_voxels =
+        *std::max_element(result.pose_error_voxels.begin(), result.pose_error_voxels.end());
   }
   if (!result.usable) {
     row.failure = result.failure;
@@ -268,7 +275,7 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
        "intensity_differences_per_iteration,seconds,peak_memory_mb,added_memory_mb,"
        "predicted_tre_mm,nees,mae_gain,mae_offset,failure,recoveries,"
        "shared_offset_mm,shared_offset_x_mm,shared_offset_y_mm,shared_offset_z_mm,"
-       "frame_spread_mm,structure_fraction,structure_significance\n";
+       "frame_spread_mm,structure_fraction,structure_significance,pose_error_voxels\n";
   for (const ComparisonRow& r : rows) {
     s << CsvField(r.method) << ',' << CsvField(r.sequence) << ',' << (r.ok ? 1 : 0) << ','
       << r.mae_translation_voxels << ',' << r.mae_translation_mm << ',' << r.mae_rotation_rad
@@ -286,6 +293,8 @@ std::string ComparisonCsv(const std::vector<ComparisonRow>& rows) {
     if (!std::isnan(r.structure_fraction)) s << r.structure_fraction;
     s << ',';
     if (!std::isnan(r.structure_significance)) s << r.structure_significance;
+    s << ',';
+    if (!std::isnan(r.pose_error_voxels)) s << r.pose_error_voxels;
     s << '\n';
   }
   return s.str();

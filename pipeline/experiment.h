@@ -63,6 +63,9 @@ struct ComparisonRow {
   // standard errors of noise alone); NaN when no frame was judged.
   double structure_fraction = std::numeric_limits<double>::quiet_NaN();
   double structure_significance = std::numeric_limits<double>::quiet_NaN();
+  // The determination check's largest predicted error over the frames (voxels; NaN when it
+  // did not run).
+  double pose_error_voxels = std::numeric_limits<double>::quiet_NaN();
   std::vector<Eigen::Isometry3d> frame_from_world;
   std::vector<Photometric> photometric;  // the estimate (RegistrationResult::photometric)
 };

@@ -66,8 +66,21 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
     return Eigen::Vector3d(initial_frame_from_world[i].inverse() * centre);
   };
   const Eigen::Vector3d centre0 = centre_in_world(0);
+  const bool identity = std::all_of(
+      initial_frame_from_world.begin(), initial_frame_from_world.end(),
+      [](const Eigen::Isometry3d& t) { return t.matrix() == Eigen::Matrix4d::Identity(); });
   for (size_t i = 1; i < images.size(); ++i) {
     const double distance = (centre_in_world(i) - centre0).stableNorm();
+    if (!(distance <= kMaxInitialSpread * largest_extent) && identity) {
+      // No poses were given: the images' own headers put them apart.
+      *error = "frame " + std::to_string(i) + " lies " + Format(distance) +
+               " mm from frame 0 in physical coordinates (its origin " +
+               FormatVector(images[i].geometry.origin_mm) + " mm, frame 0's " +
+               FormatVector(first.origin_mm) + " mm), more than " + Format(kMaxInitialSpread) +
+               " times the frames' size (" + Format(largest_extent) +
+               " mm): check that image's header (origin), or give initial poses (init)";
+      return false;
+    }
     if (!(distance <= kMaxInitialSpread * largest_extent)) {
       *error = "the initial poses (init) place frame " + std::to_string(i) + " " +
                Format(distance) + " mm from frame 0, more than " + Format(kMaxInitialSpread) +

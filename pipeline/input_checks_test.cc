@@ -143,6 +143,16 @@ TEST(CheckRegistrationInputs, NamesWhatIsWrong) {
   EXPECT_NE(error.find("(init) place frame 3"), std::string::npos) << error;
   far[3].translation() = Eigen::Vector3d(500.0, 0.0, 0.0);  // apart, but a sane number
   EXPECT_TRUE(CheckRegistrationInputs(s.frames, far, o, &error)) << error;
+
+  // Without initial poses, one frame whose header puts it 1e9 mm away names that frame and
+  // its origin, not the poses; every origin moved alike is no error (local coordinates).
+  std::vector<Image> moved = s.frames;
+  moved[2].geometry.origin_mm += Eigen::Vector3d(1e9, 0.0, 0.0);
+  EXPECT_FALSE(CheckRegistrationInputs(moved, identity, o, &error));
+  EXPECT_EQ(error.find("frame 2 lies 1e+09 mm from frame 0"), 0u) << error;
+  EXPECT_NE(error.find("origin"), std::string::npos) << error;
+  for (Image& image : moved) image.geometry.origin_mm[0] = 1e9;
+  EXPECT_TRUE(CheckRegistrationInputs(moved, identity, o, &error)) << error;
 }
 
 }  // namespace

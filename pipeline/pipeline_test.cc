@@ -564,6 +564,54 @@ TEST(Pipeline, PosesDoNotDependOnWhereTheOriginsLie) {
   }
 }
 
+// A radially symmetric object: every rotation about its centre leaves the anatomy in view
+// as it was, so the frames' rotations are not determined by the data. The registration is
+// refused with that reason, naming a frame and its rotation, not returned with rotations
+// that are whatever the path left (docs/design.md 8.7).
+TEST(Pipeline, RefusesPosesTheDataDoNotDetermine) {
+  const int n = 96;
+  ImageGeometry grid;
+  grid.size = Eigen::Vector3i(n, n, n);
+  grid.origin_mm = Eigen::Vector3d::Constant(-(n - 1) / 2.0);
+  Image sphere(grid, 0.0f);
+  for (int k = 0; k < n; ++k) {
+    for (int j = 0; j < n; ++j) {
+      for (int i = 0; i < n; ++i) {
+        const double r =
+            (Eigen::Vector3d(i, j, k) - Eigen::Vector3d::Constant((n - 1) / 2.0)).norm();
+        sphere.at(i, j, k) =
+            static_cast<float>(100.0 + 80.0 * std::cos(r / 2.5) * std::exp(-r / 30.0));
+      }
+    }
+  }
+  SimulationOptions options;
+  options.num_frames = 4;
+  options.frame_size = Eigen::Vector3i(40, 40, 32);
+  options.sigma = 3.0;
+  options.max_rotation_deg = 10.0;
+  options.max_translation_voxels = 3.0;
+  options.min_depth_voxels = 2.0;
+  options.mask_erosion = 0;
+  options.seed = 4;
+  SimulatedSequence sequence;
+  std::string error;
+  ASSERT_TRUE(Simulate(sphere, options, &sequence, &error)) << error;
+  const std::vector<Eigen::Isometry3d> identity(4, Eigen::Isometry3d::Identity());
+  RegistrationResult result;
+  ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, Options("dsr"), &result, &error))
+      << error;
+  EXPECT_FALSE(result.usable);
+  EXPECT_NE(result.failure.find("the data do not determine frame"), std::string::npos)
+      << result.failure;
+  EXPECT_NE(result.failure.find("'s rotation"), std::string::npos) << result.failure;
+  EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
+  // Off, the same run returns poses.
+  RegistrationOptions off = Options("dsr");
+  off.max_pose_error_voxels = 0.0;
+  ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, off, &result, &error)) << error;
+  EXPECT_TRUE(result.usable) << result.failure;
+}
+
 TEST(Pipeline, PosesAreReproducible) {
   SequenceSetup setup;
   setup.sigma = 25.0;

@@ -97,6 +97,10 @@ bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
   if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
     return RefuseField(error, "max_misfit_ratio", o.max_misfit_ratio, "must be 0 (off) or > 1");
   }
+  if (!(o.max_pose_error_voxels >= 0.0 && std::isfinite(o.max_pose_error_voxels))) {
+    return RefuseField(error, "max_pose_error_voxels", o.max_pose_error_voxels,
+                       "must be >= 0 (0: off)");
+  }
   if (!(o.max_structure_fraction >= 0.0 && o.max_structure_fraction < 1.0)) {
     return RefuseField(error, "max_structure_fraction", o.max_structure_fraction,
                        "must be in [0, 1) (0: off)");
@@ -206,6 +210,7 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.max_misfit_ratio = 0.0;
   init_options.max_pair_mismatch_ratio = 0.0;
   init_options.max_structure_fraction = 0.0;
+  init_options.max_pose_error_voxels = 0.0;
   init_options.solve.linear_solver.reset();  // the mode's solver may be a Schur type
   init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
   RegistrationResult init;

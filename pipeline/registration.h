@@ -152,6 +152,14 @@ struct RegistrationOptions {
   // quartile. 0 (off) or > 1.
   double max_misfit_ratio = 0.0;
   double max_pair_mismatch_ratio = 0.0;
+  // Determination check of the final poses (pipeline/uncertainty.h, UndeterminedPoses;
+  // docs/design.md 8.7; modes dsr and dba, without photometric parameters or a robust
+  // loss, which its noise model does not have): the registration is not usable when the
+  // data leave some frame's pose undetermined, i.e. the cost does not curve up along some
+  // motion of it, or the error the image noise alone puts on it (one standard deviation,
+  // RMS over its field of view) exceeds this many of its voxels (symmetric anatomy). >= 0;
+  // 0 turns it off. Correct registrations of three sources predict 0.01-0.1 voxel.
+  double max_pose_error_voxels = 1.0;
 
   // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
   // and dba, whose estimate it is): one cost pass over the finest level, one for the
@@ -233,6 +241,9 @@ struct RegistrationResult {
   // Per frame, the structure statistics at the final poses (pipeline/structure_check.h;
   // corrected intensities with photometric parameters); empty when no final check ran.
   std::vector<FrameStructure> frame_structure;
+  // Per frame, the determination check's predicted error at the final poses, in the frame's
+  // voxels (UndeterminedPoses); empty when it did not run or could not judge.
+  std::vector<double> pose_error_voxels;
   std::string failure;        // why not usable
   // With RegistrationOptions::photometric kAuto: whether brightness differences were
   // detected (the solves then estimate gains and offsets), and a line saying which model the

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <random>
 #include <sstream>
 
@@ -240,7 +241,8 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              const std::vector<Mask>& masks,
                              const StreamContext& context,
                              PoseUncertainty* uncertainty,
-                             std::string* why) {
+                             std::string* why,
+                             Eigen::MatrixXd* curvature) {
   const int m = static_cast<int>(frames.size());
   const int n = 6 * (m - 1);
   ReducedSystem system;
@@ -269,6 +271,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
       GradientJacobian(frames, candidates, frame_from_world, step_mm, step_rad,
                        context.num_threads)
           .bottomRightCorner(n, n);
+  if (curvature != nullptr) *curvature = a;
   const Eigen::PartialPivLU<Eigen::MatrixXd> lu(a);
   const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (a + a.transpose()),
                                                              Eigen::EigenvaluesOnly);
@@ -302,6 +305,130 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
     uncertainty->predicted_tre_mm[i] = PredictedTre(c, points[i]);
   }
   return true;
+}
+
+namespace {
+
+// The RMS distance of a frame's field-of-view points from its local origin (mm): how far a
+// rotation of one radian moves them.
+double RmsRadius(const std::vector<Eigen::Vector3d>& points) {
+  double sum = 0.0;
+  for (const Eigen::Vector3d& x : points) sum += x.squaredNorm();
+  return std::sqrt(sum / std::max<size_t>(1, points.size()));
+}
+
+}  // namespace
+
+bool UndeterminedPoses(const std::vector<Frame>& frames,
+                       const CandidateSet& candidates,
+                       const std::vector<Eigen::Isometry3d>& frame_from_world,
+                       const std::vector<Mask>& masks,
+                       const StreamContext& context,
+                       double max_error_voxels,
+                       std::vector<UndeterminedPose>* undetermined,
+                       std::string* why,
+                       std::vector<double>* error_voxels) {
+  const int m = static_cast<int>(frames.size());
+  undetermined->clear();
+  if (error_voxels != nullptr) error_voxels->clear();
+  // Every other row and plane: the estimate costs a pass of 7 samples per observation on
+  // the reference sampler, and an order of magnitude is all this check needs.
+  CandidateSet quarter;
+  quarter.grid = candidates.grid;
+  quarter.num_frames = candidates.num_frames;
+  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
+  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+    const int64_t l = candidates.voxel[v];
+    if ((l / nx) % ny % 2 == 0 && l / (nx * ny) % 2 == 0) {
+      quarter.voxel.push_back(l);
+      quarter.observers.push_back(candidates.observers[v]);
+    }
+  }
+  const double fraction = static_cast<double>(quarter.num_voxels()) /
+                          std::max<int64_t>(1, candidates.num_voxels());
+  std::vector<double> radius(m), voxel(m);
+  for (int i = 0; i < m; ++i) {
+    radius[i] = std::max(RmsRadius(FieldOfViewPoints(masks[i], frames[i].geometry())),
+                         frames[i].geometry().spacing_mm.maxCoeff());
+    voxel[i] = frames[i].geometry().spacing_mm.minCoeff();
+  }
+  PoseUncertainty uncertainty;
+  Eigen::MatrixXd a;
+  if (!EstimatePoseUncertainty(frames, quarter, frame_from_world, masks, context, &uncertainty,
+                               why, &a)) {
+    if (a.size() == 0) return false;  // not measured: too few observations
+    // Not positive definite: each motion along which the curvature is not positive names the
+    // frame it moves most (rotations weighted by the field of view's radius, so that both
+    // are in mm), and whether it turns or shifts it.
+    const Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eigen(0.5 * (a + a.transpose()));
+    if (eigen.eigenvalues()[0] > 0.0) return false;  // too few cubes for a covariance
+    for (int e = 0; e < eigen.eigenvalues().size() && !(eigen.eigenvalues()[e] > 0.0); ++e) {
+      const Eigen::VectorXd v = eigen.eigenvectors().col(e);
+      int worst = 1;
+      double largest = -1.0, turn = 0.0, shift = 0.0;
+      for (int i = 1; i < m; ++i) {
+        const double t = v.segment<3>(6 * (i - 1)).norm();
+        const double r = v.segment<3>(6 * (i - 1) + 3).norm() * radius[i];
+        if (std::hypot(t, r) > largest) {
+          largest = std::hypot(t, r);
+          worst = i;
+          shift = t;
+          turn = r;
+        }
+      }
+      const bool known = std::any_of(undetermined->begin(), undetermined->end(),
+                                     [&](const UndeterminedPose& u) { return u.frame == worst; });
+      if (!known) {
+        undetermined->push_back(
+            {worst, turn > shift, std::numeric_limits<double>::infinity()});
+      }
+    }
+    why->clear();
+    return true;
+  }
+  for (int i = 1; i < m; ++i) {
+    // The covariance of all the candidates' estimate is about `fraction` times the
+    // quarter's (curvature and gradient covariance both grow with the observations).
+    const Matrix6d c = fraction * uncertainty.covariance[i];
+    const double error =
+        PredictedTre(c, FieldOfViewPoints(masks[i], frames[i].geometry())) / voxel[i];
+    if (error_voxels != nullptr) {
+      error_voxels->resize(m, 0.0);
+      (*error_voxels)[i] = error;
+    }
+    if (!(error > max_error_voxels)) continue;
+    // Mostly rotation when a rotation's spread moves the field of view more than the
+    // translation's: (2/3) R^2 trace(C_phi) against trace(C_rho).
+    const bool rotation = 2.0 / 3.0 * radius[i] * radius[i] * c.bottomRightCorner<3, 3>().trace() >
+                          c.topLeftCorner<3, 3>().trace();
+    undetermined->push_back({i, rotation, error});
+  }
+  std::stable_sort(undetermined->begin(), undetermined->end(),
+                   [](const UndeterminedPose& x, const UndeterminedPose& y) {
+                     return x.error_voxels > y.error_voxels;
+                   });
+  return true;
+}
+
+std::string UndeterminedPhrase(const std::vector<UndeterminedPose>& undetermined) {
+  std::ostringstream text;
+  text.precision(3);
+  text << "the data do not determine ";
+  for (size_t k = 0; k < undetermined.size(); ++k) {
+    const UndeterminedPose& u = undetermined[k];
+    text << (k == 0 ? "" : k + 1 == undetermined.size() ? " and " : ", ") << "frame " << u.frame
+         << "'s " << (u.rotation ? "rotation" : "translation") << " (";
+    if (std::isinf(u.error_voxels)) {
+      text << "the cost does not curve up along it";
+    } else {
+      text << "predicted error " << u.error_voxels << " voxels";
+    }
+    text << ")";
+  }
+  text << ": the anatomy in view looks the same after that motion (a symmetric or "
+          "featureless object); mask out the symmetric part, or give more of the anatomy in "
+          "view";
+  return text.str();
 }
 
 std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::string& note) {

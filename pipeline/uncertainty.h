@@ -51,13 +51,46 @@ struct PoseUncertainty {
 // freedom (observations - voxels - 6 (m - 1)). False, with `why`, when the poses are not
 // determined (H_ff not positive definite), too few observations are left, or the overlap
 // has fewer than 2 cubes per free pose parameter.
+// With `curvature` (may be null), A over the free poses (6 (m - 1) square) whenever it was
+// measured, positive definite or not.
 bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
                              const std::vector<Mask>& masks,
                              const StreamContext& context,
                              PoseUncertainty* uncertainty,
-                             std::string* why);
+                             std::string* why,
+                             Eigen::MatrixXd* curvature = nullptr);
+
+// A frame whose pose the data do not fix (symmetric anatomy, a featureless overlap): its
+// predicted error (one standard deviation, RMS over its field of view) in its own voxels,
+// infinite where the cost's curvature along some motion of it is not positive, and whether
+// that is mostly its rotation (else its translation).
+struct UndeterminedPose {
+  int frame = 0;
+  bool rotation = false;
+  double error_voxels = 0.0;
+};
+
+// The determination check of the final poses (docs/design.md 8.7): the estimate above on
+// every other candidate row and plane (a quarter of the voxels; its covariance scaled to all
+// of them), and every frame whose predicted error exceeds max_error_voxels, or whose
+// curvature is not positive, worst first. True when it could judge (false, with `why`, when
+// too few observations are left for a noise estimate). `error_voxels` (may be null): every
+// frame's predicted error in its voxels where the curvature is positive (frame 0: 0).
+bool UndeterminedPoses(const std::vector<Frame>& frames,
+                       const CandidateSet& candidates,
+                       const std::vector<Eigen::Isometry3d>& frame_from_world,
+                       const std::vector<Mask>& masks,
+                       const StreamContext& context,
+                       double max_error_voxels,
+                       std::vector<UndeterminedPose>* undetermined,
+                       std::string* why,
+                       std::vector<double>* error_voxels = nullptr);
+
+// "the data do not determine frame 2's rotation (...)" for the frames found, naming each
+// frame, what is undetermined and its predicted error.
+std::string UndeterminedPhrase(const std::vector<UndeterminedPose>& undetermined);
 
 // One line for the tools' summaries: the predicted TRE over frames 1..m-1 (median and
 // largest, with its frame), the residual sigma and the degrees of freedom; or, when the

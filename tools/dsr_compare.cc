@@ -146,6 +146,7 @@ int Main(int argc, char** argv) {
   dsr::SetFlagDefault("max_misfit_ratio", "0");
   dsr::SetFlagDefault("max_pair_mismatch_ratio", "0");
   dsr::SetFlagDefault("max_structure_fraction", "0");
+  dsr::SetFlagDefault("max_pose_error_voxels", "0");
   dsr::SetFlagDefault("progress", "false");
   dsr::InitTool(
       "compares registration methods on sequences with ground truth (the paper's Fig. 1).\n"
@@ -184,12 +185,14 @@ int Main(int argc, char** argv) {
   const bool recovers = FLAGS_init == "auto" || FLAGS_init == "global";
   if (recovers && dsr::FlagIsDefault("max_misfit_ratio") &&
       dsr::FlagIsDefault("max_pair_mismatch_ratio") && dsr::FlagIsDefault("min_kept_overlap") &&
-      dsr::FlagIsDefault("max_structure_fraction")) {
+      dsr::FlagIsDefault("max_structure_fraction") &&
+      dsr::FlagIsDefault("max_pose_error_voxels")) {
     const dsr::RegistrationOptions defaults;
     base.min_kept_overlap = defaults.min_kept_overlap;
     base.max_misfit_ratio = defaults.max_misfit_ratio;
     base.max_pair_mismatch_ratio = defaults.max_pair_mismatch_ratio;
     base.max_structure_fraction = defaults.max_structure_fraction;
+    base.max_pose_error_voxels = defaults.max_pose_error_voxels;
   }
   // Each method's options: the pairwise baseline started from the pairwise baseline is the
   // baseline itself; photometric parameters for the modes that have them (--gauge is DSR's

@@ -76,6 +76,7 @@ DECLARE_double(min_kept_overlap);
 DECLARE_double(max_misfit_ratio);
 DECLARE_double(max_pair_mismatch_ratio);
 DECLARE_double(max_structure_fraction);
+DECLARE_double(max_pose_error_voxels);
 DECLARE_int32(num_chunks);
 DECLARE_bool(reference_cost);
 DECLARE_double(memory_budget_mb);

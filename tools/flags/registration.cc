@@ -115,6 +115,12 @@ DEFINE_double(max_structure_fraction, 0.05, "Structure check (docs/design.md 8.4
               "to the panorama, standing out of what noise alone gives, are a failure (exit 1), "
               "not a result; in [0, 1), 0 = off. dsr_compare: as --min_kept_overlap (0.05 with "
               "--init=auto or global).");
+DEFINE_double(max_pose_error_voxels, 1.0, "Determination check (docs/design.md 8.7; dsr and "
+              "dba without --photometric=affine or --loss): final poses at which the data "
+              "leave some frame's pose undetermined (the cost does not curve up along some "
+              "motion of it, or the error the image noise alone puts on it exceeds this many "
+              "of its voxels: a symmetric or featureless object) are a failure (exit 1) naming "
+              "the frame and whether its rotation or translation; >= 0, 0 = off.");
 DEFINE_double(max_misfit_ratio, 0.0, "Former misfit check, off by default (docs/design.md "
               "8.5): poses at which a frame's RMS difference to the panorama exceeds this "
               "multiple of the frames' lower quartile are a failure (exit 1); 0 = off or > 1.");
@@ -267,6 +273,7 @@ bool RegistrationOptionsFromFlags(RegistrationOptions* options,
   options->max_misfit_ratio = FLAGS_max_misfit_ratio;
   options->max_pair_mismatch_ratio = FLAGS_max_pair_mismatch_ratio;
   options->max_structure_fraction = FLAGS_max_structure_fraction;
+  options->max_pose_error_voxels = FLAGS_max_pose_error_voxels;
   options->dsr.num_chunks = FLAGS_num_chunks;
   options->dsr.reference_cost = FLAGS_reference_cost;
   options->dba.memory_budget_mb = FLAGS_memory_budget_mb;
