@@ -381,7 +381,7 @@ bool SolvePhotometricAtPoses(const std::vector<Frame>& frames,
   for (size_t i = 1; i < frames.size(); ++i) {
     dsr.problem().SetParameterBlockConstant(dsr.pose_parameters(i));
   }
-  if (!RunCeres(options, "photometric", nullptr, &dsr, report, error)) return false;
+  if (!RunCeres(options, "dsr-photometric", nullptr, &dsr, report, error)) return false;
   report->frame_from_world = frame_from_world;
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();

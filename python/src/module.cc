@@ -194,7 +194,7 @@ PosesFile PosesFromDict(const py::dict& d) {
 }
 
 py::dict Summary(const RegistrationOptions& options, const RegistrationResult& result,
-                 const std::string& field_of_view) {
+                 const std::string& field_of_view, const std::string& preset) {
   py::dict s;
   s["mode"] = ModeToString(options.mode);
   s["field_of_view"] = field_of_view;
@@ -229,6 +229,7 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
     }
     s["structure_fraction"] = fractions;  // per frame; None: too flat to judge
   }
+  if (!preset.empty()) s["preset"] = preset;
   if (!result.photometric_choice.empty()) {
     s["photometric"] = FieldPathsAsFlags(result.photometric_choice);
   }
@@ -318,6 +319,7 @@ struct Run {
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> start;
   std::string field_of_view;  // FieldOfViewSummary of the masks
+  std::string preset;         // PresetSummary (empty without --preset)
 };
 
 // The run that `flags` set up for `images` (file paths, read as dsr_register reads them,
@@ -335,6 +337,7 @@ Run PrepareRun(const py::list& images,
   std::string error, init_file;
   Run run;
   if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
+  run.preset = PresetSummary();  // while the call's flags hold
   std::vector<std::string> match_names;
   if (ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names,
                  &run.field_of_view)) {
@@ -392,7 +395,7 @@ py::dict RegisterImages(const py::list& images,
   }
   py::dict out;
   out["poses"] = PosesToDict(ResultPoses(result, names));
-  out["summary"] = Summary(options, result, run.field_of_view);
+  out["summary"] = Summary(options, result, run.field_of_view, run.preset);
   return out;
 }
 

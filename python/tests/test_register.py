@@ -67,6 +67,30 @@ def test_intensity_transform_gives_the_clis_poses_and_gains(sequence, tmp_path):
     assert all(abs(g - 1.0) < 0.05 for g in result.gain)
 
 
+def test_echo_preset_sets_the_ultrasound_flags_as_the_cli_does(sequence, tmp_path):
+    """preset="echo" is --preset=echo: the same poses file, the preset and the structure
+    check in the summary; an explicit flag still wins over the preset."""
+    options = {**LEVELS, "preset": "echo"}
+    cli_poses = tmp_path / "cli.json"
+    run = run_tool("dsr_register", "--images=" + ",".join(files(sequence, "frame")),
+                   "--masks=" + ",".join(files(sequence, "mask")), f"--out_poses={cli_poses}",
+                   "--progress=false", *cli_flags(options))
+    assert run.returncode == 0, run.stderr
+    assert ("preset echo: --photometric=affine --intensity_transform=sqrt "
+            "--panorama_sampling=all_phases") in run.stdout
+    result = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **options)
+    result.save(tmp_path / "python.json")
+    assert (tmp_path / "python.json").read_bytes() == cli_poses.read_bytes()
+    assert result.summary["preset"].startswith("preset echo: --photometric=affine")
+    assert result.summary["intensity_transform"] == "sqrt"
+    assert len(result.gain) == 3
+    assert len(result.summary["structure_fraction"]) == 3
+    plain = dsr.register(files(sequence, "frame"), files(sequence, "mask"),
+                         **{**options, "photometric": "none", "intensity_transform": "none"})
+    assert plain.summary["preset"] == "preset echo: --panorama_sampling=all_phases"
+    assert "intensity_transform" not in plain.summary and not plain.gain
+
+
 def test_arrays_register_as_their_files_do(sequence):
     from_files = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
     images = [dsr.read_image(p) for p in files(sequence, "frame")]
