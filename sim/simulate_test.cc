@@ -1661,6 +1661,60 @@ TEST(SimulateWorldSpeckle, SimulateAppliesItAndLeavesTheOtherDrawsAlone) {
   EXPECT_GT(compared, 20000);
 }
 
+// --- The echo-like intensity mapping (intensity_mapping) ---
+
+// bench/protocols.sh's us_flat at SmallOptions()' scale (smaller walk steps): walk poses,
+// noise sigma 15, speckle of 4 looks with world fraction 0.8.
+void UsFlatOptions(SimulationOptions* o) {
+  o->pose_model = PoseModel::kWalk;
+  o->step_rotation_deg = 4.0;
+  o->step_translation_voxels = 3.0;
+  o->sigma = 15.0;
+  o->speckle_looks = 4;
+  o->speckle_world_fraction = 0.8;
+}
+
+// bench/protocols.sh's us: us_flat plus attenuation, gain and offset.
+void UsOptions(SimulationOptions* o) {
+  UsFlatOptions(o);
+  o->attenuation_db_per_cm = 0.5;
+  o->gain_range = 0.15;
+  o->offset_range = 10.0;
+}
+
+// Checksums (FramesChecksum) of SmallOptions() with the bench's walk poses and ultrasound
+// effects (bench/protocols.sh: us, us_flat) and with cubic sampling of an anisotropic
+// source, recorded with the simulator before intensity_mapping existed: its default (kNone)
+// must leave every sequence bit for bit as it was. Same caveat as
+// DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption (one compiler and library).
+TEST(SimulateEchoMapping, NoneIsBitIdenticalToBefore) {
+  struct Recorded {
+    const char* name;
+    void (*edit)(SimulationOptions*);
+    Eigen::Vector3d spacing;
+    uint64_t checksum;
+  };
+  const Recorded recorded[] = {
+      {"us", UsOptions, Eigen::Vector3d(1.0, 1.0, 1.0), 0xf9e42ceabf35c609ull},
+      {"us_flat", UsFlatOptions, Eigen::Vector3d(1.0, 1.0, 1.0), 0xf941e7639e628715ull},
+      {"cubic, anisotropic",
+       [](SimulationOptions* o) {
+         o->sigma = 25.0;
+         o->interpolation = SourceInterpolation::kCubic;
+       },
+       Eigen::Vector3d(1.0, 1.25, 0.8),
+       0x60922efa3bdb622full},
+  };
+  for (const Recorded& r : recorded) {
+    SimulationOptions o = SmallOptions();
+    r.edit(&o);
+    SimulatedSequence s;
+    std::string error;
+    ASSERT_TRUE(Simulate(SmallSource(r.spacing), o, &s, &error)) << error;
+    EXPECT_EQ(FramesChecksum(s), r.checksum) << r.name << ": 0x" << std::hex << FramesChecksum(s);
+  }
+}
+
 TEST(Simulate, FailsClearlyWhenTheSourceIsTooSmall) {
   ImageGeometry g;
   g.size = Eigen::Vector3i(40, 40, 40);
