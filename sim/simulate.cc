@@ -2,6 +2,7 @@
 #include "dsr/sim/simulate.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <initializer_list>
 #include <limits>
@@ -13,6 +14,7 @@
 
 #include "dsr/image/frame.h"
 #include "dsr/sim/echo_mapping.h"
+#include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
@@ -870,7 +872,13 @@ bool Simulate(const Image& source,
   // once for all frames; without the mapping no copy is made).
   Image mapped;
   if (options.intensity_mapping == IntensityMapping::kEcho) {
-    mapped = EchoIntensityMap(source, options, 0);
+    const auto start = std::chrono::steady_clock::now();
+    double p99 = 0.0;
+    mapped = EchoIntensityMap(source, options, 0, &p99);
+    const int64_t black = std::count(mapped.voxels.begin(), mapped.voxels.end(), 0.0f);
+    LOG(INFO) << "echo-like mapping of the source: gradient 99th percentile " << p99
+              << " grey levels/mm, " << 100.0 * black / mapped.voxels.size()
+              << " % of its voxels black, " << SecondsSince(start) << " s";
   }
   const Image& sampled = mapped.empty() ? source : mapped;
   const Frame source_frame(sampled, Mask(source.geometry, 1));
