@@ -38,9 +38,10 @@ namespace dsr {
 // E on the source's grid (same geometry), from options' echo_reject, echo_edge_sigma_mm
 // and echo_edge_weight (intensity_mapping itself is not read). Bit-identical for every
 // num_threads (<= 0: all hardware threads). When `gradient_p99` is not null it receives
-// g99 (grey levels per mm). options must be valid and source non-empty. Memory: about four
-// float copies of the source at once (the smoothing's passes, the gradient magnitudes and
-// the percentile's selection).
+// g99 (grey levels per mm). options must be valid and source non-empty. Memory beside the
+// source: at the peak (the smoothing) three float grids of its size and an all-ones byte
+// mask, 13 bytes per voxel; afterwards two float grids (the gradient magnitudes with the
+// percentile's selection, then with the map).
 Image EchoIntensityMap(const Image& source,
                        const SimulationOptions& options,
                        int num_threads,
