@@ -13,7 +13,8 @@
 # Sources: the built-in phantom, the MNI152 T1 template and a chest CT with the heart in view
 # (scripts/fetch_anatomy.sh mni|ct: real anatomy the project did not make; the CT's frames
 # are cut at 1 mm, its lungs are dark tissue inside the fields of view). Protocols: bench/protocols.sh (paper,
-# wide, walk, and the ultrasound-like us and us_flat). Masks: fov = the exact field of view
+# wide, walk, the ultrasound-like us and us_flat, and echo and echo_flat, which also map every
+# source to an echo-like look with black blood pools, lungs and CSF). Masks: fov = the exact field of view
 # (dsr_simulate --mask_erosion=0), none = each frame's field of view by --mask_rule eroded
 # by one voxel (what dsr_register uses without --masks). Sequences are cached under
 # OUT/sequences (simulated again when their protocol's flags change).

@@ -3,12 +3,14 @@
 
 Usage: accuracy_summary.py --init=NAME SOURCE,PROTOCOL,MASKS,results.csv[,checks_off.csv] [...]
 A run succeeds when dsr_compare reports it ok and its mean TRE is below 0.1 mm (1 mm on the
-ultrasound-like protocols us, us_flat and us_gain, whose speckle alone puts the poses 0.05-0.4 mm
-off: there success means the right basin, a wrong minimum being millimetres off); TRE and
+ultrasound-like protocols us, us_flat, us_gain, echo and echo_flat, whose speckle alone puts the
+poses 0.05-0.4 mm off: there success means the right basin, a wrong minimum being millimetres
+off); TRE and
 time medians are over the successful runs, the max TRE over every run that returned poses;
 the max times are over every run, split by whether it needed a recovery round (with the
 run counts; dsr_compare's recoveries column).
-With us (or us_gain) and us_flat for the same source, masks and method, a brightness table
+With us (or us_gain) and us_flat, or echo and echo_flat, for the same source, masks and
+method, a brightness table
 compares them sequence by sequence (the same poses, noise and speckle, with and without the gains,
 offsets and attenuation): runs refused or unsuccessful on each, the median TREs and their
 ratio, and the median error of the estimated gains and offsets where the poses files have
@@ -36,7 +38,11 @@ import statistics
 import sys
 
 SUCCESS_TRE_MM = 0.1
-SUCCESS_TRE_MM_BY_PROTOCOL = {"us": 1.0, "us_flat": 1.0, "us_gain": 1.0}
+SUCCESS_TRE_MM_BY_PROTOCOL = {"us": 1.0, "us_flat": 1.0, "us_gain": 1.0, "echo": 1.0,
+                              "echo_flat": 1.0}
+# The protocol each brightness-changing protocol is compared with: the same sequences
+# without the gains, offsets and attenuation.
+FLAT_PROTOCOL = {"us": "us_flat", "us_gain": "us_flat", "echo": "echo_flat"}
 # A refusal is clearly false when the run ends below this with the checks off; an accepted
 # run is a clear miss above CLEAR_MISS_MM.
 CLEAR_FALSE_REFUSAL_MM = 0.05
@@ -185,13 +191,13 @@ def main(argv):
                 f"{statistics.median(ratio):.2f} | {max(ratio):.2f} |")
     brightness = []
     for (source, protocol, masks), by_method in by_group.items():
-        flat = by_group.get((source, "us_flat", masks)) if protocol in ("us", "us_gain") else None
+        flat = by_group.get((source, FLAT_PROTOCOL[protocol], masks)) if protocol in FLAT_PROTOCOL else None
         if not flat:
             continue
         for method, runs in by_method.items():
             if method not in flat:
                 continue
-            threshold = success_mm("us")
+            threshold = success_mm(protocol)
 
             def good(rows):
                 return {r["sequence"]: float(r["tre_mean_mm"]) for r in rows
@@ -213,11 +219,12 @@ def main(argv):
                 f"{max(ratio) if ratio else float('nan'):.2f}) | "
                 f"{median_or_nan(gains):.4f} | {median_or_nan(offsets):.2f} |")
     if brightness:
-        print("\nBrightness changes: us (and us_gain) against us_flat, the same sequences without "
+        print("\nBrightness changes: us (and us_gain) against us_flat, echo against echo_flat, "
+              "the same sequences without "
               "the gains, offsets and attenuation (refused: the checks refused the run; missed: "
               f"usable but TRE >= {success_mm('us')} mm).\n")
-        print("| method | source | protocol | masks | refused / missed | us_flat refused / missed "
-              "| median TRE (mm) | us_flat median TRE (mm) | ratio of medians "
+        print("| method | source | protocol | masks | refused / missed | flat refused / missed "
+              "| median TRE (mm) | flat median TRE (mm) | ratio of medians "
               "| per-sequence ratio, median (range) | gain MAE | offset MAE |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|")
         for line in brightness:

@@ -12,8 +12,14 @@
 #            and attenuation
 #   us_gain  the same sequences with the gain and offset but without the attenuation (which
 #            no per-frame gain and offset can undo: it varies with depth)
+#   echo     us with the echo-like mapping of the source (--intensity_mapping=echo,
+#            docs/design.md 6.6): dark regions (blood, lungs, CSF) black, tissue bright,
+#            interfaces brighter, on every source, so large black regions lie inside the
+#            fields of view and touch their borders
+#   echo_flat  the same sequences (same seed: same poses, noise and speckle) without the
+#            gain, offset and attenuation
 # protocol_flags NAME prints its dsr_simulate flags; an unknown name returns 1.
-protocol_names="paper, wide, walk, us, us_flat, us_gain"
+protocol_names="paper, wide, walk, us, us_flat, us_gain, echo, echo_flat"
 protocol_flags() {
   local walk="--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15"
   case "$1" in
@@ -23,6 +29,8 @@ protocol_flags() {
     us) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --attenuation_db_per_cm=0.5 --gain_range=0.15 --offset_range=10" ;;
     us_flat) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8" ;;
     us_gain) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --gain_range=0.15 --offset_range=10" ;;
+    echo) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --attenuation_db_per_cm=0.5 --gain_range=0.15 --offset_range=10 --intensity_mapping=echo" ;;
+    echo_flat) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --intensity_mapping=echo" ;;
     *) return 1 ;;
   esac
 }

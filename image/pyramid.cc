@@ -75,13 +75,15 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
 }
 
 // Separable smoothing of `g` with stride `stride` on every axis from `first_axis` on that
-// has more than one voxel (stride 1 on single-voxel axes).
-Grid3 SmoothAndStride(Grid3 g, double sigma, int stride, int first_axis, int num_threads) {
-  const std::vector<float> kernel = sigma > 0.0 ? GaussianKernel(sigma) : std::vector<float>();
+// has more than one voxel (stride 1 on single-voxel axes), with sigma[axis] along each
+// (<= 0: not smoothed along that axis).
+Grid3 SmoothAndStride(Grid3 g, const Eigen::Vector3d& sigma, int stride, int first_axis,
+                      int num_threads) {
   for (int axis = first_axis; axis < 3; ++axis) {
     const bool flat = g.size[axis] == 1;
-    g = ConvolveAxis(g, axis, flat ? std::vector<float>() : kernel, flat ? 1 : stride,
-                     num_threads);
+    const std::vector<float> kernel =
+        sigma[axis] > 0.0 && !flat ? GaussianKernel(sigma[axis]) : std::vector<float>();
+    g = ConvolveAxis(g, axis, kernel, flat ? 1 : stride, num_threads);
   }
   return g;
 }
@@ -126,11 +128,12 @@ void MaskedPassX(const Image& image, const Mask& mask, double sigma, int stride,
   });
 }
 
-// Normalised convolution: returns the smoothed image and the smoothed mask weight.
-void NormalisedSmooth(const Image& image, const Mask& mask, double sigma, int stride,
-                      int num_threads, Grid3* value, Grid3* weight) {
+// Normalised convolution with sigma[axis] voxels along each axis: returns the smoothed
+// image and the smoothed mask weight.
+void NormalisedSmooth(const Image& image, const Mask& mask, const Eigen::Vector3d& sigma,
+                      int stride, int num_threads, Grid3* value, Grid3* weight) {
   CHECK(image.geometry.SameGrid(mask.geometry));
-  MaskedPassX(image, mask, sigma, stride, num_threads, value, weight);
+  MaskedPassX(image, mask, sigma[0], stride, num_threads, value, weight);
   *value = SmoothAndStride(std::move(*value), sigma, stride, 1, num_threads);
   *weight = SmoothAndStride(std::move(*weight), sigma, stride, 1, num_threads);
   // Weights below this carry too little data to be trusted (far outside the mask).
@@ -143,7 +146,14 @@ void NormalisedSmooth(const Image& image, const Mask& mask, double sigma, int st
 }  // namespace
 
 Image SmoothInsideMask(const Image& image, const Mask& mask, double sigma_voxels, int num_threads) {
-  if (sigma_voxels <= 0.0) return image;
+  return SmoothInsideMask(image, mask, Eigen::Vector3d::Constant(sigma_voxels), num_threads);
+}
+
+Image SmoothInsideMask(const Image& image,
+                       const Mask& mask,
+                       const Eigen::Vector3d& sigma_voxels,
+                       int num_threads) {
+  if ((sigma_voxels.array() <= 0.0).all()) return image;
   Grid3 value, weight;
   NormalisedSmooth(image, mask, sigma_voxels, 1, num_threads, &value, &weight);
   Image out(image.geometry);
@@ -153,7 +163,8 @@ Image SmoothInsideMask(const Image& image, const Mask& mask, double sigma_voxels
 
 ImageLevel Downsample(const Image& image, const Mask& mask, double sigma_voxels, int num_threads) {
   Grid3 value, weight;
-  NormalisedSmooth(image, mask, sigma_voxels, 2, num_threads, &value, &weight);
+  NormalisedSmooth(image, mask, Eigen::Vector3d::Constant(sigma_voxels), 2, num_threads, &value,
+                   &weight);
   ImageGeometry g = image.geometry;
   for (int a = 0; a < 3; ++a) {
     if (g.size[a] > 1) {

@@ -29,7 +29,17 @@ struct ImageLevel {
 
 // Smooths `image` inside `mask` by normalised convolution (see above) without
 // resampling; voxels where the smoothed mask is 0 become 0. `sigma_voxels` <= 0 copies.
+// Bit-identical for every num_threads (each output voxel is one thread's sum).
 Image SmoothInsideMask(const Image& image, const Mask& mask, double sigma_voxels, int num_threads);
+
+// The same with its own standard deviation along each index axis (sigma_voxels[a], voxels
+// of axis a; <= 0: that axis is not smoothed; all <= 0 copies), e.g. a Gaussian of a given
+// width in mm on an anisotropic grid (mm / spacing_mm[a]). With three equal values it is
+// the single-sigma overload, bit for bit.
+Image SmoothInsideMask(const Image& image,
+                       const Mask& mask,
+                       const Eigen::Vector3d& sigma_voxels,
+                       int num_threads);
 
 // One level down (see above).
 ImageLevel Downsample(const Image& image, const Mask& mask, double sigma_voxels, int num_threads);

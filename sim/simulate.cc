@@ -2,6 +2,7 @@
 #include "dsr/sim/simulate.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <initializer_list>
 #include <limits>
@@ -12,6 +13,8 @@
 #include <glog/logging.h>
 
 #include "dsr/image/frame.h"
+#include "dsr/sim/echo_mapping.h"
+#include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
@@ -35,6 +38,11 @@ constexpr double kMaxOffsetRange = 100.0;
 constexpr int kMaxSpeckleLooks = 64;
 constexpr double kMaxSpeckleCorrelation = 4.0;
 constexpr double kMaxAttenuationDbPerCm = 10.0;
+// Ranges of the echo-like mapping (simulate.h). The reject stays below full scale so that
+// the tissue term's 255 - r is at least 5 grey levels; 20 mm of smoothing already blurs
+// every structure the simulator's sources have.
+constexpr double kMaxEchoReject = 250.0;
+constexpr double kMaxEchoEdgeSigmaMm = 20.0;
 // Largest world speckle grid per axis, in voxels: far beyond any grid that fits in memory,
 // it only keeps the index arithmetic in int.
 constexpr int64_t kMaxSpeckleWorldSize = int64_t{1} << 24;
@@ -452,6 +460,22 @@ double CubicInterpolateValue(const Image& image, const Eigen::Vector3d& ijk) {
   return value;
 }
 
+const char* IntensityMappingToString(IntensityMapping mapping) {
+  switch (mapping) {
+    case IntensityMapping::kNone:
+      return "none";
+    case IntensityMapping::kEcho:
+      return "echo";
+  }
+  return "";
+}
+
+bool StringToIntensityMapping(const std::string& text, IntensityMapping* mapping) {
+  CHECK(mapping != nullptr);
+  return FindNamed(text, {IntensityMapping::kNone, IntensityMapping::kEcho},
+                   IntensityMappingToString, mapping);
+}
+
 const char* PoseModelToString(PoseModel model) {
   switch (model) {
     case PoseModel::kRandom:
@@ -521,6 +545,16 @@ bool SimulationOptions::Validate(std::string* error) const {
   } else if (!range(attenuation_db_per_cm, 0.0, kMaxAttenuationDbPerCm)) {
     s << "attenuation_db_per_cm=" << attenuation_db_per_cm << ": must be in [0, "
       << kMaxAttenuationDbPerCm << "]";
+  } else if (*IntensityMappingToString(intensity_mapping) == '\0') {
+    s << "intensity_mapping=" << static_cast<int>(intensity_mapping)
+      << ": must be none or echo";
+  } else if (!range(echo_reject, 0.0, kMaxEchoReject)) {
+    s << "echo_reject=" << echo_reject << ": must be in [0, " << kMaxEchoReject << "]";
+  } else if (!range(echo_edge_sigma_mm, 0.0, kMaxEchoEdgeSigmaMm)) {
+    s << "echo_edge_sigma_mm=" << echo_edge_sigma_mm << ": must be in [0, "
+      << kMaxEchoEdgeSigmaMm << "]";
+  } else if (!range(echo_edge_weight, 0.0, 1.0)) {
+    s << "echo_edge_weight=" << echo_edge_weight << ": must be in [0, 1]";
   } else {
     return true;
   }
@@ -834,7 +868,20 @@ bool Simulate(const Image& source,
     }
   }
 
-  const Frame source_frame(source, Mask(source.geometry, 1));
+  // The frames sample `sampled`: the source, or its echo-like map on the same grid (made
+  // once for all frames; without the mapping no copy is made).
+  Image mapped;
+  if (options.intensity_mapping == IntensityMapping::kEcho) {
+    const auto start = std::chrono::steady_clock::now();
+    double p99 = 0.0;
+    mapped = EchoIntensityMap(source, options, 0, &p99);
+    const int64_t black = std::count(mapped.voxels.begin(), mapped.voxels.end(), 0.0f);
+    LOG(INFO) << "echo-like mapping of the source: gradient 99th percentile " << p99
+              << " grey levels/mm, " << 100.0 * black / mapped.voxels.size()
+              << " % of its voxels black, " << SecondsSince(start) << " s";
+  }
+  const Image& sampled = mapped.empty() ? source : mapped;
+  const Frame source_frame(sampled, Mask(source.geometry, 1));
   const Eigen::Vector3d upper = source.geometry.size.cast<double>() - Eigen::Vector3d::Ones();
   // Slack for rounding: a voxel that maps to -1e-9 still samples the border voxel.
   constexpr double kIndexSlack = 1e-6;
@@ -864,7 +911,7 @@ bool Simulate(const Image& source,
           }
           frame.voxels[l] = static_cast<float>(
               options.interpolation == SourceInterpolation::kCubic
-                  ? CubicInterpolateValue(source, ijk_source)
+                  ? CubicInterpolateValue(sampled, ijk_source)
                   : source_frame.InterpolateValue(ijk_source));
         }
       }

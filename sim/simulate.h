@@ -81,6 +81,15 @@
 // grid), never from the poses-and-noise generator, so the poses and the noise draws are the
 // same with the effects on or off, and the speckle does not depend on the thread count.
 //
+// Intensity mapping (docs/design.md section 6.6), kNone by default (the source as it is,
+// bit for bit the simulator before the option). IntensityMapping::kEcho makes any source
+// look like echocardiography (sim/echo_mapping.h): the source is mapped once, on its own
+// grid, before any frame is cut,
+//   E = 255 clamp((1 - w) max(0, S - r) / (255 - r) + w min(1, |grad G_sigma * S| / g99), 0, 1)
+// (r = echo_reject: a dark blood pool, lungs or CSF go black; w = echo_edge_weight and
+// sigma = echo_edge_sigma_mm: bright interfaces), and the frames sample E instead of S; the
+// poses, the effects and the noise are drawn and applied exactly as without it.
+//
 // Masks: the field of view eroded by mask_erosion (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
 // field of view. The registration's gradients read mask voxels only whatever the mask
@@ -117,6 +126,15 @@ const char* SourceInterpolationToString(SourceInterpolation interpolation);
 // The inverse of SourceInterpolationToString; false (and *interpolation untouched) for any
 // other text.
 bool StringToSourceInterpolation(const std::string& text, SourceInterpolation* interpolation);
+
+// How the source's intensities are mapped before the frames are cut (see the header
+// comment). dsr_simulate's --intensity_mapping.
+enum class IntensityMapping { kNone, kEcho };
+
+// "none" / "echo"; "" for a value outside the enum.
+const char* IntensityMappingToString(IntensityMapping mapping);
+// The inverse of IntensityMappingToString; false (and *mapping untouched) for any other text.
+bool StringToIntensityMapping(const std::string& text, IntensityMapping* mapping);
 
 // Keys' cubic convolution (a = -0.5, no prefilter) of `image` at the continuous index
 // `ijk`: the separable sum over the 4x4x4 voxels floor(ijk) - 1 .. floor(ijk) + 2 with
@@ -157,6 +175,18 @@ struct SimulationOptions {
   // frame's speckle is its own (bit for bit the simulator before this option).
   double speckle_world_fraction = 0.0;
   double attenuation_db_per_cm = 0.0;  // depth attenuation from the apex, dB/cm, in [0, 10]
+  // Echo-like mapping of the source (see the header comment and sim/echo_mapping.h); the
+  // three echo_ parameters are used only with kEcho.
+  IntensityMapping intensity_mapping = IntensityMapping::kNone;
+  // Source values up to this go black (an echo machine's reject), grey levels, in [0, 250];
+  // 0.3 x full scale: blood, lungs, fat and CSF in the project's sources.
+  double echo_reject = 0.3 * 255.0;
+  // Standard deviation (mm, physical: sources may be anisotropic) of the Gaussian smoothing
+  // the source before its gradient is taken, in [0, 20]; 0: the raw source's gradient.
+  double echo_edge_sigma_mm = 1.0;
+  // Share w of the full scale that the interfaces (gradient magnitude at or above its 99th
+  // percentile) add, in [0, 1]; 0: no edge term.
+  double echo_edge_weight = 0.35;
 
   // Checks ranges and cross-field rules. The message names the field
   // (util/option_fields.h; e.g. "num_frames=1: must be in [2, 1000]").

@@ -4,7 +4,9 @@
 // option validation; the cubic source interpolation (CubicInterpolateValue) and the
 // default linear frames staying bit-identical; the ultrasound-like effects (gain, offset,
 // speckle, attenuation) and their ground truth; the world-fixed part of the speckle
-// (speckle_world_fraction): its statistics, its sharing between frames, its determinism.
+// (speckle_world_fraction): its statistics, its sharing between frames, its determinism;
+// the echo-like intensity mapping's default leaving the sequences bit for bit (the mapping
+// itself: echo_mapping_test.cc).
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
@@ -942,6 +944,18 @@ TEST(Simulate, ValidateRejectsNonsense) {
        "attenuation_db_per_cm=11: must be in [0, 10]"},
       {[](SimulationOptions* o) { o->attenuation_db_per_cm = INFINITY; },
        "attenuation_db_per_cm=inf"},
+      {[](SimulationOptions* o) { o->intensity_mapping = static_cast<IntensityMapping>(7); },
+       "intensity_mapping=7: must be none or echo"},
+      {[](SimulationOptions* o) { o->echo_reject = 251.0; },
+       "echo_reject=251: must be in [0, 250]"},
+      {[](SimulationOptions* o) { o->echo_reject = -1.0; }, "echo_reject=-1"},
+      {[](SimulationOptions* o) { o->echo_reject = std::nan(""); }, "echo_reject=nan"},
+      {[](SimulationOptions* o) { o->echo_edge_sigma_mm = -0.5; },
+       "echo_edge_sigma_mm=-0.5: must be in [0, 20]"},
+      {[](SimulationOptions* o) { o->echo_edge_sigma_mm = INFINITY; }, "echo_edge_sigma_mm=inf"},
+      {[](SimulationOptions* o) { o->echo_edge_weight = 1.5; },
+       "echo_edge_weight=1.5: must be in [0, 1]"},
+      {[](SimulationOptions* o) { o->echo_edge_weight = -0.1; }, "echo_edge_weight=-0.1"},
   };
   const Image source = SmallSource(Eigen::Vector3d::Ones());
   for (const Case& c : cases) {
@@ -1659,6 +1673,61 @@ TEST(SimulateWorldSpeckle, SimulateAppliesItAndLeavesTheOtherDrawsAlone) {
     }
   }
   EXPECT_GT(compared, 20000);
+}
+
+// --- The echo-like intensity mapping (intensity_mapping; its tests: echo_mapping_test.cc) ---
+
+// bench/protocols.sh's us_flat at SmallOptions()' scale (smaller walk steps): walk poses,
+// noise sigma 15, speckle of 4 looks with world fraction 0.8.
+void UsFlatOptions(SimulationOptions* o) {
+  o->pose_model = PoseModel::kWalk;
+  o->step_rotation_deg = 4.0;
+  o->step_translation_voxels = 3.0;
+  o->sigma = 15.0;
+  o->speckle_looks = 4;
+  o->speckle_world_fraction = 0.8;
+}
+
+// bench/protocols.sh's us: us_flat plus attenuation, gain and offset.
+void UsOptions(SimulationOptions* o) {
+  UsFlatOptions(o);
+  o->attenuation_db_per_cm = 0.5;
+  o->gain_range = 0.15;
+  o->offset_range = 10.0;
+}
+
+// Checksums (FramesChecksum) of SmallOptions() with the bench's walk poses and ultrasound
+// effects (bench/protocols.sh: us, us_flat) and with cubic sampling of an anisotropic
+// source, recorded with the simulator before intensity_mapping existed: its default (kNone)
+// must leave every sequence bit for bit as it was. Same caveat as
+// DefaultLinearFramesAreBitIdenticalToBeforeTheCubicOption (one compiler and library).
+TEST(SimulateEchoMapping, NoneIsBitIdenticalToBefore) {
+  struct Recorded {
+    const char* name;
+    void (*edit)(SimulationOptions*);
+    Eigen::Vector3d spacing;
+    uint64_t checksum;
+  };
+  const Recorded recorded[] = {
+      {"us", UsOptions, Eigen::Vector3d(1.0, 1.0, 1.0), 0xf9e42ceabf35c609ull},
+      {"us_flat", UsFlatOptions, Eigen::Vector3d(1.0, 1.0, 1.0), 0xf941e7639e628715ull},
+      {"cubic, anisotropic",
+       [](SimulationOptions* o) {
+         o->sigma = 25.0;
+         o->interpolation = SourceInterpolation::kCubic;
+       },
+       Eigen::Vector3d(1.0, 1.25, 0.8),
+       0x60922efa3bdb622full},
+  };
+  for (const Recorded& r : recorded) {
+    SimulationOptions o = SmallOptions();
+    r.edit(&o);
+    ASSERT_EQ(o.intensity_mapping, IntensityMapping::kNone);  // the default
+    SimulatedSequence s;
+    std::string error;
+    ASSERT_TRUE(Simulate(SmallSource(r.spacing), o, &s, &error)) << error;
+    EXPECT_EQ(FramesChecksum(s), r.checksum) << r.name << ": 0x" << std::hex << FramesChecksum(s);
+  }
 }
 
 TEST(Simulate, FailsClearlyWhenTheSourceIsTooSmall) {

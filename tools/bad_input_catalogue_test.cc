@@ -318,6 +318,10 @@ TEST_F(BadInputCatalogue, Simulator) {
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --num_frames=1", "--num_frames");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --frame_size=96,96", "--frame_size");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --sigma=-3", "--sigma");
+  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --intensity_mapping=doppler", "--intensity_mapping");
+  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_reject=255", "--echo_reject");
+  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_edge_sigma_mm=-1", "--echo_edge_sigma_mm");
+  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_edge_weight=2", "--echo_edge_weight");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("truncated.nii.gz"), "truncated.nii.gz");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("missing.nii.gz"), "missing.nii.gz");
 }

@@ -32,11 +32,12 @@ int Main(int argc, char** argv) {
   dsr::InitTool(
       "simulates a TEE-like sequence with the paper's protocol (random rigid poses, pyramidal "
       "field of view, Gaussian noise) from the built-in phantom or --source, optionally with "
-      "ultrasound-like effects (per-frame gain and offset, speckle, depth attenuation).\n"
+      "ultrasound-like effects (per-frame gain and offset, speckle, depth attenuation) and an "
+      "echo-like mapping of the source's intensities.\n"
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
       "[--pose_model=random|walk] [--interpolation=linear|cubic] [--gain_range=0] "
       "[--offset_range=0] [--speckle_looks=0] [--speckle_world_fraction=0] "
-      "[--attenuation_db_per_cm=0] ...\n"
+      "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       {"out_dir"},
@@ -54,7 +55,10 @@ int Main(int argc, char** argv) {
   // 3 --speckle_correlation_voxels per side, its sum (double) and its field (float); with
   // --speckle_world_fraction also every frame's field (float) and one look's world field
   // (complex double on the world grid padded likewise; the fields of view lie in the
-  // source, so at most the source's axis-aligned box in frame voxels).
+  // source, so at most the source's axis-aligned box in frame voxels). With
+  // --intensity_mapping=echo the source's map (sim/echo_mapping.h) adds, at its peak, three
+  // float grids of the source's size and an all-ones mask (its smoothing), 13 bytes per
+  // source voxel; afterwards the map (float) is kept while the frames are cut.
   const double frame_voxels = options.frame_size.cast<double>().prod();
   const double speckle_padding = 2.0 * std::ceil(3.0 * options.speckle_correlation_voxels);
   const double padded_voxels =
@@ -79,8 +83,10 @@ int Main(int argc, char** argv) {
     return 16.0 * ((hi - lo).array() / spacing + 2.0 + speckle_padding).prod();
   };
   const auto check_memory = [&](double source_voxels, double world_bytes) {
+    const double echo_bytes_per_voxel =
+        options.intensity_mapping == dsr::IntensityMapping::kEcho ? 13.0 : 0.0;
     const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + effects_bytes +
-                         world_bytes + 4.0 * source_voxels;
+                         world_bytes + (4.0 + echo_bytes_per_voxel) * source_voxels;
     return dsr::CheckMemoryEstimate(
         "--frame_size=" + FLAGS_frame_size + " --num_frames=" + std::to_string(options.num_frames),
         bytes,

@@ -166,6 +166,43 @@ TEST_F(DsrSimulateCli, InterpolationReachesTheSimulator) {
   }
 }
 
+TEST_F(DsrSimulateCli, IntensityMappingReachesTheSimulator) {
+  // The echo run's frames are the library's echo frames of the written source (which is
+  // the source as read, not its map), with every echo_ flag passed through, and differ from
+  // the default run's.
+  const fs::path plain = dir_ / "plain", echo = dir_ / "echo";
+  const std::string common = " " + Tiny() + " --sigma=0 --write_source";
+  ASSERT_EQ(Simulate("--out_dir=" + plain.string() + common).exit_code, 0);
+  const ToolRun run = Simulate("--out_dir=" + echo.string() + common +
+                               " --intensity_mapping=echo --echo_reject=60 "
+                               "--echo_edge_sigma_mm=1.5 --echo_edge_weight=0.5");
+  ASSERT_EQ(run.exit_code, 0) << run.err;
+  std::string error;
+  Image source, plain_source;
+  ASSERT_TRUE(ReadImage((echo / "source.nii.gz").string(), &source, &error)) << error;
+  ASSERT_TRUE(ReadImage((plain / "source.nii.gz").string(), &plain_source, &error)) << error;
+  EXPECT_EQ(source.voxels, plain_source.voxels);
+  SimulationOptions o = TinyOptions();
+  o.intensity_mapping = IntensityMapping::kEcho;
+  o.echo_reject = 60.0;
+  o.echo_edge_sigma_mm = 1.5;
+  o.echo_edge_weight = 0.5;
+  SimulatedSequence expected, defaults;
+  ASSERT_TRUE(dsr::Simulate(source, o, &expected, &error)) << error;
+  SimulationOptions d = TinyOptions();
+  d.intensity_mapping = IntensityMapping::kEcho;
+  ASSERT_TRUE(dsr::Simulate(source, d, &defaults, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    const std::string name = "frame_0" + std::to_string(f) + ".nii.gz";
+    Image from_plain, from_echo;
+    ASSERT_TRUE(ReadImage((plain / name).string(), &from_plain, &error)) << error;
+    ASSERT_TRUE(ReadImage((echo / name).string(), &from_echo, &error)) << error;
+    EXPECT_EQ(from_echo.voxels, expected.frames[f].voxels) << name;
+    EXPECT_NE(from_echo.voxels, defaults.frames[f].voxels) << name << ": the echo_ flags count";
+    EXPECT_NE(from_echo.voxels, from_plain.voxels) << name;
+  }
+}
+
 TEST_F(DsrSimulateCli, EffectsReachTheSimulatorAndGainsAndOffsetsGoToTheGroundTruth) {
   // The frames are the library's frames of the written source with the same effects, and
   // gt_poses.json holds the corrections to frame 0's scale (exact through JSON).
@@ -291,6 +328,14 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
        "--speckle_world_fraction=0.5: needs speckle, but --speckle_looks=0"},
       {"--attenuation_db_per_cm=11" + out, "--attenuation_db_per_cm=11: must be in [0, 10]"},
       {"--attenuation_db_per_cm=nan" + out, "--attenuation_db_per_cm=nan: must be in [0, 10]"},
+      {"--intensity_mapping=doppler" + out, "--intensity_mapping=doppler: must be none or echo"},
+      {"--intensity_mapping=" + out, "--intensity_mapping=: must be none or echo"},
+      {"--echo_reject=251" + out, "--echo_reject=251: must be in [0, 250]"},
+      {"--echo_reject=-1" + out, "--echo_reject=-1: must be in [0, 250]"},
+      {"--echo_edge_sigma_mm=21" + out, "--echo_edge_sigma_mm=21: must be in [0, 20]"},
+      {"--echo_edge_sigma_mm=nan" + out, "--echo_edge_sigma_mm=nan: must be in [0, 20]"},
+      {"--echo_edge_weight=1.5" + out, "--echo_edge_weight=1.5: must be in [0, 1]"},
+      {"--echo_edge_weight=-0.1" + out, "--echo_edge_weight=-0.1: must be in [0, 1]"},
       {"--num_frames=abc" + out, "num_frames"},
       {"--no_such_flag=1" + out, "no_such_flag"},
       {"--source=" + (dir_ / "missing.nii.gz").string() + out, "missing.nii.gz: no such file"},
@@ -363,6 +408,10 @@ TEST_F(DsrSimulateCli, HelpDocumentsEveryFlag) {
                              "speckle_correlation_voxels",
                              "speckle_world_fraction",
                              "attenuation_db_per_cm",
+                             "intensity_mapping",
+                             "echo_reject",
+                             "echo_edge_sigma_mm",
+                             "echo_edge_weight",
                              "write_source"}) {
       EXPECT_NE(run.out.find(std::string("-") + flag + " ("), std::string::npos)
           << help << " lacks --" << flag;

@@ -45,6 +45,10 @@ TEST(ToolFlags, EachToolListsItsOwnAndItsSharedFlagsOnly) {
   EXPECT_FALSE(Lists(fuse, "mode"));
   EXPECT_TRUE(Lists(compare, "pyramid_levels"));
   EXPECT_TRUE(Lists(compare, "speckle_looks"));
+  // The echo-like mapping: with the simulation's flags, not the registration's.
+  EXPECT_TRUE(Lists(simulate, "intensity_mapping"));
+  EXPECT_TRUE(Lists(compare, "echo_edge_weight"));
+  EXPECT_FALSE(Lists(registration, "intensity_mapping"));
   EXPECT_FALSE(Lists(compare, "images"));
   EXPECT_FALSE(Lists(compare, "mode"));
   // dsr_compare's own defaults: the paper's start, checks off.

@@ -210,6 +210,10 @@ SIMULATE = [
     {"num_frames": 1},
     {"frame_size": "96,96"},
     {"sigma": -3},
+    {"intensity_mapping": "doppler"},
+    {"echo_reject": 255},
+    {"echo_edge_sigma_mm": -1},
+    {"echo_edge_weight": 2},
     {"source": "truncated.nii.gz"},
     {"source": "missing.nii.gz"},
 ]

@@ -107,6 +107,10 @@ DECLARE_int32(speckle_looks);
 DECLARE_double(speckle_correlation_voxels);
 DECLARE_double(speckle_world_fraction);
 DECLARE_double(attenuation_db_per_cm);
+DECLARE_string(intensity_mapping);
+DECLARE_double(echo_reject);
+DECLARE_double(echo_edge_sigma_mm);
+DECLARE_double(echo_edge_weight);
 
 namespace dsr {
 

@@ -127,6 +127,32 @@ DEFINE_double(attenuation_db_per_cm,
               "from the pyramid's apex (the centre of the z = 0 face) is multiplied by "
               "10^(-this * r / 20), in [0, 10] dB/cm. Applied, like the speckle, before the "
               "gain, the offset and the noise.");
+DEFINE_string(intensity_mapping,
+              "none",
+              "How the source's intensities are mapped before the frames are cut: none (as "
+              "they are) or echo (echocardiography-like, for any source: the source is mapped "
+              "once on its own grid to 255 clamp((1 - w) max(0, S - r) / (255 - r) + w min(1, "
+              "|grad G * S| / g99), 0, 1), with r = --echo_reject (darker regions such as a "
+              "blood pool, lungs or CSF go black), G a Gaussian of --echo_edge_sigma_mm, g99 "
+              "the 99th percentile of the gradient magnitude over the non-zero source voxels "
+              "and w = --echo_edge_weight (bright interfaces); the effects and the noise are "
+              "then applied to the frames as without it).");
+DEFINE_double(echo_reject,
+              76.5,
+              "--intensity_mapping=echo: source values up to this (grey levels) map to black, "
+              "as below an echo machine's reject; the rest is rescaled to the full scale. In "
+              "[0, 250]; the default is 30 % of full scale.");
+DEFINE_double(echo_edge_sigma_mm,
+              1.0,
+              "--intensity_mapping=echo: standard deviation in mm (physical, also on "
+              "anisotropic sources) of the Gaussian that smooths the source before its "
+              "gradient is taken for the interfaces, in [0, 20]; 0: the raw source.");
+DEFINE_double(echo_edge_weight,
+              0.35,
+              "--intensity_mapping=echo: the share of the full scale that the interfaces add "
+              "(gradient magnitude at or above its 99th percentile: the whole share), in "
+              "[0, 1]; 0: no interfaces.");
+
 namespace {
 
 bool ValidateNumFrames(const char* flag, int32_t v) {
@@ -186,6 +212,20 @@ bool ValidateSpeckleWorldFraction(const char* flag, double v) {
 bool ValidateAttenuation(const char* flag, double v) {
   return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 10.0, flag, v, "must be in [0, 10]");
 }
+bool ValidateIntensityMapping(const char* flag, const std::string& v) {
+  dsr::IntensityMapping mapping;
+  return dsr::CheckFlag(
+      dsr::StringToIntensityMapping(v, &mapping), flag, v, "must be none or echo");
+}
+bool ValidateEchoReject(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 250.0, flag, v, "must be in [0, 250]");
+}
+bool ValidateEchoEdgeSigma(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 20.0, flag, v, "must be in [0, 20]");
+}
+bool ValidateEchoEdgeWeight(const char* flag, double v) {
+  return dsr::CheckFlag(std::isfinite(v) && v >= 0.0 && v <= 1.0, flag, v, "must be in [0, 1]");
+}
 bool ValidateSource(const char* flag, const std::string& v) {
   return dsr::CheckInputFileFlag(flag, v);
 }
@@ -213,6 +253,10 @@ DEFINE_validator(speckle_looks, &ValidateSpeckleLooks);
 DEFINE_validator(speckle_correlation_voxels, &ValidateSpeckleCorrelation);
 DEFINE_validator(speckle_world_fraction, &ValidateSpeckleWorldFraction);
 DEFINE_validator(attenuation_db_per_cm, &ValidateAttenuation);
+DEFINE_validator(intensity_mapping, &ValidateIntensityMapping);
+DEFINE_validator(echo_reject, &ValidateEchoReject);
+DEFINE_validator(echo_edge_sigma_mm, &ValidateEchoEdgeSigma);
+DEFINE_validator(echo_edge_weight, &ValidateEchoEdgeWeight);
 
 namespace dsr {
 
@@ -240,6 +284,11 @@ bool SimulationOptionsFromFlags(SimulationOptions* options,
   options->speckle_correlation_voxels = FLAGS_speckle_correlation_voxels;
   options->speckle_world_fraction = FLAGS_speckle_world_fraction;
   options->attenuation_db_per_cm = FLAGS_attenuation_db_per_cm;
+  // validated
+  CHECK(StringToIntensityMapping(FLAGS_intensity_mapping, &options->intensity_mapping));
+  options->echo_reject = FLAGS_echo_reject;
+  options->echo_edge_sigma_mm = FLAGS_echo_edge_sigma_mm;
+  options->echo_edge_weight = FLAGS_echo_edge_weight;
   phantom->size = FLAGS_phantom_size;
   phantom->seed = FLAGS_phantom_seed;
   if (!options->Validate(error)) return false;
