@@ -5,7 +5,7 @@
 #
 #   bash bench/accuracy.sh [--seeds=20] [--sources=phantom,mni,ct] [--protocols=paper,wide,walk]
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
-#                          [--uncertainty] [--photometric=none|affine]
+#                          [--uncertainty] [--photometric=auto|none|affine]
 #                          [--intensity_transform=none|sqrt] [--panorama_sampling=half_voxel|all_phases]
 #                          [--gauge=mean|frame0] [--mask_rule=hull|nonzero] [--no_checks_off]
 #                          [--out=bench/results/accuracy]
@@ -42,7 +42,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni,ct protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
-uncertainty="" checks_off="" photometric=none transform=none sampling=half_voxel gauge=mean
+uncertainty="" checks_off="" photometric=auto transform=none sampling=half_voxel gauge=mean
 mask_rule=hull
 out=bench/results/accuracy
 for arg in "$@"; do
@@ -65,12 +65,13 @@ for arg in "$@"; do
   esac
 done
 [[ "$seeds" =~ ^[0-9]+$ && "$seeds" -ge 1 ]] || { echo "accuracy.sh: --seeds=$seeds: must be >= 1" >&2; exit 2; }
-[[ "$photometric" == none || "$photometric" == affine ]] || {
-  echo "accuracy.sh: --photometric=$photometric: must be none or affine" >&2; exit 2; }
+[[ "$photometric" == auto || "$photometric" == none || "$photometric" == affine ]] || {
+  echo "accuracy.sh: --photometric=$photometric: must be auto, none or affine" >&2; exit 2; }
 [[ "$transform" == none || "$transform" == sqrt ]] || {
   echo "accuracy.sh: --intensity_transform=$transform: must be none or sqrt" >&2; exit 2; }
 suffix="${uncertainty:+-uncertainty}"
 [[ "$photometric" == affine ]] && suffix="$suffix-affine"
+[[ "$photometric" == none ]] && suffix="$suffix-no_photometric"
 [[ "$transform" == sqrt ]] && suffix="$suffix-sqrt"
 [[ "$sampling" == half_voxel || "$sampling" == all_phases ]] || {
   echo "accuracy.sh: --panorama_sampling=$sampling: must be half_voxel or all_phases" >&2; exit 2; }

@@ -461,19 +461,15 @@ void CoarseToFine::UseAffine() {
   affine_ = true;
 }
 
-CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& frames) {
-  if (options_.photometric != PhotometricModel::kAuto || !result_->photometric_choice.empty() ||
-      !solved_ || !ModeEstimatesPhotometric(options_.mode)) {
-    return Next::kGoOn;
-  }
-  // The gains and offsets that best explain the frames at the final poses, once every check
-  // passed (at a coarse level, or at poses a check refuses, they also explain whatever is
-  // not yet in line: on the phantom's paper protocol the coarsest level's estimates changed
-  // intensities by up to 3.4 % of their spread where the poses were right, 26-42 % where
-  // they were a wrong minimum). On a grid that samples every frame at every sub-voxel phase
-  // (model/panorama.h): on frame 0's lattice, half a voxel off it, frame 0's samples are the
-  // smoothest (trilinear interpolation at the cell centre averages 8 voxels), and the
-  // others' gains come out about 1.5 % low with an offset.
+bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
+                                      std::vector<Photometric>* photometric,
+                                      double* largest_change,
+                                      int* worst) {
+  // The gains and offsets that best explain the frames at the poses reached, on a grid that
+  // samples every frame at every sub-voxel phase (model/panorama.h): on frame 0's lattice,
+  // half a voxel off it, frame 0's samples are the smoothest (trilinear interpolation at the
+  // cell centre averages 8 voxels), and the others' gains come out about 1.5 % low with an
+  // offset.
   RegistrationOptions affine = options_;
   affine.photometric = PhotometricModel::kAffine;
   DsrOptions dsr = ToDsrOptions(affine, level_solve_);
@@ -484,18 +480,21 @@ CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& fram
   std::string grid_error;
   if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, &grid, &grid_error,
                          PanoramaSampling::kAllPhases)) {
-    return Next::kGoOn;  // no grid at these poses: the level's checks will say why
+    return false;  // no grid at these poses: the level's checks say why
   }
   SolveReport report;
+  std::string solve_error;
   if (!SolvePhotometricAtPoses(frames, BuildCandidates(frames, poses, grid, 0), poses, dsr,
-                               &report, error_)) {
-    return Next::kError;
+                               &report, &solve_error) ||
+      !report.usable) {
+    return false;
   }
+  *photometric = report.photometric;
   // Each frame's change of intensity, at its mean minus and plus one standard deviation of
   // its field of view, over that deviation.
-  double largest = 0.0;
-  int worst = 0;
-  for (int i = 1; i < m_ && report.usable; ++i) {
+  *largest_change = 0.0;
+  *worst = 0;
+  for (int i = 1; i < m_; ++i) {
     const Frame& f = frames[i];
     double sum = 0.0, sum2 = 0.0;
     int64_t n = 0;
@@ -510,15 +509,33 @@ CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& fram
     if (n < 2) continue;
     const double mean = sum / n, spread = std::sqrt(std::max(0.0, sum2 / n - mean * mean));
     if (!(spread > 0.0)) continue;
-    const Photometric& p = report.photometric[i];
+    const Photometric& p = (*photometric)[i];
     const double change = std::max(std::abs(p.Correct(mean - spread) - (mean - spread)),
                                    std::abs(p.Correct(mean + spread) - (mean + spread))) / spread;
-    if (change > largest) {
-      largest = change;
-      worst = i;
+    if (change > *largest_change) {
+      *largest_change = change;
+      *worst = i;
     }
   }
-  result_->photometric_detected = report.usable && largest > kBrightnessTolerance;
+  return true;
+}
+
+bool CoarseToFine::AutoPhotometricUndecided() const {
+  return options_.photometric == PhotometricModel::kAuto && result_->photometric_choice.empty() &&
+         !affine_ && ModeEstimatesPhotometric(options_.mode);
+}
+
+CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& frames) {
+  if (!AutoPhotometricUndecided() || !solved_) return Next::kGoOn;
+  // At the final poses, once every check passed (at a coarse level, or at poses a check
+  // refuses, the estimates also explain whatever is not yet in line: on the phantom's paper
+  // protocol the coarsest level's changed intensities by up to 3.4 % of their spread where
+  // the poses were right, 26-42 % where they were a wrong minimum).
+  std::vector<Photometric> estimate;
+  double largest = 0.0;
+  int worst = 0;
+  if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return Next::kGoOn;
+  result_->photometric_detected = largest > kBrightnessTolerance;
   std::ostringstream why;
   why.precision(2);
   why << (result_->photometric_detected ? "affine" : "none") << " (photometric=auto: at the "
@@ -528,6 +545,37 @@ CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& fram
       << 100.0 * kBrightnessTolerance << "%)";
   result_->photometric_choice = why.str();
   return Next::kGoOn;
+}
+
+bool CoarseToFine::StructureExplainedByBrightness(int level,
+                                                  const std::vector<Frame>& frames,
+                                                  const CandidateSet& candidates) {
+  if (!AutoPhotometricUndecided()) return false;
+  // Frames of different brightness (gains, offsets) leave structure in each other's
+  // differences that is not anatomy out of line. If the frames line up once the gains and
+  // offsets that best explain them are estimated at these poses, that was it: the solves
+  // estimate them from here on. A wrong minimum stays: a gain or an offset cannot line up
+  // anatomy (the structure fraction is a ratio of the frame's own covariances, which its
+  // gain scales alike).
+  std::vector<Photometric> estimate;
+  double largest = 0.0;
+  int worst = 0;
+  if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return false;
+  const std::vector<FrameStructure> corrected =
+      FrameStructures(frames, candidates, SolvePoses(), stream_, estimate);
+  if (!StructureOutliers(corrected, options_.max_structure_fraction, &misfit_exempt_).empty()) {
+    return false;
+  }
+  result_->photometric_detected = true;
+  std::ostringstream why;
+  why.precision(2);
+  why << "affine (photometric=auto: at pyramid level " << level << " the frames' differences "
+      << "showed structure that the gains and offsets explain, changing a frame's intensities "
+      << "by up to " << 100.0 * largest << "% of their spread, frame " << worst << ")";
+  result_->photometric_choice = why.str();
+  UseAffine();
+  photometric_ = estimate;
+  return true;
 }
 
 CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<Frame>& frames) {
@@ -545,7 +593,8 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   if (options_.max_structure_fraction > 0.0) {
     const std::vector<FrameStructure> structure =
         FrameStructures(frames, last_candidates_, SolvePoses(), stream_, photometric_);
-    if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_)) {
+    if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
+        !StructureExplainedByBrightness(level, frames, last_candidates_)) {
       return Diverged(level, why,
                       StructureOutliers(structure, options_.max_structure_fraction,
                                         &misfit_exempt_));
@@ -628,7 +677,8 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // check only where it is on.
   result_->frame_structure = FrameStructures(frames, final_candidates, poses, stream_, photometric_);
   if (StructureOutlier(result_->frame_structure, options_.max_structure_fraction, &why,
-                       &misfit_exempt_)) {
+                       &misfit_exempt_) &&
+      !StructureExplainedByBrightness(0, frames, final_candidates)) {
     return Diverged(0, why,
                     StructureOutliers(result_->frame_structure, options_.max_structure_fraction,
                                       &misfit_exempt_));

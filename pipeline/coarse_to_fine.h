@@ -115,6 +115,21 @@ class CoarseToFine {
   // pipeline then registers again with affine from there (RegisterScaled), and every later
   // round follows the choice.
   Next DetectBrightness(const std::vector<Frame>& frames);
+  // With photometric kAuto, undecided, when the structure check flags frames at a level:
+  // true (and the solves estimate gains and offsets from here on, recorded in the result)
+  // when every frame lines up once the gains and offsets estimated at these poses correct
+  // it; false when the structure stands (a wrong minimum) or the choice is made.
+  bool StructureExplainedByBrightness(int level,
+                                      const std::vector<Frame>& frames,
+                                      const CandidateSet& candidates);
+  // The gains and offsets that best explain `frames` at SolvePoses() (an every-phase grid),
+  // and the largest change they make to a frame's intensities (over its spread) and its
+  // frame. False when no estimate could be made.
+  bool EstimateBrightness(const std::vector<Frame>& frames,
+                          std::vector<Photometric>* photometric,
+                          double* largest_change,
+                          int* worst);
+  bool AutoPhotometricUndecided() const;
   void UseAffine();
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
   Next CheckFinalPoses(const std::vector<Frame>& frames);

@@ -6,6 +6,7 @@
 #include <memory>
 #include <sstream>
 
+#include <Eigen/Eigenvalues>
 #include <glog/logging.h>
 
 #include "dsr/util/parallel.h"
@@ -18,6 +19,19 @@ namespace {
 struct StructureSums {
   std::array<int64_t, kMaxFrames> pairs{};
   std::array<double, kMaxFrames> rr{}, r1{}, r2{}, rsq{}, cc{}, c1{}, c2{}, c1c1{};
+  // The brightness regressors z = mu [1, x, y, z] at the same pairs (mu the panorama's mean,
+  // x, y, z the sample's place in the frame): their lag products with the residual and with
+  // themselves, and their sums on either side.
+  std::array<Eigen::Vector4d, kMaxFrames> rz, z1, z2;
+  std::array<Eigen::Matrix4d, kMaxFrames> zz;
+  StructureSums() {
+    for (int f = 0; f < kMaxFrames; ++f) {
+      rz[f].setZero();
+      z1[f].setZero();
+      z2[f].setZero();
+      zz[f].setZero();
+    }
+  }
 };
 
 // The voxels of the last L + 1 columns of the current panorama row, for the lag pairs.
@@ -26,6 +40,7 @@ struct LagSlot {
   uint32_t observers = 0;
   std::array<double, kMaxFrames> residual;
   std::array<double, kMaxFrames> corrected;
+  std::array<Eigen::Vector4d, kMaxFrames> brightness;  // z: mu_j [1, x, y, z] in frame f
 };
 
 // Fixed blocks of candidate voxels (a multiple of any thread count used here).
@@ -59,6 +74,15 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
     gain[i] = photometric[i].gain();
     offset[i] = photometric[i].offset;
   }
+  // Each frame's place of a sample, in units of its half-size about its grid's centre, for
+  // the brightness regressors (O(1), so that they are conditioned alike).
+  std::vector<Eigen::Vector3d> middle(m);
+  std::vector<double> scale(m);
+  for (int i = 0; i < m; ++i) {
+    const ImageGeometry& g = frames[i].geometry();
+    middle[i] = g.IndexToPhysical(0.5 * (g.size.cast<double>() - Eigen::Vector3d::Ones()));
+    scale[i] = 2.0 / std::max(1e-9, g.size.cast<double>().cwiseProduct(g.spacing_mm).maxCoeff());
+  }
   const int64_t n = candidates.num_voxels();
   std::vector<StructureSums> blocks(kBlocks);
   ParallelFor(0, kBlocks, context.num_threads, [&](int64_t b) {
@@ -85,9 +109,12 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
           mean += slot.corrected[f];
         }
         mean /= k;
+        const Eigen::Vector3d centre = candidates.VoxelCenter(batch->voxel[t]);
         for (int a = batch->begin[t]; a < batch->begin[t + 1]; ++a) {
           const int f = batch->frame[a];
           slot.residual[f] = slot.corrected[f] - mean;
+          const Eigen::Vector3d place = scale[f] * (frame_from_world[f] * centre - middle[f]);
+          slot.brightness[f] << mean, mean * place;
         }
         if (x < lag || before.linear != linear - lag) continue;
         uint32_t both = slot.observers & before.observers;
@@ -105,6 +132,11 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
           sums.c2[f] += slot.corrected[f];
           sums.c1c1[f] += 0.5 * (before.corrected[f] * before.corrected[f] +
                                  slot.corrected[f] * slot.corrected[f]);
+          sums.rz[f] += 0.5 * (before.residual[f] * slot.brightness[f] +
+                               slot.residual[f] * before.brightness[f]);
+          sums.zz[f] += before.brightness[f] * slot.brightness[f].transpose();
+          sums.z1[f] += before.brightness[f];
+          sums.z2[f] += slot.brightness[f];
         }
       }
     }
@@ -121,6 +153,10 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
       total.c1[f] += s.c1[f];
       total.c2[f] += s.c2[f];
       total.c1c1[f] += s.c1c1[f];
+      total.rz[f] += s.rz[f];
+      total.zz[f] += s.zz[f];
+      total.z1[f] += s.z1[f];
+      total.z2[f] += s.z2[f];
     }
   }
   std::vector<FrameStructure> out(m);
@@ -132,6 +168,29 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
     // Centred: a frame's mean residual is a brightness offset, not anatomy out of line.
     const double r_mean1 = total.r1[f] / n_pairs, r_mean2 = total.r2[f] / n_pairs;
     s.residual_lag = total.rr[f] / n_pairs - r_mean1 * r_mean2;
+    // Less the part a brightness field explains: a gain of frame i against the others that
+    // varies smoothly over it (a gain, or attenuation with depth that the others see at
+    // other depths) leaves r = (g(x) - 1) mu + noise, structure that is brightness, not
+    // anatomy out of line. With g linear in the sample's place, that is r = z^T beta for the
+    // regressors z = mu [1, x, y, z]; the regression at the lag, beta = C_zz'^-1 c_rz' (where
+    // the noise of z and r, which share frame i's, does not bias it), accounts for
+    // c_rz'^T C_zz'^-1 c_rz' of the residual's lag covariance.
+    const Eigen::Vector4d z_mean1 = total.z1[f] / n_pairs, z_mean2 = total.z2[f] / n_pairs;
+    const Eigen::Vector4d c_rz =
+        total.rz[f] / n_pairs - 0.5 * (r_mean1 * z_mean2 + r_mean2 * z_mean1);
+    Eigen::Matrix4d c_zz = total.zz[f] / n_pairs - z_mean1 * z_mean2.transpose();
+    c_zz = (0.5 * (c_zz + c_zz.transpose())).eval();
+    // Its positive part only (a lag covariance need not be positive definite): directions
+    // of z without structure at the lag explain nothing.
+    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eigen(c_zz);
+    const double largest = eigen.eigenvalues().maxCoeff();
+    for (int e = 0; e < 4; ++e) {
+      const double lambda = eigen.eigenvalues()[e];
+      if (lambda > 1e-9 * largest) {
+        const double along = eigen.eigenvectors().col(e).dot(c_rz);
+        s.residual_lag -= along * along / lambda;
+      }
+    }
     s.residual_variance = total.rsq[f] / n_pairs - 0.25 * (r_mean1 + r_mean2) * (r_mean1 + r_mean2);
     const double mean1 = total.c1[f] / n_pairs, mean2 = total.c2[f] / n_pairs;
     const double mean = 0.5 * (mean1 + mean2);
