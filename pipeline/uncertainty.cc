@@ -319,33 +319,23 @@ double RmsRadius(const std::vector<Eigen::Vector3d>& points) {
 
 }  // namespace
 
-bool UndeterminedPoses(const std::vector<Frame>& frames,
-                       const CandidateSet& candidates,
-                       const std::vector<Eigen::Isometry3d>& frame_from_world,
-                       const std::vector<Mask>& masks,
-                       const StreamContext& context,
-                       double max_error_voxels,
-                       std::vector<UndeterminedPose>* undetermined,
-                       std::string* why,
-                       std::vector<double>* error_voxels) {
+namespace {
+
+// UndeterminedPoses's judgement on `subset` of the candidates, `fraction` of them (its
+// covariance scaled by it to all of them).
+bool JudgeDetermination(const std::vector<Frame>& frames,
+                        const CandidateSet& subset,
+                        double fraction,
+                        const std::vector<Eigen::Isometry3d>& frame_from_world,
+                        const std::vector<Mask>& masks,
+                        const StreamContext& context,
+                        double max_error_voxels,
+                        std::vector<UndeterminedPose>* undetermined,
+                        std::string* why,
+                        std::vector<double>* error_voxels) {
   const int m = static_cast<int>(frames.size());
   undetermined->clear();
   if (error_voxels != nullptr) error_voxels->clear();
-  // Every other row and plane: the estimate costs a pass of 7 samples per observation on
-  // the reference sampler, and an order of magnitude is all this check needs.
-  CandidateSet quarter;
-  quarter.grid = candidates.grid;
-  quarter.num_frames = candidates.num_frames;
-  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
-  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
-    const int64_t l = candidates.voxel[v];
-    if ((l / nx) % ny % 2 == 0 && l / (nx * ny) % 2 == 0) {
-      quarter.voxel.push_back(l);
-      quarter.observers.push_back(candidates.observers[v]);
-    }
-  }
-  const double fraction = static_cast<double>(quarter.num_voxels()) /
-                          std::max<int64_t>(1, candidates.num_voxels());
   std::vector<double> radius(m), voxel(m);
   for (int i = 0; i < m; ++i) {
     radius[i] = std::max(RmsRadius(FieldOfViewPoints(masks[i], frames[i].geometry())),
@@ -354,7 +344,7 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
   }
   PoseUncertainty uncertainty;
   Eigen::MatrixXd a;
-  if (!EstimatePoseUncertainty(frames, quarter, frame_from_world, masks, context, &uncertainty,
+  if (!EstimatePoseUncertainty(frames, subset, frame_from_world, masks, context, &uncertainty,
                                why, &a)) {
     if (a.size() == 0) return false;  // not measured: too few observations
     // Not positive definite: each motion along which the curvature is not positive names the
@@ -408,6 +398,49 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
                      return x.error_voxels > y.error_voxels;
                    });
   return true;
+}
+
+}  // namespace
+
+bool UndeterminedPoses(const std::vector<Frame>& frames,
+                       const CandidateSet& candidates,
+                       const std::vector<Eigen::Isometry3d>& frame_from_world,
+                       const std::vector<Mask>& masks,
+                       const StreamContext& context,
+                       double max_error_voxels,
+                       std::vector<UndeterminedPose>* undetermined,
+                       std::string* why,
+                       std::vector<double>* error_voxels) {
+  // A quarter of the cubes the gradient's covariance is clustered in (kClusterVoxels on a
+  // side; those whose cube indices sum to a multiple of 4, spread evenly): the estimate costs
+  // a pass of 7 samples per observation on the reference sampler, and an order of magnitude
+  // is all this check needs. Whole cubes, so that the clusters stay what they are (thinning
+  // rows inside them made the covariance 20 times too large on a wide-protocol sequence).
+  CandidateSet quarter;
+  quarter.grid = candidates.grid;
+  quarter.num_frames = candidates.num_frames;
+  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
+  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+    const int64_t l = candidates.voxel[v];
+    const int64_t cube_sum = (l % nx) / kClusterVoxels + (l / nx) % ny / kClusterVoxels +
+                             l / (nx * ny) / kClusterVoxels;
+    if (cube_sum % 4 == 0) {
+      quarter.voxel.push_back(l);
+      quarter.observers.push_back(candidates.observers[v]);
+    }
+  }
+  const double fraction = static_cast<double>(quarter.num_voxels()) /
+                          std::max<int64_t>(1, candidates.num_voxels());
+  if (JudgeDetermination(frames, quarter, fraction, frame_from_world, masks, context,
+                         max_error_voxels, undetermined, why, error_voxels) &&
+      undetermined->empty()) {
+    return true;
+  }
+  // Where the quarter finds a pose undetermined (or cannot judge), all of the voxels judge: a
+  // weak direction of a featureless frame (the chest CT's heart) can curve up too little for
+  // a quarter of its voxels to show it above their noise.
+  return JudgeDetermination(frames, candidates, 1.0, frame_from_world, masks, context,
+                            max_error_voxels, undetermined, why, error_voxels);
 }
 
 std::string UndeterminedPhrase(const std::vector<UndeterminedPose>& undetermined) {

@@ -350,6 +350,14 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
   if (!dsr::StructureSummary(result.frame_structure).empty()) {
     std::printf("dsr_register: %s\n", dsr::StructureSummary(result.frame_structure).c_str());
   }
+  if (!result.pose_error_voxels.empty()) {
+    const auto worst =
+        std::max_element(result.pose_error_voxels.begin(), result.pose_error_voxels.end());
+    std::printf("dsr_register: determination check (docs/design.md 8.7): the image noise puts "
+                "at most about %.2g voxels of error on a pose (frame %d; predicted from a "
+                "quarter of the voxels)\n",
+                *worst, static_cast<int>(worst - result.pose_error_voxels.begin()));
+  }
   if (!dsr::PresetSummary().empty()) std::printf("dsr_register: %s\n", dsr::PresetSummary().c_str());
   if (!result.photometric_choice.empty()) {
     std::printf("dsr_register: photometric model %s\n",
