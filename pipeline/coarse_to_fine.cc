@@ -525,8 +525,8 @@ bool CoarseToFine::AutoPhotometricUndecided() const {
          !affine_ && ModeEstimatesPhotometric(options_.mode);
 }
 
-CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& frames) {
-  if (!AutoPhotometricUndecided() || !solved_) return Next::kGoOn;
+void CoarseToFine::DetectBrightness(const std::vector<Frame>& frames) {
+  if (!AutoPhotometricUndecided() || !solved_) return;
   // At the final poses, once every check passed (at a coarse level, or at poses a check
   // refuses, the estimates also explain whatever is not yet in line: on the phantom's paper
   // protocol the coarsest level's changed intensities by up to 3.4 % of their spread where
@@ -534,7 +534,7 @@ CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& fram
   std::vector<Photometric> estimate;
   double largest = 0.0;
   int worst = 0;
-  if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return Next::kGoOn;
+  if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return;
   result_->photometric_detected = largest > kBrightnessTolerance;
   std::ostringstream why;
   why.precision(2);
@@ -544,7 +544,6 @@ CoarseToFine::Next CoarseToFine::DetectBrightness(const std::vector<Frame>& fram
       << "% of their spread, frame " << worst << "; the limit is "
       << 100.0 * kBrightnessTolerance << "%)";
   result_->photometric_choice = why.str();
-  return Next::kGoOn;
 }
 
 bool CoarseToFine::StructureExplainedByBrightness(int level,
@@ -704,7 +703,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
       return Diverged(0, why.str(), {});
     }
   }
-  if (DetectBrightness(frames) == Next::kError) return Next::kError;
+  DetectBrightness(frames);
   EstimateUncertainty(frames, final_candidates, poses);
   return Next::kGoOn;
 }

@@ -114,7 +114,7 @@ class CoarseToFine {
   // whether some frame's brightness differs from frame 0's (kBrightnessTolerance); the
   // pipeline then registers again with affine from there (RegisterScaled), and every later
   // round follows the choice.
-  Next DetectBrightness(const std::vector<Frame>& frames);
+  void DetectBrightness(const std::vector<Frame>& frames);
   // With photometric kAuto, undecided, when the structure check flags frames at a level:
   // true (and the solves estimate gains and offsets from here on, recorded in the result)
   // when every frame lines up once the gains and offsets estimated at these poses correct

@@ -406,9 +406,12 @@ bool RegisterScaled(const std::vector<Image>& images,
     CoarseToFine levels(images, masks, options, options.max_recoveries > 0,
                         recovery.misfit_exempt, search_frames, &pyramids);
     if (!levels.Run(poses, result, error)) return false;
-    if (result->usable && result->photometric_detected && !affine_round) {
-      // Brightness differs between frames: once more with gains and offsets, from the poses
-      // reached (not a recovery: nothing was wrong with them).
+    if (result->usable && result->photometric_detected && result->photometric.empty() &&
+        !affine_round) {
+      // Brightness differs between frames, found at the final poses of a round that ran
+      // without gains and offsets: once more with them, from the poses reached (not a
+      // recovery: nothing was wrong with them). A round that switched to them at a level
+      // (the structure check's second chance) needs none.
       affine_round = true;
       poses = result->frame_from_world;
       --round;
