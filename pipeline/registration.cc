@@ -424,6 +424,31 @@ bool RegisterScaled(const std::vector<Image>& images,
   }
   ResultFromLocal(pyramids.centre, result);
   result->seconds = SecondsSince(start);
+  if (!result->usable && options.photometric == PhotometricModel::kAuto &&
+      !result->photometric_detected && ModeEstimatesPhotometric(options.mode)) {
+    // The photometric model's last resort: without gains and offsets the registration failed
+    // (frames of different brightness can slide or settle nowhere before any level lines
+    // them up, and then no detection runs). Once more with them from the same start; its
+    // result stands only if it passes every check, which guard it as they guard the first.
+    RegistrationOptions affine = options;
+    affine.photometric = PhotometricModel::kAffine;
+    RegistrationResult second;
+    if (!RegisterScaled(images, masks, initial_frame_from_world, affine, search_images, start,
+                        &second, error)) {
+      return false;
+    }
+    second.init_seconds += result->init_seconds;
+    second.total_iterations += result->total_iterations;
+    second.photometric_detected = second.usable;
+    second.photometric_choice =
+        std::string(second.usable ? "affine" : "none") +
+        " (photometric=auto: without gains and offsets the registration failed: " +
+        result->failure + (second.usable ? "; with them it passed every check)" : ")");
+    if (!second.usable) {
+      second.failure = result->failure + "; with gains and offsets estimated too: " + second.failure;
+    }
+    *result = std::move(second);
+  }
   return true;
 }
 
