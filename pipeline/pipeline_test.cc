@@ -376,6 +376,47 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
             10.0 * errors.tre_max_mm);
 }
 
+// photometric=auto (the tools' default): frames seen through gains and offsets are found to
+// differ, and the registration estimates them; the same frames without them are registered
+// without (the choice and its reason in the result).
+TEST(Pipeline, AutoPhotometricEstimatesGainsWhereTheFramesDiffer) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  testing_problems::SequenceOptions so;
+  so.num_frames = 4;
+  so.size = 20;
+  so.lattice = true;
+  so.seed = 3;
+  const testing_problems::TestSequence s = testing_problems::MakeSequence(so);
+  const double g[] = {1.0, 1.25, 0.8, 1.1}, b[] = {0.0, 12.0, -9.0, 5.0};
+  std::vector<Image> images = s.images;
+  for (int i = 0; i < so.num_frames; ++i) {
+    for (float& v : images[i].voxels) v = static_cast<float>(g[i] * v + b[i]);
+  }
+  const std::vector<Eigen::Isometry3d> start =
+      testing_problems::Perturbed(s.ground_truth, 0.03, 1.0, 7);
+  RegistrationOptions o = Options("dsr");
+  o.photometric = PhotometricModel::kAuto;
+  RegistrationResult result;
+  std::string error;
+  ASSERT_TRUE(Register(images, s.masks, start, o, &result, &error)) << error;
+  ASSERT_TRUE(result.usable) << result.failure;
+  EXPECT_TRUE(result.photometric_detected);
+  EXPECT_EQ(result.photometric_choice.find("affine (photometric=auto"), 0u)
+      << result.photometric_choice;
+  ASSERT_EQ(result.photometric.size(), 4u);
+  for (int i = 1; i < so.num_frames; ++i) {
+    EXPECT_NEAR(result.photometric[i].gain(), 1.0 / g[i], 1e-3) << i;
+  }
+  EXPECT_LT(ComparePoses(result.frame_from_world, s.ground_truth, s.masks).tre_max_mm, 0.02);
+  RegistrationResult plain;
+  ASSERT_TRUE(Register(s.images, s.masks, start, o, &plain, &error)) << error;
+  ASSERT_TRUE(plain.usable) << plain.failure;
+  EXPECT_FALSE(plain.photometric_detected);
+  EXPECT_EQ(plain.photometric_choice.find("none (photometric=auto"), 0u)
+      << plain.photometric_choice;
+  EXPECT_TRUE(plain.photometric.empty());
+}
+
 // --intensity_transform=sqrt (model/intensity_transform.h): the solves register sqrt(c I),
 // the result's gains, offsets, misfits and DBA intensities are on the input's grey levels.
 // Noise-free lattice frames seen through gains: T keeps a gain a gain, so the truth is
