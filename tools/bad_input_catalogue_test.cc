@@ -279,6 +279,7 @@ TEST_F(BadInputCatalogue, FlagValues) {
   Register(base + " --max_structure_fraction=1", "--max_structure_fraction=1: must be in [0, 1)");
   Register(base + " --max_structure_fraction=nan", "--max_structure_fraction");
   Register(base + " --preset=heart", "--preset=heart: must be none or echo");
+  Register(base + " --max_pose_error_voxels=-1", "--max_pose_error_voxels=-1: must be >= 0");
   Register(base + " --photometric=gamma", "--photometric=gamma: must be none, affine or auto");
   Register(base + " --max_pair_mismatch_ratio=1", "--max_pair_mismatch_ratio");
   Register(base + " --max_pair_mismatch_ratio=inf", "--max_pair_mismatch_ratio");

@@ -146,6 +146,7 @@ REGISTER = [
     (FRAMES, MASKS, {"max_structure_fraction": 1}),
     (FRAMES, MASKS, {"max_structure_fraction": "nan"}),
     (FRAMES, MASKS, {"preset": "heart"}),
+    (FRAMES, MASKS, {"max_pose_error_voxels": -1}),
     (FRAMES, MASKS, {"photometric": "gamma"}),
     (FRAMES, MASKS, {"max_pair_mismatch_ratio": 1}),
     (FRAMES, MASKS, {"max_pair_mismatch_ratio": "inf"}),
