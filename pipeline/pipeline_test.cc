@@ -301,21 +301,39 @@ TEST(Pipeline, DbaIntensitiesFollowFrame0InTheMeanGauge) {
 // rebuilds) and return them on frame 0's scale with the poses; without, the result carries
 // none. The frames sample an analytic volume (test_problems.h), so nothing is clipped (the
 // simulator clamps to 0..255, which biases every gain against a clipped frame 0).
-TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
-  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+// Four lattice-aligned frames (the truth is the exact minimum, test_problems.h), frame i seen
+// through gain kGain[i] and offset kOffset[i], and a start perturbed from the truth.
+constexpr double kGain[] = {1.0, 1.25, 0.8, 1.1}, kOffset[] = {0.0, 12.0, -9.0, 5.0};
+struct GainedSequence {
+  testing_problems::TestSequence s;
+  std::vector<Image> images;  // s.images through the gains and offsets
+  std::vector<Eigen::Isometry3d> start;
+};
+GainedSequence Gained() {
   testing_problems::SequenceOptions so;
   so.num_frames = 4;
   so.size = 20;
-  so.lattice = true;  // the truth is the exact minimum (test_problems.h)
+  so.lattice = true;
   so.seed = 3;
-  const testing_problems::TestSequence s = testing_problems::MakeSequence(so);
-  const double g[] = {1.0, 1.25, 0.8, 1.1}, b[] = {0.0, 12.0, -9.0, 5.0};
-  std::vector<Image> images = s.images;
+  GainedSequence out;
+  out.s = testing_problems::MakeSequence(so);
+  out.images = out.s.images;
   for (int i = 0; i < so.num_frames; ++i) {
-    for (float& v : images[i].voxels) v = static_cast<float>(g[i] * v + b[i]);
+    for (float& v : out.images[i].voxels) v = static_cast<float>(kGain[i] * v + kOffset[i]);
   }
-  const std::vector<Eigen::Isometry3d> start =
-      testing_problems::Perturbed(s.ground_truth, 0.03, 1.0, 7);
+  out.start = testing_problems::Perturbed(out.s.ground_truth, 0.03, 1.0, 7);
+  return out;
+}
+
+TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const GainedSequence gained = Gained();
+  const testing_problems::TestSequence& s = gained.s;
+  const std::vector<Image>& images = gained.images;
+  const std::vector<Eigen::Isometry3d>& start = gained.start;
+  const double* g = kGain;
+  const double* b = kOffset;
+  const int num_frames = 4;
   RegistrationOptions o = Options("dba");
   o.photometric = PhotometricModel::kAffine;
   // At the exact minimum the misfits are float round-off, whose ratios mean nothing.
@@ -327,7 +345,7 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
   ASSERT_EQ(result.photometric.size(), 4u);
   EXPECT_EQ(result.photometric[0].log_gain, 0.0);
   EXPECT_EQ(result.photometric[0].offset, 0.0);
-  for (int i = 1; i < so.num_frames; ++i) {
+  for (int i = 1; i < num_frames; ++i) {
     // Frame i's intensities on frame 0's scale: (I_i - b_i) / g_i.
     const double gain = 1.0 / g[i], offset = -b[i] / g[i];
     if (getenv("DSR_TEST_LOG") != nullptr) {
@@ -350,7 +368,7 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
   ASSERT_TRUE(Register(tiny, s.masks, start, o, &scaled, &error)) << error;
   ASSERT_TRUE(scaled.usable) << scaled.failure;
   ASSERT_EQ(scaled.photometric.size(), 4u);
-  for (int i = 1; i < so.num_frames; ++i) {
+  for (int i = 1; i < num_frames; ++i) {
     EXPECT_NEAR(scaled.photometric[i].gain(), 1.0 / g[i], 1e-4 / g[i]) << i;
     EXPECT_NEAR(scaled.photometric[i].offset, std::ldexp(-b[i] / g[i], -20), std::ldexp(0.01, -20))
         << i;
@@ -381,19 +399,10 @@ TEST(Pipeline, DbaWithPhotometricParametersRecoversGainsAndOffsets) {
 // without (the choice and its reason in the result).
 TEST(Pipeline, AutoPhotometricEstimatesGainsWhereTheFramesDiffer) {
   DSR_SKIP_HEAVY_UNDER_SANITIZER();
-  testing_problems::SequenceOptions so;
-  so.num_frames = 4;
-  so.size = 20;
-  so.lattice = true;
-  so.seed = 3;
-  const testing_problems::TestSequence s = testing_problems::MakeSequence(so);
-  const double g[] = {1.0, 1.25, 0.8, 1.1}, b[] = {0.0, 12.0, -9.0, 5.0};
-  std::vector<Image> images = s.images;
-  for (int i = 0; i < so.num_frames; ++i) {
-    for (float& v : images[i].voxels) v = static_cast<float>(g[i] * v + b[i]);
-  }
-  const std::vector<Eigen::Isometry3d> start =
-      testing_problems::Perturbed(s.ground_truth, 0.03, 1.0, 7);
+  const GainedSequence gained = Gained();
+  const testing_problems::TestSequence& s = gained.s;
+  const std::vector<Image>& images = gained.images;
+  const std::vector<Eigen::Isometry3d>& start = gained.start;
   RegistrationOptions o = Options("dsr");
   o.photometric = PhotometricModel::kAuto;
   RegistrationResult result;
@@ -404,8 +413,8 @@ TEST(Pipeline, AutoPhotometricEstimatesGainsWhereTheFramesDiffer) {
   EXPECT_EQ(result.photometric_choice.find("affine (photometric=auto"), 0u)
       << result.photometric_choice;
   ASSERT_EQ(result.photometric.size(), 4u);
-  for (int i = 1; i < so.num_frames; ++i) {
-    EXPECT_NEAR(result.photometric[i].gain(), 1.0 / g[i], 1e-3) << i;
+  for (int i = 1; i < 4; ++i) {
+    EXPECT_NEAR(result.photometric[i].gain(), 1.0 / kGain[i], 1e-3) << i;
   }
   EXPECT_LT(ComparePoses(result.frame_from_world, s.ground_truth, s.masks).tre_max_mm, 0.02);
   RegistrationResult plain;
