@@ -135,6 +135,24 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
   return out;
 }
 
+CandidateSet CandidatesInCubes(const CandidateSet& candidates, int cube, int keep_one_in) {
+  CHECK_GE(cube, 1);
+  CHECK_GE(keep_one_in, 1);
+  CandidateSet out;
+  out.grid = candidates.grid;
+  out.num_frames = candidates.num_frames;
+  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
+  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+    const int64_t l = candidates.voxel[v];
+    const int64_t cube_sum = (l % nx) / cube + (l / nx) % ny / cube + l / (nx * ny) / cube;
+    if (cube_sum % keep_one_in == 0) {
+      out.voxel.push_back(l);
+      out.observers.push_back(candidates.observers[v]);
+    }
+  }
+  return out;
+}
+
 Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
   const int m = candidates.num_frames;
   Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);

@@ -72,6 +72,13 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
                              const ImageGeometry& grid,
                              int margin_cells);
 
+// The candidates in every `keep_one_in`-th cube of `cube` voxels on a side: those whose cube
+// indices (along x, y and z) sum to a multiple of keep_one_in, spread evenly over the grid.
+// Whole cubes, so that statistics clustered in such cubes (the pose uncertainty's) keep
+// their clusters; about 1 / keep_one_in of the voxels, for estimates that need far fewer
+// observations than the solves.
+CandidateSet CandidatesInCubes(const CandidateSet& candidates, int cube, int keep_one_in);
+
 // Number of candidate voxels shared by each pair of frames (m x m, symmetric; diagonal =
 // voxels each frame is a candidate for). Used to report disconnected frames.
 Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates);

@@ -196,6 +196,29 @@ TEST(BuildCandidates, KeepsVoxelsWithTwoCandidateObservers) {
   EXPECT_EQ(c1.num_voxels(), 6 * 11 * 11);
 }
 
+TEST(CandidatesInCubes, KeepsWholeCubesSpreadEvenly) {
+  // Every voxel of a 16 x 8 x 8 grid, as cubes of 4: 4 x 2 x 2 cubes, those whose indices
+  // sum to a multiple of 4 (0+0+0, 3+1+0, 3+0+1, 2+1+1) kept whole.
+  CandidateSet all;
+  all.grid.size = Eigen::Vector3i(16, 8, 8);
+  all.num_frames = 2;
+  for (int64_t l = 0; l < 16 * 8 * 8; ++l) {
+    all.voxel.push_back(l);
+    all.observers.push_back(static_cast<uint32_t>(1 + l % 3));
+  }
+  const CandidateSet kept = CandidatesInCubes(all, 4, 4);
+  EXPECT_EQ(kept.num_voxels(), 4 * 64);
+  EXPECT_EQ(kept.num_frames, 2);
+  for (int64_t v = 0; v < kept.num_voxels(); ++v) {
+    const int64_t l = kept.voxel[v];
+    const int64_t x = l % 16, y = l / 16 % 8, z = l / 128;
+    EXPECT_EQ((x / 4 + y / 4 + z / 4) % 4, 0) << l;
+    EXPECT_EQ(kept.observers[v], static_cast<uint32_t>(1 + l % 3));  // carried along
+    if (v > 0) EXPECT_GT(l, kept.voxel[v - 1]);  // still increasing
+  }
+  EXPECT_EQ(CandidatesInCubes(all, 4, 1).num_voxels(), all.num_voxels());
+}
+
 TEST(CheckConnected, NamesFramesWithoutOverlap) {
   TwoFrames t = MakeTwoFrames(1, 2);
   t.frames.push_back(UniformFrame(3.0f));

@@ -183,11 +183,13 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   if (options_.photometric == PhotometricModel::kAuto && result->photometric_detected) UseAffine();
   poses_ = start_poses;
   solve_world_ = Eigen::Isometry3d::Identity();
+  unjudged_ = false;
   photometric_.clear();
   result->photometric.clear();
   result->usable = true;
   result->flagged_frames.clear();
   result->flagged_by_misfit = false;
+  result->poses_undetermined = false;
   result->failure.clear();
   for (int level = pyramids_->num_levels - 1; level >= 0; --level) {
     std::vector<Frame> frames;
@@ -385,6 +387,23 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
     determined_checked_ = true;
   }
   solve_world_ = world;
+  if (rebuild == 0 && unjudged_) {
+    // The coarser level's check could not judge some frames (their structure does not reach
+    // as far as its lag, 2 sqrt 3 of its voxels: the phantom's at 16 mm); this level's finer
+    // frames judge the poses it reached before its solve is paid for, so that a frame in a
+    // wrong minimum is re-placed after the coarser level, where that is cheap.
+    unjudged_ = false;
+    const std::vector<FrameStructure> structure =
+        FrameStructures(frames, *candidates, poses, stream_, photometric_);
+    if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
+        !StructureExplainedByBrightness(level, frames, *candidates)) {
+      return Diverged(last_level,
+                      why + " (judged on pyramid level " + std::to_string(level) +
+                          "'s frames before its solve)",
+                      StructureOutliers(structure, options_.max_structure_fraction,
+                                        &misfit_exempt_));
+    }
+  }
   return Next::kGoOn;
 }
 
@@ -453,6 +472,9 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
   return Next::kGoOn;
 }
 
+// The cubes EstimateBrightness keeps a quarter of (voxels on a side).
+constexpr int kBrightnessCube = 8;
+
 void CoarseToFine::UseAffine() {
   if (affine_) return;
   RegistrationOptions affine = options_;
@@ -482,10 +504,14 @@ bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
                          PanoramaSampling::kAllPhases)) {
     return false;  // no grid at these poses: the level's checks say why
   }
+  // A quarter of the voxels, in whole cubes spread over the overlap: two parameters per
+  // frame need far fewer observations than the poses.
   SolveReport report;
   std::string solve_error;
-  if (!SolvePhotometricAtPoses(frames, BuildCandidates(frames, poses, grid, 0), poses, dsr,
-                               &report, &solve_error) ||
+  if (!SolvePhotometricAtPoses(frames,
+                               CandidatesInCubes(BuildCandidates(frames, poses, grid, 0),
+                                                 kBrightnessCube, 4),
+                               poses, dsr, &report, &solve_error) ||
       !report.usable) {
     return false;
   }
@@ -582,16 +608,29 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   // re-placing it and starting again costs little. The misfits are those of the last
   // solve's candidates (at the poses it reached, up to the rebuild tolerance).
   if (!check_every_level_ || !solved_) return Next::kGoOn;
-  const std::vector<double> misfits =
-      FrameMisfits(frames, last_candidates_, SolvePoses(), stream_, photometric_);
   std::string why;
-  if (MisfitOutlier(misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
-    result_->flagged_by_misfit = true;
-    return Diverged(level, why, MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_));
+  if (options_.max_misfit_ratio > 0.0) {
+    const std::vector<double> misfits =
+        FrameMisfits(frames, last_candidates_, SolvePoses(), stream_, photometric_);
+    if (MisfitOutlier(misfits, options_.max_misfit_ratio, &why, &misfit_exempt_)) {
+      result_->flagged_by_misfit = true;
+      return Diverged(level, why,
+                      MisfitOutliers(misfits, options_.max_misfit_ratio, &misfit_exempt_));
+    }
   }
   if (options_.max_structure_fraction > 0.0) {
     const std::vector<FrameStructure> structure =
         FrameStructures(frames, last_candidates_, SolvePoses(), stream_, photometric_);
+    unjudged_ = std::any_of(structure.begin(), structure.end(),
+                            [](const FrameStructure& f) { return !f.judged; });
+    if (VLOG_IS_ON(1)) {
+      for (size_t f = 0; f < structure.size(); ++f) {
+        VLOG(1) << "level " << level << " structure: frame " << f << " fraction "
+                << structure[f].fraction << " significance " << structure[f].significance
+                << (structure[f].judged ? "" : " (not judged)") << " pairs "
+                << structure[f].pairs;
+      }
+    }
     if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
         !StructureExplainedByBrightness(level, frames, last_candidates_)) {
       return Diverged(level, why,
@@ -600,7 +639,8 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
     }
   }
   std::vector<int> flagged;
-  if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
+  if (options_.max_pair_mismatch_ratio > 0.0 &&
+      PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(level, why, flagged);
   }
@@ -683,7 +723,8 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
                                       &misfit_exempt_));
   }
   std::vector<int> flagged;
-  if (PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
+  if (options_.max_pair_mismatch_ratio > 0.0 &&
+      PairDisagreement(PairMismatches(search_frames_, poses_, options_.solve.num_threads), m_,
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(0, why, flagged);
   }
@@ -700,6 +741,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
       std::ostringstream why;
       why << UndeterminedPhrase(undetermined)
           << " (max_pose_error_voxels=" << options_.max_pose_error_voxels << ")";
+      result_->poses_undetermined = true;
       return Diverged(0, why.str(), {});
     }
   }

@@ -180,6 +180,9 @@ class CoarseToFine {
   std::vector<Photometric> photometric_;
   DivergenceGuard guard_;
   bool determined_checked_ = false;
+  // The last coarse level's structure check could not judge some frame (too smooth at its
+  // lag): the next level judges the poses it starts from (BuildLevelProblem).
+  bool unjudged_ = false;
   // The current level's solve options, and its last solve: candidates, how far it moved
   // the frames (largest, and per frame), whether any solve ran, and the rebuilds allowed.
   SolveOptions level_solve_;

@@ -655,6 +655,17 @@ TEST(Pipeline, RefusesPosesTheDataDoNotDetermine) {
       << result.failure;
   EXPECT_NE(result.failure.find("'s rotation"), std::string::npos) << result.failure;
   EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
+  EXPECT_TRUE(result.poses_undetermined);
+  // The tools' default photometric model does not try gains and offsets as a last resort
+  // here (they would not fix it, and the check does not run with them: the sphere passed).
+  RegistrationOptions automatic = Options("dsr");
+  automatic.photometric = PhotometricModel::kAuto;
+  ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, automatic, &result, &error))
+      << error;
+  EXPECT_FALSE(result.usable);
+  EXPECT_TRUE(result.poses_undetermined);
+  EXPECT_NE(result.failure.find("the data do not determine frame"), std::string::npos)
+      << result.failure;
   // Off, the same run returns poses.
   RegistrationOptions off = Options("dsr");
   off.max_pose_error_voxels = 0.0;

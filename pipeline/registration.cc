@@ -425,11 +425,14 @@ bool RegisterScaled(const std::vector<Image>& images,
   ResultFromLocal(pyramids.centre, result);
   result->seconds = SecondsSince(start);
   if (!result->usable && options.photometric == PhotometricModel::kAuto &&
-      !result->photometric_detected && ModeEstimatesPhotometric(options.mode)) {
+      !result->photometric_detected && !result->poses_undetermined &&
+      ModeEstimatesPhotometric(options.mode)) {
     // The photometric model's last resort: without gains and offsets the registration failed
     // (frames of different brightness can slide or settle nowhere before any level lines
     // them up, and then no detection runs). Once more with them from the same start; its
     // result stands only if it passes every check, which guard it as they guard the first.
+    // Not where the data do not determine the poses: gains and offsets would not fix that,
+    // and the determination check does not run with them (a symmetric object would pass).
     RegistrationOptions affine = options;
     affine.photometric = PhotometricModel::kAffine;
     RegistrationResult second;

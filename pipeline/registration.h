@@ -49,10 +49,13 @@ enum class InitialPoses {
 // Which photometric model the solves of modes dsr and dba estimate (docs/design.md section
 // 2.8): none, or per frame a gain and an offset (frame i observes the panorama as
 // exp(log_gain_i) I_i + offset_i; frame 0 the gauge, 1 and 0).
-// kAuto: none, unless the gains and offsets estimated at the poses of the first level solved
-// (the coarsest) show brightness differences between frames (BrightnessDiffers); then
-// affine from that level on, in every later round too (RegistrationResult::photometric_choice
-// says which, and why).
+// kAuto: none, unless brightness differs between the frames; then affine (docs/design.md
+// 2.8). Detected three ways: at the final poses of the first round that passes every check
+// (the gains and offsets estimated there change some frame's intensities by more than
+// kBrightnessTolerance; one more round with them follows from those poses); at a level where
+// the structure check flags frames that the estimated gains and offsets line up (affine from
+// that level on); and, when the registration fails without them, once more with them from
+// the same start. RegistrationResult::photometric_choice says which model, and why.
 enum class PhotometricModel {
   kNone,
   kAffine,
@@ -245,6 +248,9 @@ struct RegistrationResult {
   // voxels (UndeterminedPoses); empty when it did not run or could not judge.
   std::vector<double> pose_error_voxels;
   std::string failure;        // why not usable
+  // Not usable because the data do not determine some pose (the determination check): no
+  // start, recovery or photometric model would fix it.
+  bool poses_undetermined = false;
   // With RegistrationOptions::photometric kAuto: whether brightness differences were
   // detected (the solves then estimate gains and offsets), and a line saying which model the
   // solves used and why (empty when no detection ran).

@@ -19,7 +19,9 @@
 // the gain and the amount of flat or dark tissue cancel), and a sizeable fraction of
 // (1 - 1/k)^2 2 (1 - rho(d)) for a frame displaced by d, rho the anatomy's autocorrelation.
 // Both are centred: a residual that is the same everywhere is a brightness offset between
-// frames, not anatomy out of line.
+// frames, not anatomy out of line. For the same reason a_i is taken less the part that a
+// brightness field explains, a gain of frame i that varies linearly over it (regressors
+// mu [1, x, y, z] at the lag; a gain, or attenuation with depth).
 // No noise level is estimated: the lag removes it. What remains at correct poses is the
 // model's own error (trilinear resampling, brightness the photometric model does not have),
 // a small fraction of the structure.

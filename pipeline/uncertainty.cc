@@ -317,10 +317,6 @@ double RmsRadius(const std::vector<Eigen::Vector3d>& points) {
   return std::sqrt(sum / std::max<size_t>(1, points.size()));
 }
 
-}  // namespace
-
-namespace {
-
 // UndeterminedPoses's judgement on `subset` of the candidates, `fraction` of them (its
 // covariance scaled by it to all of them).
 bool JudgeDetermination(const std::vector<Frame>& frames,
@@ -416,19 +412,7 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
   // a pass of 7 samples per observation on the reference sampler, and an order of magnitude
   // is all this check needs. Whole cubes, so that the clusters stay what they are (thinning
   // rows inside them made the covariance 20 times too large on a wide-protocol sequence).
-  CandidateSet quarter;
-  quarter.grid = candidates.grid;
-  quarter.num_frames = candidates.num_frames;
-  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
-  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
-    const int64_t l = candidates.voxel[v];
-    const int64_t cube_sum = (l % nx) / kClusterVoxels + (l / nx) % ny / kClusterVoxels +
-                             l / (nx * ny) / kClusterVoxels;
-    if (cube_sum % 4 == 0) {
-      quarter.voxel.push_back(l);
-      quarter.observers.push_back(candidates.observers[v]);
-    }
-  }
+  const CandidateSet quarter = CandidatesInCubes(candidates, kClusterVoxels, 4);
   const double fraction = static_cast<double>(quarter.num_voxels()) /
                           std::max<int64_t>(1, candidates.num_voxels());
   if (JudgeDetermination(frames, quarter, fraction, frame_from_world, masks, context,

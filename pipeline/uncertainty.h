@@ -74,8 +74,9 @@ struct UndeterminedPose {
 
 // The determination check of the final poses (docs/design.md 8.7): the estimate above on
 // a quarter of the candidate voxels, in whole cubes of the gradient's clusters (its
-// covariance scaled to all of them), and every frame whose predicted error exceeds max_error_voxels, or whose
-// curvature is not positive, worst first. True when it could judge (false, with `why`, when
+// covariance scaled to all of them; on all of them where the quarter finds a frame
+// undetermined or cannot judge), and every frame whose predicted error exceeds
+// max_error_voxels, or whose curvature is not positive, worst first. True when it could judge (false, with `why`, when
 // too few observations are left for a noise estimate). `error_voxels` (may be null): every
 // frame's predicted error in its voxels where the curvature is positive (frame 0: 0).
 bool UndeterminedPoses(const std::vector<Frame>& frames,
