@@ -180,7 +180,10 @@ class Result:
 
     ``poses``: one 4x4 array per frame (world = frame 0 -> frame i; frame 0's is the
     identity). ``summary``: mode, iterations, final cost, seconds, termination, recoveries,
-    and ``field_of_view``: which rule made the masks of images given without one.
+    ``field_of_view``: which rule made the masks of images given without one;
+    ``structure_fraction`` and ``pose_error_voxels``: per frame, the structure and
+    determination checks' figures (docs/design.md 8.4, 8.7); ``photometric`` (with the
+    default ``photometric="auto"``): which model the solves used, and why.
     ``gain``/``offset`` (with ``photometric="affine"``): frame i's corrected intensity is
     gain * I_i + offset. ``covariance``/``predicted_tre_mm`` (with ``uncertainty=True``).
     """

@@ -229,6 +229,10 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
     }
     s["structure_fraction"] = fractions;  // per frame; None: too flat to judge
   }
+  if (!result.pose_error_voxels.empty()) {
+    // per frame: the determination check's predicted error, in the frame's voxels
+    s["pose_error_voxels"] = result.pose_error_voxels;
+  }
   if (!preset.empty()) s["preset"] = preset;
   if (!result.photometric_choice.empty()) {
     s["photometric"] = FieldPathsAsFlags(result.photometric_choice);

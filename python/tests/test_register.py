@@ -44,6 +44,10 @@ def test_register_from_files_writes_the_clis_poses_file_bit_for_bit(sequence, tm
         assert np.array_equal(ours, theirs)
     assert result.summary["mode"] == "dsr"
     assert result.summary["iterations"] > 0
+    # The checks' figures: every frame judged and lined up, every pose determined.
+    assert all(f is not None and f < 0.05 for f in result.summary["structure_fraction"])
+    assert len(result.summary["pose_error_voxels"]) == 3
+    assert all(0 <= e < 1 for e in result.summary["pose_error_voxels"])
     assert np.array_equal(result.poses[0], np.eye(4))
 
 
