@@ -354,8 +354,7 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
     const auto worst =
         std::max_element(result.pose_error_voxels.begin(), result.pose_error_voxels.end());
     std::printf("dsr_register: determination check (docs/design.md 8.7): the image noise puts "
-                "at most about %.2g voxels of error on a pose (frame %d; predicted from a "
-                "quarter of the voxels)\n",
+                "at most about %.2g voxels of error on a pose (frame %d)\n",
                 *worst, static_cast<int>(worst - result.pose_error_voxels.begin()));
   }
   if (!dsr::PresetSummary().empty()) std::printf("dsr_register: %s\n", dsr::PresetSummary().c_str());
