@@ -588,6 +588,14 @@ bool CoarseToFine::StructureExplainedByBrightness(int level,
   if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return false;
   const std::vector<FrameStructure> corrected =
       FrameStructures(frames, candidates, SolvePoses(), stream_, estimate);
+  if (VLOG_IS_ON(1)) {
+    for (size_t f = 0; f < corrected.size(); ++f) {
+      VLOG(1) << "level " << level << " structure with the estimated gains and offsets: frame "
+              << f << " fraction " << corrected[f].fraction << " significance "
+              << corrected[f].significance << " (gain " << estimate[f].gain() << ", offset "
+              << estimate[f].offset << ")";
+    }
+  }
   if (!StructureOutliers(corrected, options_.max_structure_fraction, &misfit_exempt_).empty()) {
     return false;
   }
@@ -731,7 +739,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // Poses the data do not fix (a symmetric object): refused without naming frames to
   // re-place, since no start would fix them either.
   if (options_.max_pose_error_voxels > 0.0 && ModeEstimatesPhotometric(options_.mode) &&
-      !affine_ && options_.loss.IsSquared()) {
+      (!affine_ || determination_with_gains_) && options_.loss.IsSquared()) {
     std::vector<UndeterminedPose> undetermined;
     std::string not_judged;
     if (UndeterminedPoses(frames, final_candidates, poses, masks_, stream_,

@@ -78,6 +78,11 @@ class CoarseToFine {
                const std::vector<Frame>& search_frames,
                Pyramids* pyramids);
 
+  // The determination check also with gains and offsets estimated (their corrections not
+  // applied to its noise estimate, which they can only inflate): for the photometric model's
+  // last resort after a refusal for undetermined poses (RegisterScaled).
+  void JudgeDeterminationWithGains() { determination_with_gains_ = true; }
+
   // Runs the round from `start_poses` (frame 0 = identity). With photometric parameters
   // they start at gain 1 and offset 0, each solve from the previous one's estimate, and end
   // in result->photometric. Returns false for bad input or set-up problems; a round that is
@@ -180,6 +185,7 @@ class CoarseToFine {
   std::vector<Photometric> photometric_;
   DivergenceGuard guard_;
   bool determined_checked_ = false;
+  bool determination_with_gains_ = false;
   // The last coarse level's structure check could not judge some frame (too smooth at its
   // lag): the next level judges the poses it starts from (BuildLevelProblem).
   bool unjudged_ = false;

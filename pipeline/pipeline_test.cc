@@ -656,8 +656,9 @@ TEST(Pipeline, RefusesPosesTheDataDoNotDetermine) {
   EXPECT_NE(result.failure.find("'s rotation"), std::string::npos) << result.failure;
   EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
   EXPECT_TRUE(result.poses_undetermined);
-  // The tools' default photometric model does not try gains and offsets as a last resort
-  // here (they would not fix it, and the check does not run with them: the sphere passed).
+  // The tools' default photometric model tries gains and offsets as a last resort, and the
+  // determination check judges that attempt too (it does not run with them otherwise: the
+  // sphere passed).
   RegistrationOptions automatic = Options("dsr");
   automatic.photometric = PhotometricModel::kAuto;
   ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, automatic, &result, &error))

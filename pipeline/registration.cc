@@ -350,7 +350,8 @@ bool RegisterScaled(const std::vector<Image>& images,
                     const std::vector<Image>* search_images,
                     std::chrono::steady_clock::time_point start,
                     RegistrationResult* result,
-                    std::string* error) {
+                    std::string* error,
+                    bool determination_with_gains = false) {
   const int m = static_cast<int>(images.size());
   // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
   std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
@@ -405,6 +406,7 @@ bool RegisterScaled(const std::vector<Image>& images,
   for (int round = 0;; ++round) {
     CoarseToFine levels(images, masks, options, options.max_recoveries > 0,
                         recovery.misfit_exempt, search_frames, &pyramids);
+    if (determination_with_gains) levels.JudgeDeterminationWithGains();
     if (!levels.Run(poses, result, error)) return false;
     if (result->usable && result->photometric_detected && result->photometric.empty() &&
         !affine_round) {
@@ -425,19 +427,22 @@ bool RegisterScaled(const std::vector<Image>& images,
   ResultFromLocal(pyramids.centre, result);
   result->seconds = SecondsSince(start);
   if (!result->usable && options.photometric == PhotometricModel::kAuto &&
-      !result->photometric_detected && !result->poses_undetermined &&
       ModeEstimatesPhotometric(options.mode)) {
-    // The photometric model's last resort: without gains and offsets the registration failed
-    // (frames of different brightness can slide or settle nowhere before any level lines
-    // them up, and then no detection runs). Once more with them from the same start; its
-    // result stands only if it passes every check, which guard it as they guard the first.
-    // Not where the data do not determine the poses: gains and offsets would not fix that,
-    // and the determination check does not run with them (a symmetric object would pass).
+    // The photometric model's last resort: the registration failed without gains and
+    // offsets, or took them on only later (at a level, or a round after a recovery had
+    // re-placed frames: a chest CT ultrasound-like sequence whose third round switched to
+    // them and failed). Frames of different brightness can slide, or settle nowhere, before
+    // any level lines them up. Once more with them from the same start; its result stands
+    // only if it passes every check, which guard it as they guard the first. After a
+    // refusal for undetermined poses the determination check judges it too (it does not
+    // run with gains and offsets otherwise): a symmetric object stays refused, while a wrong
+    // minimum that looked undetermined (the frames out of line, an ultrasound-like chest CT
+    // sequence 12 mm off) may end right.
     RegistrationOptions affine = options;
     affine.photometric = PhotometricModel::kAffine;
     RegistrationResult second;
     if (!RegisterScaled(images, masks, initial_frame_from_world, affine, search_images, start,
-                        &second, error)) {
+                        &second, error, result->poses_undetermined)) {
       return false;
     }
     second.init_seconds += result->init_seconds;
@@ -445,7 +450,8 @@ bool RegisterScaled(const std::vector<Image>& images,
     second.photometric_detected = second.usable;
     second.photometric_choice =
         std::string(second.usable ? "affine" : "none") +
-        " (photometric=auto: without gains and offsets the registration failed: " +
+        " (photometric=auto: without gains and offsets from the start the registration "
+        "failed: " +
         result->failure + (second.usable ? "; with them it passed every check)" : ")");
     if (!second.usable) {
       second.failure = result->failure + "; with gains and offsets estimated too: " + second.failure;

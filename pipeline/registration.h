@@ -249,7 +249,8 @@ struct RegistrationResult {
   std::vector<double> pose_error_voxels;
   std::string failure;        // why not usable
   // Not usable because the data do not determine some pose (the determination check): no
-  // start, recovery or photometric model would fix it.
+  // start or recovery is tried (the photometric model's last resort is, judged by the same
+  // check).
   bool poses_undetermined = false;
   // With RegistrationOptions::photometric kAuto: whether brightness differences were
   // detected (the solves then estimate gains and offsets), and a line saying which model the
