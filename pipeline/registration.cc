@@ -441,10 +441,12 @@ bool RegisterScaled(const std::vector<Image>& images,
     RegistrationOptions affine = options;
     affine.photometric = PhotometricModel::kAffine;
     RegistrationResult second;
-    if (!RegisterScaled(images, masks, initial_frame_from_world, affine, search_images, start,
-                        &second, error, result->poses_undetermined)) {
+    if (!RegisterScaled(images, masks, initial_frame_from_world, affine, search_images,
+                        std::chrono::steady_clock::now(), &second, error,
+                        result->poses_undetermined)) {
       return false;
     }
+    second.seconds = SecondsSince(start);  // both attempts (its pyramid time: its own)
     second.init_seconds += result->init_seconds;
     second.total_iterations += result->total_iterations;
     second.photometric_detected = second.usable;
