@@ -32,6 +32,10 @@ const char* RobustLossKindName(RobustLoss::Kind kind) {
   return "?";
 }
 
+namespace {
+
+// The kind named `name` (exactly one of RobustLossKindName's names); false with `error`
+// otherwise.
 bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std::string* error) {
   if (FindNamed(name,
                 {RobustLoss::Kind::kSquared, RobustLoss::Kind::kHuber, RobustLoss::Kind::kCauchy},
@@ -41,6 +45,8 @@ bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std
   *error = "loss=" + name + ": must be squared, huber or cauchy";
   return false;
 }
+
+}  // namespace
 
 bool RobustLoss::Validate(std::string* error) const {
   if (kind != Kind::kSquared && kind != Kind::kHuber && kind != Kind::kCauchy) {

@@ -47,8 +47,6 @@ struct RobustLoss {
 
 // "squared", "huber", "cauchy".
 const char* RobustLossKindName(RobustLoss::Kind kind);
-// The kind named `name` (exactly one of the names above); false with `error` otherwise.
-bool StringToRobustLossKind(const std::string& name, RobustLoss::Kind* kind, std::string* error);
 // Parses and validates a loss from its name and scale (RegistrationOptions::loss); the
 // error names the fields loss, loss.kind and loss.scale (util/option_fields.h).
 bool MakeRobustLoss(const std::string& name, double scale, RobustLoss* loss, std::string* error);

@@ -43,9 +43,11 @@ bool StringToPhotometricModel(const std::string& name, PhotometricModel* model) 
                    PhotometricModelToString, model);
 }
 
+namespace {
 std::vector<std::string> InitialisationNames() {
   return {"auto", "identity", "pairwise", "global"};
 }
+}  // namespace
 
 bool SetInitialisation(const std::string& name, int max_recoveries, RegistrationOptions* options) {
   options->init = name == "pairwise" ? InitialPoses::kPairwise

@@ -314,7 +314,6 @@ constexpr int kDefaultMaxRecoveries = 2;
 // applies, else 0). Returns false for any other name (then a poses file is meant: the
 // given poses, with recovery).
 bool SetInitialisation(const std::string& name, int max_recoveries, RegistrationOptions* options);
-std::vector<std::string> InitialisationNames();
 
 // Registers. `initial_frame_from_world` is re-expressed relative to frame 0 first.
 // Returns false with `error` for bad input or set-up problems (e.g. frames that do not

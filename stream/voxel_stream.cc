@@ -26,6 +26,23 @@ struct FrameView {
 
 inline FrameView MakeFrameView(const PosedFrame& f, const double ahead[4]) { return {&f, ahead}; }
 
+// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p,
+// portable.
+void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]) {
+  double grad[3], q[3];
+  for (int d = 0; d < 3; ++d) {
+    grad[d] = f.g[0][d] * gu[0] + f.g[1][d] * gu[1] + f.g[2][d] * gu[2];
+    q[d] = f.r[0][d] * p[0] + f.r[1][d] * p[1] + f.r[2][d] * p[2] + f.r[3][d];
+  }
+  // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T).
+  jac[0] = grad[0];
+  jac[1] = grad[1];
+  jac[2] = grad[2];
+  jac[3] = q[1] * grad[2] - q[2] * grad[1];
+  jac[4] = q[2] * grad[0] - q[0] * grad[2];
+  jac[5] = q[0] * grad[1] - q[1] * grad[0];
+}
+
 inline void JacobianOne(const FrameView& view, const Point& p, const double sample[4], double jac[6]) {
   ObservationJacobian(*view.f, p.p, sample + 1, jac);
 }
@@ -129,21 +146,6 @@ bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
     out[q] = ty0 * wz0 + ty1 * wz1;
   }
   return true;
-}
-
-void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]) {
-  double grad[3], q[3];
-  for (int d = 0; d < 3; ++d) {
-    grad[d] = f.g[0][d] * gu[0] + f.g[1][d] * gu[1] + f.g[2][d] * gu[2];
-    q[d] = f.r[0][d] * p[0] + f.r[1][d] * p[1] + f.r[2][d] * p[2] + f.r[3][d];
-  }
-  // J = [grad; p_ij x grad]  (grad^T (-[p_ij]x) = (p_ij x grad)^T).
-  jac[0] = grad[0];
-  jac[1] = grad[1];
-  jac[2] = grad[2];
-  jac[3] = q[1] * grad[2] - q[2] * grad[1];
-  jac[4] = q[2] * grad[0] - q[0] * grad[2];
-  jac[5] = q[0] * grad[1] - q[1] * grad[0];
 }
 
 int64_t SampleVoxelBatch(KernelPath path,

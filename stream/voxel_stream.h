@@ -110,9 +110,6 @@ constexpr int kWideJacobianSize = 8;
 // Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
 // else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
 bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
-// J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p,
-// portable.
-void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]);
 
 // The observations of consecutive candidate voxels with at least two observers. Voxel t
 // has k_t = begin[t + 1] - begin[t] observations, in increasing frame order.

@@ -484,12 +484,16 @@ bool RefuseFlag(const char* flag, const std::string& value, const std::string& r
 
 void SetBadFlagsExit(bool exit) { bad_flags_exit = exit; }
 
+namespace {
+// The message of the latest RefuseFlag that returned false since the last call ("" when
+// none); the next call returns "" unless another value was refused in between.
 std::string TakeLastBadFlag() {
   const std::lock_guard<std::mutex> lock(last_bad_flag_mutex);
   std::string message;
   message.swap(last_bad_flag);
   return message;
 }
+}  // namespace
 
 bool SetFlagValue(const std::string& name, const std::string& value, std::string* error) {
   gflags::CommandLineFlagInfo info;
@@ -734,19 +738,6 @@ bool ParseSize3(const std::string& text, Eigen::Vector3i* size, int min_value, i
     parsed[a] = static_cast<int>(v);
   }
   *size = parsed;
-  return true;
-}
-
-bool ParseVector3(const std::string& text, Eigen::Vector3d* vector) {
-  const std::vector<std::string> items = SplitCommaList(text);
-  if (items.size() != 3) return false;
-  Eigen::Vector3d parsed;
-  for (int a = 0; a < 3; ++a) {
-    char* end = nullptr;
-    parsed[a] = std::strtod(items[a].c_str(), &end);
-    if (end == items[a].c_str() || *end != '\0' || !std::isfinite(parsed[a])) return false;
-  }
-  *vector = parsed;
   return true;
 }
 

@@ -90,13 +90,10 @@ int Fail(const std::string& message, int code = kExitBadInput);
 
 // A refused flag value, "--<flag>=<value>: <rule>": a tool prints it as its error and exits
 // with kExitBadInput; a front end that lives on after a bad value (the Python module,
-// after SetBadFlagsExit(false)) gets false, and the message from TakeLastBadFlag().
+// after SetBadFlagsExit(false)) gets false, and SetFlagValue returns the message.
 bool RefuseFlag(const char* flag, const std::string& value, const std::string& rule);
 // Whether RefuseFlag exits the process (the default) or returns false.
 void SetBadFlagsExit(bool exit);
-// The message of the latest RefuseFlag that returned false since the last call ("" when
-// none); the next call returns "" unless another value was refused in between.
-std::string TakeLastBadFlag();
 
 // Sets flag `name` to `value` as a command line would (--name=value): false with the
 // message when no flag has that name ("--name=value: unknown flag"), the text is not a
@@ -179,9 +176,6 @@ bool ParseSize3(const std::string& text,
                 Eigen::Vector3i* size,
                 int min_value = 1,
                 int max_value = 1 << 20);
-
-// "1,1.5,2" -> (1, 1.5, 2). False unless exactly three finite numbers.
-bool ParseVector3(const std::string& text, Eigen::Vector3d* vector);
 
 }  // namespace dsr
 

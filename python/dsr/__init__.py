@@ -23,7 +23,8 @@ from __future__ import annotations
 import os
 import tempfile
 from dataclasses import dataclass, field
-from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Callable, Dict, List, Optional, Tuple, Union
+from typing import Sequence as SequenceOf  # dsr.Sequence is the simulator's sequence
 
 import numpy as np
 
@@ -203,13 +204,13 @@ class Result:
                     covariance=self.covariance, predicted_tre_mm=self.predicted_tre_mm)
 
 
-def register(images: Sequence[ImageLike],
-             masks: Optional[Sequence[ImageLike]] = None,
+def register(images: SequenceOf[ImageLike],
+             masks: Optional[SequenceOf[ImageLike]] = None,
              *,
              mode: str = "dsr",
              init: Union[str, "os.PathLike[str]"] = "auto",
-             initial_poses: Optional[Sequence[np.ndarray]] = None,
-             names: Optional[Sequence[str]] = None,
+             initial_poses: Optional[SequenceOf[np.ndarray]] = None,
+             names: Optional[SequenceOf[str]] = None,
              on_iteration: Optional[Callable[[str, Dict[str, Any]], Any]] = None,
              progress_bar: bool = False,
              **options: Any) -> Result:
@@ -300,12 +301,12 @@ def _register(core_images, core_masks, image_names, flags, on_iteration) -> Resu
     )
 
 
-def fuse(images: Sequence[ImageLike],
-         poses: Union[Result, Sequence[np.ndarray], str, "os.PathLike[str]"],
-         masks: Optional[Sequence[ImageLike]] = None,
+def fuse(images: SequenceOf[ImageLike],
+         poses: Union[Result, SequenceOf[np.ndarray], str, "os.PathLike[str]"],
+         masks: Optional[SequenceOf[ImageLike]] = None,
          *,
          blend: str = "feather",
-         names: Optional[Sequence[str]] = None,
+         names: Optional[SequenceOf[str]] = None,
          **options: Any) -> Tuple[Image, Image]:
     """The panorama of the images at the poses, as ``dsr_fuse`` writes it: (mean, count),
     count being the number of frames that observe each voxel, as dsr.Image (numpy array and
@@ -384,13 +385,13 @@ def read_poses(path: Union[str, "os.PathLike[str]"], expected_frames: int = -1) 
 
 
 def write_poses(path: Union[str, "os.PathLike[str]"],
-                poses: Sequence[np.ndarray],
+                poses: SequenceOf[np.ndarray],
                 *,
-                images: Optional[Sequence[str]] = None,
-                gain: Sequence[float] = (),
-                offset: Sequence[float] = (),
-                covariance: Sequence[np.ndarray] = (),
-                predicted_tre_mm: Sequence[float] = ()) -> None:
+                images: Optional[SequenceOf[str]] = None,
+                gain: SequenceOf[float] = (),
+                offset: SequenceOf[float] = (),
+                covariance: SequenceOf[np.ndarray] = (),
+                predicted_tre_mm: SequenceOf[float] = ()) -> None:
     """Writes a poses JSON as dsr_register does (atomically; OSError when it cannot)."""
     poses = [np.asarray(p, dtype=float) for p in poses]
     _core.write_poses({

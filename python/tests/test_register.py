@@ -376,3 +376,21 @@ def test_progress_bar_counts_the_iterations(sequence, capsys):
                  on_iteration=lambda label, record: seen.append(label))
     bar = capsys.readouterr().err
     assert f"{len(seen)}it" in bar.replace(" ", "") and "dsr" in bar and "cost=" in bar
+
+
+def test_every_public_annotation_resolves():
+    """The package's annotations resolve (typing.get_type_hints), so type checkers and
+    documentation tools can read them: dsr.Sequence, the simulator's sequence, does not
+    shadow typing.Sequence."""
+    import inspect
+    import typing
+    for name in dsr.__all__:
+        item = getattr(dsr, name)
+        if inspect.isfunction(item):
+            typing.get_type_hints(item)
+        elif inspect.isclass(item):
+            for _, method in inspect.getmembers(item, inspect.isfunction):
+                typing.get_type_hints(method)
+    import collections.abc
+    images = typing.get_type_hints(dsr.register)["images"]
+    assert typing.get_origin(images) is collections.abc.Sequence
