@@ -23,6 +23,14 @@ constexpr int kClusterVoxels = 8;
 constexpr int64_t kMaxTrePoints = 4096;
 constexpr int kTreDraws = 256;
 
+// The RMS distance of a frame's field-of-view points from its local origin (mm): how far a
+// rotation of one radian moves them.
+double RmsRadius(const std::vector<Eigen::Vector3d>& points) {
+  double sum = 0.0;
+  for (const Eigen::Vector3d& x : points) sum += x.squaredNorm();
+  return std::sqrt(sum / std::max<size_t>(1, points.size()));
+}
+
 // Points of `mask` in the physical coordinates of `g`, the frame's geometry (the mask's
 // grid, in the pipeline's local coordinates).
 std::vector<Eigen::Vector3d> FieldOfViewPoints(const Mask& mask, const ImageGeometry& g) {
@@ -261,9 +269,7 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
   std::vector<double> step_mm(m), step_rad(m);
   for (int i = 0; i < m; ++i) {
     points[i] = FieldOfViewPoints(masks[i], frames[i].geometry());
-    double radius2 = 0.0;
-    for (const Eigen::Vector3d& x : points[i]) radius2 += x.squaredNorm();
-    const double radius = std::sqrt(radius2 / std::max<size_t>(1, points[i].size()));
+    const double radius = RmsRadius(points[i]);
     step_mm[i] = kCurvatureStepVoxels * frames[i].geometry().spacing_mm.minCoeff();
     step_rad[i] = step_mm[i] / std::max(radius, frames[i].geometry().spacing_mm.maxCoeff());
   }
@@ -309,14 +315,6 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
 
 namespace {
 
-// The RMS distance of a frame's field-of-view points from its local origin (mm): how far a
-// rotation of one radian moves them.
-double RmsRadius(const std::vector<Eigen::Vector3d>& points) {
-  double sum = 0.0;
-  for (const Eigen::Vector3d& x : points) sum += x.squaredNorm();
-  return std::sqrt(sum / std::max<size_t>(1, points.size()));
-}
-
 // UndeterminedPoses's judgement on `subset` of the candidates, `fraction` of them (its
 // covariance scaled by it to all of them).
 bool JudgeDetermination(const std::vector<Frame>& frames,
@@ -332,10 +330,11 @@ bool JudgeDetermination(const std::vector<Frame>& frames,
   const int m = static_cast<int>(frames.size());
   undetermined->clear();
   if (error_voxels != nullptr) error_voxels->clear();
+  std::vector<std::vector<Eigen::Vector3d>> points(m);
   std::vector<double> radius(m), voxel(m);
   for (int i = 0; i < m; ++i) {
-    radius[i] = std::max(RmsRadius(FieldOfViewPoints(masks[i], frames[i].geometry())),
-                         frames[i].geometry().spacing_mm.maxCoeff());
+    points[i] = FieldOfViewPoints(masks[i], frames[i].geometry());
+    radius[i] = std::max(RmsRadius(points[i]), frames[i].geometry().spacing_mm.maxCoeff());
     voxel[i] = frames[i].geometry().spacing_mm.minCoeff();
   }
   PoseUncertainty uncertainty;
@@ -376,8 +375,7 @@ bool JudgeDetermination(const std::vector<Frame>& frames,
     // The covariance of all the candidates' estimate is about `fraction` times the
     // quarter's (curvature and gradient covariance both grow with the observations).
     const Matrix6d c = fraction * uncertainty.covariance[i];
-    const double error =
-        PredictedTre(c, FieldOfViewPoints(masks[i], frames[i].geometry())) / voxel[i];
+    const double error = PredictedTre(c, points[i]) / voxel[i];
     if (error_voxels != nullptr) {
       error_voxels->resize(m, 0.0);
       (*error_voxels)[i] = error;
