@@ -11,17 +11,10 @@
 namespace dsr {
 namespace {
 
+using testing_problems::CandidatesAt;
 using testing_problems::MakeSequence;
 using testing_problems::SequenceOptions;
 using testing_problems::TestSequence;
-
-CandidateSet CandidatesAt(const std::vector<Frame>& frames,
-                          const std::vector<Eigen::Isometry3d>& poses) {
-  ImageGeometry grid;
-  std::string error;
-  EXPECT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
-  return BuildCandidates(frames, poses, grid, 0);
-}
 
 // `poses` with frame i shifted by `x_mm` along the world x axis.
 std::vector<Eigen::Isometry3d> Shifted(std::vector<Eigen::Isometry3d> poses, int i, double x_mm) {

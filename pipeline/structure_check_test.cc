@@ -15,17 +15,10 @@
 namespace dsr {
 namespace {
 
+using testing_problems::CandidatesAt;
 using testing_problems::MakeSequence;
 using testing_problems::SequenceOptions;
 using testing_problems::TestSequence;
-
-CandidateSet CandidatesAt(const std::vector<Frame>& frames,
-                          const std::vector<Eigen::Isometry3d>& poses) {
-  ImageGeometry grid;
-  std::string error;
-  EXPECT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
-  return BuildCandidates(frames, poses, grid, 0);
-}
 
 StreamContext Threads(int n) {
   StreamContext context;

@@ -11,6 +11,7 @@
 #include <vector>
 
 #include <ceres/ceres.h>
+#include <gtest/gtest.h>
 #include <ceres/gradient_checker.h>
 #include <Eigen/Geometry>
 
@@ -189,6 +190,15 @@ inline std::vector<Eigen::Isometry3d> MovedTogether(std::vector<Eigen::Isometry3
   const Eigen::Isometry3d world_motion = ExpSE3(d);
   for (Eigen::Isometry3d& pose : poses) pose = pose * world_motion;
   return poses;
+}
+
+// Candidates at `poses` on a 1 mm grid (the shared rule), expecting the grid to build.
+inline CandidateSet CandidatesAt(const std::vector<Frame>& frames,
+                                 const std::vector<Eigen::Isometry3d>& poses) {
+  ImageGeometry grid;
+  std::string error;
+  EXPECT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
+  return BuildCandidates(frames, poses, grid, 0);
 }
 
 // Candidates and grid at `poses` with the shared rule.
