@@ -214,7 +214,9 @@ TEST(CandidatesInCubes, KeepsWholeCubesSpreadEvenly) {
     const int64_t x = l % 16, y = l / 16 % 8, z = l / 128;
     EXPECT_EQ((x / 4 + y / 4 + z / 4) % 4, 0) << l;
     EXPECT_EQ(kept.observers[v], static_cast<uint32_t>(1 + l % 3));  // carried along
-    if (v > 0) EXPECT_GT(l, kept.voxel[v - 1]);  // still increasing
+    if (v > 0) {
+      EXPECT_GT(l, kept.voxel[v - 1]);  // still increasing
+    }
   }
   EXPECT_EQ(CandidatesInCubes(all, 4, 1).num_voxels(), all.num_voxels());
 }
