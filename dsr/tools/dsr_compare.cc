@@ -20,22 +20,11 @@
 #include "dsr/pipeline/report.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
-#include "dsr/tools/flags/flags.h"
-#include "dsr/tools/output_plan.h"
+#include "dsr/tools/flags.h"
+#include "dsr/app/output_plan.h"
 #include "dsr/tools/tool_util.h"
 #include "dsr/util/atomic_file.h"
 
-DEFINE_string(methods, "dsr,ape,sequential,lie_normalization,pairwise",
-              "Comma-separated methods: dsr, dba, ape, sequential, lie_normalization, pairwise.");
-DEFINE_string(sequences, "", "Comma-separated sequence folders written by dsr_simulate "
-              "(frame_XX.nii.gz, mask_XX.nii.gz, gt_poses.json). Empty: simulate "
-              "--num_sequences sequences from the built-in phantom or --source with the "
-              "simulation flags (those of dsr_simulate).");
-DEFINE_int32(num_sequences, 5, "Sequences to simulate when --sequences is empty, in [1, 100] "
-             "(the paper: 5); sequence s uses seed --seed + s.");
-DEFINE_bool(sequence_masks, true, "--sequences: register with each folder's mask_XX images; "
-            "false: with each frame's field of view by --mask_rule eroded by --mask_erosion "
-            "voxels, as dsr_register does without --masks.");
 
 
 namespace {
@@ -76,7 +65,7 @@ bool ListSequence(const std::string& folder, SequenceFiles* out, std::string* er
     const std::string name = entry.path().filename().string();
     if (!dsr::HasSupportedImageExtension(name)) continue;
     if (name.rfind("frame_", 0) == 0) files.frames.push_back(entry.path().string());
-    if (name.rfind("mask_", 0) == 0 && FLAGS_sequence_masks) {
+    if (name.rfind("mask_", 0) == 0 && dsr::BoolFlag("sequence_masks")) {
       files.masks.push_back(entry.path().string());
     }
   }
@@ -91,7 +80,7 @@ bool ListSequence(const std::string& folder, SequenceFiles* out, std::string* er
              std::to_string(files.frames.size());
     return false;
   }
-  if (FLAGS_sequence_masks && files.masks.size() != files.frames.size()) {
+  if (dsr::BoolFlag("sequence_masks") && files.masks.size() != files.frames.size()) {
     *error = "--sequences: " + folder + ": expected one mask_XX image per frame_XX image, found " +
              std::to_string(files.frames.size()) + " frames and " +
              std::to_string(files.masks.size()) + " masks (--sequence_masks=false registers "
@@ -122,11 +111,11 @@ bool LoadSequence(const SequenceFiles& files,
   out->name = files.name;
   out->frames.resize(files.frames.size());
   out->masks.resize(files.frames.size());
-  mask_rules->assign(FLAGS_sequence_masks ? 0 : files.frames.size(), dsr::MaskRule::kHull);
+  mask_rules->assign(dsr::BoolFlag("sequence_masks") ? 0 : files.frames.size(), dsr::MaskRule::kHull);
   for (size_t i = 0; i < files.frames.size(); ++i) {
     if (!dsr::ReadImage(files.frames[i], &out->frames[i], error)) return false;
-    if (!FLAGS_sequence_masks) {
-      if (!dsr::MaskFromImage(out->frames[i], dsr::FieldOfViewFromFlags(), files.frames[i],
+    if (!dsr::BoolFlag("sequence_masks")) {
+      if (!dsr::MaskFromImage(out->frames[i], dsr::ToolConfig().field_of_view, files.frames[i],
                               &out->masks[i], &(*mask_rules)[i], error)) {
         return false;
       }
@@ -155,9 +144,9 @@ int Main(int argc, char** argv) {
       "  dsr_compare --flagfile=configs/paper_simulated.flags\n"
       "Exit status: 0 ok (a method that fails on a sequence is a row, not an error), 2 bad "
       "input.",
-      {"out_dir"}, &argc, &argv);
+      dsr::kDsrCompare, {"out_dir"}, &argc, &argv);
   std::string error;
-  const std::vector<std::string> methods = dsr::SplitCommaList(FLAGS_methods);
+  const std::vector<std::string> methods = dsr::SplitCommaList(dsr::StringFlag("methods"));
   const std::vector<std::string> known = dsr::ModeNames();
   if (methods.empty()) return Fail("--methods: empty");
   for (size_t i = 0; i < methods.size(); ++i) {
@@ -166,27 +155,27 @@ int Main(int argc, char** argv) {
       return Fail("--methods: unknown method '" + m + "'");
     }
     if (std::find(methods.begin(), methods.begin() + i, m) != methods.begin() + i) {
-      return Fail("--methods=" + FLAGS_methods + ": '" + m + "' is given twice");
+      return Fail("--methods=" + dsr::StringFlag("methods") + ": '" + m + "' is given twice");
     }
   }
-  if (FLAGS_num_sequences < 1 || FLAGS_num_sequences > 100) {
-    return Fail("--num_sequences=" + std::to_string(FLAGS_num_sequences) + ": must be in [1, 100]");
+  if (dsr::IntFlag("num_sequences") < 1 || dsr::IntFlag("num_sequences") > 100) {
+    return Fail("--num_sequences=" + std::to_string(dsr::IntFlag("num_sequences")) + ": must be in [1, 100]");
   }
-  if (FLAGS_num_frames > dsr::kMaxFrames) {
-    return Fail("--num_frames=" + std::to_string(FLAGS_num_frames) + ": must be in [2, 32]");
+  if (dsr::IntFlag("num_frames") > dsr::kMaxFrames) {
+    return Fail("--num_frames=" + std::to_string(dsr::IntFlag("num_frames")) + ": must be in [2, 32]");
   }
   dsr::RegistrationOptions base;
   std::string init_file;
-  if (!dsr::RegistrationOptionsFromFlags(&base, &init_file, &error)) return Fail(error);
+  if (!dsr::RegistrationOptionsFrom(dsr::ToolSettings(), &base, &init_file, &error)) return Fail(error);
   if (!init_file.empty()) {
-    return Fail("--init=" + FLAGS_init + ": must be identity, pairwise, auto or global");
+    return Fail("--init=" + dsr::StringFlag("init") + ": must be identity, pairwise, auto or global");
   }
   // With recovery, the checks that flag frames are dsr_register's unless one is set.
-  const bool recovers = FLAGS_init == "auto" || FLAGS_init == "global";
-  if (recovers && dsr::FlagIsDefault("max_misfit_ratio") &&
-      dsr::FlagIsDefault("max_pair_mismatch_ratio") && dsr::FlagIsDefault("min_kept_overlap") &&
-      dsr::FlagIsDefault("max_structure_fraction") &&
-      dsr::FlagIsDefault("max_pose_error_voxels")) {
+  const bool recovers = dsr::StringFlag("init") == "auto" || dsr::StringFlag("init") == "global";
+  if (recovers && dsr::ToolSettings().IsDefault("max_misfit_ratio") &&
+      dsr::ToolSettings().IsDefault("max_pair_mismatch_ratio") && dsr::ToolSettings().IsDefault("min_kept_overlap") &&
+      dsr::ToolSettings().IsDefault("max_structure_fraction") &&
+      dsr::ToolSettings().IsDefault("max_pose_error_voxels")) {
     const dsr::RegistrationOptions defaults;
     base.min_kept_overlap = defaults.min_kept_overlap;
     base.max_misfit_ratio = defaults.max_misfit_ratio;
@@ -201,9 +190,9 @@ int Main(int argc, char** argv) {
     dsr::RegistrationOptions o = base;
     CHECK(dsr::StringToMode(method, &o.mode)) << method;  // checked against ModeNames
     dsr::SetInitialisation(
-        method == "pairwise" && FLAGS_init == "pairwise" ? std::string("identity") : FLAGS_init,
-        FLAGS_max_recoveries, &o);
-    o.photometric = dsr::ModeEstimatesPhotometric(o.mode) ? dsr::PhotometricFromFlags(o.mode)
+        method == "pairwise" && dsr::StringFlag("init") == "pairwise" ? std::string("identity") : dsr::StringFlag("init"),
+        dsr::IntFlag("max_recoveries"), &o);
+    o.photometric = dsr::ModeEstimatesPhotometric(o.mode) ? dsr::PhotometricFor(dsr::ToolSettings(), o.mode)
                                                           : dsr::PhotometricModel::kNone;
     if (!dsr::ModeEstimatesPhotometric(o.mode)) o.loss = dsr::RobustLoss();  // squared
     return o;
@@ -212,7 +201,7 @@ int Main(int argc, char** argv) {
     if (!options_for(m).Validate(&error)) return Fail(error);
   }
   namespace fs = std::filesystem;
-  const std::vector<std::string> folders = dsr::SplitCommaList(FLAGS_sequences);
+  const std::vector<std::string> folders = dsr::SplitCommaList(dsr::StringFlag("sequences"));
   // Every sequence folder is checked before any run: a bad one found after the first
   // sequence ran would leave results behind with exit 2.
   std::vector<SequenceFiles> sequence_files(folders.size());
@@ -237,17 +226,17 @@ int Main(int argc, char** argv) {
   dsr::SimulationOptions simulation;
   dsr::PhantomOptions phantom_options;
   if (folders.empty() &&
-      !dsr::SimulationOptionsFromFlags(&simulation, &phantom_options, &error)) {
+      !dsr::SimulationOptionsFrom(dsr::ToolSettings(), &simulation, &phantom_options, &error)) {
     return Fail(error);
   }
   const auto simulation_for = [&](int s) {
     dsr::SimulationOptions sim = simulation;
-    sim.seed = FLAGS_seed + s;
+    sim.seed = dsr::Uint64Flag("seed") + s;
     return sim;
   };
   // Every file this run reads and writes.
   const int num_sequences =
-      folders.empty() ? FLAGS_num_sequences : static_cast<int>(folders.size());
+      folders.empty() ? dsr::IntFlag("num_sequences") : static_cast<int>(folders.size());
   dsr::OutputPlan plan;
   for (const SequenceFiles& files : sequence_files) {
     for (const std::vector<std::string>* list : {&files.frames, &files.masks}) {
@@ -255,21 +244,21 @@ int Main(int argc, char** argv) {
     }
     plan.AddInputFileIn("sequences", files.folder, files.gt_poses);
   }
-  const std::string poses_dir = (fs::path(FLAGS_out_dir) / "poses").string();
-  if (!folders.empty() && !FLAGS_source.empty()) {
-    return Fail("--source=" + FLAGS_source + ": the source of simulated sequences; with "
+  const std::string poses_dir = (fs::path(dsr::StringFlag("out_dir")) / "poses").string();
+  if (!folders.empty() && !dsr::StringFlag("source").empty()) {
+    return Fail("--source=" + dsr::StringFlag("source") + ": the source of simulated sequences; with "
                 "--sequences nothing is simulated");
   }
-  plan.AddInputImage("source", FLAGS_source);
-  plan.AddOutputFolder("out_dir", FLAGS_out_dir, FLAGS_out_dir);
-  plan.AddOutputFolder("out_dir", FLAGS_out_dir, poses_dir);
-  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "results.csv");
-  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "results.md");
+  plan.AddInputImage("source", dsr::StringFlag("source"));
+  plan.AddOutputFolder("out_dir", dsr::StringFlag("out_dir"), dsr::StringFlag("out_dir"));
+  plan.AddOutputFolder("out_dir", dsr::StringFlag("out_dir"), poses_dir);
+  plan.AddDerivedFile("out_dir", dsr::StringFlag("out_dir"), "results.csv");
+  plan.AddDerivedFile("out_dir", dsr::StringFlag("out_dir"), "results.md");
   for (int s = 0; s < num_sequences; ++s) {
-    const std::string name = folders.empty() ? "seed" + std::to_string(FLAGS_seed + s)
+    const std::string name = folders.empty() ? "seed" + std::to_string(dsr::Uint64Flag("seed") + s)
                                              : sequence_files[s].name;
     for (const std::string& m : methods) {
-      plan.AddDerivedFile("out_dir", FLAGS_out_dir,
+      plan.AddDerivedFile("out_dir", dsr::StringFlag("out_dir"),
                           "poses/" + name + "_" + dsr::MethodLabel(options_for(m)) + ".json");
     }
   }
@@ -285,9 +274,9 @@ int Main(int argc, char** argv) {
 
   // Sequences: loaded (checked up front) or simulated one at a time below.
   dsr::Image source;
-  if (folders.empty() && FLAGS_source.empty()) {
+  if (folders.empty() && dsr::StringFlag("source").empty()) {
     source = dsr::MakePhantom(phantom_options);
-  } else if (folders.empty() && !dsr::ReadImage(FLAGS_source, &source, &error)) {
+  } else if (folders.empty() && !dsr::ReadImage(dsr::StringFlag("source"), &source, &error)) {
     return Fail("--source: " + error);
   }
   std::vector<dsr::ComparisonRow> rows;
@@ -298,9 +287,9 @@ int Main(int argc, char** argv) {
       if (!LoadSequence(sequence_files[s], &sequence, &mask_rules, &error)) {
         return Fail(error, dsr::kExitFailed);
       }
-      if (!FLAGS_sequence_masks) {
+      if (!dsr::BoolFlag("sequence_masks")) {
         std::fprintf(stderr, "dsr_compare: %s %s\n", sequence.name.c_str(),
-                     dsr::FieldOfViewSummary(mask_rules, dsr::FieldOfViewFromFlags().mask_rule)
+                     dsr::FieldOfViewSummary(mask_rules, dsr::ToolConfig().field_of_view.mask_rule)
                          .c_str());
       }
     } else {
@@ -336,21 +325,21 @@ int Main(int argc, char** argv) {
           poses.images.push_back(name);
         }
         const std::string path =
-            (fs::path(FLAGS_out_dir) / "poses" / (row.sequence + "_" + row.method + ".json")).string();
+            (fs::path(dsr::StringFlag("out_dir")) / "poses" / (row.sequence + "_" + row.method + ".json")).string();
         if (!dsr::WritePoses(poses, path, &error)) return Fail(error, dsr::kExitFailed);
       }
       rows.push_back(std::move(row));
       // Rewritten after every run, so an interrupted comparison keeps what it measured.
-      if (!dsr::WriteFileAtomically((fs::path(FLAGS_out_dir) / "results.csv").string(),
+      if (!dsr::WriteFileAtomically((fs::path(dsr::StringFlag("out_dir")) / "results.csv").string(),
                                     dsr::ComparisonCsv(rows), &error) ||
-          !dsr::WriteFileAtomically((fs::path(FLAGS_out_dir) / "results.md").string(),
+          !dsr::WriteFileAtomically((fs::path(dsr::StringFlag("out_dir")) / "results.md").string(),
                                     dsr::ComparisonMarkdown(rows), &error)) {
         return Fail(error, dsr::kExitFailed);
       }
     }
   }
   std::printf("%s", dsr::ComparisonMarkdown(rows).c_str());
-  std::printf("dsr_compare: wrote %s/results.csv and results.md\n", FLAGS_out_dir.c_str());
+  std::printf("dsr_compare: wrote %s/results.csv and results.md\n", dsr::StringFlag("out_dir").c_str());
   return EXIT_SUCCESS;
 }
 

@@ -22,34 +22,12 @@
 #include "dsr/pipeline/registration.h"
 #include "dsr/pipeline/report.h"
 #include "dsr/solve/solve_options.h"
-#include "dsr/tools/flags/flags.h"
-#include "dsr/tools/output_plan.h"
+#include "dsr/tools/flags.h"
+#include "dsr/app/output_plan.h"
 #include "dsr/tools/tool_util.h"
 #include "dsr/util/clock.h"
 #include "dsr/util/parallel.h"
 
-DEFINE_string(out_poses, "", "Output poses JSON (T maps world = frame 0 to each frame, "
-              "frame 0 = identity). Required.");
-DEFINE_string(out_panorama, "", "Optional output image of the panorama on the final grid: "
-              "the per-voxel mean of the observations (paper eq. 10; with "
-              "--photometric=affine of the corrected ones); with --mode=dba the optimised "
-              "intensities.");
-DEFINE_string(gt_poses, "", "Optional ground-truth poses JSON (e.g. dsr_simulate's "
-              "gt_poses.json): prints per-frame errors and the mean absolute errors; "
-              "matched to --images by its image names as --init.");
-DEFINE_string(out_tfm_dir, "", "Optional folder (created if missing) for one ITK transform per "
-              "frame, frame_XX.tfm (world -> frame, LPS): resampling frame XX with it in 3D "
-              "Slicer, ITK/SimpleITK, ANTs or elastix lands it on the panorama.");
-DEFINE_string(out_resampled_dir, "", "Optional folder (created if missing) for each frame "
-              "resampled onto the panorama grid, frame_XX_in_panorama.nii.gz (0 outside its "
-              "field of view), in the frame's own intensities (with --photometric=affine, "
-              "--out_poses' gain * value + offset puts them on frame 0's scale).");
-DEFINE_string(report_dir, "", "Optional folder (created if missing) for a report: pictures "
-              "(panorama slices with field-of-view outlines, a frame pair before/after, "
-              "convergence), poses, transforms and index.md.");
-DEFINE_string(report_frames, "", "Frames outlined on the report's panorama slices, "
-              "comma-separated indices; empty = 0, the middle and the last frame.");
-DEFINE_string(report_pair, "0,1", "The two frames the report compares before/after, 'a,b'.");
 
 
 namespace {
@@ -89,22 +67,22 @@ std::string PhotometricSummary(const std::vector<dsr::Photometric>& photometric,
 // (pipeline/report.h, ReportFiles).
 void PlanFolderOutputs(int m, const std::vector<int>& pair, dsr::OutputPlan* plan) {
   char name[64];
-  if (!FLAGS_out_tfm_dir.empty()) {
-    plan->AddOutputFolder("out_tfm_dir", FLAGS_out_tfm_dir, FLAGS_out_tfm_dir);
+  if (!dsr::StringFlag("out_tfm_dir").empty()) {
+    plan->AddOutputFolder("out_tfm_dir", dsr::StringFlag("out_tfm_dir"), dsr::StringFlag("out_tfm_dir"));
     for (int i = 0; i < m; ++i) {
       std::snprintf(name, sizeof(name), "frame_%02d.tfm", i);
-      plan->AddDerivedFile("out_tfm_dir", FLAGS_out_tfm_dir, name);
+      plan->AddDerivedFile("out_tfm_dir", dsr::StringFlag("out_tfm_dir"), name);
     }
   }
-  if (!FLAGS_out_resampled_dir.empty()) {
-    plan->AddOutputFolder("out_resampled_dir", FLAGS_out_resampled_dir, FLAGS_out_resampled_dir);
+  if (!dsr::StringFlag("out_resampled_dir").empty()) {
+    plan->AddOutputFolder("out_resampled_dir", dsr::StringFlag("out_resampled_dir"), dsr::StringFlag("out_resampled_dir"));
     for (int i = 0; i < m; ++i) {
       std::snprintf(name, sizeof(name), "frame_%02d_in_panorama.nii.gz", i);
-      plan->AddDerivedImage("out_resampled_dir", FLAGS_out_resampled_dir, name);
+      plan->AddDerivedImage("out_resampled_dir", dsr::StringFlag("out_resampled_dir"), name);
     }
   }
-  if (!FLAGS_report_dir.empty()) {
-    const std::string& dir = FLAGS_report_dir;
+  if (!dsr::StringFlag("report_dir").empty()) {
+    const std::string& dir = dsr::StringFlag("report_dir");
     plan->AddOutputFolder("report_dir", dir, dir);
     plan->AddOutputFolder("report_dir", dir, (std::filesystem::path(dir) / "transforms").string());
     for (const std::string& file : dsr::ReportFiles(m, pair[0], pair[1])) {
@@ -121,11 +99,11 @@ struct Inputs {
 };
 
 bool ParseInputs(Inputs* in, std::string* error) {
-  if (!dsr::FrameFilesFromFlags(2, &in->image_paths, &in->mask_paths, error)) return false;
+  if (!dsr::FrameFilesFrom(dsr::ToolSettings(), 2, &in->image_paths, &in->mask_paths, error)) return false;
   const int m = static_cast<int>(in->image_paths.size());
   for (const auto& [flag, text, list] :
-       {std::tuple<const char*, std::string, std::vector<int>*>{"report_frames", FLAGS_report_frames, &in->outlined},
-        {"report_pair", FLAGS_report_pair, &in->pair}}) {
+       {std::tuple<const char*, std::string, std::vector<int>*>{"report_frames", dsr::StringFlag("report_frames"), &in->outlined},
+        {"report_pair", dsr::StringFlag("report_pair"), &in->pair}}) {
     for (const std::string& item : dsr::SplitCommaList(text)) {
       char* end = nullptr;
       const long v = std::strtol(item.c_str(), &end, 10);
@@ -141,11 +119,11 @@ bool ParseInputs(Inputs* in, std::string* error) {
     in->outlined = m > 2 ? std::vector<int>{0, m / 2, m - 1} : std::vector<int>{0, 1};
   }
   if (in->pair.size() != 2 || in->pair[0] == in->pair[1]) {
-    *error = "--report_pair=" + FLAGS_report_pair + ": must be two different frame indices 'a,b'";
+    *error = "--report_pair=" + dsr::StringFlag("report_pair") + ": must be two different frame indices 'a,b'";
     return false;
   }
-  if (!FLAGS_out_panorama.empty() && !dsr::HasSupportedImageExtension(FLAGS_out_panorama)) {
-    *error = "--out_panorama=" + FLAGS_out_panorama +
+  if (!dsr::StringFlag("out_panorama").empty() && !dsr::HasSupportedImageExtension(dsr::StringFlag("out_panorama"))) {
+    *error = "--out_panorama=" + dsr::StringFlag("out_panorama") +
              ": unsupported extension (.nii, .nii.gz, .mha, .mhd, .nrrd, .nhdr)";
     return false;
   }
@@ -155,11 +133,11 @@ bool ParseInputs(Inputs* in, std::string* error) {
 // Every file this run reads and writes, checked before anything is read or created.
 bool PlanFiles(const Inputs& in, const std::string& init_file, dsr::OutputPlan* plan,
                std::string* error) {
-  plan->AddFrameInputs(in.image_paths, in.mask_paths, FLAGS_images, FLAGS_masks);
+  plan->AddFrameInputs(in.image_paths, in.mask_paths, dsr::StringFlag("images"), dsr::StringFlag("masks"));
   if (!init_file.empty()) plan->AddInputFile("init", init_file);
-  plan->AddInputFile("gt_poses", FLAGS_gt_poses);
-  plan->AddOutputFile("out_poses", FLAGS_out_poses);
-  plan->AddOutputImage("out_panorama", FLAGS_out_panorama);
+  plan->AddInputFile("gt_poses", dsr::StringFlag("gt_poses"));
+  plan->AddOutputFile("out_poses", dsr::StringFlag("out_poses"));
+  plan->AddOutputImage("out_panorama", dsr::StringFlag("out_panorama"));
   PlanFolderOutputs(static_cast<int>(in.image_paths.size()), in.pair, plan);
   return plan->Check(error);
 }
@@ -179,9 +157,9 @@ bool ReadPoseFiles(const Inputs& in, const std::string& init_file,
     if (!dsr::MatchPosesToImages("init", init_file, in.image_paths, &init, error)) return false;
     *initial = init.frame_from_world;
   }
-  if (!FLAGS_gt_poses.empty() &&
-      (!dsr::ReadPoses(FLAGS_gt_poses, m, gt, error) ||
-       !dsr::MatchPosesToImages("gt_poses", FLAGS_gt_poses, in.image_paths, gt, error))) {
+  if (!dsr::StringFlag("gt_poses").empty() &&
+      (!dsr::ReadPoses(dsr::StringFlag("gt_poses"), m, gt, error) ||
+       !dsr::MatchPosesToImages("gt_poses", dsr::StringFlag("gt_poses"), in.image_paths, gt, error))) {
     if (error->rfind("--gt_poses", 0) != 0) *error = "--gt_poses: " + *error;
     return false;
   }
@@ -195,10 +173,10 @@ bool ReadPoseFiles(const Inputs& in, const std::string& init_file,
 bool CheckPanoramaMemory(const std::vector<dsr::Image>& images, const std::vector<dsr::Mask>& masks,
                          const std::vector<Eigen::Isometry3d>& initial, std::string* error) {
   const dsr::ImageGeometry& g0 = images[0].geometry;
-  const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(FLAGS_panorama_spacing, 3);
+  const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(dsr::DoubleFlag("panorama_spacing"), 3);
   double bytes =
       12.0 * static_cast<double>(dsr::CountInside(masks[0])) * g0.spacing_mm.prod() / voxel_mm3;
-  if (!FLAGS_out_panorama.empty()) {
+  if (!dsr::StringFlag("out_panorama").empty()) {
     Eigen::AlignedBox3d box;
     const std::vector<Eigen::Isometry3d> frame_from_world = dsr::RelativeToFrame0(initial);
     for (size_t i = 0; i < images.size(); ++i) {
@@ -213,7 +191,7 @@ bool CheckPanoramaMemory(const std::vector<dsr::Image>& images, const std::vecto
     bytes += 8.0 * box.volume() / voxel_mm3;
   }
   char spacing[32];
-  std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", FLAGS_panorama_spacing);
+  std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", dsr::DoubleFlag("panorama_spacing"));
   return dsr::CheckMemoryEstimate(spacing, bytes, "the panorama at the finest level", error);
 }
 
@@ -262,8 +240,8 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
                   Written* written, std::string* error) {
   const int m = static_cast<int>(images.size());
   if (!plan.CreateFolders(error)) return false;
-  written->fused = !FLAGS_out_panorama.empty() || !FLAGS_out_resampled_dir.empty() ||
-                   !FLAGS_report_dir.empty();
+  written->fused = !dsr::StringFlag("out_panorama").empty() || !dsr::StringFlag("out_resampled_dir").empty() ||
+                   !dsr::StringFlag("report_dir").empty();
   std::vector<dsr::Frame> frames;
   dsr::Image panorama;
   if (written->fused) {
@@ -273,39 +251,39 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
     // With photometric parameters, of the corrected intensities (result.photometric;
     // empty otherwise).
     const dsr::PanoramaImages fused =
-        dsr::FusePanorama(frames, result.frame_from_world, result.grid, dsr::FeatherBlend(),
-                          FLAGS_feather_voxels, options.solve.num_threads, result.photometric);
+        dsr::FusePanorama(frames, result.frame_from_world, result.grid, dsr::ToolConfig().feather,
+                          dsr::DoubleFlag("feather_voxels"), options.solve.num_threads, result.photometric);
     written->enlargement = fused.EnlargementRatio();
-    panorama = options.mode == dsr::Mode::kDba && !dsr::FeatherBlend() ? result.dba_intensities
+    panorama = options.mode == dsr::Mode::kDba && !dsr::ToolConfig().feather ? result.dba_intensities
                                                                        : fused.mean;
   }
-  if (!FLAGS_out_panorama.empty() && !dsr::WriteImage(panorama, FLAGS_out_panorama, error)) {
+  if (!dsr::StringFlag("out_panorama").empty() && !dsr::WriteImage(panorama, dsr::StringFlag("out_panorama"), error)) {
     return false;
   }
-  const std::filesystem::path tfm_dir(FLAGS_out_tfm_dir), resampled_dir(FLAGS_out_resampled_dir);
+  const std::filesystem::path tfm_dir(dsr::StringFlag("out_tfm_dir")), resampled_dir(dsr::StringFlag("out_resampled_dir"));
   for (int i = 0; i < m; ++i) {
     char name[64];
-    if (!FLAGS_out_tfm_dir.empty()) {
+    if (!dsr::StringFlag("out_tfm_dir").empty()) {
       std::snprintf(name, sizeof(name), "frame_%02d.tfm", i);
       if (!dsr::WriteItkTransform(result.frame_from_world[i], (tfm_dir / name).string(), error)) {
         return false;
       }
     }
-    if (!FLAGS_out_resampled_dir.empty()) {
+    if (!dsr::StringFlag("out_resampled_dir").empty()) {
       std::snprintf(name, sizeof(name), "frame_%02d_in_panorama.nii.gz", i);
       const dsr::Image resampled = dsr::ResampleOntoGrid(frames[i], result.frame_from_world[i],
                                                          result.grid, options.solve.num_threads);
       if (!dsr::WriteImage(resampled, (resampled_dir / name).string(), error)) return false;
     }
   }
-  if (!FLAGS_gt_poses.empty()) {
+  if (!dsr::StringFlag("gt_poses").empty()) {
     written->gt_errors = dsr::ComparePoses(result.frame_from_world, gt.frame_from_world, masks);
   }
   std::vector<std::string> image_names;
   for (const std::string& p : in.image_paths) {
     image_names.push_back(std::filesystem::path(p).filename().string());
   }
-  if (!FLAGS_report_dir.empty()) {
+  if (!dsr::StringFlag("report_dir").empty()) {
     dsr::ReportInputs report;
     report.image_names = image_names;
     report.frames = frames;
@@ -316,11 +294,11 @@ bool WriteOutputs(const Inputs& in, const std::vector<dsr::Image>& images,
     report.outlined = in.outlined;
     report.pair_a = in.pair[0];
     report.pair_b = in.pair[1];
-    report.errors = FLAGS_gt_poses.empty() ? nullptr : &written->gt_errors;
+    report.errors = dsr::StringFlag("gt_poses").empty() ? nullptr : &written->gt_errors;
     report.mode = dsr::ModeToString(options.mode);
-    if (!dsr::WriteReport(FLAGS_report_dir, report, &written->report_index, error)) return false;
+    if (!dsr::WriteReport(dsr::StringFlag("report_dir"), report, &written->report_index, error)) return false;
   }
-  return dsr::WritePoses(dsr::ResultPoses(result, image_names), FLAGS_out_poses, error);
+  return dsr::WritePoses(dsr::ResultPoses(result, image_names), dsr::StringFlag("out_poses"), error);
 }
 
 void PrintSummary(const dsr::RegistrationOptions& options, const dsr::RegistrationResult& result,
@@ -334,12 +312,12 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
               last.report.final_cost, last.candidate_voxels, last.candidate_observations,
               last.report.termination.c_str());
   std::printf("dsr_register: %s\n",
-              dsr::FieldOfViewSummary(mask_rules, dsr::FieldOfViewFromFlags().mask_rule).c_str());
+              dsr::FieldOfViewSummary(mask_rules, dsr::ToolConfig().field_of_view.mask_rule).c_str());
   std::printf("dsr_register: time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s), peak "
               "memory %.0f MiB; wrote %s\n",
               seconds, load_seconds, result.pyramid_seconds,
               result.seconds - result.pyramid_seconds,
-              static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, FLAGS_out_poses.c_str());
+              static_cast<double>(dsr::PeakResidentBytes()) / 1048576.0, dsr::StringFlag("out_poses").c_str());
   if (result.intensity_transform != dsr::IntensityTransform::kNone) {
     std::printf("dsr_register: registered %s(c I), c = %g (--intensity_transform): the cost "
                 "above is on that scale; gains, offsets and images are on the input's grey "
@@ -357,17 +335,19 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
                 "at most about %.2g voxels of error on a pose (frame %d)\n",
                 *worst, static_cast<int>(worst - result.pose_error_voxels.begin()));
   }
-  if (!dsr::PresetSummary().empty()) std::printf("dsr_register: %s\n", dsr::PresetSummary().c_str());
+  if (!dsr::ToolSettings().PresetSummary().empty()) {
+    std::printf("dsr_register: %s\n", dsr::ToolSettings().PresetSummary().c_str());
+  }
   if (!result.photometric_choice.empty()) {
     std::printf("dsr_register: photometric model %s\n",
                 dsr::FieldPathsAsFlags(result.photometric_choice).c_str());
   }
   if (!result.photometric.empty()) {
     std::printf("dsr_register: %s\n",
-                PhotometricSummary(result.photometric, FLAGS_gt_poses.empty() ? nullptr : &gt)
+                PhotometricSummary(result.photometric, dsr::StringFlag("gt_poses").empty() ? nullptr : &gt)
                     .c_str());
   }
-  if (FLAGS_uncertainty) {
+  if (dsr::BoolFlag("uncertainty")) {
     std::printf("dsr_register: %s\n",
                 dsr::FieldPathsAsFlags(
                     dsr::UncertaintySummary(result.uncertainty, result.uncertainty_note))
@@ -377,8 +357,8 @@ void PrintSummary(const dsr::RegistrationOptions& options, const dsr::Registrati
     std::printf("dsr_register: field-of-view enlargement %.2f (voxels seen by any frame / "
                 "voxels in frame 0's field of view)\n", written.enlargement);
   }
-  if (!FLAGS_gt_poses.empty()) {
-    std::printf("errors against %s (frame-0-relative):\n%s", FLAGS_gt_poses.c_str(),
+  if (!dsr::StringFlag("gt_poses").empty()) {
+    std::printf("errors against %s (frame-0-relative):\n%s", dsr::StringFlag("gt_poses").c_str(),
                 written.gt_errors.Table().c_str());
   }
   if (!written.report_index.empty()) {
@@ -394,12 +374,12 @@ int Main(int argc, char** argv) {
       "      [--init=auto|identity|pairwise|global|FILE] [--panorama_spacing=1] [--gt_poses=FILE]\n"
       "Exit status: 0 ok, 2 bad input, 1 the solve failed (no pose file written). "
       "--helpshort lists this tool's flags only.",
-      {"images", "out_poses"}, &argc, &argv);
+      dsr::kDsrRegister, {"images", "out_poses"}, &argc, &argv);
   const auto start = std::chrono::steady_clock::now();
   std::string error, init_file;
   // Options first, so that flag errors come before any file is read.
   dsr::RegistrationOptions options;
-  if (!dsr::RunOptionsFromFlags(&options, &init_file, &error)) return Fail(error);
+  if (!dsr::RunOptionsFrom(dsr::ToolSettings(), &options, &init_file, &error)) return Fail(error);
   Inputs in;
   dsr::OutputPlan plan;
   if (!ParseInputs(&in, &error) || !PlanFiles(in, init_file, &plan, &error)) return Fail(error);
@@ -408,8 +388,8 @@ int Main(int argc, char** argv) {
   std::vector<Eigen::Isometry3d> initial;
   dsr::PosesFile gt;
   std::vector<dsr::MaskRule> mask_rules;
-  if (!dsr::ReadFrames(in.image_paths, in.mask_paths, dsr::FieldOfViewFromFlags(),
-                       FLAGS_num_threads, &images, &masks, &mask_rules, &error) ||
+  if (!dsr::ReadFrames(in.image_paths, in.mask_paths, dsr::ToolConfig().field_of_view,
+                       dsr::IntFlag("num_threads"), &images, &masks, &mask_rules, &error) ||
       !ReadPoseFiles(in, init_file, &initial, &gt, &error)) {
     return Fail(error);
   }

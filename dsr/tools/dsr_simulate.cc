@@ -19,12 +19,11 @@
 #include "dsr/io/io_poses.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
-#include "dsr/tools/flags/flags.h"
-#include "dsr/tools/output_plan.h"
+#include "dsr/tools/flags.h"
+#include "dsr/app/output_plan.h"
 #include "dsr/tools/tool_util.h"
 #include "dsr/util/clock.h"
 
-DEFINE_bool(write_source, false, "Also write the source volume as DIR/source.nii.gz.");
 
 namespace {
 
@@ -40,14 +39,14 @@ int Main(int argc, char** argv) {
       "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] ...\n"
       "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
-      {"out_dir"},
-      &argc,
-      &argv);
+      dsr::kDsrSimulate, {"out_dir"}, &argc, &argv);
 
   dsr::SimulationOptions options;
   dsr::PhantomOptions phantom;
   std::string error;
-  if (!dsr::SimulationOptionsFromFlags(&options, &phantom, &error)) return dsr::Fail(error);
+  if (!dsr::SimulationOptionsFrom(dsr::ToolSettings(), &options, &phantom, &error)) {
+    return dsr::Fail(error);
+  }
   // Clear cases of too little memory are refused before any work: the frames (float) and
   // masks (uint8), the field of view and one frame's copies while it is written, the
   // source (checked again once a --source is read), and the effects' scratch: the
@@ -88,46 +87,46 @@ int Main(int argc, char** argv) {
     const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + effects_bytes +
                          world_bytes + (4.0 + echo_bytes_per_voxel) * source_voxels;
     return dsr::CheckMemoryEstimate(
-        "--frame_size=" + FLAGS_frame_size + " --num_frames=" + std::to_string(options.num_frames),
+        "--frame_size=" + dsr::StringFlag("frame_size") + " --num_frames=" + std::to_string(options.num_frames),
         bytes,
         std::to_string(options.num_frames) + " frames and masks and the source",
         &error);
   };
-  const double phantom_voxels = std::pow(static_cast<double>(FLAGS_phantom_size), 3);
+  const double phantom_voxels = std::pow(static_cast<double>(dsr::IntFlag("phantom_size")), 3);
   dsr::ImageGeometry phantom_grid;  // the phantom's extent (1 mm voxels) before it is made
-  phantom_grid.size = Eigen::Vector3i::Constant(FLAGS_phantom_size);
-  if (!check_memory(FLAGS_source.empty() ? phantom_voxels : 0.0,
-                    FLAGS_source.empty() ? world_speckle_bytes(phantom_grid) : 0.0)) {
+  phantom_grid.size = Eigen::Vector3i::Constant(dsr::IntFlag("phantom_size"));
+  if (!check_memory(dsr::StringFlag("source").empty() ? phantom_voxels : 0.0,
+                    dsr::StringFlag("source").empty() ? world_speckle_bytes(phantom_grid) : 0.0)) {
     return dsr::Fail(error);
   }
   // Every file this run reads and writes, before the source is read or the folder created.
   dsr::OutputPlan plan;
-  plan.AddInputImage("source", FLAGS_source);
-  plan.AddOutputFolder("out_dir", FLAGS_out_dir, FLAGS_out_dir);
+  plan.AddInputImage("source", dsr::StringFlag("source"));
+  plan.AddOutputFolder("out_dir", dsr::StringFlag("out_dir"), dsr::StringFlag("out_dir"));
   for (int f = 0; f < options.num_frames; ++f) {
     char frame_name[32], mask_name[32];
     std::snprintf(frame_name, sizeof(frame_name), "frame_%02d.nii.gz", f);
     std::snprintf(mask_name, sizeof(mask_name), "mask_%02d.nii.gz", f);
-    plan.AddDerivedImage("out_dir", FLAGS_out_dir, frame_name);
-    plan.AddDerivedImage("out_dir", FLAGS_out_dir, mask_name);
+    plan.AddDerivedImage("out_dir", dsr::StringFlag("out_dir"), frame_name);
+    plan.AddDerivedImage("out_dir", dsr::StringFlag("out_dir"), mask_name);
   }
-  if (FLAGS_write_source) plan.AddDerivedImage("out_dir", FLAGS_out_dir, "source.nii.gz");
-  plan.AddDerivedFile("out_dir", FLAGS_out_dir, "gt_poses.json");
+  if (dsr::BoolFlag("write_source")) plan.AddDerivedImage("out_dir", dsr::StringFlag("out_dir"), "source.nii.gz");
+  plan.AddDerivedFile("out_dir", dsr::StringFlag("out_dir"), "gt_poses.json");
   if (!plan.Check(&error)) return dsr::Fail(error);
 
   auto start = std::chrono::steady_clock::now();
   dsr::Image source;
-  if (FLAGS_source.empty()) {
+  if (dsr::StringFlag("source").empty()) {
     source = dsr::MakePhantom(phantom);
-  } else if (!dsr::ReadImage(FLAGS_source, &source, &error)) {
+  } else if (!dsr::ReadImage(dsr::StringFlag("source"), &source, &error)) {
     return dsr::Fail("--source: " + error);
   }
-  if (!FLAGS_source.empty() && !check_memory(static_cast<double>(source.voxels.size()),
+  if (!dsr::StringFlag("source").empty() && !check_memory(static_cast<double>(source.voxels.size()),
                                               world_speckle_bytes(source.geometry))) {
     return dsr::Fail(error);
   }
   const double source_seconds = dsr::SecondsSince(start);
-  LOG(INFO) << (FLAGS_source.empty() ? "phantom " : "read ") << source.geometry.DebugString()
+  LOG(INFO) << (dsr::StringFlag("source").empty() ? "phantom " : "read ") << source.geometry.DebugString()
             << " in " << source_seconds << " s";
 
   start = std::chrono::steady_clock::now();
@@ -138,7 +137,7 @@ int Main(int argc, char** argv) {
   if (!plan.CreateFolders(&error)) return dsr::Fail(error, dsr::kExitFailed);
 
   start = std::chrono::steady_clock::now();
-  const std::filesystem::path dir(FLAGS_out_dir);
+  const std::filesystem::path dir(dsr::StringFlag("out_dir"));
   dsr::PosesFile poses;
   if (options.gain_range > 0.0 || options.offset_range > 0.0) {
     // The ground truth of the intensity corrections a registration estimates.
@@ -155,7 +154,7 @@ int Main(int argc, char** argv) {
     poses.images.push_back(frame_name);
     poses.frame_from_world.push_back(sequence.frame_from_world[f]);
   }
-  if (FLAGS_write_source && !dsr::WriteImage(source, (dir / "source.nii.gz").string(), &error)) {
+  if (dsr::BoolFlag("write_source") && !dsr::WriteImage(source, (dir / "source.nii.gz").string(), &error)) {
     return dsr::Fail(error, dsr::kExitFailed);
   }
   if (!dsr::WritePoses(poses, (dir / "gt_poses.json").string(), &error)) {
@@ -177,8 +176,8 @@ int Main(int argc, char** argv) {
               fov_voxels,
               dsr::CountInside(sequence.masks[0]),
               options.num_frames,
-              FLAGS_write_source ? ", source.nii.gz" : "",
-              FLAGS_out_dir.c_str(),
+              dsr::BoolFlag("write_source") ? ", source.nii.gz" : "",
+              dsr::StringFlag("out_dir").c_str(),
               source_seconds,
               simulate_seconds,
               write_seconds);

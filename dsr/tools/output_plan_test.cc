@@ -1,4 +1,4 @@
-// The output plan (tools/output_plan.h) run through the real tools: every collision of an
+// The output plan (app/output_plan.h) run through the real tools: every collision of an
 // output with an input, or of two outputs, found through the names the tools derive
 // themselves (per-frame transforms, resampled frames, report files, dsr_compare's poses
 // files) and through the data files of detached image headers, is refused before any work:

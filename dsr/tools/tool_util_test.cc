@@ -1,22 +1,15 @@
 // Helpers shared by the tools (tools/tool_util.h).
 #include "dsr/tools/tool_util.h"
 
-#include <gflags/gflags.h>
 #include <gtest/gtest.h>
 
 #include "dsr/io/io_poses.h"
 
-// Flags of a pretend tool, for FieldPathsAsFlags.
-DEFINE_int32(max_iterations, 100, "");
-DEFINE_int32(search_rotations, 200, "");
-DEFINE_string(loss, "squared", "");
-DEFINE_double(loss_scale, 0.0, "");
-DEFINE_bool(progress, true, "");
-
 namespace dsr {
 namespace {
 
-TEST(FieldPathsAsFlags, NamesTheFlagOfEachFieldThisToolHas) {
+// Before InitTool, every option of the table counts as a flag of the tool.
+TEST(FieldPathsAsFlags, NamesTheFlagOfEachField) {
   // The path joined with '_', its last part, its first part.
   EXPECT_EQ(FieldPathsAsFlags("search.rotations=0: must be in [1, 100000]"),
             "--search_rotations=0: must be in [1, 100000]");
@@ -25,7 +18,7 @@ TEST(FieldPathsAsFlags, NamesTheFlagOfEachFieldThisToolHas) {
   EXPECT_EQ(FieldPathsAsFlags("loss.scale=0: must be finite and > 0 for loss.kind=huber"),
             "--loss_scale=0: must be finite and > 0 for --loss=huber");
   EXPECT_EQ(FieldPathsAsFlags("a frame is off (solve.progress)"), "a frame is off (--progress)");
-  // Fields no flag of this tool sets keep their names; flags and prose stay.
+  // Fields no option sets keep their names; flags and prose stay.
   EXPECT_EQ(FieldPathsAsFlags("search.num_screened=-1: must be >= 0"),
             "search.num_screened=-1: must be >= 0");
   EXPECT_EQ(FieldPathsAsFlags("--loss=tukey: must be squared"), "--loss=tukey: must be squared");

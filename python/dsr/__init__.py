@@ -21,7 +21,6 @@ Example::
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable, Dict, List, Optional, Tuple, Union
 from typing import Sequence as SequenceOf  # dsr.Sequence is the simulator's sequence
@@ -224,8 +223,9 @@ def register(images: SequenceOf[ImageLike],
     mode, init, **options: dsr_register's flags by name (e.g. ``pyramid_levels=2``,
         ``photometric="affine"``, ``uncertainty=True``) with its defaults, except
         ``progress`` (its iteration lines on stderr), off here; ``dsr.options()`` lists them.
-    initial_poses: start poses (4x4, world -> frame) instead of ``init``'s, used as
-        dsr_register uses an ``init`` poses file (with recovery).
+    initial_poses: start poses (4x4, world -> frame, one per image in the images' order)
+        instead of ``init``'s, used as dsr_register uses an ``init`` poses file (with
+        recovery).
     names: the images' names in the poses file (default: the file names, or frame_NN).
     on_iteration: called after every solver iteration as on_iteration(label, record) with
         record {"iteration", "cost", "step_norm", "seconds", "step_accepted"} and label the
@@ -254,29 +254,19 @@ def register(images: SequenceOf[ImageLike],
             bar.update(1)
             return on_iteration(label, record) if on_iteration is not None else None
 
-    def run(init_value) -> Result:
-        flags = _flags({"mode": mode, "init": init_value, "progress": False, **options})
-        return _register(core_images, core_masks, image_names, flags, callback)
-
+    start = None
+    if initial_poses is not None:
+        start = [np.asarray(pose, dtype=float) for pose in initial_poses]
     try:
-        return _run_with_init(run, init, initial_poses, image_names)
+        return _register(core_images, core_masks, image_names,
+                         _flags({"mode": mode, "init": init, "progress": False, **options}),
+                         start, callback)
     finally:
         if bar is not None:
             bar.close()
 
 
-def _run_with_init(run, init, initial_poses, image_names) -> Result:
-    """run(init) or, with initial poses, run(a poses file holding them)."""
-    if initial_poses is None:
-        return run(init)
-    # As dsr_register --init=FILE: the poses matched to the images by name, with recovery.
-    with tempfile.TemporaryDirectory(prefix="dsr_") as work:
-        path = os.path.join(work, "initial_poses.json")
-        write_poses(path, list(initial_poses), images=image_names)
-        return run(path)
-
-
-def _register(core_images, core_masks, image_names, flags, on_iteration) -> Result:
+def _register(core_images, core_masks, image_names, flags, start, on_iteration) -> Result:
     observer = None
     if on_iteration is not None:
         def observer(label: str, record) -> bool:
@@ -288,7 +278,7 @@ def _register(core_images, core_masks, image_names, flags, on_iteration) -> Resu
                 "step_accepted": record.step_accepted,
             })
             return answer is not False
-    out = _core.register(core_images, core_masks, image_names, flags, observer)
+    out = _core.register(core_images, core_masks, image_names, flags, start, observer)
     poses = out["poses"]
     return Result(
         poses=list(poses["frame_from_world"]),
@@ -404,7 +394,11 @@ def write_poses(path: Union[str, "os.PathLike[str]"],
     }, os.fspath(path))
 
 
-def options() -> Dict[str, Dict[str, str]]:
-    """The options register() and simulate() take: name -> {type, default, help, file}."""
-    return {name: {"type": kind, "default": default, "help": help_text, "file": file}
-            for name, kind, default, help_text, file in _core.options()}
+def options() -> Dict[str, Dict[str, Any]]:
+    """The options table, the one list every front end's options come from: name ->
+    {type, default, group, front_ends, help}. register() takes those whose front_ends hold
+    "python:register", fuse() "python:fuse", simulate() "python:simulate"; the command-line
+    tools take theirs as --flags."""
+    return {name: {"type": kind, "default": default, "group": group,
+                   "front_ends": list(front_ends), "help": help_text}
+            for name, kind, default, group, front_ends, help_text in _core.options()}

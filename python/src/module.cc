@@ -1,8 +1,10 @@
 // dsr._core: the C++ side of the Python package (python/dsr/__init__.py is the API users
-// call). It is a front end like the command-line tools: options arrive as flag names and
-// values and go through the same flags layer (tools/flags: validators, defaults, the
-// mapping to RegistrationOptions and SimulationOptions), so a registration from Python is
-// the registration dsr_register runs, with its messages. No method code lives here.
+// call). It is a front end like the command-line tools: options arrive as names and values
+// and go through the application layer (dsr/app: the options table's rules and defaults,
+// the mapping to RegistrationOptions and SimulationOptions), so a registration from Python
+// is the registration dsr_register runs, with its messages. Each call has its own Settings:
+// no state is shared between calls, so registrations in several threads do not meet. Only
+// conversions live here.
 #include <pybind11/functional.h>
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -12,14 +14,17 @@
 #include <exception>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <type_traits>
 #include <utility>
 #include <vector>
 
 #include <Eigen/Geometry>
-#include <gflags/gflags.h>
 
+#include "dsr/app/inputs.h"
+#include "dsr/app/options.h"
+#include "dsr/app/run_options.h"
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
@@ -30,8 +35,6 @@
 #include "dsr/pipeline/report.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
-#include "dsr/tools/flags/flags.h"
-#include "dsr/tools/tool_util.h"
 
 namespace py = pybind11;
 
@@ -42,16 +45,38 @@ namespace {
 // status 1): the Python class dsr.RegistrationError.
 PyObject* registration_error = nullptr;
 
+// The options of the Python functions, by FrontEnd bit: every option of any of them names
+// its keyword in a message.
+constexpr uint32_t kPythonFrontEnds = kPyRegister | kPyFuse | kPySimulate;
+
 [[noreturn]] void BadInput(const std::string& message) {
-  throw py::value_error(FieldPathsAsFlags(message));
+  throw py::value_error(FieldPathsAsOptions(message, kPythonFrontEnds));
 }
 
-// Sets each (flag, value) for the current call; a FlagSaver in the caller restores them.
-void SetFlags(const std::vector<std::pair<std::string, std::string>>& flags) {
+using Options = std::vector<std::pair<std::string, std::string>>;
+
+std::string AsOptions(const std::string& message) {
+  return FieldPathsAsOptions(message, kPythonFrontEnds);
+}
+
+// The Settings of one call of a function of `front_end` from its (name, value) options, in
+// order: "flagfile" reads a flagfile with the command line's checks; an option of another
+// function is refused as unknown.
+Settings MakeSettings(const Options& options, uint32_t front_end) {
+  Settings settings;
   std::string error;
-  for (const auto& [name, value] : flags) {
-    if (!SetFlagValue(name, value, &error)) BadInput(error);
+  for (const auto& [name, value] : options) {
+    if (name == "flagfile") {
+      if (!settings.ReadFlagfile(value, front_end, &error)) BadInput(error);
+      continue;
+    }
+    const OptionSpec* spec = FindOption(name);
+    if (spec == nullptr || (spec->front_ends & front_end) == 0) {
+      BadInput("--" + name + "=" + value + ": unknown option (dsr.options() lists them)");
+    }
+    if (!settings.Set(name, value, &error)) BadInput(error);
   }
+  return settings;
 }
 
 // A write that failed (a missing folder, a full disk): OSError with the writer's message.
@@ -214,7 +239,7 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   s["recoveries"] = result.recoveries.size();
   py::list recoveries;
   for (const RegistrationResult::Recovery& r : result.recoveries) {
-    recoveries.append(FieldPathsAsFlags(r.why));
+    recoveries.append(AsOptions(r.why));
   }
   s["recovery_reasons"] = recoveries;
   if (result.intensity_transform != IntensityTransform::kNone) {
@@ -235,26 +260,26 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   }
   if (!preset.empty()) s["preset"] = preset;
   if (!result.photometric_choice.empty()) {
-    s["photometric"] = FieldPathsAsFlags(result.photometric_choice);
+    s["photometric"] = AsOptions(result.photometric_choice);
   }
   if (options.uncertainty) {
-    s["uncertainty"] = FieldPathsAsFlags(UncertaintySummary(result.uncertainty,
+    s["uncertainty"] = AsOptions(UncertaintySummary(result.uncertainty,
                                                             result.uncertainty_note));
   }
   return s;
 }
 
-// The images and masks of a call (at least `min_frames`), read while its flags hold
-// (--images and --masks for paths, --mask_rule, --mask_erosion, --num_threads): file paths,
-// read as the tools read them (masks too), or (array, geometry) pairs; `masks` the same
-// kind, or empty for each image's field of view by --mask_rule eroded by --mask_erosion.
-// `match_names`: what a poses file's entries are matched to (the paths, or `names`).
-// `field_of_view`: FieldOfViewSummary of where the masks came from. True when the images
-// are files.
+// The images and masks of a call (at least `min_frames`), with `settings`' --mask_rule,
+// --mask_erosion and --num_threads: file paths, read as the tools read them (masks too), or
+// (array, geometry) pairs; `masks` the same kind, or empty for each image's field of view by
+// --mask_rule eroded by --mask_erosion. `match_names`: what a poses file's entries are
+// matched to (the paths, or `names`). `field_of_view`: FieldOfViewSummary of where the
+// masks came from. True when the images are files.
 bool ReadInputs(int min_frames,
                 const py::list& images,
                 const py::list& masks,
                 const std::vector<std::string>& names,
+                Settings settings,
                 std::vector<Image>* frames,
                 std::vector<Mask>* frame_masks,
                 std::vector<std::string>* match_names,
@@ -263,6 +288,8 @@ bool ReadInputs(int min_frames,
   const int m = static_cast<int>(images.size());
   if (static_cast<int>(names.size()) != m) BadInput("names: need one name per image");
   *match_names = names;
+  const RunConfig config = ConfigFrom(settings);
+  const FieldOfViewOptions& fov = config.field_of_view;
   if (m > 0 && py::isinstance<py::str>(images[0])) {
     // As --images and --masks, so that the paths get dsr_register's checks and messages.
     const auto join = [](const std::vector<std::string>& paths) {
@@ -270,48 +297,49 @@ bool ReadInputs(int min_frames,
       for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
       return out;
     };
-    SetFlags({{"images", join(images.cast<std::vector<std::string>>())},
-              {"masks", join(masks.cast<std::vector<std::string>>())}});
-    std::vector<std::string> image_paths, mask_paths;
-    if (!FrameFilesFromFlags(min_frames, &image_paths, &mask_paths, &error)) BadInput(error);
-    *match_names = image_paths;
-    std::vector<MaskRule> mask_rules;
-    if (!ReadFrames(image_paths, mask_paths, FieldOfViewFromFlags(), FLAGS_num_threads, frames,
-                    frame_masks, &mask_rules, &error)) {
+    if (!settings.Set("images", join(images.cast<std::vector<std::string>>()), &error) ||
+        !settings.Set("masks", join(masks.cast<std::vector<std::string>>()), &error)) {
       BadInput(error);
     }
-    *field_of_view = FieldOfViewSummary(mask_rules, FieldOfViewFromFlags().mask_rule);
+    std::vector<std::string> image_paths, mask_paths;
+    if (!FrameFilesFrom(settings, min_frames, &image_paths, &mask_paths, &error)) BadInput(error);
+    *match_names = image_paths;
+    std::vector<MaskRule> mask_rules;
+    if (!ReadFrames(image_paths, mask_paths, fov, config.num_threads, frames, frame_masks,
+                    &mask_rules, &error)) {
+      BadInput(error);
+    }
+    *field_of_view = FieldOfViewSummary(mask_rules, fov.mask_rule);
     return true;
-  } else {
-    // The rules FrameFilesFromFlags has for --images and --masks, named by argument.
-    if (m < min_frames) {
-      BadInput("images: need at least " + std::to_string(min_frames) + " images, got " +
-               std::to_string(m));
-    }
-    if (!masks.empty() && static_cast<int>(masks.size()) != m) {
-      BadInput("masks: " + std::to_string(masks.size()) + " masks for " + std::to_string(m) +
-               " images");
-    }
-    std::vector<MaskRule> mask_rules(masks.empty() ? m : 0);
-    for (int i = 0; i < m; ++i) {
-      const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
-      frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
-      if (masks.empty()) {
-        frame_masks->emplace_back();
-        if (!MaskFromImage(frames->back(), FieldOfViewFromFlags(), "image " + std::to_string(i),
-                           &frame_masks->back(), &mask_rules[i], &error)) {
-          BadInput(error);
-        }
-      } else {
-        const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
-        frame_masks->push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
-        if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
-          BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
-        }
+  }
+  // The rules FrameFilesFrom has for --images and --masks, named by argument.
+  if (m < min_frames) {
+    BadInput("images: need at least " + std::to_string(min_frames) + " images, got " +
+             std::to_string(m));
+  }
+  if (!masks.empty() && static_cast<int>(masks.size()) != m) {
+    BadInput("masks: " + std::to_string(masks.size()) + " masks for " + std::to_string(m) +
+             " images");
+  }
+  std::vector<MaskRule> mask_rules(masks.empty() ? m : 0);
+  for (int i = 0; i < m; ++i) {
+    const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
+    frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
+    if (masks.empty()) {
+      frame_masks->emplace_back();
+      if (!MaskFromImage(frames->back(), fov, "image " + std::to_string(i), &frame_masks->back(),
+                         &mask_rules[i], &error)) {
+        BadInput(error);
+      }
+    } else {
+      const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
+      frame_masks->push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
+      if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
+        BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
       }
     }
-    *field_of_view = FieldOfViewSummary(mask_rules, FieldOfViewFromFlags().mask_rule);
   }
+  *field_of_view = FieldOfViewSummary(mask_rules, fov.mask_rule);
   return false;
 }
 
@@ -323,33 +351,40 @@ struct Run {
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> start;
   std::string field_of_view;  // FieldOfViewSummary of the masks
-  std::string preset;         // PresetSummary (empty without --preset)
+  std::string preset;         // Settings::PresetSummary (empty without --preset)
 };
 
-// The run that `flags` set up for `images` (file paths, read as dsr_register reads them,
+// The run that `options` set up for `images` (file paths, read as dsr_register reads them,
 // masks too; or (array, geometry) pairs) and `masks` (the same kind, or empty for each
-// image's field of view by --mask_rule eroded by --mask_erosion). --init's poses file is
-// matched to the images by name as dsr_register matches it (to the paths, or to `names`).
-// The flags hold their values only within this call (the FlagSaver), which runs with the
-// GIL held: a registration in another Python thread never sees them.
+// image's field of view by --mask_rule eroded by --mask_erosion). The start: `initial`
+// (4x4 arrays, one per image, with recovery as a poses file has) when given, else --init's
+// (a poses file is matched to the images by name as dsr_register matches it: to the paths,
+// or to `names`).
 Run PrepareRun(const py::list& images,
                const py::list& masks,
                const std::vector<std::string>& names,
-               const std::vector<std::pair<std::string, std::string>>& flags) {
-  gflags::FlagSaver saver;
-  SetFlags(flags);
+               const Options& options,
+               const std::optional<std::vector<py::array_t<double>>>& initial) {
+  Settings settings = MakeSettings(options, kPyRegister);
   std::string error, init_file;
+  if (initial.has_value() && !settings.Set("init", "auto", &error)) BadInput(error);
   Run run;
-  if (!RunOptionsFromFlags(&run.options, &init_file, &error)) BadInput(error);
-  run.preset = PresetSummary();  // while the call's flags hold
+  if (!RunOptionsFrom(settings, &run.options, &init_file, &error)) BadInput(error);
+  run.preset = settings.PresetSummary();
   std::vector<std::string> match_names;
-  if (ReadInputs(2, images, masks, names, &run.frames, &run.masks, &match_names,
+  if (ReadInputs(2, images, masks, names, settings, &run.frames, &run.masks, &match_names,
                  &run.field_of_view)) {
     run.paths = match_names;
   }
   const int m = static_cast<int>(images.size());
   run.start.assign(m, Eigen::Isometry3d::Identity());
-  if (!init_file.empty()) {
+  if (initial.has_value()) {
+    if (static_cast<int>(initial->size()) != m) {
+      BadInput("initial_poses: " + std::to_string(initial->size()) + " poses for " +
+               std::to_string(m) + " images");
+    }
+    for (int i = 0; i < m; ++i) run.start[i] = ToPose((*initial)[i]);
+  } else if (!init_file.empty()) {
     PosesFile poses;
     if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
     if (!MatchPosesToImages("init", init_file, match_names, &poses, &error)) BadInput(error);
@@ -358,14 +393,15 @@ Run PrepareRun(const py::list& images,
   return run;
 }
 
-// register(images, masks, names, flags, on_iteration): PrepareRun's run, solved
-// without the GIL; the poses file's contents and a summary.
+// register(images, masks, names, options, initial_poses, on_iteration): PrepareRun's run,
+// solved without the GIL; the poses file's contents and a summary.
 py::dict RegisterImages(const py::list& images,
                         const py::list& masks,
                         const std::vector<std::string>& names,
-                        const std::vector<std::pair<std::string, std::string>>& flags,
+                        const Options& options_in,
+                        const std::optional<std::vector<py::array_t<double>>>& initial_poses,
                         const IterationObserver& on_iteration) {
-  Run run = PrepareRun(images, masks, names, flags);
+  Run run = PrepareRun(images, masks, names, options_in, initial_poses);
   RegistrationOptions& options = run.options;
   std::string error;
   // The callback's exception stops the solve and is raised once the registration returns.
@@ -394,7 +430,7 @@ py::dict RegisterImages(const py::list& images,
   if (callback_error) std::rethrow_exception(callback_error);
   if (!ok) BadInput(WithFrameFile(error, run.paths));
   if (!result.usable) {
-    PyErr_SetString(registration_error, FieldPathsAsFlags(result.failure).c_str());
+    PyErr_SetString(registration_error, AsOptions(result.failure).c_str());
     throw py::error_already_set();
   }
   py::dict out;
@@ -403,17 +439,14 @@ py::dict RegisterImages(const py::list& images,
   return out;
 }
 
-// simulate(flags): dsr_simulate's sequence (frames, masks, ground truth) in memory.
-py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>& flags) {
+// simulate(options): dsr_simulate's sequence (frames, masks, ground truth) in memory.
+py::dict SimulateSequence(const Options& options_in) {
   SimulationOptions options;
   PhantomOptions phantom;
-  std::string source_path, error;
-  {
-    gflags::FlagSaver saver;  // the flags' values only until the options are read
-    SetFlags(flags);
-    if (!SimulationOptionsFromFlags(&options, &phantom, &error)) BadInput(error);
-    source_path = FLAGS_source;
-  }
+  std::string error;
+  const Settings settings = MakeSettings(options_in, kPySimulate);
+  if (!SimulationOptionsFrom(settings, &options, &phantom, &error)) BadInput(error);
+  const std::string source_path = settings.String("source");
   Image source;
   if (source_path.empty()) {
     source = MakePhantom(phantom);
@@ -448,7 +481,7 @@ py::dict SimulateSequence(const std::vector<std::pair<std::string, std::string>>
   return out;
 }
 
-// fuse(images, masks, names, poses, flags): dsr_fuse's panorama (mean, count and the
+// fuse(images, masks, names, poses, options): dsr_fuse's panorama (mean, count and the
 // field-of-view enlargement) of the images at the poses: a poses file's path (read and
 // checked as dsr_fuse reads --poses) or the poses dict of read_poses or a registration;
 // gains and offsets correct the intensities as in dsr_fuse.
@@ -456,7 +489,7 @@ py::tuple FuseImages(const py::list& images,
                      const py::list& masks,
                      const std::vector<std::string>& names,
                      const py::object& poses_in,
-                     const std::vector<std::pair<std::string, std::string>>& flags) {
+                     const Options& options_in) {
   const int m = static_cast<int>(images.size());
   std::string error, poses_name = "poses";
   PosesFile poses;
@@ -473,19 +506,14 @@ py::tuple FuseImages(const py::list& images,
   std::vector<Image> frames_in;
   std::vector<Mask> masks_in;
   std::vector<std::string> match_names;
-  double spacing = 1.0, feather_voxels = 0.0;
-  bool feather = false;
-  int num_threads = 0;
-  {
-    gflags::FlagSaver saver;  // the flags' values only while the inputs are read
-    SetFlags(flags);
-    std::string field_of_view;
-    ReadInputs(1, images, masks, names, &frames_in, &masks_in, &match_names, &field_of_view);
-    spacing = FLAGS_panorama_spacing;
-    feather = FeatherBlend();
-    feather_voxels = FLAGS_feather_voxels;
-    num_threads = FLAGS_num_threads;
-  }
+  const Settings settings = MakeSettings(options_in, kPyFuse);
+  const RunConfig config = ConfigFrom(settings);
+  const double spacing = config.panorama_spacing, feather_voxels = config.feather_voxels;
+  const bool feather = config.feather;
+  const int num_threads = config.num_threads;
+  std::string field_of_view;
+  ReadInputs(1, images, masks, names, settings, &frames_in, &masks_in, &match_names,
+             &field_of_view);
   if (!MatchPosesToImages("poses", poses_name, match_names, &poses, &error)) BadInput(error);
   std::vector<Frame> frames;
   std::vector<Eigen::Isometry3d> relative;
@@ -534,14 +562,12 @@ void WritePosesFile(const py::dict& poses, const std::string& path) {
   if (!WritePoses(PosesFromDict(poses), path, &error)) WriteFailed(error);
 }
 
-// The flags an option may be given as: each with its type, default and help.
-py::list Options() {
-  std::vector<gflags::CommandLineFlagInfo> all;
-  gflags::GetAllFlags(&all);
+// The options table: each option's name, type, default, group, front ends and help.
+py::list OptionsTable() {
   py::list out;
-  for (const gflags::CommandLineFlagInfo& info : all) {
-    out.append(py::make_tuple(info.name, info.type, info.default_value, info.description,
-                              std::filesystem::path(info.filename).filename().string()));
+  for (const OptionSpec& spec : OptionTable()) {
+    out.append(py::make_tuple(spec.name, OptionTypeName(spec.type), spec.default_text,
+                              spec.group, FrontEndNames(spec.front_ends), spec.help));
   }
   return out;
 }
@@ -551,7 +577,6 @@ py::list Options() {
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "C++ core of the dsr package (see dsr/__init__.py for the API).";
-  dsr::SetBadFlagsExit(false);  // a refused value raises ValueError, it never exits Python
   static py::exception<std::runtime_error> error(m, "RegistrationError", PyExc_RuntimeError);
   dsr::registration_error = error.ptr();
   py::class_<dsr::IterationRecord>(m, "IterationRecord")
@@ -561,15 +586,15 @@ PYBIND11_MODULE(_core, m) {
       .def_readonly("seconds", &dsr::IterationRecord::seconds)
       .def_readonly("step_accepted", &dsr::IterationRecord::step_accepted);
   m.def("register", &dsr::RegisterImages, py::arg("images"), py::arg("masks"), py::arg("names"),
-        py::arg("flags"), py::arg("on_iteration"));
-  m.def("simulate", &dsr::SimulateSequence, py::arg("flags"));
+        py::arg("options"), py::arg("initial_poses"), py::arg("on_iteration"));
+  m.def("simulate", &dsr::SimulateSequence, py::arg("options"));
   m.def("fuse", &dsr::FuseImages, py::arg("images"), py::arg("masks"), py::arg("names"),
-        py::arg("poses"), py::arg("flags"));
+        py::arg("poses"), py::arg("options"));
   m.def("write_tfm", &dsr::WriteTransformFile, py::arg("pose"), py::arg("path"));
   m.def("read_image", &dsr::ReadImageFile, py::arg("path"));
   m.def("write_image", &dsr::WriteImageFile, py::arg("array"), py::arg("geometry"),
         py::arg("path"));
   m.def("read_poses", &dsr::ReadPosesFile, py::arg("path"), py::arg("expected_frames") = -1);
   m.def("write_poses", &dsr::WritePosesFile, py::arg("poses"), py::arg("path"));
-  m.def("options", &dsr::Options);
+  m.def("options", &dsr::OptionsTable);
 }

@@ -15,8 +15,8 @@
 //   if (!plan.Check(&error)) return Fail(error);   // exit 2, nothing written
 //   ... read inputs, run ...
 //   if (!plan.CreateFolders(&error)) return Fail(error, kExitFailed);
-#ifndef DSR_TOOLS_OUTPUT_PLAN_H_
-#define DSR_TOOLS_OUTPUT_PLAN_H_
+#ifndef DSR_APP_OUTPUT_PLAN_H_
+#define DSR_APP_OUTPUT_PLAN_H_
 
 #include <string>
 #include <vector>
@@ -99,4 +99,4 @@ class OutputPlan {
 
 }  // namespace dsr
 
-#endif  // DSR_TOOLS_OUTPUT_PLAN_H_
+#endif  // DSR_APP_OUTPUT_PLAN_H_

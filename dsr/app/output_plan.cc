@@ -1,4 +1,4 @@
-#include "dsr/tools/output_plan.h"
+#include "dsr/app/output_plan.h"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -10,7 +10,7 @@
 #include <utility>
 
 #include "dsr/io/io_image.h"
-#include "dsr/tools/tool_util.h"
+#include "dsr/app/inputs.h"
 
 namespace dsr {
 namespace {

@@ -1,0 +1,161 @@
+// The options table and Settings (dsr/app/options.h), flagfiles (dsr/app/flagfile.h) and
+// the options a run is made with (dsr/app/run_options.h).
+#include "dsr/app/options.h"
+
+#include <fstream>
+#include <set>
+#include <string>
+
+#include <gtest/gtest.h>
+
+#include "dsr/app/flagfile.h"
+#include "dsr/app/run_options.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
+
+namespace dsr {
+namespace {
+
+TEST(OptionTable, NamesAreUniqueAndEveryDefaultKeepsItsRule) {
+  std::set<std::string> names;
+  for (const OptionSpec& spec : OptionTable()) {
+    EXPECT_TRUE(names.insert(spec.name).second) << spec.name << " declared twice";
+    EXPECT_NE(spec.front_ends, 0u) << spec.name << " belongs to no front end";
+    EXPECT_GT(std::string(spec.help).size(), 10u) << spec.name << " has no help";
+    OptionValue value;
+    std::string error;
+    EXPECT_TRUE(ParseOptionValue(spec, spec.default_text, &value, &error)) << error;
+    EXPECT_EQ(OptionValueText(value), OptionValueText(Settings().Value(spec.name)));
+    EXPECT_EQ(FindOption(spec.name), &spec);
+  }
+  EXPECT_EQ(FindOption("no_such_option"), nullptr);
+}
+
+// The table's defaults are the library's where the library names one for the tools.
+TEST(OptionTable, DefaultsAreTheLibrarysToolDefaults) {
+  const Settings settings;
+  EXPECT_EQ(settings.Int("max_recoveries"), kDefaultMaxRecoveries);
+  EXPECT_EQ(settings.String("photometric"), PhotometricModelToString(kDefaultPhotometricModel));
+  const RunConfig config = ConfigFrom(settings);
+  const RegistrationOptions library;
+  EXPECT_EQ(config.registration.pyramid_levels, library.pyramid_levels);
+  EXPECT_EQ(config.registration.max_structure_fraction, library.max_structure_fraction);
+  EXPECT_EQ(config.registration.max_pose_error_voxels, library.max_pose_error_voxels);
+  EXPECT_EQ(config.registration.min_kept_overlap, library.min_kept_overlap);
+  EXPECT_EQ(config.registration.gauge, library.gauge);
+  EXPECT_EQ(config.registration.search.rotations, library.search.rotations);
+  const SimulationOptions simulation;
+  EXPECT_EQ(config.simulation.num_frames, simulation.num_frames);
+  EXPECT_EQ(config.simulation.frame_size, simulation.frame_size);
+}
+
+TEST(Settings, SetParsesChecksAndNamesTheOption) {
+  Settings settings;
+  std::string error;
+  EXPECT_TRUE(settings.IsDefault("max_iterations"));
+  EXPECT_TRUE(settings.Set("max_iterations", "7", &error)) << error;
+  EXPECT_FALSE(settings.IsDefault("max_iterations"));
+  EXPECT_EQ(settings.Int("max_iterations"), 7);
+  EXPECT_FALSE(settings.Set("max_iterations", "7.5", &error));
+  EXPECT_EQ(error, "--max_iterations=7.5: not a valid int32");
+  EXPECT_FALSE(settings.Set("mask_erosion", "51", &error));
+  EXPECT_EQ(error, "--mask_erosion=51: must be in [0, 50]");
+  EXPECT_FALSE(settings.Set("typo", "1", &error));
+  EXPECT_EQ(error, "--typo=1: unknown option");
+  EXPECT_FALSE(settings.Set("seed", "-1", &error));
+  EXPECT_EQ(error, "--seed=-1: not a valid uint64");
+  EXPECT_TRUE(settings.Set("uncertainty", "yes", &error));
+  EXPECT_TRUE(settings.Bool("uncertainty"));
+  EXPECT_EQ(settings.Int("max_iterations"), 7);  // a refused value changes nothing
+}
+
+TEST(Settings, APresetSetsWhatWasNotGiven) {
+  Settings settings;
+  std::string error;
+  ASSERT_TRUE(settings.Set("photometric", "none", &error));
+  ASSERT_TRUE(settings.Set("preset", "echo", &error));
+  EXPECT_EQ(settings.String("photometric"), "none");  // given: kept
+  EXPECT_EQ(settings.String("intensity_transform"), "sqrt");
+  EXPECT_EQ(settings.String("panorama_sampling"), "all_phases");
+  EXPECT_EQ(settings.PresetSummary(),
+            "preset echo: --intensity_transform=sqrt --panorama_sampling=all_phases");
+  EXPECT_TRUE(settings.IsDefault("intensity_transform"));
+}
+
+TEST(RunOptions, RulesBetweenOptionsNameThem) {
+  Settings settings;
+  RegistrationOptions options;
+  std::string init_file, error;
+  ASSERT_TRUE(RunOptionsFrom(settings, &options, &init_file, &error)) << error;
+  EXPECT_EQ(options.photometric, PhotometricModel::kAuto);
+  EXPECT_EQ(options.max_recoveries, kDefaultMaxRecoveries);
+  ASSERT_TRUE(settings.Set("mode", "ape", &error));
+  ASSERT_TRUE(RunOptionsFrom(settings, &options, &init_file, &error)) << error;
+  EXPECT_EQ(options.photometric, PhotometricModel::kNone);  // the default: none for baselines
+  ASSERT_TRUE(settings.Set("uncertainty", "true", &error));
+  EXPECT_FALSE(RunOptionsFrom(settings, &options, &init_file, &error));
+  EXPECT_EQ(error, "--uncertainty: needs --mode=dsr or dba (got --mode=ape)");
+  ASSERT_TRUE(settings.Set("init", "start.json", &error));
+  ASSERT_TRUE(settings.Set("uncertainty", "false", &error));
+  ASSERT_TRUE(RunOptionsFrom(settings, &options, &init_file, &error)) << error;
+  EXPECT_EQ(init_file, "start.json");
+}
+
+class FlagfileTest : public testing::Test {
+ protected:
+  std::string Write(const std::string& name, const std::string& text) {
+    const std::string path = dir_.path() + "/" + name;
+    std::ofstream(path) << text;
+    return path;
+  }
+  ScopedTempDir dir_;
+};
+
+TEST_F(FlagfileTest, SetsItsValuesInOrderWithNestedFiles) {
+  const std::string inner = Write("inner.flags", "--max_iterations=9\n--nouncertainty\n");
+  const std::string outer = Write("outer.flags", "# a comment\n\n--max_iterations=3\n"
+                                                 "--uncertainty\n--flagfile=" + inner + "\n");
+  Settings settings;
+  std::string error;
+  ASSERT_TRUE(settings.ReadFlagfile(outer, kPyRegister, &error)) << error;
+  EXPECT_EQ(settings.Int("max_iterations"), 9);
+  EXPECT_FALSE(settings.Bool("uncertainty"));
+  EXPECT_FALSE(settings.IsDefault("uncertainty"));
+  EXPECT_FALSE(settings.IsDefault("max_iterations"));
+}
+
+TEST_F(FlagfileTest, RefusesWhatTheCommandLineRefuses) {
+  Settings settings;
+  std::string error;
+  EXPECT_FALSE(settings.ReadFlagfile(dir_.path() + "/none.flags", kPyRegister, &error));
+  EXPECT_NE(error.find("none.flags: no such file"), std::string::npos) << error;
+  const std::string self = dir_.path() + "/self.flags";
+  Write("self.flags", "--flagfile=" + self + "\n");
+  EXPECT_FALSE(settings.ReadFlagfile(self, kPyRegister, &error));
+  EXPECT_NE(error.find("includes itself"), std::string::npos) << error;
+  EXPECT_FALSE(settings.ReadFlagfile(Write("typo.flags", "--typo_flag=3\n"), kPyRegister,
+                                     &error));
+  EXPECT_NE(error.find("line 1: unknown flag --typo_flag"), std::string::npos) << error;
+  EXPECT_FALSE(settings.ReadFlagfile(Write("junk.flags", "junk line\n"), kPyRegister, &error));
+  EXPECT_NE(error.find("junk.flags: line 1: 'junk line' is not --flag=value"),
+            std::string::npos) << error;
+  EXPECT_FALSE(settings.ReadFlagfile(dir_.path(), kPyRegister, &error));
+  EXPECT_NE(error.find("is a folder"), std::string::npos) << error;
+  // An option of another front end is unknown here.
+  EXPECT_FALSE(settings.ReadFlagfile(Write("sim.flags", "--speckle_looks=2\n"), kPyRegister,
+                                     &error));
+  EXPECT_NE(error.find("unknown flag --speckle_looks"), std::string::npos) << error;
+  EXPECT_FALSE(settings.ReadFlagfile(Write("bad.flags", "--mask_erosion=99\n"), kPyRegister,
+                                     &error));
+  EXPECT_NE(error.find("--mask_erosion=99: must be in [0, 50]"), std::string::npos) << error;
+}
+
+TEST(FieldPathsAsOptions, NamesTheOptionOfTheFrontEnd) {
+  EXPECT_EQ(FieldPathsAsOptions("solve.max_iterations=0: must be >= 1", kPyRegister),
+            "--max_iterations=0: must be >= 1");
+  // dsr_fuse has no --max_iterations: the field keeps its name.
+  EXPECT_EQ(FieldPathsAsOptions("solve.max_iterations=0: must be >= 1", kDsrFuse),
+            "solve.max_iterations=0: must be >= 1");
+}
+
+}  // namespace
+}  // namespace dsr

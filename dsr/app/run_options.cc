@@ -1,0 +1,115 @@
+// From Settings to the libraries' options (dsr/app/run_options.h).
+#include "dsr/app/run_options.h"
+
+#include <set>
+
+#include "dsr/app/inputs.h"
+#include "dsr/model/robust_loss.h"
+#include "dsr/util/option_fields.h"
+
+namespace dsr {
+
+RunConfig ConfigFrom(const Settings& settings) {
+  RunConfig config;
+  settings.ApplyTo(&config);
+  config.registration.search.refine.progress = false;
+  return config;
+}
+
+PhotometricModel PhotometricFor(const Settings& settings, Mode mode) {
+  if (settings.IsDefault("photometric") && !ModeEstimatesPhotometric(mode)) {
+    return PhotometricModel::kNone;
+  }
+  PhotometricModel model = PhotometricModel::kNone;
+  StringToPhotometricModel(settings.String("photometric"), &model);  // checked when set
+  return model;
+}
+
+bool RegistrationOptionsFrom(const Settings& settings, RegistrationOptions* options,
+                             std::string* init_file, std::string* error) {
+  *options = ConfigFrom(settings).registration;
+  if (!MakeRobustLoss(settings.String("loss"), settings.Double("loss_scale"), &options->loss,
+                      error)) {
+    return false;
+  }
+  init_file->clear();
+  if (!SetInitialisation(settings.String("init"), settings.Int("max_recoveries"), options)) {
+    *init_file = settings.String("init");
+  }
+  return true;
+}
+
+bool RunOptionsFrom(const Settings& settings, RegistrationOptions* options,
+                    std::string* init_file, std::string* error) {
+  const std::string& mode = settings.String("mode");
+  if (!StringToMode(mode, &options->mode)) {
+    std::string names;
+    for (const std::string& name : ModeNames()) names += (names.empty() ? "" : "|") + name;
+    *error = "--mode=" + mode + ": unknown mode (one of " + names + ")";
+    return false;
+  }
+  const Mode chosen = options->mode;
+  if (!RegistrationOptionsFrom(settings, options, init_file, error)) return false;
+  options->mode = chosen;
+  options->photometric = PhotometricFor(settings, chosen);
+  if (!settings.IsDefault("gauge") && options->gauge != Gauge::kFrame0 &&
+      !ModeTakesGauge(chosen)) {
+    *error = "--gauge=" + settings.String("gauge") + ": needs --mode=dsr or dba (--mode=" +
+             mode + " holds frame 0 constant)";
+    return false;
+  }
+  if (options->uncertainty && !ModeEstimatesPhotometric(chosen)) {
+    *error = "--uncertainty: needs --mode=dsr or dba (got --mode=" + mode + ")";
+    return false;
+  }
+  return options->Validate(error);
+}
+
+bool SimulationOptionsFrom(const Settings& settings, SimulationOptions* options,
+                           PhantomOptions* phantom, std::string* error) {
+  const RunConfig config = ConfigFrom(settings);
+  *options = config.simulation;
+  *phantom = config.phantom;
+  if (!options->Validate(error)) return false;
+  if (!phantom->Validate(error)) {
+    *error = PrefixFieldPaths("phantom", *error);
+    return false;
+  }
+  return true;
+}
+
+bool FrameFilesFrom(const Settings& settings, int min_frames,
+                    std::vector<std::string>* image_paths,
+                    std::vector<std::string>* mask_paths, std::string* error) {
+  if (!ParseInputList("images", settings.String("images"), image_paths, error) ||
+      !ParseInputList("masks", settings.String("masks"), mask_paths, error)) {
+    return false;
+  }
+  const int m = static_cast<int>(image_paths->size());
+  if (m < min_frames) {
+    *error = m == 0 && min_frames == 1 ? "--images: no image given"
+                                       : "--images: need at least " + std::to_string(min_frames) +
+                                             " images, got " + std::to_string(m);
+    return false;
+  }
+  if (m > kMaxFrames) {
+    *error = "--images: at most " + std::to_string(kMaxFrames) + " frames, got " +
+             std::to_string(m);
+    return false;
+  }
+  if (!mask_paths->empty() && static_cast<int>(mask_paths->size()) != m) {
+    *error = "--masks: " + std::to_string(mask_paths->size()) + " masks for " +
+             std::to_string(m) + " images";
+    return false;
+  }
+  std::set<std::string> unique;
+  for (const std::string& p : *image_paths) {
+    if (!unique.insert(CanonicalPath(p)).second) {
+      *error = "--images: " + p + " is given twice";
+      return false;
+    }
+  }
+  return true;
+}
+
+}  // namespace dsr
