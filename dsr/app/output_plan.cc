@@ -120,100 +120,151 @@ std::string OutputPlan::Describe(const Entry& e) {
   return text;
 }
 
-bool OutputPlan::Check(std::string* error) const {
-  std::error_code ec;
-  // Each entry's identity: its canonical path, and for an existing file its device and
-  // inode (one file under two names: hard links, bind mounts).
+// Each entry's identity: its canonical path, and for an existing file its device and inode
+// (one file under two names: hard links, bind mounts).
+struct OutputPlan::Index {
   using Inode = std::pair<dev_t, ino_t>;
-  std::vector<std::optional<Inode>> inodes(entries_.size());
+  std::vector<std::optional<Inode>> inodes;
+  std::vector<mode_t> modes;  // of existing entries (0: none)
   std::map<std::string, size_t> input_by_path, folder_by_path;
   std::map<Inode, size_t> input_by_inode;
+};
+
+OutputPlan::Index OutputPlan::MakeIndex() const {
+  Index index;
+  index.inodes.resize(entries_.size());
+  index.modes.assign(entries_.size(), 0);
   for (size_t i = 0; i < entries_.size(); ++i) {
     const Entry& e = entries_[i];
     struct stat st;
-    if (::stat(e.canonical.c_str(), &st) == 0) inodes[i] = Inode(st.st_dev, st.st_ino);
+    if (::stat(e.canonical.c_str(), &st) == 0) {
+      index.inodes[i] = Index::Inode(st.st_dev, st.st_ino);
+      index.modes[i] = st.st_mode;
+    }
     if (e.kind == Kind::kInput) {
-      input_by_path.emplace(e.canonical, i);
-      if (inodes[i]) input_by_inode.emplace(*inodes[i], i);
+      index.input_by_path.emplace(e.canonical, i);
+      if (index.inodes[i]) index.input_by_inode.emplace(*index.inodes[i], i);
     } else if (e.kind == Kind::kOutputFolder) {
-      folder_by_path.emplace(e.canonical, i);
+      index.folder_by_path.emplace(e.canonical, i);
     }
   }
-  const auto find_input = [&](size_t i) -> const Entry* {
-    auto by_path = input_by_path.find(entries_[i].canonical);
-    if (by_path != input_by_path.end()) return &entries_[by_path->second];
-    if (!inodes[i]) return nullptr;
-    auto by_inode = input_by_inode.find(*inodes[i]);
-    return by_inode == input_by_inode.end() ? nullptr : &entries_[by_inode->second];
-  };
-  // Folders first: a file output inside a folder that cannot be made is reported once,
-  // at the folder.
+  return index;
+}
+
+const OutputPlan::Entry* OutputPlan::FindInput(const Index& index, size_t i) const {
+  auto by_path = index.input_by_path.find(entries_[i].canonical);
+  if (by_path != index.input_by_path.end()) return &entries_[by_path->second];
+  if (!index.inodes[i]) return nullptr;
+  auto by_inode = index.input_by_inode.find(*index.inodes[i]);
+  return by_inode == index.input_by_inode.end() ? nullptr : &entries_[by_inode->second];
+}
+
+bool OutputPlan::CheckFolder(const Index& index, size_t f, std::string* error) const {
+  const Entry& folder = entries_[f];
+  const std::string prefix = "--" + folder.flag + "=" + folder.value + ": ";
+  const std::string what = folder.path == folder.value ? "" : " " + folder.path;
+  if (const Entry* input = FindInput(index, f)) {
+    *error = prefix + "cannot create the folder" + what + ": it is the input " + Describe(*input);
+    return false;
+  }
+  // The folder itself, else its nearest existing ancestor, must be a writable folder.
+  std::error_code ec;
+  fs::path existing(folder.canonical);
+  while (!fs::exists(existing, ec) && existing.has_parent_path() &&
+         existing.parent_path() != existing) {
+    existing = existing.parent_path();
+  }
+  if (!fs::is_directory(existing, ec)) {
+    *error = prefix + "cannot create the folder" + what + " (" + existing.string() +
+             " is not a folder)";
+    return false;
+  }
+  if (::access(existing.c_str(), W_OK) != 0) {
+    *error = prefix + (existing.string() == folder.canonical
+                           ? "folder" + what + " is not writable"
+                           : "cannot create the folder" + what + " (" + existing.string() +
+                                 " is not writable)");
+    return false;
+  }
+  return true;
+}
+
+namespace {
+
+// What an existing non-regular file is ("a FIFO"), or "" for a regular file or none.
+std::string SpecialFileKind(mode_t mode) {
+  if (mode == 0 || S_ISREG(mode) || S_ISDIR(mode)) return "";
+  if (S_ISFIFO(mode)) return "a FIFO";
+  if (S_ISCHR(mode)) return "a character device";
+  if (S_ISBLK(mode)) return "a block device";
+  if (S_ISSOCK(mode)) return "a socket";
+  return "not a regular file";
+}
+
+}  // namespace
+
+bool OutputPlan::CheckOutputFile(const Index& index, size_t o, std::string* error) const {
+  const Entry& out = entries_[o];
+  const std::string prefix = Describe(out) + ": ";
+  const auto folder = index.folder_by_path.find(out.canonical);
+  if (folder != index.folder_by_path.end()) {
+    *error = Describe(out) + " is the folder that " + Describe(entries_[folder->second]) +
+             " creates";
+    return false;
+  }
+  std::error_code ec;
+  if (fs::is_directory(out.canonical, ec)) {
+    *error = prefix + "is a folder, not a file name";
+    return false;
+  }
+  // Every output is written to a new file renamed into place, which would replace a FIFO or
+  // a device by a regular file.
+  const std::string special = SpecialFileKind(index.modes[o]);
+  if (!special.empty()) {
+    *error = prefix + "is " + special + ", not a regular file (outputs are written to a new "
+             "file renamed into place, which would replace it)";
+    return false;
+  }
+  const std::string parent = fs::path(out.canonical).parent_path().string();
+  if (index.folder_by_path.count(parent) != 0) return true;  // checked with the folders
+  if (!fs::is_directory(parent, ec)) {
+    *error = prefix + "folder " + fs::path(out.path).parent_path().string() + " does not exist";
+    return false;
+  }
+  if (::access(parent.c_str(), W_OK) != 0) {
+    *error = prefix + "folder " + fs::path(out.path).parent_path().string() + " is not writable";
+    return false;
+  }
+  return true;
+}
+
+bool OutputPlan::Check(std::string* error) const {
+  const Index index = MakeIndex();
+  // Folders first: a file output inside a folder that cannot be made is reported once, at
+  // the folder.
   for (size_t f = 0; f < entries_.size(); ++f) {
-    const Entry& folder = entries_[f];
-    if (folder.kind != Kind::kOutputFolder) continue;
-    const std::string prefix = "--" + folder.flag + "=" + folder.value + ": ";
-    const std::string what = folder.path == folder.value ? "" : " " + folder.path;
-    if (const Entry* input = find_input(f)) {
-      *error = prefix + "cannot create the folder" + what + ": it is the input " + Describe(*input);
-      return false;
-    }
-    // The folder itself, else its nearest existing ancestor, must be a writable folder.
-    fs::path existing(folder.canonical);
-    while (!fs::exists(existing, ec) && existing.has_parent_path() &&
-           existing.parent_path() != existing) {
-      existing = existing.parent_path();
-    }
-    if (!fs::is_directory(existing, ec)) {
-      *error = prefix + "cannot create the folder" + what + " (" + existing.string() +
-               " is not a folder)";
-      return false;
-    }
-    if (::access(existing.c_str(), W_OK) != 0) {
-      *error = prefix + (existing.string() == folder.canonical
-                             ? "folder" + what + " is not writable"
-                             : "cannot create the folder" + what + " (" + existing.string() +
-                                   " is not writable)");
-      return false;
-    }
+    if (entries_[f].kind == Kind::kOutputFolder && !CheckFolder(index, f, error)) return false;
   }
   std::map<std::string, size_t> output_by_path;
-  std::map<Inode, size_t> output_by_inode;
+  std::map<Index::Inode, size_t> output_by_inode;
   for (size_t o = 0; o < entries_.size(); ++o) {
     const Entry& out = entries_[o];
     if (out.kind != Kind::kOutputFile) continue;
-    if (const Entry* input = find_input(o)) {
+    if (const Entry* input = FindInput(index, o)) {
       *error = Describe(out) + " would overwrite the input " + Describe(*input) +
                ": inputs are never overwritten";
       return false;
     }
     size_t earlier = output_by_path.emplace(out.canonical, o).first->second;
-    if (earlier == o && inodes[o]) earlier = output_by_inode.emplace(*inodes[o], o).first->second;
+    if (earlier == o && index.inodes[o]) {
+      earlier = output_by_inode.emplace(*index.inodes[o], o).first->second;
+    }
     if (earlier != o) {
       *error = Describe(entries_[earlier]) + " and " + Describe(out) +
                " are the same file " + out.canonical + ": one would overwrite the other";
       return false;
     }
-    auto folder = folder_by_path.find(out.canonical);
-    if (folder != folder_by_path.end()) {
-      *error = Describe(out) + " is the folder that " + Describe(entries_[folder->second]) +
-               " creates";
-      return false;
-    }
-    const std::string prefix = Describe(out) + ": ";
-    if (fs::is_directory(out.canonical, ec)) {
-      *error = prefix + "is a folder, not a file name";
-      return false;
-    }
-    const std::string parent = fs::path(out.canonical).parent_path().string();
-    if (folder_by_path.count(parent) != 0) continue;  // checked with the folders above
-    if (!fs::is_directory(parent, ec)) {
-      *error = prefix + "folder " + fs::path(out.path).parent_path().string() + " does not exist";
-      return false;
-    }
-    if (::access(parent.c_str(), W_OK) != 0) {
-      *error = prefix + "folder " + fs::path(out.path).parent_path().string() + " is not writable";
-      return false;
-    }
+    if (!CheckOutputFile(index, o, error)) return false;
   }
   return true;
 }

@@ -66,8 +66,9 @@ class OutputPlan {
 
   // True when the plan is safe: no output is an input or one of the input's data files
   // (by canonical path, or by device and inode for hard links), no two outputs are the
-  // same file, no output file is a planned or existing folder, no planned folder is a
-  // file, and every output's folder exists and is writable or can be created. Otherwise
+  // same file, no output file is a planned or existing folder or an existing FIFO, device
+  // or socket (atomic writes would replace it), no planned folder is a file, and every
+  // output's folder exists and is writable or can be created. Otherwise
   // one line in `error` naming both flags and paths. Touches nothing on disk.
   bool Check(std::string* error) const;
 
@@ -93,6 +94,11 @@ class OutputPlan {
   // `path` and the data file(s) WriteImage writes next to it.
   void AddWrittenImage(const std::string& flag, const std::string& value, const std::string& path);
   static std::string Describe(const Entry& entry);
+  struct Index;  // the entries by canonical path and by inode (output_plan.cc)
+  Index MakeIndex() const;
+  const Entry* FindInput(const Index& index, size_t i) const;
+  bool CheckFolder(const Index& index, size_t f, std::string* error) const;
+  bool CheckOutputFile(const Index& index, size_t o, std::string* error) const;
 
   std::vector<Entry> entries_;
 };

@@ -174,6 +174,28 @@ bool ReadOptionalNumber(const Json& frame,
 
 }  // namespace
 
+bool PoseFromMatrix(const Eigen::Matrix4d& m, const std::string& where,
+                    Eigen::Isometry3d* pose, std::string* error) {
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) {
+      if (std::isfinite(m(r, c))) continue;
+      *error = where + "T[" + std::to_string(r) + "][" + std::to_string(c) +
+               "] is not finite (" + Number(m(r, c)) + ")";
+      return false;
+    }
+  }
+  if (!CheckRigid(m, where, error)) return false;
+  *pose = Eigen::Isometry3d::Identity();
+  pose->linear() = m.topLeftCorner<3, 3>();
+  pose->translation() = m.topRightCorner<3, 1>();
+  const Eigen::Matrix3d& r = pose->linear();
+  if ((r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() >
+      kOrthonormalAsIs) {
+    *pose = Orthonormalized(*pose);
+  }
+  return true;
+}
+
 bool ReadPoses(const std::string& path, int expected_frames, PosesFile* poses, std::string* error) {
   std::string text;
   if (!ReadText(path, &text, error)) return false;
@@ -228,14 +250,10 @@ bool ReadPoses(const std::string& path, int expected_frames, PosesFile* poses, s
       return false;
     }
     Eigen::Matrix4d m;
-    if (!ParseMatrix(*t_it, where, &m, error) || !CheckRigid(m, where, error)) return false;
-    Eigen::Isometry3d frame_from_world = Eigen::Isometry3d::Identity();
-    frame_from_world.linear() = m.topLeftCorner<3, 3>();
-    frame_from_world.translation() = m.topRightCorner<3, 1>();
-    const Eigen::Matrix3d& r = frame_from_world.linear();
-    if ((r.transpose() * r - Eigen::Matrix3d::Identity()).cwiseAbs().maxCoeff() >
-        kOrthonormalAsIs) {
-      frame_from_world = Orthonormalized(frame_from_world);
+    Eigen::Isometry3d frame_from_world;
+    if (!ParseMatrix(*t_it, where, &m, error) ||
+        !PoseFromMatrix(m, where, &frame_from_world, error)) {
+      return false;
     }
     if (!ReadOptionalNumber(frame, "gain", /*positive=*/true, f, where, &out.gain, error) ||
         !ReadOptionalNumber(frame, "offset", /*positive=*/false, f, where, &out.offset, error)) {

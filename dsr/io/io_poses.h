@@ -50,6 +50,13 @@ bool ReadPoses(const std::string& path,
                PosesFile* poses,
                std::string* error);
 
+// A pose from its 4x4 matrix with ReadPoses' rules: every entry finite, rigid within
+// kRigidTolerance (else false with `error` = where + the broken rule, e.g. "pose 1: T is
+// not rigid (det R = -1, a reflection; expected 1)"), a rotation not orthonormal to double
+// precision projected to the nearest rotation. For poses that do not come from a file.
+bool PoseFromMatrix(const Eigen::Matrix4d& m, const std::string& where,
+                    Eigen::Isometry3d* pose, std::string* error);
+
 // Serialises to the JSON text above, indented by 2, each number with the fewest digits
 // (at most 17) that parse back to the same double: the round trip is exact. `images` is
 // either empty (names written as "") or has one name per pose.

@@ -148,7 +148,7 @@ def _inputs(images, masks, names):
         core_images = []
         for i, image in enumerate(images):
             im = _as_image(image, f"image {i}")
-            core_images.append((np.asarray(im.array, dtype=np.float32), im.geometry()))
+            core_images.append((np.asarray(im.array), im.geometry()))  # _core casts to float32
         core_masks = []
         for i, mask in enumerate(mask_list):
             mk = _as_image(mask, f"mask {i}")
@@ -220,9 +220,12 @@ def register(images: SequenceOf[ImageLike],
     masks: one field-of-view mask per image, the same kind as the images; default: each
         image's field of view by ``mask_rule`` ("hull": the convex hull of its non-zero
         voxels; "nonzero") eroded by ``mask_erosion`` voxels.
-    mode, init, **options: dsr_register's flags by name (e.g. ``pyramid_levels=2``,
-        ``photometric="affine"``, ``uncertainty=True``) with its defaults, except
-        ``progress`` (its iteration lines on stderr), off here; ``dsr.options()`` lists them.
+    mode, init, **options: the options of the options table that dsr_register takes as
+        flags, by name (e.g. ``pyramid_levels=2``, ``photometric="affine"``,
+        ``uncertainty=True``), with their defaults, rules and messages; ``dsr.options()``
+        lists them (those with "python:register" among their front ends), and
+        ``flagfile="run.flags"`` reads a flagfile as dsr_register does. Its iteration lines
+        on stderr (``--progress``) are ``progress_bar`` and ``on_iteration`` here.
     initial_poses: start poses (4x4, world -> frame, one per image in the images' order)
         instead of ``init``'s, used as dsr_register uses an ``init`` poses file (with
         recovery).
@@ -259,7 +262,7 @@ def register(images: SequenceOf[ImageLike],
         start = [np.asarray(pose, dtype=float) for pose in initial_poses]
     try:
         return _register(core_images, core_masks, image_names,
-                         _flags({"mode": mode, "init": init, "progress": False, **options}),
+                         _flags({"mode": mode, "init": init, **options}),
                          start, callback)
     finally:
         if bar is not None:
@@ -365,7 +368,7 @@ def write_image(image: ImageLike, path: Union[str, "os.PathLike[str]"]) -> None:
     """Writes a 3D image (float32; the format from the file name), atomically (OSError when
     it cannot, leaving no file)."""
     im = _as_image(image, "image")
-    _core.write_image(np.asarray(im.array, dtype=np.float32), im.geometry(), os.fspath(path))
+    _core.write_image(np.asarray(im.array), im.geometry(), os.fspath(path))
 
 
 def read_poses(path: Union[str, "os.PathLike[str]"], expected_frames: int = -1) -> Dict[str, Any]:

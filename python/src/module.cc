@@ -72,7 +72,7 @@ Settings MakeSettings(const Options& options, uint32_t front_end) {
     }
     const OptionSpec* spec = FindOption(name);
     if (spec == nullptr || (spec->front_ends & front_end) == 0) {
-      BadInput("--" + name + "=" + value + ": unknown option (dsr.options() lists them)");
+      BadInput("--" + name + "=" + value + ": unknown flag");  // the command line's words
     }
     if (!settings.Set(name, value, &error)) BadInput(error);
   }
@@ -117,8 +117,14 @@ Geometry FromGeometry(const ImageGeometry& g) {
 }
 
 template <typename T>
-Volume<T> ToVolume(const py::array_t<T, py::array::c_style | py::array::forcecast>& array,
-                   const Geometry& geometry, const std::string& what) {
+Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::string& what) {
+  // numpy would cast complex values to their real part with no more than a warning.
+  if (input.dtype().kind() == 'c') {
+    BadInput(what + ": complex pixels (" + std::string(py::str(input.dtype())) +
+             "); dsr registers real intensities: pass the magnitude (numpy.abs) or the real part");
+  }
+  const auto array = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(input);
+  if (!array) BadInput(what + ": not an array of numbers");
   std::vector<ssize_t> shape(array.shape(), array.shape() + array.ndim());
   Volume<T> out(ToGeometry(shape, geometry));
   std::string error;
@@ -147,12 +153,20 @@ py::array_t<double> ToArray(const Eigen::Isometry3d& pose) {
   return out;
 }
 
-Eigen::Isometry3d ToPose(const py::array_t<double, py::array::c_style | py::array::forcecast>& a) {
-  if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4) BadInput("a pose must be a 4x4 matrix");
-  Eigen::Isometry3d pose;
-  for (int r = 0; r < 4; ++r) {
-    for (int c = 0; c < 4; ++c) pose.matrix()(r, c) = a.at(r, c);
+// A 4x4 pose with a poses file's rules (finite, rigid: PoseFromMatrix), named by `where`
+// ("pose 1: ") in a message.
+Eigen::Isometry3d ToPose(const py::array_t<double, py::array::c_style | py::array::forcecast>& a,
+                         const std::string& where) {
+  if (a.ndim() != 2 || a.shape(0) != 4 || a.shape(1) != 4) {
+    BadInput(where + "a pose must be a 4x4 matrix");
   }
+  Eigen::Matrix4d m;
+  for (int r = 0; r < 4; ++r) {
+    for (int c = 0; c < 4; ++c) m(r, c) = a.at(r, c);
+  }
+  Eigen::Isometry3d pose;
+  std::string error;
+  if (!PoseFromMatrix(m, where, &pose, &error)) BadInput(error);
   return pose;
 }
 
@@ -180,7 +194,8 @@ PosesFile PosesFromDict(const py::dict& d) {
   PosesFile poses;
   poses.images = d["images"].cast<std::vector<std::string>>();
   for (const py::handle& m : d["frame_from_world"]) {
-    poses.frame_from_world.push_back(ToPose(py::reinterpret_borrow<py::object>(m)));
+    const std::string where = "pose " + std::to_string(poses.frame_from_world.size()) + ": ";
+    poses.frame_from_world.push_back(ToPose(py::reinterpret_borrow<py::object>(m), where));
   }
   if (d.contains("covariance")) {
     for (const py::handle& m : d["covariance"]) {
@@ -370,6 +385,7 @@ Run PrepareRun(const py::list& images,
   if (initial.has_value() && !settings.Set("init", "auto", &error)) BadInput(error);
   Run run;
   if (!RunOptionsFrom(settings, &run.options, &init_file, &error)) BadInput(error);
+  run.options.solve.progress = false;  // Python has on_iteration and progress_bar instead
   run.preset = settings.PresetSummary();
   std::vector<std::string> match_names;
   if (ReadInputs(2, images, masks, names, settings, &run.frames, &run.masks, &match_names,
@@ -383,7 +399,9 @@ Run PrepareRun(const py::list& images,
       BadInput("initial_poses: " + std::to_string(initial->size()) + " poses for " +
                std::to_string(m) + " images");
     }
-    for (int i = 0; i < m; ++i) run.start[i] = ToPose((*initial)[i]);
+    for (int i = 0; i < m; ++i) {
+      run.start[i] = ToPose((*initial)[i], "initial_poses: pose " + std::to_string(i) + ": ");
+    }
   } else if (!init_file.empty()) {
     PosesFile poses;
     if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
@@ -535,7 +553,7 @@ py::tuple FuseImages(const py::list& images,
 
 void WriteTransformFile(const py::array& pose, const std::string& path) {
   std::string error;
-  if (!WriteItkTransform(ToPose(pose), path, &error)) WriteFailed(error);
+  if (!WriteItkTransform(ToPose(pose, "pose: "), path, &error)) WriteFailed(error);
 }
 
 py::tuple ReadImageFile(const std::string& path) {

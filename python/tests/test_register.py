@@ -233,10 +233,12 @@ def test_other_python_threads_run_while_it_solves(sequence):
     counter = threading.Thread(target=count)
     counter.start()
     start = time.perf_counter()
-    dsr.register(files(sequence, "frame"), **LEVELS)
-    seconds = time.perf_counter() - start
-    done.set()
-    counter.join()
+    try:
+        dsr.register(files(sequence, "frame"), **LEVELS)
+    finally:
+        seconds = time.perf_counter() - start
+        done.set()
+        counter.join()
     # A millisecond sleep per tick: with the GIL held for the solve there would be ~none.
     assert ticks > 0.2 * seconds / 0.001
 
@@ -292,7 +294,12 @@ def test_options_hold_for_their_call_only(sequence):
         t.start()
     for t in threads:
         t.join()
+    # Each equals its own run, one after the other.
+    coarse = dsr.register(images, pyramid_levels=1, max_iterations=2, max_recoveries=0,
+                          max_misfit_ratio=0)
     assert all(np.array_equal(a, b) for a, b in zip(results["levels"], first.poses))
+    assert all(np.array_equal(a, b) for a, b in zip(results["coarse"], coarse.poses))
+    assert not all(np.array_equal(a, b) for a, b in zip(coarse.poses, first.poses))
     assert all(np.array_equal(a, b) for a, b in
                zip(dsr.register(images, **LEVELS).poses, first.poses))
 
@@ -323,7 +330,7 @@ def test_initial_poses_start_the_registration(sequence):
     again = dsr.register(images, initial_poses=result.poses, **LEVELS)
     for a, b in zip(again.poses, result.poses):
         assert np.abs(a - b).max() < RESTART_TOLERANCE
-    with pytest.raises(ValueError, match="images: 3 entries for 2 poses"):
+    with pytest.raises(ValueError, match="initial_poses: 2 poses for 3 images"):
         dsr.register(images, initial_poses=result.poses[:2], **LEVELS)
 
 
