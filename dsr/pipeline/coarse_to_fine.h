@@ -1,6 +1,6 @@
 // One round of the registration: the coarse-to-fine solves from given poses, with their
-// checks (pipeline/registration.h has the whole pipeline, its options and the recovery
-// between rounds).
+// checks (pipeline/registration.h has the whole pipeline and the recovery between rounds;
+// pipeline/registration_options.h its options).
 //
 //   for each pyramid level, coarsest first:
 //     BuildLevelFrames     the level's frames; a level where a frame has no valid cell is
@@ -34,7 +34,8 @@
 #include "dsr/model/photometric.h"
 #include "dsr/pipeline/divergence_guard.h"
 #include "dsr/pipeline/modes.h"
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_options.h"
+#include "dsr/pipeline/registration_result.h"
 #include "dsr/stream/voxel_stream.h"
 
 namespace dsr {

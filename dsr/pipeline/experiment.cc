@@ -14,6 +14,8 @@
 #include <sstream>
 
 #include "dsr/eval/eval.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_result.h"
 #include "dsr/util/clock.h"
 
 namespace dsr {
