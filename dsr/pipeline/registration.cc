@@ -97,6 +97,7 @@ bool PairwiseStart(const RegistrationRun& run,
   init_options.init = InitialPoses::kGiven;
   init_options.max_recoveries = 0;
   init_options.photometric = PhotometricModel::kNone;  // a baseline's run
+  init_options.uncertainty = false;                     // the final run's estimate only
   init_options.intensity_transform = IntensityTransform::kNone;  // `images` already are T(I)
   // The initial poses are judged by this run's own checks of its final poses.
   init_options.min_kept_overlap = 0.0;

@@ -117,6 +117,11 @@ bool RegistrationOptions::Validate(std::string* error) const {
                        "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
                            " is a baseline without photometric parameters; use photometric=none)");
   }
+  if (uncertainty && !ModeEstimatesPhotometric(mode)) {
+    return RefuseField(error, "uncertainty", "true",
+                       "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
+                           " is a baseline, whose poses the estimate does not model)");
+  }
   // Each solver's own rules first without the photometric parameters, so that an error of
   // theirs with them is the photometric field's.
   if (ModeEstimatesPhotometric(mode)) {

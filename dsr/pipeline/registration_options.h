@@ -147,9 +147,9 @@ struct RegistrationOptions {
   double max_pose_error_voxels = 1.0;
 
   // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
-  // and dba, whose estimate it is): one cost pass over the finest level, one for the
-  // gradient's covariance and one of 6 extra samples per observation for its derivative.
-  // Off by default (its cost).
+  // and dba only, whose estimate it is; Validate refuses it for the baselines, naming
+  // uncertainty): one cost pass over the finest level, one for the gradient's covariance and
+  // one of 6 extra samples per observation for its derivative. Off by default (its cost).
   bool uncertainty = false;
 
   // Photometric parameters (modes dsr and dba only; Validate refuses kAffine for the
