@@ -85,9 +85,10 @@ bool RegisterScaled(const RegistrationRun& run);
 
 // The pairwise initialiser (InitialPoses::kPairwise): the whole pipeline once with the
 // pairwise baseline from the given poses, whose result becomes *start_poses. It registers
-// the run's images as they are (already transformed and on a usual scale), with its
-// options checked by Validate. Returns false for bad input; when its run is not usable,
-// sets *ended and result->failure.
+// the run's images as they are (already transformed and on a usual scale); its options are
+// checked by Validate, since what it changes can break one of their rules (a robust loss,
+// which a baseline refuses). Returns false for bad input; when its run is not usable, sets
+// *ended and result->failure.
 bool PairwiseStart(const RegistrationRun& run,
                    std::vector<Eigen::Isometry3d>* start_poses,
                    bool* ended) {
@@ -110,7 +111,7 @@ bool PairwiseStart(const RegistrationRun& run,
   RegistrationResult init;
   RegistrationRun init_run = run;
   init_run.options = &init_options;
-  init_run.search_images = nullptr;
+  init_run.search_images = nullptr;  // no check of this run searches: no extra pyramids
   init_run.start = std::chrono::steady_clock::now();
   init_run.determination_with_gains = false;
   init_run.result = &init;
