@@ -322,87 +322,125 @@ CoarseToFine::Next CoarseToFine::BuildLevelProblem(int level,
   record->candidate_voxels = candidates->num_voxels();
   record->candidate_observations = candidates->NumObservations();
   const Eigen::MatrixXi overlap = CandidateOverlap(*candidates);
-  std::string why;
-  std::vector<int> slid;
-  if (options_.min_kept_overlap > 0.0 &&
-      guard_.Diverged(frames, overlap, grid->spacing_mm, &why, &slid)) {
-    // With recovery, frames in a wrong minimum that did not slide are named too, so that
-    // one recovery re-places them all (else the next solve finds them, and by then the
-    // pair graph is the only remedy left).
-    if (check_every_level_) {
-      std::vector<int> off;
-      if (options_.max_misfit_ratio > 0.0) {
-        off = MisfitOutliers(FrameMisfits(frames, *candidates, poses, stream_, photometric_),
-                             options_.max_misfit_ratio, &misfit_exempt_);
-      }
-      if (options_.max_structure_fraction > 0.0) {
-        for (int f : StructureOutliers(
-                 FrameStructures(frames, *candidates, poses, stream_, photometric_),
-                 options_.max_structure_fraction, &misfit_exempt_)) {
-          off.push_back(f);
-        }
-      }
-      for (int f : off) {
-        if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
-      }
-    }
-    return Diverged(last_level, why, slid);
-  }
-  std::string connect_error;
-  if (!CheckConnected(overlap, options_.min_shared_voxels, &connect_error)) {
-    if (level == 0 && !result_->solves.empty()) {
-      // Not the input's poses: solves, or a recovery between rounds, left these frames
-      // apart. The round ends as not usable, naming them (a recovery may re-place them).
-      const std::vector<int> apart = FramesNotConnected(overlap, options_.min_shared_voxels);
-      std::ostringstream why;
-      why << FramesPhrase(apart)
-          << (apart.size() > 1 ? " no longer overlap" : " no longer overlaps")
-          << " frame 0 or the frames connected to it (fewer than "
-          << options_.min_shared_voxels << " shared panorama voxels at the finest level)";
-      return Diverged(last_level, why.str(), apart);
-    }
-    if (level > 0) {
-      // Coarse levels have few voxels: a small overlap may only be countable at finer
-      // levels, and a coarse solve on a thin overlap may have drifted. Skip the level and
-      // start the next one from the poses this level started from.
-      LOG(INFO) << "skipping pyramid level " << level << ": " << connect_error;
-      return Next::kSkipLevel;
-    }
-    *error_ = connect_error + " (pyramid level " + std::to_string(level) + ")";
-    return Next::kError;
-  }
-  // Checked once, on the coarsest level that has a usable overlap (cheap there); finer
-  // levels see the same overlap with more detail.
-  if (rebuild == 0 && !determined_checked_) {
-    double conditioning = 0.0;
-    if (!PosesDetermined(frames, *candidates, poses, stream_, &conditioning, &why)) {
-      if (level > 0) {
-        LOG(INFO) << "skipping pyramid level " << level << ": " << why;
-        return Next::kSkipLevel;
-      }
-      *error_ = why + " at the initial poses of the finest level";
-      return Next::kError;
-    }
-    VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
-    determined_checked_ = true;
+  Next next = GuardLevelOverlap(last_level, frames, overlap, *grid, *candidates, poses);
+  if (next != Next::kGoOn) return next;
+  next = CheckLevelConnected(level, last_level, overlap);
+  if (next != Next::kGoOn) return next;
+  if (rebuild == 0) {
+    next = CheckLevelDetermined(level, frames, *candidates, poses);
+    if (next != Next::kGoOn) return next;
   }
   solve_world_ = world;
-  if (rebuild == 0 && unjudged_) {
-    // The coarser level's check could not judge some frames (their structure does not reach
-    // as far as its lag, 2 sqrt 3 of its voxels: the phantom's at 16 mm); this level's finer
-    // frames judge the poses it reached before its solve is paid for, so that a frame in a
-    // wrong minimum is re-placed after the coarser level, where that is cheap.
-    unjudged_ = false;
-    const std::vector<FrameStructure> structure =
-        FrameStructures(frames, *candidates, poses, stream_, photometric_);
-    if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
-        !StructureExplainedByBrightness(level, frames, *candidates)) {
-      return Diverged(last_level,
-                      why + " (judged on pyramid level " + std::to_string(level) +
-                          "'s frames before its solve)",
-                      StructureOutliers(structure, options_.max_structure_fraction,
-                                        &misfit_exempt_));
+  if (rebuild != 0) return Next::kGoOn;
+  return JudgeLevelStart(level, last_level, frames, *candidates, poses);
+}
+
+CoarseToFine::Next CoarseToFine::GuardLevelOverlap(int last_level,
+                                                   const std::vector<Frame>& frames,
+                                                   const Eigen::MatrixXi& overlap,
+                                                   const ImageGeometry& grid,
+                                                   const CandidateSet& candidates,
+                                                   const std::vector<Eigen::Isometry3d>& poses) {
+  std::string why;
+  std::vector<int> slid;
+  if (options_.min_kept_overlap <= 0.0 ||
+      !guard_.Diverged(frames, overlap, grid.spacing_mm, &why, &slid)) {
+    return Next::kGoOn;
+  }
+  // With recovery, frames in a wrong minimum that did not slide are named too, so that
+  // one recovery re-places them all (else the next solve finds them, and by then the
+  // pair graph is the only remedy left).
+  if (check_every_level_) {
+    std::vector<int> off;
+    if (options_.max_misfit_ratio > 0.0) {
+      off = MisfitOutliers(FrameMisfits(frames, candidates, poses, stream_, photometric_),
+                           options_.max_misfit_ratio, &misfit_exempt_);
     }
+    if (options_.max_structure_fraction > 0.0) {
+      for (int f : StructureOutliers(
+               FrameStructures(frames, candidates, poses, stream_, photometric_),
+               options_.max_structure_fraction, &misfit_exempt_)) {
+        off.push_back(f);
+      }
+    }
+    for (int f : off) {
+      if (std::find(slid.begin(), slid.end(), f) == slid.end()) slid.push_back(f);
+    }
+  }
+  return Diverged(last_level, why, slid);
+}
+
+CoarseToFine::Next CoarseToFine::CheckLevelConnected(int level,
+                                                     int last_level,
+                                                     const Eigen::MatrixXi& overlap) {
+  std::string connect_error;
+  if (CheckConnected(overlap, options_.min_shared_voxels, &connect_error)) return Next::kGoOn;
+  if (level == 0 && !result_->solves.empty()) {
+    // Not the input's poses: solves, or a recovery between rounds, left these frames
+    // apart. The round ends as not usable, naming them (a recovery may re-place them).
+    const std::vector<int> apart = FramesNotConnected(overlap, options_.min_shared_voxels);
+    std::ostringstream why;
+    why << FramesPhrase(apart)
+        << (apart.size() > 1 ? " no longer overlap" : " no longer overlaps")
+        << " frame 0 or the frames connected to it (fewer than "
+        << options_.min_shared_voxels << " shared panorama voxels at the finest level)";
+    return Diverged(last_level, why.str(), apart);
+  }
+  if (level > 0) {
+    // Coarse levels have few voxels: a small overlap may only be countable at finer
+    // levels, and a coarse solve on a thin overlap may have drifted. Skip the level and
+    // start the next one from the poses this level started from.
+    LOG(INFO) << "skipping pyramid level " << level << ": " << connect_error;
+    return Next::kSkipLevel;
+  }
+  *error_ = connect_error + " (pyramid level " + std::to_string(level) + ")";
+  return Next::kError;
+}
+
+CoarseToFine::Next CoarseToFine::CheckLevelDetermined(
+    int level,
+    const std::vector<Frame>& frames,
+    const CandidateSet& candidates,
+    const std::vector<Eigen::Isometry3d>& poses) {
+  // Checked once, on the coarsest level that has a usable overlap (cheap there); finer
+  // levels see the same overlap with more detail.
+  if (determined_checked_) return Next::kGoOn;
+  double conditioning = 0.0;
+  std::string why;
+  if (!PosesDetermined(frames, candidates, poses, stream_, &conditioning, &why)) {
+    if (level > 0) {
+      LOG(INFO) << "skipping pyramid level " << level << ": " << why;
+      return Next::kSkipLevel;
+    }
+    *error_ = why + " at the initial poses of the finest level";
+    return Next::kError;
+  }
+  VLOG(1) << "level " << level << ": scaled Gauss-Newton conditioning " << conditioning;
+  determined_checked_ = true;
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::JudgeLevelStart(int level,
+                                                 int last_level,
+                                                 const std::vector<Frame>& frames,
+                                                 const CandidateSet& candidates,
+                                                 const std::vector<Eigen::Isometry3d>& poses) {
+  if (!unjudged_) return Next::kGoOn;
+  // The coarser level's check could not judge some frames (their structure does not reach
+  // as far as its lag, 2 sqrt 3 of its voxels: the phantom's at 16 mm); this level's finer
+  // frames judge the poses it reached before its solve is paid for, so that a frame in a
+  // wrong minimum is re-placed after the coarser level, where that is cheap.
+  unjudged_ = false;
+  const std::vector<FrameStructure> structure =
+      FrameStructures(frames, candidates, poses, stream_, photometric_);
+  std::string why;
+  if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
+      !StructureExplainedByBrightness(level, frames, candidates)) {
+    return Diverged(last_level,
+                    why + " (judged on pyramid level " + std::to_string(level) +
+                        "'s frames before its solve)",
+                    StructureOutliers(structure, options_.max_structure_fraction,
+                                      &misfit_exempt_));
   }
   return Next::kGoOn;
 }
@@ -677,25 +715,34 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
   return Next::kGoOn;
 }
 
-CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frames) {
+CoarseToFine::Next CoarseToFine::FinalCandidates(const std::vector<Frame>& frames,
+                                                 const std::vector<Eigen::Isometry3d>& poses,
+                                                 CandidateSet* candidates) {
   // When the last solve moved no field-of-view corner by more than the rebuild tolerance,
   // its candidates stand for the final poses' (as the rebuild rule has it); otherwise
   // candidates are built at the final poses.
-  // Both in the last problem's world (the poses relative to frame 0 are the same in any).
+  if (last_motion_ <= options_.rebuild_tolerance) {
+    *candidates = std::move(last_candidates_);
+    return Next::kGoOn;
+  }
+  ImageGeometry final_grid;
+  if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, &final_grid, error_,
+                         options_.panorama_sampling)) {
+    const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
+    error_->clear();
+    return Diverged(0, why, {});
+  }
+  *candidates = BuildCandidates(frames, poses, final_grid, 0);
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frames) {
+  // The final candidates and poses, both in the last problem's world (the poses relative to
+  // frame 0 are the same in any).
   const std::vector<Eigen::Isometry3d> poses = SolvePoses();
   CandidateSet final_candidates;
-  if (last_motion_ <= options_.rebuild_tolerance) {
-    final_candidates = std::move(last_candidates_);
-  } else {
-    ImageGeometry final_grid;
-    if (!BuildPanoramaGrid(frames, poses, options_.panorama_spacing, &final_grid, error_,
-                           options_.panorama_sampling)) {
-      const std::string why = "diverged: the solve moved the frames far apart (" + *error_ + ")";
-      error_->clear();
-      return Diverged(0, why, {});
-    }
-    final_candidates = BuildCandidates(frames, poses, final_grid, 0);
-  }
+  Next next = FinalCandidates(frames, poses, &final_candidates);
+  if (next != Next::kGoOn) return next;
   std::string why;
   std::vector<int> slid;
   if (options_.min_kept_overlap > 0.0 && guard_.Diverged(frames, final_candidates, &why, &slid)) {
@@ -736,13 +783,24 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(0, why, flagged);
   }
+  next = CheckFinalDetermination(frames, final_candidates, poses);
+  if (next != Next::kGoOn) return next;
+  DetectBrightness(frames);
+  EstimateUncertainty(frames, final_candidates, poses);
+  return Next::kGoOn;
+}
+
+CoarseToFine::Next CoarseToFine::CheckFinalDetermination(
+    const std::vector<Frame>& frames,
+    const CandidateSet& candidates,
+    const std::vector<Eigen::Isometry3d>& poses) {
   // Poses the data do not fix (a symmetric object): refused without naming frames to
   // re-place, since no start would fix them either.
   if (options_.max_pose_error_voxels > 0.0 && ModeEstimatesPhotometric(options_.mode) &&
       (!affine_ || determination_with_gains_) && options_.loss.IsSquared()) {
     std::vector<UndeterminedPose> undetermined;
     std::string not_judged;
-    if (UndeterminedPoses(frames, final_candidates, poses, masks_, stream_,
+    if (UndeterminedPoses(frames, candidates, poses, masks_, stream_,
                           options_.max_pose_error_voxels, &undetermined, &not_judged,
                           &result_->pose_error_voxels) &&
         !undetermined.empty()) {
@@ -753,8 +811,6 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
       return Diverged(0, why.str(), {});
     }
   }
-  DetectBrightness(frames);
-  EstimateUncertainty(frames, final_candidates, poses);
   return Next::kGoOn;
 }
 

@@ -1,6 +1,6 @@
 // One round of the registration: the coarse-to-fine solves from given poses, with their
-// checks (pipeline/registration.h has the whole pipeline, its options and the recovery
-// between rounds).
+// checks (pipeline/registration.h has the whole pipeline and the recovery between rounds;
+// pipeline/registration_options.h its options).
 //
 //   for each pyramid level, coarsest first:
 //     BuildLevelFrames     the level's frames; a level where a frame has no valid cell is
@@ -34,7 +34,8 @@
 #include "dsr/model/photometric.h"
 #include "dsr/pipeline/divergence_guard.h"
 #include "dsr/pipeline/modes.h"
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_options.h"
+#include "dsr/pipeline/registration_result.h"
 #include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
@@ -109,6 +110,30 @@ class CoarseToFine {
                          LevelSolve* record,
                          CandidateSet* candidates,
                          ImageGeometry* grid);
+  // BuildLevelProblem's checks of the level problem at `poses` (in its world), which end
+  // the round (after `last_level`'s solves), skip the level, or refuse the input:
+  // the divergence guard on the candidates' overlap (with recovery, naming the frames the
+  // misfit and structure checks flag too);
+  Next GuardLevelOverlap(int last_level,
+                         const std::vector<Frame>& frames,
+                         const Eigen::MatrixXi& overlap,
+                         const ImageGeometry& grid,
+                         const CandidateSet& candidates,
+                         const std::vector<Eigen::Isometry3d>& poses);
+  // the overlap's connectivity along a spanning tree (min_shared_voxels);
+  Next CheckLevelConnected(int level, int last_level, const Eigen::MatrixXi& overlap);
+  // once per round, at a level's first solve, that the overlap determines every pose;
+  Next CheckLevelDetermined(int level,
+                            const std::vector<Frame>& frames,
+                            const CandidateSet& candidates,
+                            const std::vector<Eigen::Isometry3d>& poses);
+  // at a level's first solve after a coarser level's structure check could not judge some
+  // frame, the structure check of the poses the level starts from.
+  Next JudgeLevelStart(int level,
+                       int last_level,
+                       const std::vector<Frame>& frames,
+                       const CandidateSet& candidates,
+                       const std::vector<Eigen::Isometry3d>& poses);
   Next SolveOnce(int level,
                  const std::vector<Frame>& frames,
                  const ImageGeometry& grid,
@@ -138,6 +163,15 @@ class CoarseToFine {
   void UseAffine();
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
   Next CheckFinalPoses(const std::vector<Frame>& frames);
+  // CheckFinalPoses's candidates at the final `poses` (in the last problem's world): the
+  // last solve's, or built anew when it moved the frames by more than rebuild_tolerance.
+  Next FinalCandidates(const std::vector<Frame>& frames,
+                       const std::vector<Eigen::Isometry3d>& poses,
+                       CandidateSet* candidates);
+  // CheckFinalPoses's determination check (modes dsr and dba with the squared loss).
+  Next CheckFinalDetermination(const std::vector<Frame>& frames,
+                               const CandidateSet& candidates,
+                               const std::vector<Eigen::Isometry3d>& poses);
   // At `poses` in the candidates' world.
   void EstimateUncertainty(const std::vector<Frame>& frames,
                            const CandidateSet& candidates,

@@ -14,6 +14,8 @@
 #include <sstream>
 
 #include "dsr/eval/eval.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_result.h"
 #include "dsr/util/clock.h"
 
 namespace dsr {
@@ -92,6 +94,85 @@ bool Deserialize(const std::string& text, ComparisonRow* row) {
   return true;
 }
 
+// The checks' statistics of a registration, usable or not: its recoveries, the largest
+// structure fraction a final check judged, and the largest predicted pose error.
+void RecordChecks(const RegistrationResult& result, ComparisonRow* row) {
+  row->recoveries = static_cast<int>(result.recoveries.size());
+  for (const FrameStructure& f : result.frame_structure) {
+    if (f.judged && !(f.fraction <= row->structure_fraction)) {
+      row->structure_fraction = f.fraction;
+      row->structure_significance = f.significance;
+    }
+  }
+  if (!result.pose_error_voxels.empty()) {
+    row->pose_error_voxels =
+        *std::max_element(result.pose_error_voxels.begin(), result.pose_error_voxels.end());
+  }
+}
+
+// A usable registration's errors against the ground truth, its poses and gains and offsets,
+// and what its finest level's solves cost.
+void RecordAccuracy(const ExperimentSequence& sequence,
+                    const RegistrationResult& result,
+                    ComparisonRow* row) {
+  const PoseErrorSummary errors =
+      ComparePoses(result.frame_from_world, sequence.ground_truth, sequence.masks);
+  row->ok = true;
+  row->mae_translation_voxels = errors.mae_translation_voxels;
+  row->mae_translation_mm = errors.mae_translation_mm;
+  row->mae_rotation_rad = errors.mae_rotation_rad;
+  row->tre_mean_mm = errors.tre_mean_mm;
+  row->tre_max_mm = errors.tre_max_mm;
+  row->shared_offset_mm = errors.shared_offset_mm;
+  row->frame_spread_mm = errors.frame_spread_mm;
+  row->iterations = result.total_iterations;
+  double finest_seconds = 0.0, finest_differences = 0.0;
+  int finest_iterations = 0, finest_solves = 0;
+  for (const LevelSolve& solve : result.solves) {
+    if (solve.level != 0) continue;
+    finest_seconds += solve.report.seconds;
+    finest_iterations += solve.report.num_iterations;
+    finest_differences += static_cast<double>(solve.report.observations_per_iteration);
+    ++finest_solves;
+  }
+  row->seconds_per_iteration = finest_seconds / std::max(1, finest_iterations);
+  row->differences_per_iteration = finest_differences / std::max(1, finest_solves);
+  row->frame_from_world = result.frame_from_world;
+  row->photometric = result.photometric;
+}
+
+// A usable registration's estimates besides the poses against the truth: the gains' and
+// offsets' mean errors (where the truth has them) and the pose uncertainty's predicted TRE
+// and normalised squared error (where it was estimated).
+void RecordEstimates(const ExperimentSequence& sequence,
+                     const RegistrationResult& result,
+                     ComparisonRow* row) {
+  const std::vector<Photometric>& truth = sequence.ground_truth_photometric;
+  const size_t m = row->photometric.size();
+  if (m > 1 && truth.size() == m) {
+    double gain = 0.0, offset = 0.0;
+    for (size_t i = 1; i < m; ++i) {
+      gain += std::abs(row->photometric[i].gain() - truth[i].gain());
+      offset += std::abs(row->photometric[i].offset - truth[i].offset);
+    }
+    row->mae_gain = gain / (m - 1);
+    row->mae_offset = offset / (m - 1);
+  }
+  const PoseUncertainty& u = result.uncertainty;
+  if (!u.covariance.empty()) {
+    const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(sequence.ground_truth);
+    const std::vector<Eigen::Isometry3d> estimate = RelativeToFrame0(result.frame_from_world);
+    double predicted = 0.0, nees = 0.0;
+    const int m = static_cast<int>(truth.size());
+    for (int i = 1; i < m; ++i) {
+      predicted += u.predicted_tre_mm[i];
+      nees += NormalisedSquaredError(estimate[i], truth[i], u.covariance[i]);
+    }
+    row->predicted_tre_mm = predicted / (m - 1);
+    row->nees = nees / (m - 1);
+  }
+}
+
 ComparisonRow RunInProcess(const ExperimentSequence& sequence, const RegistrationOptions& options) {
   ComparisonRow row;
   // Memory at the start (in a child: what it shares with the parent), in MB; the parent
@@ -107,17 +188,7 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
     return row;
   }
   row.seconds = SecondsSince(start);
-  row.recoveries = static_cast<int>(result.recoveries.size());
-  for (const FrameStructure& f : result.frame_structure) {
-    if (f.judged && !(f.fraction <= row.structure_fraction)) {
-      row.structure_fraction = f.fraction;
-      row.structure_significance = f.significance;
-    }
-  }
-  if (!result.pose_error_voxels.empty()) {
-    row.pose_error_voxels =
-        *std::max_element(result.pose_error_voxels.begin(), result.pose_error_voxels.end());
-  }
+  RecordChecks(result, &row);
   if (!result.usable) {
     row.failure = result.failure;
     // The poses it ended at, where it has them: what a refusal would have returned.
@@ -129,54 +200,8 @@ ComparisonRow RunInProcess(const ExperimentSequence& sequence, const Registratio
     }
     return row;
   }
-  const PoseErrorSummary errors =
-      ComparePoses(result.frame_from_world, sequence.ground_truth, sequence.masks);
-  row.ok = true;
-  row.mae_translation_voxels = errors.mae_translation_voxels;
-  row.mae_translation_mm = errors.mae_translation_mm;
-  row.mae_rotation_rad = errors.mae_rotation_rad;
-  row.tre_mean_mm = errors.tre_mean_mm;
-  row.tre_max_mm = errors.tre_max_mm;
-  row.shared_offset_mm = errors.shared_offset_mm;
-  row.frame_spread_mm = errors.frame_spread_mm;
-  row.iterations = result.total_iterations;
-  double finest_seconds = 0.0, finest_differences = 0.0;
-  int finest_iterations = 0, finest_solves = 0;
-  for (const LevelSolve& solve : result.solves) {
-    if (solve.level != 0) continue;
-    finest_seconds += solve.report.seconds;
-    finest_iterations += solve.report.num_iterations;
-    finest_differences += static_cast<double>(solve.report.observations_per_iteration);
-    ++finest_solves;
-  }
-  row.seconds_per_iteration = finest_seconds / std::max(1, finest_iterations);
-  row.differences_per_iteration = finest_differences / std::max(1, finest_solves);
-  row.frame_from_world = result.frame_from_world;
-  row.photometric = result.photometric;
-  const std::vector<Photometric>& truth = sequence.ground_truth_photometric;
-  const size_t m = row.photometric.size();
-  if (m > 1 && truth.size() == m) {
-    double gain = 0.0, offset = 0.0;
-    for (size_t i = 1; i < m; ++i) {
-      gain += std::abs(row.photometric[i].gain() - truth[i].gain());
-      offset += std::abs(row.photometric[i].offset - truth[i].offset);
-    }
-    row.mae_gain = gain / (m - 1);
-    row.mae_offset = offset / (m - 1);
-  }
-  const PoseUncertainty& u = result.uncertainty;
-  if (!u.covariance.empty()) {
-    const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(sequence.ground_truth);
-    const std::vector<Eigen::Isometry3d> estimate = RelativeToFrame0(result.frame_from_world);
-    double predicted = 0.0, nees = 0.0;
-    const int m = static_cast<int>(truth.size());
-    for (int i = 1; i < m; ++i) {
-      predicted += u.predicted_tre_mm[i];
-      nees += NormalisedSquaredError(estimate[i], truth[i], u.covariance[i]);
-    }
-    row.predicted_tre_mm = predicted / (m - 1);
-    row.nees = nees / (m - 1);
-  }
+  RecordAccuracy(sequence, result, &row);
+  RecordEstimates(sequence, result, &row);
   return row;
 }
 

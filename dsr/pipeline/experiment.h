@@ -13,7 +13,7 @@
 
 #include "dsr/geometry/volume.h"
 #include "dsr/model/photometric.h"
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_options.h"
 
 namespace dsr {
 

@@ -5,7 +5,7 @@
 #include <sstream>
 
 #include "dsr/model/panorama.h"
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_options.h"
 
 namespace dsr {
 namespace {

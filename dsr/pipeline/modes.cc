@@ -2,7 +2,7 @@
 
 #include <glog/logging.h>
 
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_options.h"
 #include "dsr/util/option_fields.h"
 
 namespace dsr {

@@ -765,6 +765,28 @@ TEST(Pipeline, RefusesBadSetups) {
   EXPECT_EQ(model, PhotometricModel::kAffine);
   EXPECT_FALSE(StringToPhotometricModel("linear", &model));
   EXPECT_EQ(model, PhotometricModel::kAffine);
+  // The pose uncertainty with a baseline mode, naming the field; the pairwise initialiser
+  // of a dsr run with it is a baseline's run without it.
+  for (const char* baseline : {"pairwise", "lie_normalization", "sequential", "ape"}) {
+    o = Options(baseline);
+    o.uncertainty = true;
+    EXPECT_FALSE(o.Validate(&error)) << baseline;
+    EXPECT_EQ(error.find("uncertainty=true: needs mode=dsr or dba (mode=" +
+                         std::string(baseline)),
+              0u)
+        << error;
+    EXPECT_FALSE(Register(sequence.frames, sequence.masks, identity, o, &result, &error));
+    EXPECT_EQ(error.find("uncertainty=true"), 0u) << error;
+  }
+  for (const char* mode : {"dsr", "dba"}) {
+    o = Options(mode);
+    o.uncertainty = true;
+    EXPECT_TRUE(o.Validate(&error)) << mode << ": " << error;
+  }
+  o = Options("dsr");
+  o.uncertainty = true;
+  o.init = InitialPoses::kPairwise;
+  EXPECT_TRUE(Register(sequence.frames, sequence.masks, identity, o, &result, &error)) << error;
   // DBA over a tiny memory budget.
   o = Options("dba");
   o.dba.memory_budget_mb = 1.0 / 1024.0;

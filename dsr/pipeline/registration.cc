@@ -11,11 +11,11 @@
 #include "dsr/image/pyramid.h"
 #include "dsr/init/pair_graph.h"
 #include "dsr/init/recovery.h"
+#include "dsr/model/observation.h"
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/coarse_to_fine.h"
 #include "dsr/pipeline/input_checks.h"
 #include "dsr/util/clock.h"
-#include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -35,18 +35,10 @@ int ConstantFrame(const std::vector<Image>& images, const std::vector<Mask>& mas
   return -1;
 }
 
-}  // namespace
-
-bool StringToPhotometricModel(const std::string& name, PhotometricModel* model) {
-  return FindNamed(name,
-                   {PhotometricModel::kNone, PhotometricModel::kAffine, PhotometricModel::kAuto},
-                   PhotometricModelToString, model);
-}
-
-namespace {
 std::vector<std::string> InitialisationNames() {
   return {"auto", "identity", "pairwise", "global"};
 }
+
 }  // namespace
 
 bool SetInitialisation(const std::string& name, int max_recoveries, RegistrationOptions* options) {
@@ -60,152 +52,53 @@ bool SetInitialisation(const std::string& name, int max_recoveries, Registration
 
 namespace {
 
-// The pyramid's and the candidate rebuilds' rules of RegistrationOptions::Validate.
-bool ValidateLevels(const RegistrationOptions& o, std::string* error) {
-  if (!(o.panorama_spacing > 0.0) || !std::isfinite(o.panorama_spacing)) {
-    return RefuseField(error, "panorama_spacing", o.panorama_spacing, "must be a positive number");
-  }
-  if (o.pyramid_levels < 1 || o.pyramid_levels > 8) {
-    return RefuseField(error, "pyramid_levels", o.pyramid_levels, "must be in 1..8");
-  }
-  if (!(o.pyramid_sigma >= 0.0) || !std::isfinite(o.pyramid_sigma)) {
-    return RefuseField(error, "pyramid_sigma", o.pyramid_sigma, "must be >= 0");
-  }
-  if (!(o.smoothing >= 0.0) || !std::isfinite(o.smoothing)) {
-    return RefuseField(error, "smoothing", o.smoothing, "must be >= 0");
-  }
-  if (o.pyramid_min_size < 4) {
-    return RefuseField(error, "pyramid_min_size", o.pyramid_min_size, "must be >= 4");
-  }
-  if (o.coarse_max_iterations < 1) {
-    return RefuseField(error, "coarse_max_iterations", o.coarse_max_iterations, "must be >= 1");
-  }
-  if (o.max_rebuilds < 0) return RefuseField(error, "max_rebuilds", o.max_rebuilds, "must be >= 0");
-  if (!(o.rebuild_tolerance > 0.0)) {
-    return RefuseField(error, "rebuild_tolerance", o.rebuild_tolerance, "must be > 0");
-  }
-  if (!(o.unsettled_motion_voxels >= 0.0 && std::isfinite(o.unsettled_motion_voxels))) {
-    return RefuseField(error, "unsettled_motion_voxels", o.unsettled_motion_voxels,
-                       "must be finite and >= 0");
-  }
-  return true;
-}
-
-// The checks' and the recovery's rules of RegistrationOptions::Validate.
-bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
-  if (!(o.min_kept_overlap >= 0.0 && o.min_kept_overlap < 1.0)) {
-    return RefuseField(error, "min_kept_overlap", o.min_kept_overlap, "must be in [0, 1)");
-  }
-  if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
-    return RefuseField(error, "max_misfit_ratio", o.max_misfit_ratio, "must be 0 (off) or > 1");
-  }
-  if (!(o.max_pose_error_voxels >= 0.0 && std::isfinite(o.max_pose_error_voxels))) {
-    return RefuseField(error, "max_pose_error_voxels", o.max_pose_error_voxels,
-                       "must be >= 0 (0: off)");
-  }
-  if (!(o.max_structure_fraction >= 0.0 && o.max_structure_fraction < 1.0)) {
-    return RefuseField(error, "max_structure_fraction", o.max_structure_fraction,
-                       "must be in [0, 1) (0: off)");
-  }
-  if (!(o.max_pair_mismatch_ratio == 0.0 ||
-        (o.max_pair_mismatch_ratio > 1.0 && std::isfinite(o.max_pair_mismatch_ratio)))) {
-    return RefuseField(error, "max_pair_mismatch_ratio", o.max_pair_mismatch_ratio,
-                       "must be 0 (off) or > 1");
-  }
-  if (o.min_shared_voxels < 1) {
-    return RefuseField(error, "min_shared_voxels", o.min_shared_voxels, "must be >= 1");
-  }
-  if (o.max_recoveries < 0 || o.max_recoveries > 10) {
-    return RefuseField(error, "max_recoveries", o.max_recoveries, "must be in [0, 10]");
-  }
-  if (o.max_recoveries > 0 && o.max_misfit_ratio == 0.0 && o.min_kept_overlap == 0.0 &&
-      o.max_pair_mismatch_ratio == 0.0 && o.max_structure_fraction == 0.0) {
-    return RefuseField(error, "max_recoveries", o.max_recoveries,
-                       "recovery needs a check that flags frames, but max_misfit_ratio=0, "
-                       "max_pair_mismatch_ratio=0, max_structure_fraction=0 and "
-                       "min_kept_overlap=0");
-  }
-  return true;
-}
-
-}  // namespace
-
-bool RegistrationOptions::Validate(std::string* error) const {
-  if (ModeToString(mode)[0] == '\0') {
-    return RefuseField(error, "mode", static_cast<int>(mode), "unknown mode");
-  }
-  if (!solve.Validate(error)) {
-    *error = PrefixFieldPaths("solve", *error);
-    return false;
-  }
-  if (!ValidateLevels(*this, error) || !ValidateChecks(*this, error)) return false;
-  if (search_max_axis < 8) {
-    return RefuseField(error, "search_max_axis", search_max_axis, "must be >= 8");
-  }
-  if ((max_recoveries > 0 || init == InitialPoses::kGlobal) && !search.Validate(error)) {
-    *error = PrefixFieldPaths("search", *error);
-    return false;
-  }
-  if (!loss.Validate(error)) {
-    *error = PrefixFieldPaths("loss", *error);
-    return false;
-  }
-  if (!loss.IsSquared() && !ModeEstimatesPhotometric(mode)) {
-    return RefuseField(error, "loss.kind", RobustLossKindName(loss.kind),
-                       "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
-                           " is a baseline with squared differences)");
-  }
-  const bool affine = photometric != PhotometricModel::kNone;
-  if (affine && !ModeEstimatesPhotometric(mode)) {
-    return RefuseField(error, "photometric", PhotometricModelToString(photometric),
-                       "needs mode=dsr or dba (mode=" + std::string(ModeToString(mode)) +
-                           " is a baseline without photometric parameters; use photometric=none)");
-  }
-  // Each solver's own rules first without the photometric parameters, so that an error of
-  // theirs with them is the photometric field's.
-  if (ModeEstimatesPhotometric(mode)) {
-    const auto valid = [&](const RegistrationOptions& o) {
-      return mode == Mode::kDsr ? ToDsrOptions(o, solve).Validate(error)
-                                : ToDbaOptions(o, solve).Validate(error);
-    };
-    RegistrationOptions plain = *this;
-    plain.photometric = PhotometricModel::kNone;
-    if (!valid(plain)) return false;
-    RegistrationOptions with = *this;
-    with.photometric = PhotometricModel::kAffine;
-    if (affine && !valid(with)) {
-      *error = "photometric=" + std::string(PhotometricModelToString(photometric)) + ": " + *error;
-      return false;
-    }
-  } else if (!ToBaselineOptions(*this, solve).Validate(error)) {
-    return false;
-  }
-  return true;
-}
-
-namespace {
-
 // Recovery searches at most this many frames against the panorama of the others; beyond,
 // the pair graph places every frame: one frame's search covers the whole panorama, so two
 // or three of them already cost about what the pair graph of all frames costs.
 constexpr int kMaxRePlacementSearches = 2;
 
+// One registration as the steps below Register pass it on: what it registers, with which
+// settings, and where its result and error go. A step that registers something else (the
+// intensities scaled to a usual range, the pairwise initialiser's run, the photometric
+// model's last resort) passes on a copy that points elsewhere.
+struct RegistrationRun {
+  // The intensities the solves register: the input's, or their transform
+  // (RegistrationOptions::intensity_transform), brought to a usual scale further down.
+  const std::vector<Image>* images = nullptr;
+  const std::vector<Mask>* masks = nullptr;
+  const std::vector<Eigen::Isometry3d>* initial_frame_from_world = nullptr;
+  const RegistrationOptions* options = nullptr;
+  // What the search level is built from; null: `images` (with an intensity transform, the
+  // input's intensities).
+  const std::vector<Image>* search_images = nullptr;
+  // When the registration started: its result's seconds count from here.
+  std::chrono::steady_clock::time_point start;
+  // The determination check judges the final poses even with gains and offsets estimated
+  // (CoarseToFine::JudgeDeterminationWithGains; the photometric model's last resort after
+  // a refusal for undetermined poses).
+  bool determination_with_gains = false;
+  RegistrationResult* result = nullptr;
+  std::string* error = nullptr;
+};
+
+bool RegisterScaled(const RegistrationRun& run);
+
 // The pairwise initialiser (InitialPoses::kPairwise): the whole pipeline once with the
-// pairwise baseline from the given poses, whose result becomes *start_poses. Returns false
-// for bad input; when its run is not usable, sets *ended and result->failure.
-bool PairwiseStart(const std::vector<Image>& images,
-                   const std::vector<Mask>& masks,
-                   const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-                   const RegistrationOptions& options,
+// pairwise baseline from the given poses, whose result becomes *start_poses. It registers
+// the run's images as they are (already transformed and on a usual scale); its options are
+// checked by Validate, since what it changes can break one of their rules (a robust loss,
+// which a baseline refuses). Returns false for bad input; when its run is not usable, sets
+// *ended and result->failure.
+bool PairwiseStart(const RegistrationRun& run,
                    std::vector<Eigen::Isometry3d>* start_poses,
-                   RegistrationResult* result,
-                   bool* ended,
-                   std::string* error) {
+                   bool* ended) {
+  const RegistrationOptions& options = *run.options;
   RegistrationOptions init_options = options;
   init_options.mode = Mode::kPairwise;
   init_options.init = InitialPoses::kGiven;
   init_options.max_recoveries = 0;
   init_options.photometric = PhotometricModel::kNone;  // a baseline's run
+  init_options.uncertainty = false;                     // the final run's estimate only
   init_options.intensity_transform = IntensityTransform::kNone;  // `images` already are T(I)
   // The initial poses are judged by this run's own checks of its final poses.
   init_options.min_kept_overlap = 0.0;
@@ -216,19 +109,25 @@ bool PairwiseStart(const std::vector<Image>& images,
   init_options.solve.linear_solver.reset();  // the mode's solver may be a Schur type
   init_options.solve.progress_prefix = options.solve.progress_prefix + "init ";
   RegistrationResult init;
-  if (!Register(images, masks, initial_frame_from_world, init_options, &init, error)) {
-    *error = "init=pairwise: " + *error;
+  RegistrationRun init_run = run;
+  init_run.options = &init_options;
+  init_run.search_images = nullptr;  // no check of this run searches: no extra pyramids
+  init_run.start = std::chrono::steady_clock::now();
+  init_run.determination_with_gains = false;
+  init_run.result = &init;
+  if (!init_options.Validate(run.error) || !RegisterScaled(init_run)) {
+    *run.error = "init=pairwise: " + *run.error;
     return false;
   }
   if (!init.usable) {
-    result->failure = "init=pairwise: " + init.failure;
+    run.result->failure = "init=pairwise: " + init.failure;
     *ended = true;
     return true;
   }
   *start_poses = init.frame_from_world;
-  result->init_seconds = init.seconds;
-  result->init_iterations = init.total_iterations;
-  result->init_frame_from_world = *start_poses;
+  run.result->init_seconds = init.seconds;
+  run.result->init_iterations = init.total_iterations;
+  run.result->init_frame_from_world = *start_poses;
   return true;
 }
 
@@ -342,74 +241,35 @@ void ResultFromLocal(const std::vector<Eigen::Vector3d>& centre, RegistrationRes
   }
 }
 
-// Register on intensities already brought to a usual scale (see Register): the start
-// (given, pairwise or global), then rounds of coarse-to-fine solves with a recovery
-// between them. `search_images` (null: `images`) are what the search level is built from.
-bool RegisterScaled(const std::vector<Image>& images,
-                    const std::vector<Mask>& masks,
-                    const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-                    const RegistrationOptions& options,
-                    const std::vector<Image>* search_images,
-                    std::chrono::steady_clock::time_point start,
-                    RegistrationResult* result,
-                    std::string* error,
-                    bool determination_with_gains = false) {
-  const int m = static_cast<int>(images.size());
-  // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
-  std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(initial_frame_from_world);
-  if (options.init == InitialPoses::kPairwise && options.mode != Mode::kPairwise) {
-    bool ended = false;
-    if (!PairwiseStart(images, masks, initial_frame_from_world, options, &poses, result, &ended,
-                       error)) {
-      return false;
-    }
-    if (ended) {
-      result->frame_from_world = poses;
-      result->seconds = SecondsSince(start);
-      return true;
-    }
+// The coarse search level of the global search, recovery and the pair check (built before
+// any solve releases the coarsest level; small). With an intensity transform, of the
+// input's intensities: NCC ignores gains and offsets but not the transform, which weighs
+// the dark tissue's noise more and put phantom pairs of the ultrasound-like protocol over
+// the pair check's limit (docs/design.md 2.9).
+std::vector<Frame> SearchLevel(const RegistrationRun& run, const Pyramids& pyramids) {
+  const RegistrationOptions& options = *run.options;
+  if (run.search_images == nullptr) {
+    return SearchFrames(*run.images, *run.masks, pyramids, options);
   }
-  Pyramids pyramids = BuildPyramids(images, masks, options);
-  result->pyramid_seconds = SecondsSince(start) - result->init_seconds;
-  // From here on every pose is in the frames' local coordinates (Pyramids::centre).
-  poses = PosesToLocal(poses, pyramids.centre);
-  const int constant = ConstantFrame(images, masks);
-  if (constant >= 0) {
-    *error = "frame " + std::to_string(constant) +
-             " has the same value everywhere in its field of view: nothing to register";
-    return false;
-  }
-  // The coarse search level: of the global search, recovery and the pair check (built
-  // before any solve releases the coarsest level; small). With an intensity transform, of
-  // the input's intensities: NCC ignores gains and offsets but not the transform, which
-  // weighs the dark tissue's noise more and put phantom pairs of the ultrasound-like
-  // protocol over the pair check's limit (docs/design.md 2.9).
-  std::vector<Frame> search_frames;
-  if (search_images == nullptr) {
-    search_frames = SearchFrames(images, masks, pyramids, options);
-  } else {
-    search_frames = SearchFrames(*search_images, masks,
-                                 BuildPyramids(*search_images, masks, options), options);
-  }
-  RecoveryState recovery;
-  recovery.misfit_exempt.assign(m, false);
-  recovery.global_used = options.init == InitialPoses::kGlobal;
-  if (recovery.global_used) {
-    const auto init_start = std::chrono::steady_clock::now();
-    PairGraphReport graph;
-    if (!GlobalInitialPoses(search_frames, options.search, &poses, &graph, error)) {
-      *error = "init=global: " + *error;
-      return false;
-    }
-    result->init_seconds = SecondsSince(init_start);
-    result->init_frame_from_world = PosesFromLocal(poses, pyramids.centre);
-  }
+  return SearchFrames(*run.search_images, *run.masks,
+                      BuildPyramids(*run.search_images, *run.masks, options), options);
+}
+
+// Rounds of coarse-to-fine solves from *poses (local coordinates), with a recovery between
+// them, until one is usable or no recovery is left; the result of the last in *run.result.
+bool RunRounds(const RegistrationRun& run,
+               const std::vector<Frame>& search_frames,
+               Pyramids* pyramids,
+               RecoveryState* recovery,
+               std::vector<Eigen::Isometry3d>* poses) {
+  const RegistrationOptions& options = *run.options;
+  RegistrationResult* result = run.result;
   bool affine_round = false;  // photometric kAuto: the round after brightness was detected
   for (int round = 0;; ++round) {
-    CoarseToFine levels(images, masks, options, options.max_recoveries > 0,
-                        recovery.misfit_exempt, search_frames, &pyramids);
-    if (determination_with_gains) levels.JudgeDeterminationWithGains();
-    if (!levels.Run(poses, result, error)) return false;
+    CoarseToFine levels(*run.images, *run.masks, options, options.max_recoveries > 0,
+                        recovery->misfit_exempt, search_frames, pyramids);
+    if (run.determination_with_gains) levels.JudgeDeterminationWithGains();
+    if (!levels.Run(*poses, result, run.error)) return false;
     if (result->usable && result->photometric_detected && result->photometric.empty() &&
         !affine_round) {
       // Brightness differs between frames, found at the final poses of a round that ran
@@ -417,50 +277,104 @@ bool RegisterScaled(const std::vector<Image>& images,
       // recovery: nothing was wrong with them). A round that switched to them at a level
       // (the structure check's second chance) needs none.
       affine_round = true;
-      poses = result->frame_from_world;
+      *poses = result->frame_from_world;
       --round;
       continue;
     }
     if (result->usable || round >= options.max_recoveries || result->flagged_frames.empty() ||
-        !Recover(search_frames, options, &recovery, &poses, result, error)) {
+        !Recover(search_frames, options, recovery, poses, result, run.error)) {
       break;
     }
   }
-  ResultFromLocal(pyramids.centre, result);
-  result->seconds = SecondsSince(start);
-  if (!result->usable && options.photometric == PhotometricModel::kAuto &&
-      ModeEstimatesPhotometric(options.mode)) {
-    // The photometric model's last resort: the registration failed without gains and
-    // offsets, or took them on only later (at a level, or a round after a recovery had
-    // re-placed frames: a chest CT ultrasound-like sequence whose third round switched to
-    // them and failed). Frames of different brightness can slide, or settle nowhere, before
-    // any level lines them up. Once more with them from the same start; its result stands
-    // only if it passes every check, which guard it as they guard the first. After a
-    // refusal for undetermined poses the determination check judges it too (it does not
-    // run with gains and offsets otherwise): a symmetric object stays refused, while a wrong
-    // minimum that looked undetermined (the frames out of line, an ultrasound-like chest CT
-    // sequence 12 mm off) may end right.
-    RegistrationOptions affine = options;
-    affine.photometric = PhotometricModel::kAffine;
-    RegistrationResult second;
-    if (!RegisterScaled(images, masks, initial_frame_from_world, affine, search_images,
-                        std::chrono::steady_clock::now(), &second, error,
-                        result->poses_undetermined)) {
+  return true;
+}
+
+// The photometric model's last resort (photometric kAuto), after a registration that is
+// not usable: the registration failed without gains and offsets, or took them on only
+// later (at a level, or a round after a recovery had re-placed frames: a chest CT
+// ultrasound-like sequence whose third round switched to them and failed). Frames of
+// different brightness can slide, or settle nowhere, before any level lines them up. Once
+// more with them from the same start; its result stands only if it passes every check,
+// which guard it as they guard the first. After a refusal for undetermined poses the
+// determination check judges it too (it does not run with gains and offsets otherwise): a
+// symmetric object stays refused, while a wrong minimum that looked undetermined (the
+// frames out of line, an ultrasound-like chest CT sequence 12 mm off) may end right.
+bool RegisterAgainWithGains(const RegistrationRun& run) {
+  RegistrationResult* result = run.result;
+  RegistrationOptions affine = *run.options;
+  affine.photometric = PhotometricModel::kAffine;
+  RegistrationResult second;
+  RegistrationRun second_run = run;
+  second_run.options = &affine;
+  second_run.start = std::chrono::steady_clock::now();
+  second_run.determination_with_gains = result->poses_undetermined;
+  second_run.result = &second;
+  if (!RegisterScaled(second_run)) return false;
+  second.seconds = SecondsSince(run.start);  // both attempts (its pyramid time: its own)
+  second.init_seconds += result->init_seconds;
+  second.total_iterations += result->total_iterations;
+  second.photometric_detected = second.usable;
+  second.photometric_choice =
+      std::string(second.usable ? "affine" : "none") +
+      " (photometric=auto: without gains and offsets from the start the registration "
+      "failed: " +
+      result->failure + (second.usable ? "; with them it passed every check)" : ")");
+  if (!second.usable) {
+    second.failure = result->failure + "; with gains and offsets estimated too: " + second.failure;
+  }
+  *result = std::move(second);
+  return true;
+}
+
+// Register on intensities already brought to a usual scale (see Register): the start
+// (given, pairwise or global), then rounds of coarse-to-fine solves with a recovery
+// between them.
+bool RegisterScaled(const RegistrationRun& run) {
+  const RegistrationOptions& options = *run.options;
+  const std::vector<Image>& images = *run.images;
+  const std::vector<Mask>& masks = *run.masks;
+  RegistrationResult* result = run.result;
+  // The pairwise initialiser runs first (its own pyramids, freed before ours are built).
+  std::vector<Eigen::Isometry3d> poses = RelativeToFrame0(*run.initial_frame_from_world);
+  if (options.init == InitialPoses::kPairwise && options.mode != Mode::kPairwise) {
+    bool ended = false;
+    if (!PairwiseStart(run, &poses, &ended)) return false;
+    if (ended) {
+      result->frame_from_world = poses;
+      result->seconds = SecondsSince(run.start);
+      return true;
+    }
+  }
+  Pyramids pyramids = BuildPyramids(images, masks, options);
+  result->pyramid_seconds = SecondsSince(run.start) - result->init_seconds;
+  // From here on every pose is in the frames' local coordinates (Pyramids::centre).
+  poses = PosesToLocal(poses, pyramids.centre);
+  const int constant = ConstantFrame(images, masks);
+  if (constant >= 0) {
+    *run.error = "frame " + std::to_string(constant) +
+                 " has the same value everywhere in its field of view: nothing to register";
+    return false;
+  }
+  const std::vector<Frame> search_frames = SearchLevel(run, pyramids);
+  RecoveryState recovery;
+  recovery.misfit_exempt.assign(images.size(), false);
+  recovery.global_used = options.init == InitialPoses::kGlobal;
+  if (recovery.global_used) {
+    const auto init_start = std::chrono::steady_clock::now();
+    PairGraphReport graph;
+    if (!GlobalInitialPoses(search_frames, options.search, &poses, &graph, run.error)) {
+      *run.error = "init=global: " + *run.error;
       return false;
     }
-    second.seconds = SecondsSince(start);  // both attempts (its pyramid time: its own)
-    second.init_seconds += result->init_seconds;
-    second.total_iterations += result->total_iterations;
-    second.photometric_detected = second.usable;
-    second.photometric_choice =
-        std::string(second.usable ? "affine" : "none") +
-        " (photometric=auto: without gains and offsets from the start the registration "
-        "failed: " +
-        result->failure + (second.usable ? "; with them it passed every check)" : ")");
-    if (!second.usable) {
-      second.failure = result->failure + "; with gains and offsets estimated too: " + second.failure;
-    }
-    *result = std::move(second);
+    result->init_seconds = SecondsSince(init_start);
+    result->init_frame_from_world = PosesFromLocal(poses, pyramids.centre);
+  }
+  if (!RunRounds(run, search_frames, &pyramids, &recovery, &poses)) return false;
+  ResultFromLocal(pyramids.centre, result);
+  result->seconds = SecondsSince(run.start);
+  if (!result->usable && options.photometric == PhotometricModel::kAuto &&
+      ModeEstimatesPhotometric(options.mode)) {
+    return RegisterAgainWithGains(run);
   }
   return true;
 }
@@ -483,37 +397,27 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
   result->uncertainty.noise_sigma = std::ldexp(result->uncertainty.noise_sigma, -exponent);
 }
 
-// Register on intensities `images` (the input's, or their transform): those far from a
+// Register on intensities `*run.images` (the input's, or their transform): those far from a
 // usual scale are brought to it by a power of two (pipeline/input_checks.h); the reported
-// costs are scaled back at the end. `search_images`: as RegisterScaled's.
-bool RegisterOnUsualScale(const std::vector<Image>& images,
-                          const std::vector<Mask>& masks,
-                          const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-                          const RegistrationOptions& options,
-                          const std::vector<Image>* search_images,
-                          std::chrono::steady_clock::time_point start,
-                          RegistrationResult* result,
-                          std::string* error) {
-  const int exponent = IntensityScaleExponent(IntensitySpread(images, masks));
-  if (exponent == 0) {
-    return RegisterScaled(images, masks, initial_frame_from_world, options, search_images, start,
-                          result, error);
-  }
+// costs are scaled back at the end.
+bool RegisterOnUsualScale(const RegistrationRun& run) {
+  const int exponent = IntensityScaleExponent(IntensitySpread(*run.images, *run.masks));
+  if (exponent == 0) return RegisterScaled(run);
   LOG(INFO) << "intensities scaled by 2^" << exponent
             << " for the solves (their spread is far from a usual scale); the costs printed "
                "during the solves are in those units";
-  std::vector<Image> scaled = images;
+  std::vector<Image> scaled = *run.images;
   for (Image& image : scaled) {
     for (float& v : image.voxels) v = std::ldexp(v, exponent);
   }
   // The loss's scale is in grey levels: it follows the intensities.
-  RegistrationOptions scaled_options = options;
-  scaled_options.loss.scale = std::ldexp(options.loss.scale, exponent);
-  if (!RegisterScaled(scaled, masks, initial_frame_from_world, scaled_options, search_images,
-                      start, result, error)) {
-    return false;
-  }
-  UnscaleResult(exponent, result);
+  RegistrationOptions scaled_options = *run.options;
+  scaled_options.loss.scale = std::ldexp(run.options->loss.scale, exponent);
+  RegistrationRun scaled_run = run;
+  scaled_run.images = &scaled;
+  scaled_run.options = &scaled_options;
+  if (!RegisterScaled(scaled_run)) return false;
+  UnscaleResult(exponent, run.result);
   return true;
 }
 
@@ -598,20 +502,24 @@ bool Register(const std::vector<Image>& input_images,
     return false;
   }
   *result = RegistrationResult();
-  if (options.intensity_transform == IntensityTransform::kNone) {
-    return RegisterOnUsualScale(input_images, masks, initial_frame_from_world, options, nullptr,
-                                start, result, error);
-  }
+  RegistrationRun run;
+  run.images = &input_images;
+  run.masks = &masks;
+  run.initial_frame_from_world = &initial_frame_from_world;
+  run.options = &options;
+  run.start = start;
+  run.result = result;
+  run.error = error;
+  if (options.intensity_transform == IntensityTransform::kNone) return RegisterOnUsualScale(run);
   const double c = IntensityTransformScale(input_images, masks);
   std::vector<Image> transformed;
   if (!ApplyIntensityTransform(input_images, masks, options.intensity_transform, c,
                                &transformed, error)) {
     return false;
   }
-  if (!RegisterOnUsualScale(transformed, masks, initial_frame_from_world, options, &input_images,
-                            start, result, error)) {
-    return false;
-  }
+  run.images = &transformed;
+  run.search_images = &input_images;
+  if (!RegisterOnUsualScale(run)) return false;
   transformed = std::vector<Image>();  // freed before the input's frames are built
   result->intensity_transform = options.intensity_transform;
   result->intensity_transform_scale = c;

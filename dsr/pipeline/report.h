@@ -22,7 +22,7 @@
 #include "dsr/image/picture.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/photometric.h"
-#include "dsr/pipeline/registration.h"
+#include "dsr/pipeline/registration_result.h"
 
 namespace dsr {
 

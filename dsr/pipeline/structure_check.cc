@@ -46,6 +46,95 @@ struct LagSlot {
 // Fixed blocks of candidate voxels (a multiple of any thread count used here).
 constexpr int64_t kBlocks = 64;
 
+// Adds the pair of `slot` and `before`, the voxel the lag before it on its row, to the sums
+// of every frame that observes both.
+void AddLagPair(const LagSlot& slot, const LagSlot& before, StructureSums* sums) {
+  uint32_t both = slot.observers & before.observers;
+  while (both != 0) {
+    const int f = __builtin_ctz(both);
+    both &= both - 1;
+    ++sums->pairs[f];
+    sums->rr[f] += slot.residual[f] * before.residual[f];
+    sums->r1[f] += before.residual[f];
+    sums->r2[f] += slot.residual[f];
+    sums->rsq[f] += 0.5 * (slot.residual[f] * slot.residual[f] +
+                           before.residual[f] * before.residual[f]);
+    sums->cc[f] += slot.corrected[f] * before.corrected[f];
+    sums->c1[f] += before.corrected[f];
+    sums->c2[f] += slot.corrected[f];
+    sums->c1c1[f] += 0.5 * (before.corrected[f] * before.corrected[f] +
+                            slot.corrected[f] * slot.corrected[f]);
+    sums->rz[f] += 0.5 * (before.residual[f] * slot.brightness[f] +
+                          slot.residual[f] * before.brightness[f]);
+    sums->zz[f] += before.brightness[f] * slot.brightness[f].transpose();
+    sums->z1[f] += before.brightness[f];
+    sums->z2[f] += slot.brightness[f];
+  }
+}
+
+// Adds the first m frames' sums of a block to *total.
+void AddSums(const StructureSums& block, int m, StructureSums* total) {
+  for (int f = 0; f < m; ++f) {
+    total->pairs[f] += block.pairs[f];
+    total->rr[f] += block.rr[f];
+    total->r1[f] += block.r1[f];
+    total->r2[f] += block.r2[f];
+    total->rsq[f] += block.rsq[f];
+    total->cc[f] += block.cc[f];
+    total->c1[f] += block.c1[f];
+    total->c2[f] += block.c2[f];
+    total->c1c1[f] += block.c1c1[f];
+    total->rz[f] += block.rz[f];
+    total->zz[f] += block.zz[f];
+    total->z1[f] += block.z1[f];
+    total->z2[f] += block.z2[f];
+  }
+}
+
+// Frame f's structure statistics from the sums of its lag pairs.
+FrameStructure StructureFromSums(const StructureSums& total, int f) {
+  FrameStructure s;
+  s.pairs = total.pairs[f];
+  if (s.pairs < 2) return s;
+  const double n_pairs = static_cast<double>(s.pairs);
+  // Centred: a frame's mean residual is a brightness offset, not anatomy out of line.
+  const double r_mean1 = total.r1[f] / n_pairs, r_mean2 = total.r2[f] / n_pairs;
+  s.residual_lag = total.rr[f] / n_pairs - r_mean1 * r_mean2;
+  // Less the part a brightness field explains: a gain of frame i against the others that
+  // varies smoothly over it (a gain, or attenuation with depth that the others see at
+  // other depths) leaves r = (g(x) - 1) mu + noise, structure that is brightness, not
+  // anatomy out of line. With g linear in the sample's place, that is r = z^T beta for the
+  // regressors z = mu [1, x, y, z]; the regression at the lag, beta = C_zz'^-1 c_rz' (where
+  // the noise of z and r, which share frame i's, does not bias it), accounts for
+  // c_rz'^T C_zz'^-1 c_rz' of the residual's lag covariance.
+  const Eigen::Vector4d z_mean1 = total.z1[f] / n_pairs, z_mean2 = total.z2[f] / n_pairs;
+  const Eigen::Vector4d c_rz =
+      total.rz[f] / n_pairs - 0.5 * (r_mean1 * z_mean2 + r_mean2 * z_mean1);
+  Eigen::Matrix4d c_zz = total.zz[f] / n_pairs - z_mean1 * z_mean2.transpose();
+  c_zz = (0.5 * (c_zz + c_zz.transpose())).eval();
+  // Its positive part only (a lag covariance need not be positive definite): directions
+  // of z without structure at the lag explain nothing.
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eigen(c_zz);
+  const double largest = eigen.eigenvalues().maxCoeff();
+  for (int e = 0; e < 4; ++e) {
+    const double lambda = eigen.eigenvalues()[e];
+    if (lambda > 1e-9 * largest) {
+      const double along = eigen.eigenvectors().col(e).dot(c_rz);
+      s.residual_lag -= along * along / lambda;
+    }
+  }
+  s.residual_variance = total.rsq[f] / n_pairs - 0.25 * (r_mean1 + r_mean2) * (r_mean1 + r_mean2);
+  const double mean1 = total.c1[f] / n_pairs, mean2 = total.c2[f] / n_pairs;
+  const double mean = 0.5 * (mean1 + mean2);
+  s.signal_lag = total.cc[f] / n_pairs - mean1 * mean2;
+  s.signal_variance = total.c1c1[f] / n_pairs - mean * mean;
+  const double root_n = std::sqrt(n_pairs);
+  if (s.residual_variance > 0.0) s.significance = s.residual_lag / (s.residual_variance / root_n);
+  s.judged = s.signal_lag > kStructureSignificance * s.signal_variance / root_n;
+  if (s.judged) s.fraction = s.residual_lag / s.signal_lag;
+  return s;
+}
+
 }  // namespace
 
 int StructureLagVoxels(const std::vector<Frame>& frames, const ImageGeometry& grid) {
@@ -117,90 +206,14 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
           slot.brightness[f] << mean, mean * place;
         }
         if (x < lag || before.linear != linear - lag) continue;
-        uint32_t both = slot.observers & before.observers;
-        while (both != 0) {
-          const int f = __builtin_ctz(both);
-          both &= both - 1;
-          ++sums.pairs[f];
-          sums.rr[f] += slot.residual[f] * before.residual[f];
-          sums.r1[f] += before.residual[f];
-          sums.r2[f] += slot.residual[f];
-          sums.rsq[f] += 0.5 * (slot.residual[f] * slot.residual[f] +
-                                before.residual[f] * before.residual[f]);
-          sums.cc[f] += slot.corrected[f] * before.corrected[f];
-          sums.c1[f] += before.corrected[f];
-          sums.c2[f] += slot.corrected[f];
-          sums.c1c1[f] += 0.5 * (before.corrected[f] * before.corrected[f] +
-                                 slot.corrected[f] * slot.corrected[f]);
-          sums.rz[f] += 0.5 * (before.residual[f] * slot.brightness[f] +
-                               slot.residual[f] * before.brightness[f]);
-          sums.zz[f] += before.brightness[f] * slot.brightness[f].transpose();
-          sums.z1[f] += before.brightness[f];
-          sums.z2[f] += slot.brightness[f];
-        }
+        AddLagPair(slot, before, &sums);
       }
     }
   });
   StructureSums total;
-  for (const StructureSums& s : blocks) {
-    for (int f = 0; f < m; ++f) {
-      total.pairs[f] += s.pairs[f];
-      total.rr[f] += s.rr[f];
-      total.r1[f] += s.r1[f];
-      total.r2[f] += s.r2[f];
-      total.rsq[f] += s.rsq[f];
-      total.cc[f] += s.cc[f];
-      total.c1[f] += s.c1[f];
-      total.c2[f] += s.c2[f];
-      total.c1c1[f] += s.c1c1[f];
-      total.rz[f] += s.rz[f];
-      total.zz[f] += s.zz[f];
-      total.z1[f] += s.z1[f];
-      total.z2[f] += s.z2[f];
-    }
-  }
+  for (const StructureSums& block : blocks) AddSums(block, m, &total);
   std::vector<FrameStructure> out(m);
-  for (int f = 0; f < m; ++f) {
-    FrameStructure& s = out[f];
-    s.pairs = total.pairs[f];
-    if (s.pairs < 2) continue;
-    const double n_pairs = static_cast<double>(s.pairs);
-    // Centred: a frame's mean residual is a brightness offset, not anatomy out of line.
-    const double r_mean1 = total.r1[f] / n_pairs, r_mean2 = total.r2[f] / n_pairs;
-    s.residual_lag = total.rr[f] / n_pairs - r_mean1 * r_mean2;
-    // Less the part a brightness field explains: a gain of frame i against the others that
-    // varies smoothly over it (a gain, or attenuation with depth that the others see at
-    // other depths) leaves r = (g(x) - 1) mu + noise, structure that is brightness, not
-    // anatomy out of line. With g linear in the sample's place, that is r = z^T beta for the
-    // regressors z = mu [1, x, y, z]; the regression at the lag, beta = C_zz'^-1 c_rz' (where
-    // the noise of z and r, which share frame i's, does not bias it), accounts for
-    // c_rz'^T C_zz'^-1 c_rz' of the residual's lag covariance.
-    const Eigen::Vector4d z_mean1 = total.z1[f] / n_pairs, z_mean2 = total.z2[f] / n_pairs;
-    const Eigen::Vector4d c_rz =
-        total.rz[f] / n_pairs - 0.5 * (r_mean1 * z_mean2 + r_mean2 * z_mean1);
-    Eigen::Matrix4d c_zz = total.zz[f] / n_pairs - z_mean1 * z_mean2.transpose();
-    c_zz = (0.5 * (c_zz + c_zz.transpose())).eval();
-    // Its positive part only (a lag covariance need not be positive definite): directions
-    // of z without structure at the lag explain nothing.
-    const Eigen::SelfAdjointEigenSolver<Eigen::Matrix4d> eigen(c_zz);
-    const double largest = eigen.eigenvalues().maxCoeff();
-    for (int e = 0; e < 4; ++e) {
-      const double lambda = eigen.eigenvalues()[e];
-      if (lambda > 1e-9 * largest) {
-        const double along = eigen.eigenvectors().col(e).dot(c_rz);
-        s.residual_lag -= along * along / lambda;
-      }
-    }
-    s.residual_variance = total.rsq[f] / n_pairs - 0.25 * (r_mean1 + r_mean2) * (r_mean1 + r_mean2);
-    const double mean1 = total.c1[f] / n_pairs, mean2 = total.c2[f] / n_pairs;
-    const double mean = 0.5 * (mean1 + mean2);
-    s.signal_lag = total.cc[f] / n_pairs - mean1 * mean2;
-    s.signal_variance = total.c1c1[f] / n_pairs - mean * mean;
-    const double root_n = std::sqrt(n_pairs);
-    if (s.residual_variance > 0.0) s.significance = s.residual_lag / (s.residual_variance / root_n);
-    s.judged = s.signal_lag > kStructureSignificance * s.signal_variance / root_n;
-    if (s.judged) s.fraction = s.residual_lag / s.signal_lag;
-  }
+  for (int f = 0; f < m; ++f) out[f] = StructureFromSums(total, f);
   return out;
 }
 
