@@ -284,4 +284,22 @@ bool OutputPlan::CreateFolders(std::string* error) const {
   return true;
 }
 
+void InputRegistry::AddImage(const std::string& flag, const std::string& path) {
+  if (path.empty()) return;
+  const std::lock_guard<std::mutex> lock(mutex_);
+  images_.emplace_back(flag, path);
+}
+
+void InputRegistry::AddFile(const std::string& flag, const std::string& path) {
+  if (path.empty()) return;
+  const std::lock_guard<std::mutex> lock(mutex_);
+  files_.emplace_back(flag, path);
+}
+
+void InputRegistry::AddTo(OutputPlan* plan) const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  for (const auto& [flag, path] : images_) plan->AddInputImage(flag, path);
+  for (const auto& [flag, path] : files_) plan->AddInputFile(flag, path);
+}
+
 }  // namespace dsr

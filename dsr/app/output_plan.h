@@ -18,7 +18,9 @@
 #ifndef DSR_APP_OUTPUT_PLAN_H_
 #define DSR_APP_OUTPUT_PLAN_H_
 
+#include <mutex>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace dsr {
@@ -101,6 +103,22 @@ class OutputPlan {
   bool CheckOutputFile(const Index& index, size_t o, std::string* error) const;
 
   std::vector<Entry> entries_;
+};
+
+// The inputs a long-lived front end has read (the Python package: every frame, mask and
+// poses file a registration or a fusion read in this process), so that none of its later
+// writes replaces one: each write is planned with them (AddTo) and checked. Thread-safe.
+class InputRegistry {
+ public:
+  // Remembers the input image (and its data files) or file of `--flag=path` ("" ignored).
+  void AddImage(const std::string& flag, const std::string& path);
+  void AddFile(const std::string& flag, const std::string& path);
+  // Adds every remembered input to `plan`.
+  void AddTo(OutputPlan* plan) const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<std::pair<std::string, std::string>> images_, files_;
 };
 
 }  // namespace dsr

@@ -152,7 +152,7 @@ def _inputs(images, masks, names):
         core_masks = []
         for i, mask in enumerate(mask_list):
             mk = _as_image(mask, f"mask {i}")
-            core_masks.append((np.asarray(mk.array, dtype=np.uint8), mk.geometry()))
+            core_masks.append((np.asarray(mk.array), mk.geometry()))  # non-zero = inside
         default_names = [f"frame_{i:02d}" for i in range(len(images))]
     image_names = list(names) if names is not None else default_names
     if len(image_names) != len(images):

@@ -24,7 +24,10 @@
 
 #include "dsr/app/inputs.h"
 #include "dsr/app/options.h"
+#include "dsr/app/output_plan.h"
+#include "dsr/app/registration_run.h"
 #include "dsr/app/run_options.h"
+#include "dsr/app/simulation_run.h"
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_poses.h"
@@ -134,6 +137,21 @@ Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::
     if (!CheckFiniteVoxels(out, what, &error)) BadInput(error);
   }
   return out;
+}
+
+// A mask as a mask file is read (io/io_image.h, ReadMask): any numeric type, non-zero =
+// inside; NaN refused, and a mask with no voxel inside.
+Mask ToMask(const py::array& input, const Geometry& geometry, const std::string& what) {
+  const Volume<double> values = ToVolume<double>(input, geometry, what);
+  Mask mask(values.geometry);
+  bool any = false;
+  for (size_t v = 0; v < values.voxels.size(); ++v) {
+    if (std::isnan(values.voxels[v])) BadInput(what + ": a voxel is NaN (masks are 0 or not)");
+    mask.voxels[v] = values.voxels[v] != 0.0;
+    any = any || mask.voxels[v] != 0;
+  }
+  if (!any) BadInput(what + ": no voxel inside (every voxel is 0)");
+  return mask;
 }
 
 template <typename T>
@@ -284,50 +302,23 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   return s;
 }
 
-// The images and masks of a call (at least `min_frames`), with `settings`' --mask_rule,
-// --mask_erosion and --num_threads: file paths, read as the tools read them (masks too), or
-// (array, geometry) pairs; `masks` the same kind, or empty for each image's field of view by
-// --mask_rule eroded by --mask_erosion. `match_names`: what a poses file's entries are
-// matched to (the paths, or `names`). `field_of_view`: FieldOfViewSummary of where the
-// masks came from. True when the images are files.
-bool ReadInputs(int min_frames,
-                const py::list& images,
-                const py::list& masks,
-                const std::vector<std::string>& names,
-                Settings settings,
-                std::vector<Image>* frames,
-                std::vector<Mask>* frame_masks,
-                std::vector<std::string>* match_names,
-                std::string* field_of_view) {
+// "a,b,c": paths as a list option's value.
+std::string JoinPaths(const py::list& paths) {
+  std::string out;
+  for (const std::string& p : paths.cast<std::vector<std::string>>()) {
+    out += (out.empty() ? "" : ",") + p;
+  }
+  return out;
+}
+
+// Images given as (array, geometry) pairs and their masks (the same, or empty for each
+// image's field of view by `fov`), with the rules FrameFilesFrom has for --images and
+// --masks, named by argument. `mask_rules`: which rule made each mask (empty when given).
+void ReadArrays(int min_frames, const py::list& images, const py::list& masks,
+                const FieldOfViewOptions& fov, std::vector<Image>* frames,
+                std::vector<Mask>* frame_masks, std::vector<MaskRule>* mask_rules) {
   std::string error;
   const int m = static_cast<int>(images.size());
-  if (static_cast<int>(names.size()) != m) BadInput("names: need one name per image");
-  *match_names = names;
-  const RunConfig config = ConfigFrom(settings);
-  const FieldOfViewOptions& fov = config.field_of_view;
-  if (m > 0 && py::isinstance<py::str>(images[0])) {
-    // As --images and --masks, so that the paths get dsr_register's checks and messages.
-    const auto join = [](const std::vector<std::string>& paths) {
-      std::string out;
-      for (const std::string& p : paths) out += (out.empty() ? "" : ",") + p;
-      return out;
-    };
-    if (!settings.Set("images", join(images.cast<std::vector<std::string>>()), &error) ||
-        !settings.Set("masks", join(masks.cast<std::vector<std::string>>()), &error)) {
-      BadInput(error);
-    }
-    std::vector<std::string> image_paths, mask_paths;
-    if (!FrameFilesFrom(settings, min_frames, &image_paths, &mask_paths, &error)) BadInput(error);
-    *match_names = image_paths;
-    std::vector<MaskRule> mask_rules;
-    if (!ReadFrames(image_paths, mask_paths, fov, config.num_threads, frames, frame_masks,
-                    &mask_rules, &error)) {
-      BadInput(error);
-    }
-    *field_of_view = FieldOfViewSummary(mask_rules, fov.mask_rule);
-    return true;
-  }
-  // The rules FrameFilesFrom has for --images and --masks, named by argument.
   if (m < min_frames) {
     BadInput("images: need at least " + std::to_string(min_frames) + " images, got " +
              std::to_string(m));
@@ -336,92 +327,123 @@ bool ReadInputs(int min_frames,
     BadInput("masks: " + std::to_string(masks.size()) + " masks for " + std::to_string(m) +
              " images");
   }
-  std::vector<MaskRule> mask_rules(masks.empty() ? m : 0);
+  mask_rules->assign(masks.empty() ? m : 0, MaskRule::kHull);
   for (int i = 0; i < m; ++i) {
     const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
     frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
     if (masks.empty()) {
       frame_masks->emplace_back();
       if (!MaskFromImage(frames->back(), fov, "image " + std::to_string(i), &frame_masks->back(),
-                         &mask_rules[i], &error)) {
+                         &(*mask_rules)[i], &error)) {
         BadInput(error);
       }
-    } else {
-      const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
-      frame_masks->push_back(ToVolume<uint8_t>(mask, mask_geometry, "mask " + std::to_string(i)));
-      if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
-        BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
-      }
+      continue;
+    }
+    const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
+    frame_masks->push_back(ToMask(mask, mask_geometry, "mask " + std::to_string(i)));
+    if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
+      BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
     }
   }
-  *field_of_view = FieldOfViewSummary(mask_rules, fov.mask_rule);
-  return false;
 }
 
-// What a registration starts from: its options, frames, masks and initial poses.
-struct Run {
-  RegistrationOptions options;
-  std::vector<std::string> paths;  // the images' files (none for images in memory)
-  std::vector<Image> frames;
-  std::vector<Mask> masks;
-  std::vector<Eigen::Isometry3d> start;
-  std::string field_of_view;  // FieldOfViewSummary of the masks
-  std::string preset;         // Settings::PresetSummary (empty without --preset)
-};
+// Every frame, mask and poses file a registration or a fusion read in this process: no
+// write of the package replaces one.
+InputRegistry& ReadInputs() {
+  static InputRegistry* const registry = new InputRegistry();
+  return *registry;
+}
 
-// The run that `options` set up for `images` (file paths, read as dsr_register reads them,
-// masks too; or (array, geometry) pairs) and `masks` (the same kind, or empty for each
-// image's field of view by --mask_rule eroded by --mask_erosion). The start: `initial`
-// (4x4 arrays, one per image, with recovery as a poses file has) when given, else --init's
-// (a poses file is matched to the images by name as dsr_register matches it: to the paths,
-// or to `names`).
-Run PrepareRun(const py::list& images,
-               const py::list& masks,
-               const std::vector<std::string>& names,
-               const Options& options,
-               const std::optional<std::vector<py::array_t<double>>>& initial) {
-  Settings settings = MakeSettings(options, kPyRegister);
-  std::string error, init_file;
-  if (initial.has_value() && !settings.Set("init", "auto", &error)) BadInput(error);
-  Run run;
-  if (!RunOptionsFrom(settings, &run.options, &init_file, &error)) BadInput(error);
-  run.options.solve.progress = false;  // Python has on_iteration and progress_bar instead
-  run.preset = settings.PresetSummary();
-  std::vector<std::string> match_names;
-  if (ReadInputs(2, images, masks, names, settings, &run.frames, &run.masks, &match_names,
-                 &run.field_of_view)) {
-    run.paths = match_names;
+// The fusion's images and masks (at least one): file paths, read as dsr_fuse reads them
+// (masks too), or (array, geometry) pairs, with `settings`' --mask_rule, --mask_erosion and
+// --num_threads. `match_names`: what a poses file's entries are matched to (the paths, or
+// `names`).
+void ReadFusionInputs(const py::list& images, const py::list& masks,
+                      const std::vector<std::string>& names, Settings settings,
+                      std::vector<Image>* frames, std::vector<Mask>* frame_masks,
+                      std::vector<std::string>* match_names) {
+  std::string error;
+  if (names.size() != images.size()) BadInput("names: need one name per image");
+  *match_names = names;
+  const RunConfig config = ConfigFrom(settings);
+  std::vector<MaskRule> mask_rules;
+  if (images.empty() || !py::isinstance<py::str>(images[0])) {
+    ReadArrays(1, images, masks, config.field_of_view, frames, frame_masks, &mask_rules);
+    return;
   }
+  // As --images and --masks, so that the paths get dsr_fuse's checks and messages.
+  std::vector<std::string> image_paths, mask_paths;
+  if (!settings.Set("images", JoinPaths(images), &error) ||
+      !settings.Set("masks", JoinPaths(masks), &error) ||
+      !FrameFilesFrom(settings, 1, &image_paths, &mask_paths, &error) ||
+      !ReadFrames(image_paths, mask_paths, config.field_of_view, config.num_threads, frames,
+                  frame_masks, &mask_rules, &error)) {
+    BadInput(error);
+  }
+  for (const std::string& path : image_paths) ReadInputs().AddImage("images", path);
+  for (const std::string& path : mask_paths) ReadInputs().AddImage("masks", path);
+  *match_names = image_paths;
+}
+
+// The run dsr_register makes of `images` (file paths, read as dsr_register reads them,
+// masks too; or (array, geometry) pairs) and `masks` (the same kind, or empty for each
+// image's field of view by --mask_rule eroded by --mask_erosion), named `names` in the
+// poses file. The start: `initial` (4x4 arrays, one per image, with recovery as a poses
+// file has) when given, else --init's (a poses file is matched to the images by name as
+// dsr_register matches it: to the paths, or to `names`).
+void PrepareRun(const py::list& images, const py::list& masks,
+                const std::vector<std::string>& names, Settings settings,
+                const std::optional<std::vector<py::array_t<double>>>& initial,
+                RegistrationRun* run) {
+  std::string error;
   const int m = static_cast<int>(images.size());
-  run.start.assign(m, Eigen::Isometry3d::Identity());
+  if (static_cast<int>(names.size()) != m) BadInput("names: need one name per image");
+  std::vector<Eigen::Isometry3d> start;
   if (initial.has_value()) {
     if (static_cast<int>(initial->size()) != m) {
       BadInput("initial_poses: " + std::to_string(initial->size()) + " poses for " +
                std::to_string(m) + " images");
     }
     for (int i = 0; i < m; ++i) {
-      run.start[i] = ToPose((*initial)[i], "initial_poses: pose " + std::to_string(i) + ": ");
+      start.push_back(ToPose((*initial)[i], "initial_poses: pose " + std::to_string(i) + ": "));
     }
-  } else if (!init_file.empty()) {
-    PosesFile poses;
-    if (!ReadPoses(init_file, m, &poses, &error)) BadInput("--init: " + error);
-    if (!MatchPosesToImages("init", init_file, match_names, &poses, &error)) BadInput(error);
-    run.start = poses.frame_from_world;
+    if (!settings.Set("init", "auto", &error)) BadInput(error);
   }
-  return run;
+  if (m > 0 && py::isinstance<py::str>(images[0])) {
+    if (!settings.Set("images", JoinPaths(images), &error) ||
+        !settings.Set("masks", JoinPaths(masks), &error) ||
+        !run->PlanFiles(settings, RegistrationOutputs(), &error) || !run->ReadFiles(&error)) {
+      BadInput(error);
+    }
+    run->RememberInputs(&ReadInputs());
+    run->set_names(names);
+    if (!start.empty()) run->set_start(std::move(start));
+    return;
+  }
+  std::vector<Image> frames;
+  std::vector<Mask> frame_masks;
+  std::vector<MaskRule> mask_rules;
+  ReadArrays(2, images, masks, ConfigFrom(settings).field_of_view, &frames, &frame_masks,
+             &mask_rules);
+  if (!run->SetFrames(settings, std::move(frames), std::move(frame_masks), std::move(mask_rules),
+                      names, std::move(start), &error)) {
+    BadInput(error);
+  }
 }
 
 // register(images, masks, names, options, initial_poses, on_iteration): PrepareRun's run,
-// solved without the GIL; the poses file's contents and a summary.
+// checked as dsr_register checks it and solved without the GIL; the poses file's contents,
+// a summary and the input files (Result.save refuses to write over them).
 py::dict RegisterImages(const py::list& images,
                         const py::list& masks,
                         const std::vector<std::string>& names,
                         const Options& options_in,
                         const std::optional<std::vector<py::array_t<double>>>& initial_poses,
                         const IterationObserver& on_iteration) {
-  Run run = PrepareRun(images, masks, names, options_in, initial_poses);
-  RegistrationOptions& options = run.options;
-  std::string error;
+  RegistrationRun run(kPyRegister);
+  PrepareRun(images, masks, names, MakeSettings(options_in, kPyRegister), initial_poses, &run);
+  RegistrationOptions& options = run.options();
+  options.solve.progress = false;  // Python has on_iteration and progress_bar instead
   // The callback's exception stops the solve and is raised once the registration returns.
   std::exception_ptr callback_error;
   if (on_iteration) {
@@ -435,25 +457,23 @@ py::dict RegisterImages(const py::list& images,
       }
     };
   }
-  // As dsr_register: a message about frame N also names its file.
-  if (!CheckRegistrationInputs(run.frames, run.start, options, &error)) {
-    BadInput(WithFrameFile(error, run.paths));
-  }
-  RegistrationResult result;
+  std::string error;
+  if (!run.Check(&error)) BadInput(error);
   bool ok = false;
   {
     py::gil_scoped_release release;
-    ok = Register(run.frames, run.masks, run.start, options, &result, &error);
+    ok = run.Run(&error);
   }
   if (callback_error) std::rethrow_exception(callback_error);
-  if (!ok) BadInput(WithFrameFile(error, run.paths));
+  if (!ok) BadInput(error);
+  const RegistrationResult& result = run.result();
   if (!result.usable) {
     PyErr_SetString(registration_error, AsOptions(result.failure).c_str());
     throw py::error_already_set();
   }
   py::dict out;
-  out["poses"] = PosesToDict(ResultPoses(result, names));
-  out["summary"] = Summary(options, result, run.field_of_view, run.preset);
+  out["poses"] = PosesToDict(ResultPoses(result, run.names()));
+  out["summary"] = Summary(options, result, run.FieldOfViewLine(), run.preset_summary());
   return out;
 }
 
@@ -464,12 +484,10 @@ py::dict SimulateSequence(const Options& options_in) {
   std::string error;
   const Settings settings = MakeSettings(options_in, kPySimulate);
   if (!SimulationOptionsFrom(settings, &options, &phantom, &error)) BadInput(error);
-  const std::string source_path = settings.String("source");
+  // As dsr_simulate: what would not fit in memory is refused before any of it is allocated.
   Image source;
-  if (source_path.empty()) {
-    source = MakePhantom(phantom);
-  } else if (!ReadImage(source_path, &source, &error)) {
-    BadInput("--source: " + error);
+  if (!LoadSimulationSource(options, phantom, settings.String("source"), &source, &error)) {
+    BadInput(error);
   }
   SimulatedSequence sequence;
   bool ok = false;
@@ -514,6 +532,7 @@ py::tuple FuseImages(const py::list& images,
   if (py::isinstance<py::str>(poses_in)) {
     poses_name = poses_in.cast<std::string>();
     if (!ReadPoses(poses_name, m, &poses, &error)) BadInput("--poses: " + error);
+    ReadInputs().AddFile("poses", poses_name);
   } else {
     poses = PosesFromDict(poses_in.cast<py::dict>());
     if (static_cast<int>(poses.frame_from_world.size()) != m) {
@@ -529,9 +548,7 @@ py::tuple FuseImages(const py::list& images,
   const double spacing = config.panorama_spacing, feather_voxels = config.feather_voxels;
   const bool feather = config.feather;
   const int num_threads = config.num_threads;
-  std::string field_of_view;
-  ReadInputs(1, images, masks, names, settings, &frames_in, &masks_in, &match_names,
-             &field_of_view);
+  ReadFusionInputs(images, masks, names, settings, &frames_in, &masks_in, &match_names);
   if (!MatchPosesToImages("poses", poses_name, match_names, &poses, &error)) BadInput(error);
   std::vector<Frame> frames;
   std::vector<Eigen::Isometry3d> relative;
@@ -551,7 +568,23 @@ py::tuple FuseImages(const py::list& images,
                         fused.EnlargementRatio());
 }
 
+// Before a write of the package: OSError naming both files when `path` is an input a
+// registration or a fusion of this process read (inputs are never overwritten), or a FIFO
+// or device (an atomic write would replace it), or its folder is missing or not writable.
+void CheckWrite(const std::string& path, bool image) {
+  OutputPlan plan;
+  ReadInputs().AddTo(&plan);
+  if (image) {
+    plan.AddOutputImage("path", path);
+  } else {
+    plan.AddOutputFile("path", path);
+  }
+  std::string error;
+  if (!plan.Check(&error)) WriteFailed(error);
+}
+
 void WriteTransformFile(const py::array& pose, const std::string& path) {
+  CheckWrite(path, /*image=*/false);
   std::string error;
   if (!WriteItkTransform(ToPose(pose, "pose: "), path, &error)) WriteFailed(error);
 }
@@ -564,6 +597,7 @@ py::tuple ReadImageFile(const std::string& path) {
 }
 
 void WriteImageFile(const py::array& array, const Geometry& geometry, const std::string& path) {
+  CheckWrite(path, /*image=*/true);
   std::string error;
   if (!WriteImage(ToVolume<float>(array, geometry, "image"), path, &error)) WriteFailed(error);
 }
@@ -576,6 +610,7 @@ py::dict ReadPosesFile(const std::string& path, int expected_frames) {
 }
 
 void WritePosesFile(const py::dict& poses, const std::string& path) {
+  CheckWrite(path, /*image=*/false);
   std::string error;
   if (!WritePoses(PosesFromDict(poses), path, &error)) WriteFailed(error);
 }

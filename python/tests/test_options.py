@@ -4,8 +4,10 @@ line's checks; registrations in two threads do not share options."""
 import html
 import importlib.util
 import json
+import os
 import pathlib
 import re
+import stat
 
 import numpy as np
 import pytest
@@ -135,3 +137,67 @@ def test_a_flagfiles_values_are_used(tmp_path):
                          pyramid_min_size=8)
     assert all(np.array_equal(a, b) for a, b in zip(from_file.poses, given.poses))
     assert from_file.summary["levels"] == 2
+
+
+# The guards the command line has, from the application layer they share.
+@pytest.fixture(scope="module")
+def small():
+    return dsr.simulate(num_frames=3, phantom_size=64, frame_size=(32, 32, 28),
+                        max_rotation_deg=6, max_translation_voxels=3, min_depth_voxels=2,
+                        sigma=10)
+
+
+def test_simulate_refuses_up_front_what_would_not_fit():
+    with pytest.raises(ValueError, match=r"--frame_size=2048,2048,2048 --num_frames=2: needs about"):
+        dsr.simulate(frame_size=(2048, 2048, 2048), num_frames=2, phantom_size=16)
+
+
+def test_complex_images_are_refused(small):
+    images = list(small.frames)
+    images[1] = dsr.Image(images[1].array.astype(np.complex64), images[1].spacing,
+                          images[1].origin, images[1].direction)
+    with pytest.raises(ValueError, match=r"image 1: complex pixels"):
+        dsr.register(images, masks=small.masks)
+
+
+def test_masks_in_memory_are_read_as_mask_files(small):
+    """Non-zero = inside, whatever the type: a mask of 0.5 is the mask of 1."""
+    halves = [dsr.Image(m.array * 0.5, m.spacing, m.origin, m.direction) for m in small.masks]
+    ones = dsr.register(small.frames, masks=small.masks, pyramid_levels=2, pyramid_min_size=8)
+    half = dsr.register(small.frames, masks=halves, pyramid_levels=2, pyramid_min_size=8)
+    assert all(np.array_equal(a, b) for a, b in zip(ones.poses, half.poses))
+    bad = list(halves)
+    bad[1] = dsr.Image(np.full_like(halves[1].array, np.nan), halves[1].spacing,
+                       halves[1].origin, halves[1].direction)
+    with pytest.raises(ValueError, match=r"mask 1: a voxel is NaN"):
+        dsr.register(small.frames, masks=bad)
+
+
+def test_fuse_refuses_poses_that_are_not_rigid(small):
+    for bad, cause in [(np.full((4, 4), np.nan), "not finite"),
+                       (np.diag([3.0, 1, 1, 1]), "not rigid"),
+                       (np.diag([-1.0, 1, 1, 1]), "reflection")]:
+        poses = [np.eye(4), bad, np.eye(4)]
+        with pytest.raises(ValueError, match=rf"pose 1: .*{cause}"):
+            dsr.fuse(small.frames, poses, masks=small.masks)
+
+
+def test_writes_never_replace_a_registrations_inputs(tmp_path, small):
+    paths = []
+    for i, frame in enumerate(small.frames):
+        paths.append(str(tmp_path / f"f{i}.nii.gz"))
+        dsr.write_image(frame, paths[-1])
+    before = [pathlib.Path(p).read_bytes() for p in paths]
+    result = dsr.register(paths, pyramid_levels=2, pyramid_min_size=8)
+    with pytest.raises(OSError, match=r"f1\.nii\.gz.*inputs are never overwritten"):
+        result.save(paths[1])
+    with pytest.raises(OSError, match=r"f2\.nii\.gz.*inputs are never overwritten"):
+        dsr.write_image(small.frames[0], paths[2])
+    with pytest.raises(OSError, match=r"f0\.nii\.gz.*inputs are never overwritten"):
+        dsr.write_poses(paths[0], result.poses)
+    assert [pathlib.Path(p).read_bytes() for p in paths] == before
+    fifo = tmp_path / "poses.json"
+    os.mkfifo(fifo)
+    with pytest.raises(OSError, match=r"poses\.json: is a FIFO"):
+        result.save(fifo)
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)
