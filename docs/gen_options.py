@@ -9,7 +9,8 @@ object per option,
      "default": "100",                  # the default as text
      "help": "...",                     # one paragraph of plain text
      "group": "Solver",                 # the section the option is listed under
-     "front_ends": ["dsr_register", "python:register"]}   # the tools and Python functions
+     "front_ends": ["dsr_register", "python:register"],   # the tools and Python functions
+     "front_end_defaults": {"dsr_compare": "0"}}  # optional: a front end's own default
 
 Sections come in the order their group first appears in the table, options in table order.
 Every text is escaped, so help text with | < & * _ ` $ shows as written. Standard library
@@ -93,9 +94,14 @@ def spellings(option):
 
 
 def default_text(option):
-    if option["default"] == "":
-        return '<code>""</code>' if option["type"] == "string" else "(none)"
-    return code(option["default"])
+    def one(text):
+        if text == "":
+            return '<code>""</code>' if option["type"] == "string" else "(none)"
+        return code(text)
+    own = option.get("front_end_defaults") or {}
+    # A front end whose default differs from the table's (e.g. dsr_compare's checks are off).
+    return "<br>".join([one(option["default"])] +
+                       [f"{code(front_end)}: {one(value)}" for front_end, value in own.items()])
 
 
 def render(options):

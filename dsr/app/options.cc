@@ -862,6 +862,40 @@ bool ParseOptionValue(const OptionSpec& spec, const std::string& text, OptionVal
   return true;
 }
 
+const std::vector<FrontEndDefault>& FrontEndDefaults() {
+  static const std::vector<FrontEndDefault>* const defaults = new std::vector<FrontEndDefault>{
+      {kDsrCompare, "init", "identity"},
+      {kDsrCompare, "min_kept_overlap", "0"},
+      {kDsrCompare, "max_misfit_ratio", "0"},
+      {kDsrCompare, "max_pair_mismatch_ratio", "0"},
+      {kDsrCompare, "max_structure_fraction", "0"},
+      {kDsrCompare, "max_pose_error_voxels", "0"},
+      {kDsrCompare, "progress", "false"},
+      {kPyFuse, "blend", "feather"},
+  };
+  return *defaults;
+}
+
+const char* DefaultFor(const OptionSpec& spec, uint32_t front_end) {
+  for (const FrontEndDefault& d : FrontEndDefaults()) {
+    if (d.front_end == front_end && std::string_view(d.name) == spec.name) return d.value;
+  }
+  return spec.default_text;
+}
+
+Settings Settings::For(uint32_t front_end) {
+  Settings settings;
+  for (const FrontEndDefault& d : FrontEndDefaults()) {
+    if (d.front_end != front_end) continue;
+    std::string error;
+    if (!settings.SetDefault(d.name, d.value, &error)) {
+      std::fprintf(stderr, "dsr: internal error: a front end's default: %s\n", error.c_str());
+      std::abort();
+    }
+  }
+  return settings;
+}
+
 const std::vector<Preset>& Presets() {
   static const std::vector<Preset>* const presets = new std::vector<Preset>{
       {"echo",

@@ -65,6 +65,19 @@ const std::vector<OptionSpec>& OptionTable();
 // The option of that name, or nullptr.
 const OptionSpec* FindOption(std::string_view name);
 
+// Where a front end's default differs from the table's: dsr_compare measures every
+// method's poses (its start is the identity, its checks are off, its iteration lines too);
+// dsr.fuse feathers the panorama. Part of the table: the tools' --help, Python's signatures
+// and the option reference show them.
+struct FrontEndDefault {
+  uint32_t front_end;  // one FrontEnd bit
+  const char* name;
+  const char* value;
+};
+const std::vector<FrontEndDefault>& FrontEndDefaults();
+// The default of `spec` for `front_end`: the table's, unless FrontEndDefaults names one.
+const char* DefaultFor(const OptionSpec& spec, uint32_t front_end);
+
 // A value as a command line would give it ("true", "0.05", "dsr").
 std::string OptionValueText(const OptionValue& value);
 // Parses `text` as a value of `spec` and checks its rule: false with
@@ -84,6 +97,8 @@ class Settings {
  public:
   // Every option at its table default.
   Settings();
+  // Every option at its default for `front_end` (DefaultFor).
+  static Settings For(uint32_t front_end);
 
   // Sets option `name` from text as a command line does (--name=text): false with a
   // one-line `error` naming it ("--name=text: unknown option", "...: not a valid double",

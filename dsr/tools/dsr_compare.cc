@@ -27,14 +27,8 @@ void PrintRow(const dsr::ComparisonRow& row) {
 }
 
 int Main(int argc, char** argv) {
-  // Every method's poses are measured, diverged or not, from the paper's start.
-  dsr::SetFlagDefault("init", "identity");
-  dsr::SetFlagDefault("min_kept_overlap", "0");
-  dsr::SetFlagDefault("max_misfit_ratio", "0");
-  dsr::SetFlagDefault("max_pair_mismatch_ratio", "0");
-  dsr::SetFlagDefault("max_structure_fraction", "0");
-  dsr::SetFlagDefault("max_pose_error_voxels", "0");
-  dsr::SetFlagDefault("progress", "false");
+  // Every method's poses are measured, diverged or not, from the paper's start: the
+  // options table's defaults for dsr_compare (FrontEndDefaults).
   dsr::InitTool(
       "compares registration methods on sequences with ground truth (the paper's Fig. 1).\n"
       "  dsr_compare --out_dir=DIR [--methods=dsr,ape,...] [--sequences=DIR1,DIR2 | "

@@ -32,7 +32,12 @@ int main(int argc, char** argv) {
                   dsr::OptionTypeName(spec.type), spec.default_text, spec.group, spec.help);
       continue;
     }
+    nlohmann::json defaults = nlohmann::json::object();  // a front end's own, where it differs
+    for (const dsr::FrontEndDefault& d : dsr::FrontEndDefaults()) {
+      if (std::string(d.name) == spec.name) defaults[dsr::FrontEndNames(d.front_end)[0]] = d.value;
+    }
     table.push_back({{"name", spec.name},
+                     {"front_end_defaults", defaults},
                      {"type", dsr::OptionTypeName(spec.type)},
                      {"default", spec.default_text},
                      {"help", spec.help},

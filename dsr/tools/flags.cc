@@ -2,7 +2,6 @@
 #include "dsr/tools/flags.h"
 
 #include <deque>
-#include <utility>
 #include <vector>
 
 #include <gflags/gflags.h>
@@ -18,11 +17,6 @@ uint32_t& FrontEndBits() {
 Settings& MutableSettings() {
   static Settings* const settings = new Settings();
   return *settings;
-}
-
-std::vector<std::pair<std::string, std::string>>& ToolDefaults() {
-  static auto* const defaults = new std::vector<std::pair<std::string, std::string>>();
-  return *defaults;
 }
 
 // gflags keeps pointers to a flag's name, help, file and storage for the process's life.
@@ -45,20 +39,10 @@ const char* GroupFile(const char* group) {
 
 }  // namespace
 
-void SetFlagDefault(const char* flag, const std::string& value) {
-  ToolDefaults().emplace_back(flag, value);
-}
-
 void DefineToolFlags(uint32_t front_end) {
   FrontEndBits() = front_end;
   Settings& settings = MutableSettings();
-  for (const auto& [name, value] : ToolDefaults()) {
-    std::string error;
-    if (!settings.SetDefault(name, value, &error)) {
-      std::fprintf(stderr, "dsr: internal error: a tool default: %s\n", error.c_str());
-      std::abort();
-    }
-  }
+  settings = Settings::For(front_end);  // the table's defaults, with this tool's own
   for (const OptionSpec& spec : OptionTable()) {
     if ((spec.front_ends & front_end) == 0) continue;
     const char* file = GroupFile(spec.group);

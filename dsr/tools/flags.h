@@ -15,12 +15,8 @@
 
 namespace dsr {
 
-// This tool's default of a table option, where it differs from the table's (dsr_compare
-// measures every method's poses: its checks are off and its start is the identity). Call
-// before InitTool, so that --help shows it and an explicit value still overrides it.
-void SetFlagDefault(const char* flag, const std::string& value);
-
-// Registers with gflags every option of the table that `front_end` takes (InitTool does).
+// Registers with gflags every option of the table that `front_end` takes, with its default
+// for that front end (DefaultFor: --help shows it); InitTool does.
 void DefineToolFlags(uint32_t front_end);
 // The front end whose flags are registered (0 before InitTool).
 uint32_t ToolFrontEnd();

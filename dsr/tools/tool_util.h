@@ -21,7 +21,7 @@ constexpr int kExitFailed = 1;
 // Tool start-up, in this order:
 //  1. FLAGS_logtostderr defaults to true (glog to stderr; --logtostderr=false overrides).
 //  2. Registers the options table's flags of `front_end` (dsr/tools/flags.h, with the
-//     tool's SetFlagDefault values).
+//     tool's own defaults, FrontEndDefaults).
 //  3. Expands every --flagfile=FILE (also "--flagfile FILE", and inside flagfiles) in place,
 //     so that flags after it override it, as gflags does, with the checks of
 //     dsr/app/flagfile.h (one line naming the flagfile and exit kExitBadInput).

@@ -399,9 +399,60 @@ def write_poses(path: Union[str, "os.PathLike[str]"],
 
 def options() -> Dict[str, Dict[str, Any]]:
     """The options table, the one list every front end's options come from: name ->
-    {type, default, group, front_ends, help}. register() takes those whose front_ends hold
-    "python:register", fuse() "python:fuse", simulate() "python:simulate"; the command-line
-    tools take theirs as --flags."""
+    {type, default, group, front_ends, help, front_end_defaults}. register() takes those
+    whose front_ends hold "python:register", fuse() "python:fuse", simulate()
+    "python:simulate"; the command-line tools take theirs as --flags. front_end_defaults:
+    where a front end's default differs from "default" (e.g. dsr_compare's checks are off,
+    fuse() feathers)."""
     return {name: {"type": kind, "default": default, "group": group,
-                   "front_ends": list(front_ends), "help": help_text}
-            for name, kind, default, group, front_ends, help_text in _core.options()}
+                   "front_ends": list(front_ends), "help": help_text,
+                   "front_end_defaults": dict(own)}
+            for name, kind, default, group, front_ends, help_text, own in _core.options()}
+
+
+# The table's options as typed, documented keyword arguments of the functions that take
+# them: their signatures (inspect.signature, help(), editors) and docstrings come from the
+# options table, as the tools' --help and the docs' option reference do.
+_PYTHON_TYPES = {"bool": bool, "int32": int, "int64": int, "uint64": int, "double": float,
+                 "string": str}
+
+
+def _option_default(kind: str, text: str) -> Any:
+    if kind == "bool":
+        return text.lower() in ("1", "t", "true", "y", "yes")
+    if kind in ("int32", "int64", "uint64"):
+        return int(text)
+    if kind == "double":
+        return float(text)
+    return text
+
+
+def _document_options(function: Callable[..., Any], front_end: str) -> None:
+    import inspect  # noqa: PLC0415 (once, at import)
+
+    signature = inspect.signature(function)
+    explicit = [p for p in signature.parameters.values() if p.kind != p.VAR_KEYWORD]
+    taken = {p.name for p in explicit}
+    table = [(name, o) for name, o in options().items()
+             if front_end in o["front_ends"] and name not in taken]
+    keywords = [inspect.Parameter(name, inspect.Parameter.KEYWORD_ONLY,
+                                  default=_option_default(
+                                      o["type"], o["front_end_defaults"].get(front_end,
+                                                                             o["default"])),
+                                  annotation=_PYTHON_TYPES.get(o["type"], str))
+                for name, o in table]
+    flagfile = inspect.Parameter("flagfile", inspect.Parameter.KEYWORD_ONLY, default=None,
+                                 annotation=Optional[str])
+    function.__signature__ = signature.replace(parameters=explicit + keywords + [flagfile])
+    lines = ["", "Options (the options table; dsr.options() lists them with their groups):", ""]
+    for name, o in table:
+        default = o["front_end_defaults"].get(front_end, o["default"])
+        lines.append(f"    {name} ({o['type']}, default {default!r}): {o['help']}")
+    lines.append("    flagfile (str): a flagfile of these options, read with the command "
+                 "line's checks.")
+    function.__doc__ = (function.__doc__ or "") + "\n".join(lines) + "\n"
+
+
+_document_options(register, "python:register")
+_document_options(fuse, "python:fuse")
+_document_options(simulate, "python:simulate")

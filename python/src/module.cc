@@ -22,6 +22,7 @@
 
 #include <Eigen/Geometry>
 
+#include "dsr/app/fusion_run.h"
 #include "dsr/app/inputs.h"
 #include "dsr/app/options.h"
 #include "dsr/app/output_plan.h"
@@ -66,7 +67,7 @@ std::string AsOptions(const std::string& message) {
 // order: "flagfile" reads a flagfile with the command line's checks; an option of another
 // function is refused as unknown.
 Settings MakeSettings(const Options& options, uint32_t front_end) {
-  Settings settings;
+  Settings settings = Settings::For(front_end);
   std::string error;
   for (const auto& [name, value] : options) {
     if (name == "flagfile") {
@@ -535,36 +536,25 @@ py::tuple FuseImages(const py::list& images,
     ReadInputs().AddFile("poses", poses_name);
   } else {
     poses = PosesFromDict(poses_in.cast<py::dict>());
-    if (static_cast<int>(poses.frame_from_world.size()) != m) {
-      BadInput("poses: " + std::to_string(poses.frame_from_world.size()) + " poses for " +
-               std::to_string(m) + " images");
-    }
   }
   std::vector<Image> frames_in;
   std::vector<Mask> masks_in;
   std::vector<std::string> match_names;
   const Settings settings = MakeSettings(options_in, kPyFuse);
-  const RunConfig config = ConfigFrom(settings);
-  const double spacing = config.panorama_spacing, feather_voxels = config.feather_voxels;
-  const bool feather = config.feather;
-  const int num_threads = config.num_threads;
   ReadFusionInputs(images, masks, names, settings, &frames_in, &masks_in, &match_names);
-  if (!MatchPosesToImages("poses", poses_name, match_names, &poses, &error)) BadInput(error);
-  std::vector<Frame> frames;
-  std::vector<Eigen::Isometry3d> relative;
-  ImageGeometry grid;
-  if (!PrepareFusion(frames_in, masks_in, match_names, poses.frame_from_world, spacing,
-                     num_threads, &frames, &relative, &grid, &error)) {
+  FusionRun run(settings);
+  if (!run.SetFrames(std::move(frames_in), std::move(masks_in), {}, match_names, std::move(poses),
+                     poses_name, &error) ||
+      !run.Prepare(&error)) {
     BadInput(error);
   }
-  const std::vector<Photometric> photometric = PhotometricFromPoses(poses);
-  PanoramaImages fused;
   {
     py::gil_scoped_release release;
-    fused = FusePanorama(frames, relative, grid, feather, feather_voxels, num_threads, photometric);
+    run.Fuse();
   }
-  return py::make_tuple(py::make_tuple(ToArray(fused.mean), FromGeometry(grid)),
-                        py::make_tuple(ToArray(fused.count), FromGeometry(grid)),
+  const PanoramaImages& fused = run.fused();
+  return py::make_tuple(py::make_tuple(ToArray(fused.mean), FromGeometry(run.grid())),
+                        py::make_tuple(ToArray(fused.count), FromGeometry(run.grid())),
                         fused.EnlargementRatio());
 }
 
@@ -619,8 +609,12 @@ void WritePosesFile(const py::dict& poses, const std::string& path) {
 py::list OptionsTable() {
   py::list out;
   for (const OptionSpec& spec : OptionTable()) {
+    py::dict defaults;  // where a front end's default differs from the table's
+    for (const FrontEndDefault& d : FrontEndDefaults()) {
+      if (spec.name == std::string(d.name)) defaults[FrontEndNames(d.front_end)[0].c_str()] = d.value;
+    }
     out.append(py::make_tuple(spec.name, OptionTypeName(spec.type), spec.default_text,
-                              spec.group, FrontEndNames(spec.front_ends), spec.help));
+                              spec.group, FrontEndNames(spec.front_ends), spec.help, defaults));
   }
   return out;
 }

@@ -62,20 +62,19 @@ def test_each_tool_lists_exactly_its_options_of_the_table(tool):
     listing = flag_listing(tool)
     table = {o["name"]: o for o in table_json() if tool in o["front_ends"]}
     assert set(listing) == set(table)
-    tool_defaults = {"dsr_compare": {"init", "min_kept_overlap", "max_misfit_ratio",
-                                     "max_pair_mismatch_ratio", "max_structure_fraction",
-                                     "max_pose_error_voxels", "progress"}}
     for name, (help_text, kind, default) in listing.items():
         option = table[name]
         assert help_text == " ".join(option["help"].split()), name
         assert kind == option["type"], name
-        if name in tool_defaults.get(tool, set()):
-            continue  # the tool's own default (dsr_compare measures, checks off)
+        # The table's default, or the tool's own where the table gives one.
+        expected = option["front_end_defaults"].get(tool, option["default"])
         shown = default.strip('"')
         if option["type"] == "double":
-            assert float(shown) == float(option["default"]), name
+            assert float(shown) == float(expected), name
+        elif option["type"] == "bool":
+            assert shown == {"0": "false", "1": "true"}.get(expected, expected), name
         else:
-            assert shown == option["default"], name
+            assert shown == expected, name
 
 
 def test_python_functions_take_their_options_and_refuse_the_others(tmp_path):
@@ -201,3 +200,33 @@ def test_writes_never_replace_a_registrations_inputs(tmp_path, small):
     with pytest.raises(OSError, match=r"poses\.json: is a FIFO"):
         result.save(fifo)
     assert stat.S_ISFIFO(os.stat(fifo).st_mode)
+
+
+def test_keyword_arguments_are_typed_and_documented_from_the_table():
+    import inspect
+    import typing
+
+    table = dsr.options()
+    for function, front_end in [(dsr.register, "python:register"), (dsr.fuse, "python:fuse"),
+                                (dsr.simulate, "python:simulate")]:
+        parameters = inspect.signature(function).parameters
+        for name, option in table.items():
+            if front_end not in option["front_ends"]:
+                continue
+            assert name in parameters, (function.__name__, name)
+            assert name in function.__doc__
+            default = option["front_end_defaults"].get(front_end, option["default"])
+            assert str(parameters[name].default).lower() == default.lower() or \
+                parameters[name].default == pytest.approx(float(default)), (name, default)
+            if name in ("mode", "init", "blend"):
+                continue  # written out in the function itself
+            assert parameters[name].kind == inspect.Parameter.KEYWORD_ONLY
+            expected = {"bool": bool, "int32": int, "uint64": int, "double": float,
+                        "string": str}[option["type"]]
+            assert parameters[name].annotation is expected, name
+        assert "flagfile" in parameters
+    assert inspect.signature(dsr.register).parameters["max_iterations"].default == 100
+    assert inspect.signature(dsr.simulate).parameters["num_frames"].default == 11
+    assert table["blend"]["front_end_defaults"] == {"python:fuse": "feather"}
+    assert table["init"]["front_end_defaults"] == {"dsr_compare": "identity"}
+    typing.get_type_hints(dsr.register)  # the annotations resolve
