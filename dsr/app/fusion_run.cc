@@ -12,15 +12,8 @@
 
 namespace dsr {
 
-FusionRun::FusionRun(const Settings& settings) {
-  const RunConfig config = ConfigFrom(settings);
-  field_of_view_ = config.field_of_view;
-  panorama_spacing_ = config.panorama_spacing;
-  feather_voxels_ = config.feather_voxels;
-  feather_ = config.feather;
-  num_threads_ = config.num_threads;
-  blend_ = settings.String("blend");
-}
+FusionRun::FusionRun(const Settings& settings)
+    : config_(ConfigFrom(settings)), blend_(settings.String("blend")) {}
 
 bool FusionRun::PlanFiles(const Settings& settings, const std::string& poses_path,
                           const std::string& out, const std::string& out_count,
@@ -52,8 +45,8 @@ bool FusionRun::ReadFiles(std::string* error) {
     *error = "--poses: " + *error;
     return false;
   }
-  if (!ReadFrames(image_paths_, mask_paths_, field_of_view_, num_threads_, &images_, &masks_,
-                  &mask_rules_, error)) {
+  if (!ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
+                  &images_, &masks_, &mask_rules_, error)) {
     return false;
   }
   names_ = image_paths_;
@@ -78,18 +71,19 @@ bool FusionRun::SetFrames(std::vector<Image> images, std::vector<Mask> masks,
 }
 
 bool FusionRun::Prepare(std::string* error) {
-  if (!PrepareFusion(images_, masks_, names_, poses_.frame_from_world, panorama_spacing_,
-                     num_threads_, &frames_, &frame_from_world_, &grid_, error)) {
+  if (!PrepareFusion(images_, masks_, names_, poses_.frame_from_world, config_.panorama_spacing,
+                     config_.num_threads, &frames_, &frame_from_world_, &grid_, error)) {
     return false;
   }
   // The mean (float) and k_j (uint8); writing adds a float copy and ITK's image of each
   // output, one at a time, and --out_count a float image of k_j.
   const double bytes_per_voxel = 5.0 + 8.0 + (out_count_.empty() ? 0.0 : 4.0);
   std::ostringstream spacing;
-  spacing << "--panorama_spacing=" << panorama_spacing_;
+  spacing << "--panorama_spacing=" << config_.panorama_spacing;
   // The file's gains and offsets (re-gauged to frame 0 by MatchPosesToImages), if any.
   photometric_ = PhotometricFromPoses(poses_);
-  return CheckMemoryEstimate(spacing.str(), bytes_per_voxel * static_cast<double>(grid_.NumVoxels()),
+  const double bytes = bytes_per_voxel * static_cast<double>(grid_.NumVoxels());
+  return CheckMemoryEstimate(spacing.str(), bytes,
                              "a panorama of " + std::to_string(grid_.size[0]) + "x" +
                                  std::to_string(grid_.size[1]) + "x" +
                                  std::to_string(grid_.size[2]) + " voxels",
@@ -97,8 +91,8 @@ bool FusionRun::Prepare(std::string* error) {
 }
 
 void FusionRun::Fuse() {
-  fused_ = FusePanorama(frames_, frame_from_world_, grid_, feather_, feather_voxels_, num_threads_,
-                        photometric_);
+  fused_ = FusePanorama(frames_, frame_from_world_, grid_, config_.feather,
+                        config_.feather_voxels, config_.num_threads, photometric_);
 }
 
 bool FusionRun::Write(std::string* error) const {
@@ -121,7 +115,7 @@ std::vector<std::string> FusionRun::SummaryLines() const {
                 grid_.spacing_mm[1], grid_.spacing_mm[2], fused_.EnlargementRatio(),
                 static_cast<long long>(fused_.seen_voxels),
                 static_cast<long long>(fused_.frame0_voxels), out_.c_str());
-  return {line, FieldOfViewSummary(mask_rules_, field_of_view_.mask_rule)};
+  return {line, FieldOfViewSummary(mask_rules_, config_.field_of_view.mask_rule)};
 }
 
 }  // namespace dsr

@@ -11,6 +11,7 @@
 
 #include "dsr/app/options.h"
 #include "dsr/app/output_plan.h"
+#include "dsr/app/run_options.h"
 #include "dsr/geometry/field_of_view.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/panorama.h"
@@ -50,10 +51,7 @@ class FusionRun {
   const ImageGeometry& grid() const { return grid_; }
 
  private:
-  FieldOfViewOptions field_of_view_;
-  double panorama_spacing_ = 1.0, feather_voxels_ = 8.0;
-  bool feather_ = false;
-  int num_threads_ = 0;
+  RunConfig config_;  // the fields of the options table (frames, panorama, fusion)
   std::string blend_, poses_path_, out_, out_count_;
   OutputPlan plan_;
   std::vector<std::string> image_paths_, mask_paths_, names_;

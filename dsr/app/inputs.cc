@@ -50,7 +50,8 @@ bool CheckMemoryEstimate(const std::string& what_flags,
   if (available <= 0.0 || bytes <= available) return true;
   const double limit = AddressSpaceLimitBytes();
   *error = what_flags + ": needs about " + GiB(bytes) + " for " + what + ", more than the " +
-           GiB(available) + " available (physical RAM " + GiB(static_cast<double>(PhysicalMemoryBytes())) +
+           GiB(available) + " available (physical RAM " +
+           GiB(static_cast<double>(PhysicalMemoryBytes())) +
            (limit > 0.0 ? ", address-space limit " + GiB(limit) : std::string()) + ")";
   return false;
 }

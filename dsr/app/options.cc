@@ -5,9 +5,11 @@
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
+#include <iterator>
 #include <limits>
-#include <sstream>
+#include <type_traits>
 
 #include <ceres/types.h>
 

@@ -53,7 +53,8 @@ void OutputPlan::AddFrameInputs(const std::vector<std::string>& image_paths,
                                 const std::string& masks_value) {
   for (const std::string& p : image_paths) AddInputImage("images", p);
   for (const std::string& p : mask_paths) AddInputImage("masks", p);
-  for (const auto& [flag, value] : {std::pair<const char*, const std::string&>{"images", images_value},
+  for (const auto& [flag, value] :
+       {std::pair<const char*, const std::string&>{"images", images_value},
                                     {"masks", masks_value}}) {
     if (value.rfind('@', 0) == 0) AddInputFileIn(flag, value, value.substr(1));  // @LIST
   }

@@ -50,19 +50,18 @@ std::string ResampledFrameName(int frame) {
   return name;
 }
 
+bool RegistrationRun::SetOptions(const Settings& settings, std::string* error) {
+  config_ = ConfigFrom(settings);
+  preset_summary_ = settings.PresetSummary();
+  return RunOptionsFrom(settings, &options_, &init_file_, error);
+}
+
 bool RegistrationRun::PlanFiles(const Settings& settings, const RegistrationOutputs& outputs,
                                 std::string* error) {
-  if (!RunOptionsFrom(settings, &options_, &init_file_, error) ||
+  if (!SetOptions(settings, error) ||
       !FrameFilesFrom(settings, 2, &image_paths_, &mask_paths_, error)) {
     return false;
   }
-  const RunConfig config = ConfigFrom(settings);
-  field_of_view_ = config.field_of_view;
-  panorama_spacing_ = config.panorama_spacing;
-  num_threads_ = config.num_threads;
-  feather_ = config.feather;
-  feather_voxels_ = config.feather_voxels;
-  preset_summary_ = settings.PresetSummary();
   outputs_ = outputs;
   names_.clear();
   for (const std::string& p : image_paths_) names_.push_back(fs::path(p).filename().string());
@@ -97,7 +96,9 @@ bool RegistrationRun::ParseReportFrames(std::string* error) {
       list->push_back(static_cast<int>(v));
     }
   }
-  if (outlined_.empty()) outlined_ = m > 2 ? std::vector<int>{0, m / 2, m - 1} : std::vector<int>{0, 1};
+  if (outlined_.empty()) {
+    outlined_ = m > 2 ? std::vector<int>{0, m / 2, m - 1} : std::vector<int>{0, 1};
+  }
   if (pair_.size() != 2 || pair_[0] == pair_[1]) {
     *error = "--report_pair=" + outputs_.report_pair +
              ": must be two different frame indices 'a,b'";
@@ -145,8 +146,8 @@ void RegistrationRun::RememberInputs(InputRegistry* registry) const {
 }
 
 bool RegistrationRun::ReadFiles(std::string* error) {
-  return ReadFrames(image_paths_, mask_paths_, field_of_view_, num_threads_, &images_, &masks_,
-                    &mask_rules_, error) &&
+  return ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
+                    &images_, &masks_, &mask_rules_, error) &&
          ReadPoseFiles(error);
 }
 
@@ -177,14 +178,7 @@ bool RegistrationRun::SetFrames(const Settings& settings, std::vector<Image> ima
                                 std::vector<Mask> masks, std::vector<MaskRule> mask_rules,
                                 std::vector<std::string> names,
                                 std::vector<Eigen::Isometry3d> start, std::string* error) {
-  if (!RunOptionsFrom(settings, &options_, &init_file_, error)) return false;
-  const RunConfig config = ConfigFrom(settings);
-  field_of_view_ = config.field_of_view;
-  panorama_spacing_ = config.panorama_spacing;
-  num_threads_ = config.num_threads;
-  feather_ = config.feather;
-  feather_voxels_ = config.feather_voxels;
-  preset_summary_ = settings.PresetSummary();
+  if (!SetOptions(settings, error)) return false;
   images_ = std::move(images);
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
@@ -213,7 +207,7 @@ bool RegistrationRun::Check(std::string* error) {
 // --out_panorama a mean and a count for each voxel of the frames' bounding box.
 bool RegistrationRun::CheckPanoramaMemory(std::string* error) const {
   const ImageGeometry& g0 = images_[0].geometry;
-  const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(panorama_spacing_, 3);
+  const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(config_.panorama_spacing, 3);
   double bytes =
       12.0 * static_cast<double>(CountInside(masks_[0])) * g0.spacing_mm.prod() / voxel_mm3;
   if (!outputs_.panorama.empty()) {
@@ -231,7 +225,7 @@ bool RegistrationRun::CheckPanoramaMemory(std::string* error) const {
     bytes += 8.0 * box.volume() / voxel_mm3;
   }
   char spacing[48];
-  std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", panorama_spacing_);
+  std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", config_.panorama_spacing);
   return CheckMemoryEstimate(spacing, bytes, "the panorama at the finest level", error);
 }
 
@@ -255,10 +249,11 @@ bool RegistrationRun::Write(std::string* error) {
     // With photometric parameters, of the corrected intensities (result.photometric;
     // empty otherwise).
     const PanoramaImages fused =
-        FusePanorama(frames, result_.frame_from_world, result_.grid, feather_, feather_voxels_,
-                     options_.solve.num_threads, result_.photometric);
+        FusePanorama(frames, result_.frame_from_world, result_.grid, config_.feather,
+                     config_.feather_voxels, options_.solve.num_threads, result_.photometric);
     enlargement_ = fused.EnlargementRatio();
-    panorama = options_.mode == Mode::kDba && !feather_ ? result_.dba_intensities : fused.mean;
+    panorama =
+        options_.mode == Mode::kDba && !config_.feather ? result_.dba_intensities : fused.mean;
   }
   if (!outputs_.panorama.empty() && !WriteImage(panorama, outputs_.panorama, error)) return false;
   if (!WriteFrameFiles(frames, error)) return false;
@@ -281,8 +276,8 @@ bool RegistrationRun::WriteFrameFiles(const std::vector<Frame>& frames, std::str
     if (!outputs_.resampled_dir.empty()) {
       const Image resampled = ResampleOntoGrid(frames[i], result_.frame_from_world[i],
                                                result_.grid, options_.solve.num_threads);
-      if (!WriteImage(resampled, (fs::path(outputs_.resampled_dir) / ResampledFrameName(f)).string(),
-                      error)) {
+      const fs::path path = fs::path(outputs_.resampled_dir) / ResampledFrameName(f);
+      if (!WriteImage(resampled, path.string(), error)) {
         return false;
       }
     }
@@ -320,11 +315,14 @@ std::vector<std::string> RegistrationRun::RecoveryLines() const {
       } else {
         std::snprintf(line, sizeof(line), "%sframe %d kept (NCC %.3f%s)",
                       frames.empty() ? "" : "; ", f.frame, f.ncc_before,
-                      f.searched ? ", no better placement found" : ", as good as a re-placed frame");
+                      f.searched ? ", no better placement found"
+                                 : ", as good as a re-placed frame");
       }
       frames += line;
     }
-    if (r.global) frames += std::string(frames.empty() ? "" : "; ") + "every frame placed by the pair graph";
+    if (r.global) {
+      frames += std::string(frames.empty() ? "" : "; ") + "every frame placed by the pair graph";
+    }
     if (r.misfit_accepted) {
       frames += std::string(frames.empty() ? "" : "; ") +
                 "misfit of the kept frames accepted, the registration goes on";
@@ -338,7 +336,7 @@ std::vector<std::string> RegistrationRun::RecoveryLines() const {
 }
 
 std::string RegistrationRun::FieldOfViewLine() const {
-  return FieldOfViewSummary(mask_rules_, field_of_view_.mask_rule);
+  return FieldOfViewSummary(mask_rules_, config_.field_of_view.mask_rule);
 }
 
 // Each frame's estimated gain and offset and, when the ground truth has them (on frame
@@ -403,7 +401,8 @@ std::vector<std::string> RegistrationRun::SummaryLines(double seconds, double lo
                            "levels", IntensityTransformToString(r.intensity_transform),
                            r.intensity_transform_scale));
   }
-  if (!StructureSummary(r.frame_structure).empty()) lines.push_back(StructureSummary(r.frame_structure));
+  const std::string structure = StructureSummary(r.frame_structure);
+  if (!structure.empty()) lines.push_back(structure);
   if (!r.pose_error_voxels.empty()) {
     const auto worst = std::max_element(r.pose_error_voxels.begin(), r.pose_error_voxels.end());
     lines.push_back(Format("determination check (docs/design.md 8.7): the image noise puts at "

@@ -20,6 +20,7 @@
 
 #include "dsr/app/options.h"
 #include "dsr/app/output_plan.h"
+#include "dsr/app/run_options.h"
 #include "dsr/eval/eval.h"
 #include "dsr/geometry/field_of_view.h"
 #include "dsr/io/io_poses.h"
@@ -107,6 +108,7 @@ class RegistrationRun {
   const std::string& report_index() const { return report_index_; }  // "" without a report
 
  private:
+  bool SetOptions(const Settings& settings, std::string* error);
   bool ParseReportFrames(std::string* error);
   void PlanFolderOutputs(OutputPlan* plan) const;
   bool ReadPoseFiles(std::string* error);
@@ -118,11 +120,7 @@ class RegistrationRun {
   uint32_t front_end_;
   RegistrationOptions options_;
   std::string init_file_, preset_summary_;
-  FieldOfViewOptions field_of_view_;
-  double panorama_spacing_ = 1.0;
-  int num_threads_ = 0;
-  bool feather_ = false;
-  double feather_voxels_ = 8.0;
+  RunConfig config_;  // the fields of the options table (frames, panorama, fusion)
   RegistrationOutputs outputs_;
   OutputPlan plan_;
   std::vector<std::string> image_paths_, mask_paths_, names_;

@@ -58,10 +58,6 @@ bool RunOptionsFrom(const Settings& settings, RegistrationOptions* options,
              mode + " holds frame 0 constant)";
     return false;
   }
-  if (options->uncertainty && !ModeEstimatesPhotometric(chosen)) {
-    *error = "--uncertainty: needs --mode=dsr or dba (got --mode=" + mode + ")";
-    return false;
-  }
   return options->Validate(error);
 }
 

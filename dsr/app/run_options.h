@@ -45,8 +45,10 @@ bool RegistrationOptionsFrom(const Settings& settings, RegistrationOptions* opti
 PhotometricModel PhotometricFor(const Settings& settings, Mode mode);
 
 // One registration run's options (dsr_register, dsr.register): --mode, the options above,
-// the photometric model for that mode, the rules between options and
-// RegistrationOptions::Validate. False with a one-line `error` naming the option (or a
+// the photometric model for that mode, the rule between options that needs to know what
+// was given (an explicit --gauge=mean needs a mode that takes a gauge), and the library's
+// own rules (RegistrationOptions::Validate: uncertainty, photometric parameters and robust
+// losses need dsr or dba, ...). False with a one-line `error` naming the option (or a
 // field, from Validate: FieldPathsAsOptions names its option).
 bool RunOptionsFrom(const Settings& settings, RegistrationOptions* options,
                     std::string* init_file, std::string* error);

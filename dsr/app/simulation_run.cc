@@ -67,7 +67,8 @@ bool CheckSimulationMemory(const SimulationOptions& options, const ImageGeometry
                                  "," + std::to_string(n[2]) +
                                  " --num_frames=" + std::to_string(options.num_frames),
                              bytes,
-                             std::to_string(options.num_frames) + " frames and masks and the source",
+                             std::to_string(options.num_frames) +
+                                 " frames and masks and the source",
                              error);
 }
 

@@ -20,7 +20,8 @@ using dsr::Fail;
 
 // One line per run on stderr, and why a run failed.
 void PrintRow(const dsr::ComparisonRow& row) {
-  std::fprintf(stderr, "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
+  std::fprintf(stderr,
+               "dsr_compare: %-28s %-10s %s MAE %.4f voxels, %.3g rad, %d iterations, %.2f s\n",
                row.method.c_str(), row.sequence.c_str(), row.ok ? "ok    " : "FAILED",
                row.mae_translation_voxels, row.mae_rotation_rad, row.iterations, row.seconds);
   if (!row.ok) std::fprintf(stderr, "dsr_compare:   %s\n", row.failure.c_str());

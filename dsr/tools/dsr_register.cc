@@ -34,7 +34,9 @@ int Main(int argc, char** argv) {
   }
   const double load_seconds = dsr::SecondsSince(start);
   if (!run.Check(&error) || !run.Run(&error)) return Fail(error);
-  for (const std::string& line : run.RecoveryLines()) std::printf("dsr_register: %s\n", line.c_str());
+  for (const std::string& line : run.RecoveryLines()) {
+    std::printf("dsr_register: %s\n", line.c_str());
+  }
   if (!run.result().usable) return Fail(run.result().failure, dsr::kExitFailed);
   if (!run.Write(&error)) return Fail(error, dsr::kExitFailed);
   for (const std::string& line : run.SummaryLines(dsr::SecondsSince(start), load_seconds)) {

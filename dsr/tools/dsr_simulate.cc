@@ -1,5 +1,5 @@
-// dsr_simulate: a sequence following the paper's protocol (docs/design.md section 6, sim/simulate.h)
-// cut from the built-in phantom (sim/phantom.h) or from any readable volume.
+// dsr_simulate: a sequence following the paper's protocol (docs/design.md section 6,
+// sim/simulate.h) cut from the built-in phantom (sim/phantom.h) or from any readable volume.
 // Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz and DIR/gt_poses.json, whose T are
 // frame_from_world with world = the source's physical space (not yet frame 0's: consumers
 // re-express them relative to frame 0). With --gain_range or --offset_range, each frame of

@@ -31,7 +31,8 @@ void ExitWithBadInput(int) { std::exit(kExitBadInput); }
 void ExitAfterHelp(int) { std::exit(EXIT_SUCCESS); }
 
 // Checks each --name=value of `args` (after argv[0], up to "--") with CheckFlagValue: the
-// first refusal's message. The forms gflags also takes are followed: --bool, --nobool, and "--name value" for a flag that is not a bool.
+// first refusal's message. The forms gflags also takes are followed: --bool, --nobool, and
+// "--name value" for a flag that is not a bool.
 // With --undefok (names gflags lets pass unknown) or flags gflags acts on when set
 // (--fromenv, --tryfromenv), the unknown-name check is left to gflags.
 bool CheckFlagArguments(const std::vector<std::string>& args, std::string* error) {

@@ -1,10 +1,11 @@
 """dsr: direct simultaneous registration of several 3D images, from Python.
 
 The C++ libraries do all the work (the module ``dsr._core``); this file turns Python
-inputs into what they take. Options are the command-line flags of ``dsr_register`` and
-``dsr_simulate`` by name (``max_iterations=50``, ``photometric="affine"``), with their
-defaults, rules and one-line error messages: a bad value raises ``ValueError`` with the
-message the command line prints.
+inputs into what they take. Options are keyword arguments from the options table the
+command-line tools' flags come from (``max_iterations=50``, ``photometric="affine"``), with
+their types, defaults, rules and one-line error messages: a bad value raises ``ValueError``
+with the message the command line prints. ``help(dsr.register)`` lists them;
+``dsr.options()`` gives the whole table.
 
 Conventions (docs/design.md section 1): a pose is a 4x4 matrix T_i mapping world (frame 0's
 physical space, LPS millimetres) to frame i; frame 0's is the identity. Arrays are indexed
@@ -309,8 +310,8 @@ def fuse(images: SequenceOf[ImageLike],
         poses file that has them), a poses file, or one 4x4 array per image. A file's or a
         Result's entries are matched to the images by name.
     blend: "feather" (weights falling to 0 towards each field of view's edge) or "mean".
-    **options: dsr_fuse's flags by name (``panorama_spacing``, ``feather_voxels``,
-        ``mask_rule``, ``mask_erosion``, ``num_threads``).
+    **options: the options dsr_fuse takes as flags, by name (``panorama_spacing``,
+        ``feather_voxels``, ``mask_rule``, ``mask_erosion``, ``num_threads``).
     """
     core_images, core_masks, image_names = _inputs(images, masks, names)
     if isinstance(poses, Result):
@@ -346,9 +347,9 @@ class Sequence:
 
 
 def simulate(**options: Any) -> Sequence:
-    """Simulates a sequence as ``dsr_simulate`` does (its flags by name, e.g. ``seed=3``,
-    ``num_frames=5``, ``source="volume.nii.gz"``; default: the built-in phantom and the
-    paper's protocol), in memory."""
+    """Simulates a sequence as ``dsr_simulate`` does (the options it takes as flags, by name,
+    e.g. ``seed=3``, ``num_frames=5``, ``source="volume.nii.gz"``; default: the built-in
+    phantom and the paper's protocol), in memory."""
     out = _core.simulate(_flags(options))
     return Sequence(
         frames=[Image._from_core(f) for f in out["frames"]],

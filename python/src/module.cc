@@ -611,7 +611,8 @@ py::list OptionsTable() {
   for (const OptionSpec& spec : OptionTable()) {
     py::dict defaults;  // where a front end's default differs from the table's
     for (const FrontEndDefault& d : FrontEndDefaults()) {
-      if (spec.name == std::string(d.name)) defaults[FrontEndNames(d.front_end)[0].c_str()] = d.value;
+      if (spec.name != std::string(d.name)) continue;
+      defaults[FrontEndNames(d.front_end)[0].c_str()] = d.value;
     }
     out.append(py::make_tuple(spec.name, OptionTypeName(spec.type), spec.default_text,
                               spec.group, FrontEndNames(spec.front_ends), spec.help, defaults));
