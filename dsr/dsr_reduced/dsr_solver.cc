@@ -28,6 +28,12 @@ bool DsrOptions::Validate(std::string* error) const {
     *error = FieldError("num_chunks", num_chunks, "must be >= 1");
     return false;
   }
+  if (backend != nullptr && reference_cost) {
+    *error = FieldError("backend", backend->Name(),
+                        "evaluates the fast path; the per-voxel reference cost (reference_cost) "
+                        "has none");
+    return false;
+  }
   return true;
 }
 
@@ -136,7 +142,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
     auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
                                        StreamContextFor(options.solve), options.photometric,
-                                       weights, options.gauge);
+                                       weights, options.gauge, options.backend);
     chunks_.push_back(chunk);
     problem_->AddResidualBlock(chunk, nullptr, free_blocks);
   }
@@ -240,7 +246,9 @@ bool SolveOnce(const std::vector<Frame>& frames,
   for (const ReducedChunkCost* chunk : dsr.chunks()) {
     report->jacobian_passes += chunk->pass_counts().jacobian_passes;
     report->cost_passes += chunk->pass_counts().cost_passes;
-    final_pass = final_pass && chunk->PassAt(free_blocks, photometric_blocks) != nullptr;
+    // A pass a backend failed to evaluate has no per-frame costs.
+    const NormalEquations* pass = chunk->PassAt(free_blocks, photometric_blocks);
+    final_pass = final_pass && pass != nullptr && pass->frame_cost.size() == frames.size();
   }
   if (final_pass) {
     report->final_frame_cost.assign(frames.size(), 0.0);

@@ -42,6 +42,11 @@ struct DsrOptions {
   // gives the outputs' convention). Frame 0's photometric parameters stay the photometric
   // gauge in both.
   Gauge gauge = Gauge::kFrame0;
+  // Where the fast path's passes are evaluated (dsr_reduced/reduced_cost_backend.h): null,
+  // the CPU stream (DefaultReducedCostBackend); another backend (a GPU one) evaluates every
+  // chunk's passes instead. Not with reference_cost. Copies of the options share it. The
+  // mean gauge's prior stiffness and IRLS's reweighting passes stay on the CPU stream.
+  std::shared_ptr<const ReducedCostBackend> backend;
   bool Validate(std::string* error) const;
 };
 

@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
+#include <utility>
 
 #include <glog/logging.h>
 
@@ -170,21 +172,29 @@ ReducedChunkCost::ReducedChunkCost(const std::vector<Frame>* frames,
                                    const StreamContext& context,
                                    bool photometric,
                                    const ObservationWeights* weights,
-                                   Gauge gauge)
+                                   Gauge gauge,
+                                   std::shared_ptr<const ReducedCostBackend> backend)
     : StreamedPoseCost(static_cast<int>(frames->size()), frame0_from_world, photometric, gauge),
-      frames_(frames),
-      candidates_(candidates),
       begin_(begin),
       end_(end),
-      context_(context),
-      weights_(weights) {}
+      backend_(backend != nullptr ? std::move(backend) : DefaultReducedCostBackend()) {
+  inputs_.frames = frames;
+  inputs_.candidates = candidates;
+  inputs_.weights = weights;
+  inputs_.context = context;
+}
 
 void ReducedChunkCost::Accumulate(const std::vector<Eigen::Isometry3d>& frame_from_world,
                                   const std::vector<Photometric>& photometric,
                                   bool with_jacobian,
                                   NormalEquations* out) const {
-  AccumulateDsrCostSystem(*frames_, *candidates_, frame_from_world, photometric, weights_, begin_,
-                          end_, with_jacobian, context_, out);
+  // A NaN cost fails the evaluation (StreamedPoseCost::Evaluate): Ceres then treats the
+  // point as it treats any failed evaluation. Nothing else of a failed pass is kept.
+  if (!backend_->Evaluate(inputs_, frame_from_world, photometric, begin_, end_, with_jacobian,
+                          out)) {
+    *out = NormalEquations();
+    out->cost = std::numeric_limits<double>::quiet_NaN();
+  }
 }
 
 }  // namespace dsr

@@ -12,14 +12,18 @@
 //    Gauss-Newton/LM model equals the uncompressed one. Nothing per observation is stored.
 //
 // Both have a weighted variant (f_w): the per-voxel reference with the voxel's weights,
-// and the chunk cost with the weights of the whole candidate set.
+// and the chunk cost with the weights of the whole candidate set. The chunk cost's passes
+// are evaluated by a cost-evaluation backend (dsr_reduced/reduced_cost_backend.h; by
+// default the CPU stream).
 #ifndef DSR_DSR_REDUCED_REDUCED_COST_H_
 #define DSR_DSR_REDUCED_REDUCED_COST_H_
 
+#include <memory>
 #include <vector>
 
 #include <ceres/ceres.h>
 
+#include "dsr/dsr_reduced/reduced_cost_backend.h"
 #include "dsr/geometry/se3.h"
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
@@ -82,7 +86,8 @@ class VoxelReducedPhotometricCost final : public ceres::CostFunction {
 // gauge frame 0's pose is the constant `frame0_from_world`; its photometric parameters are
 // the gauge in either. num_residuals = p (m - 1) + 1, p = 6 or 8. With
 // `weights` (not owned; must not change while the block lives, since its passes are
-// cached), the weighted cost f_w.
+// cached), the weighted cost f_w. `backend` evaluates every pass (null: the CPU one,
+// DefaultReducedCostBackend); a pass it cannot evaluate fails that Ceres evaluation.
 class ReducedChunkCost final : public StreamedPoseCost {
  public:
   ReducedChunkCost(const std::vector<Frame>* frames,
@@ -93,7 +98,8 @@ class ReducedChunkCost final : public StreamedPoseCost {
                    const StreamContext& context,
                    bool photometric = false,
                    const ObservationWeights* weights = nullptr,
-                   Gauge gauge = Gauge::kFrame0);
+                   Gauge gauge = Gauge::kFrame0,
+                   std::shared_ptr<const ReducedCostBackend> backend = nullptr);
 
   // Writes r' and R (tangent columns, row-major (6(m-1)+1) x 6(m-1)) for a system.
   static void Compress(const Eigen::MatrixXd& hessian_free,
@@ -110,11 +116,9 @@ class ReducedChunkCost final : public StreamedPoseCost {
                   bool with_jacobian,
                   NormalEquations* out) const override;
 
-  const std::vector<Frame>* frames_;  // not owned
-  const CandidateSet* candidates_;    // not owned
+  ReducedCostInputs inputs_;  // frames, candidates, weights (not owned) and the context
   int64_t begin_, end_;
-  StreamContext context_;
-  const ObservationWeights* weights_;  // not owned; null: unweighted
+  std::shared_ptr<const ReducedCostBackend> backend_;
 };
 
 }  // namespace dsr

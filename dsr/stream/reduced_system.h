@@ -67,11 +67,12 @@ struct ObservationWeights {
 // `observations` counts sum of k_j over voxels with k_j >= 2.
 using ReducedSystem = NormalEquations;
 
-// Streams voxels [begin, end) of `candidates` at the given poses (stream/voxel_stream.h):
-// bit-identical for any `context.num_threads`. With `with_jacobian` false only the cost (and
-// observation count) is computed; hessian/gradient are left empty. `batched_hessian`
-// false adds H and g voxel by voxel instead of in batches (stream/hessian_batch.h): the
-// slow twin tests compare the fast path with.
+// Streams voxels [begin, end) of `candidates` at the given poses (stream/voxel_stream.h)
+// through DSR's per-voxel term SsdToMeanTerm (stream/ssd_to_mean_term.h): bit-identical
+// for any `context.num_threads`. With `with_jacobian` false only the cost (and observation
+// count) is computed; hessian/gradient are left empty. `batched_hessian` false adds H and
+// g voxel by voxel instead of in batches (stream/hessian_batch.h): the slow twin tests
+// compare the fast path with.
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,

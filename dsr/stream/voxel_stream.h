@@ -5,9 +5,9 @@
 // observer i at p_ij = T_i p_j with the observation model of model/observation.h (value
 // and gradient in one trilinear gather of the interleaved frame data), keeps those with
 // sigma_ij = 1, and, when at least two frames observe the voxel, builds their Jacobians
-// J_ij and hands them to a per-voxel term that adds its cost, gradient and Gauss-Newton
-// matrix to an accumulator. Nothing per observation is kept beyond a batch of up to
-// 2048 voxels.
+// J_ij and hands them to a per-voxel term (stream/voxel_term.h) that adds its cost,
+// gradient and Gauss-Newton matrix to an accumulator. Nothing per observation is kept
+// beyond a batch of up to 2048 voxels.
 //
 // Work is done in batches (VoxelBatch): the sampler fills one with the observations of
 // consecutive candidate voxels, the term consumes them voxel by voxel, and for terms whose
@@ -42,6 +42,7 @@
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
 #include "dsr/stream/hessian_batch.h"
+#include "dsr/stream/voxel_term.h"
 #include "dsr/util/cpu.h"
 #include "dsr/util/parallel.h"
 
@@ -99,14 +100,6 @@ inline KernelPath StreamKernelPath(const StreamContext& context) {
   return path;
 }
 
-// Jacobian layout in a batch: J_ij = [d/d rho (3), d/d phi (3)], 6 doubles, the k
-// Jacobians of a voxel contiguous (its row of the stacked S = [J_0 ... J_{k-1}], which the
-// Gauss-Newton kernel reads as 6k consecutive doubles).
-constexpr int kJacobianSize = 6;
-// With photometric parameters (docs/design.md section 2.8) a term works with wide
-// Jacobians J'_ij = [a_i J_ij, a_i I_i(p_ij), 1] (pose, log gain, offset of frame i).
-constexpr int kWideJacobianSize = 8;
-
 // Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
 // else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
 bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
@@ -145,82 +138,7 @@ int64_t SampleVoxelBatch(KernelPath path,
                          bool with_jacobian,
                          VoxelBatch* batch);
 
-// The observers of one voxel, as the stream hands them to a term: k >= 2 frames
-// `frame[a]` with value `value[a]` and, when Jacobians are wanted, J in `jac[a]`.
-struct VoxelObservations {
-  int k = 0;
-  int64_t voxel = -1;  // the voxel's index in the CandidateSet
-  const int* frame = nullptr;
-  const double* value = nullptr;
-  const double (*jac)[kJacobianSize] = nullptr;
-  // Set (with Jacobians) for terms with batched_gradient: the term writes its residual
-  // r_a of each observation here instead of adding g_{frame[a]} += r_a J_a itself.
-  double* residual = nullptr;
-  // Set (with Jacobians) for terms with 8 parameters per frame: the term writes each
-  // observation's wide Jacobian here (the stream's batched kernels read it).
-  double (*wide_jac)[kWideJacobianSize] = nullptr;
-};
-
-// Per-block accumulator: H (row-major, n x n with n = p m, p the term's parameters per
-// frame; terms fill at least the upper block triangle, see StreamNormalEquations), g (n),
-// cost.
-struct VoxelAccumulator {
-  int n = 0;
-  std::vector<double> hessian, gradient;
-  double cost = 0.0;
-  int64_t observations = 0;
-  int64_t voxels = 0;
-  double frame_cost[kMaxFrames] = {};
-  int64_t frame_observations[kMaxFrames] = {};
-};
-
-// g_a += s J_a (6 tangent entries of frame fa).
-// (Eigen's fixed-size maps: three 2-lane packets; a plain loop stayed scalar here.)
-inline void AddGradient(double* g, int fa, const double* ja, double s) {
-  Eigen::Map<Eigen::Matrix<double, 6, 1>>(g + 6 * static_cast<ptrdiff_t>(fa)) +=
-      s * Eigen::Map<const Eigen::Matrix<double, 6, 1>>(ja);
-}
-
-// Adds J_a^T s J_b (6 entries each) to the (frame fa, frame fb) block of a row-major
-// n x n matrix; only the upper triangle of the block when fa == fb.
-inline void AddOuter(double* h, int n, int fa, int fb, const double* ja, const double* jb, double s) {
-  if (fa == fb) {
-    for (int i = 0; i < 6; ++i) {
-      const double si = s * ja[i];
-      double* row = h + (6 * fa + i) * n + 6 * fa;
-      for (int j = i; j < 6; ++j) row[j] += si * jb[j];
-    }
-    return;
-  }
-  for (int i = 0; i < 6; ++i) {
-    const double si = s * ja[i];
-    double* row = h + (6 * fa + i) * n + 6 * fb;
-    for (int j = 0; j < 6; ++j) row[j] += si * jb[j];
-  }
-}
-
 namespace internal {
-
-// A term's parameters per frame: Term::kFrameParameters when it declares it, else 6.
-template <class Term, class = void>
-struct FrameParametersOf {
-  static constexpr int value = kJacobianSize;
-};
-template <class Term>
-struct FrameParametersOf<Term, std::void_t<decltype(Term::kFrameParameters)>> {
-  static constexpr int value = Term::kFrameParameters;
-};
-
-// A term's projection factors (one per frame, for the batched H of a weighted mean:
-// stream/hessian_batch.h) when it has a member `const double* projection_factors`, else none.
-template <class Term, class = void>
-struct ProjectionFactorsOf {
-  static const double* Get(const Term&) { return nullptr; }
-};
-template <class Term>
-struct ProjectionFactorsOf<Term, std::void_t<decltype(Term::projection_factors)>> {
-  static const double* Get(const Term& term) { return term.projection_factors; }
-};
 
 // Fixed number of accumulation blocks per voxel range: results do not depend on threads.
 constexpr int64_t kStreamBlocks = 64;
@@ -269,23 +187,10 @@ void StreamBlock(KernelPath path,
 }  // namespace internal
 
 // Streams candidate voxels [begin, end) at the given poses through `term` with the threads
-// and kernels of `context` (StreamKernelPath), `term` being a callable
-// `void(const VoxelObservations&, bool with_jacobian, VoxelAccumulator*)` that adds the
-// voxel's cost and observation count and, when with_jacobian, its gradient and its
-// Gauss-Newton terms to at least the upper block triangle (frame a <= frame b) of the
-// row-major H, the diagonal blocks at least on and above their diagonal (AddOuter does
-// this). The result's H is made symmetric from that upper triangle. Without Jacobians
-// only cost and observations are filled.
-// The term may declare `static constexpr int kFrameParameters` (6, the default: the pose;
-// 8: the pose and photometric parameters, the term then writing
-// VoxelObservations::wide_jac, which the batched kernels read). It has `bool batched_hessian`, `bool batched_gradient` and
-// `HessianWeights Weights(int k)`: when batched_hessian is true, the term adds no
-// Gauss-Newton terms itself and the stream adds H_ab += (delta_ab * diagonal + shared)
-// J_a^T J_b for it, a batch at a time (stream/hessian_batch.h), or, when the term has a
-// member `const double* projection_factors` (u_f per frame, not null), H_ab +=
-// (delta_ab - u_a u_b / sum_c u_c^2) J_a^T J_b (Weights is then not read); when batched_gradient is
-// also true, the term writes its residuals to VoxelObservations::residual instead of
-// adding its gradient, and the stream adds g_{frame[a]} += r_a J_a the same way.
+// and kernels of `context` (StreamKernelPath). `term` is a voxel term (stream/voxel_term.h:
+// what it receives, what it adds, its batched form; checked at compile time). The result's
+// H is made symmetric from the upper block triangle the term and the batched kernels fill.
+// Without Jacobians only cost and observations are filled.
 template <class Term>
 void StreamNormalEquations(const std::vector<Frame>& frames,
                            const CandidateSet& candidates,
@@ -296,6 +201,7 @@ void StreamNormalEquations(const std::vector<Frame>& frames,
                            const StreamContext& context,
                            const Term& term,
                            NormalEquations* out) {
+  CheckVoxelTerm<Term>();
   const int m = static_cast<int>(frames.size());
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
   CHECK_LE(0, begin);
