@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# Builds the libFuzzer targets (tests/fuzz: poses-JSON reader, image-loading wrapper) with
+# Builds the libFuzzer targets (dsr/tests/fuzz: poses-JSON reader, image-loading wrapper) with
 # clang + ASan + UBSan in build-fuzz/ and runs each for a bounded time, both at once (one
 # core each). Usage: bash scripts/fuzz.sh [seconds per target, default 600]
-# The committed seeds (tests/fuzz/corpus) are copied to build-fuzz/corpus first, so runs
+# The committed seeds (dsr/tests/fuzz/corpus) are copied to build-fuzz/corpus first, so runs
 # grow their own corpus; crashes and hangs (an input over 10 s) land in build-fuzz/artifacts/
 # and fail the script.
 set -euo pipefail
@@ -22,8 +22,8 @@ export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
 pids=()
 for target in poses image; do
   mkdir -p "$build/corpus/$target"
-  cp -n tests/fuzz/corpus/"$target"/* "$build/corpus/$target/"
-  "$build/tests/fuzz/fuzz_$target" "$build/corpus/$target" -max_total_time="$seconds" \
+  cp -n dsr/tests/fuzz/corpus/"$target"/* "$build/corpus/$target/"
+  "$build/dsr/tests/fuzz/fuzz_$target" "$build/corpus/$target" -max_total_time="$seconds" \
     -artifact_prefix="$build/artifacts/${target}_" -print_final_stats=1 -timeout=10 \
     > "$build/fuzz_$target.log" 2>&1 &
   pids+=($!)

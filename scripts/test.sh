@@ -4,7 +4,7 @@
 # and the docs site's strict build, scripts/docs.sh, whose option reference comes from that
 # build's tools/dsr_options; it compiles nothing), then in a second build with
 # AddressSanitizer + UndefinedBehaviorSanitizer (build-asan/, DSR_SANITIZE=ON; sanitizer
-# options and third-party leak suppressions are compiled in, tests/sanitizer_suppressions/).
+# options and third-party leak suppressions are compiled in, dsr/tests/sanitizer_suppressions/).
 # The second build is -O1 with line tables only (-g1), which halves its compile time against
 # -O2 -g; tests that solve to machine precision skip themselves there
 # (tests/support/sanitizer.h). DSR_SKIP_SANITIZE=1 skips the second pass for quick local
