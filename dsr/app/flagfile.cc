@@ -50,6 +50,9 @@ bool ReadSmallTextFile(const std::string& path, const std::string& prefix, std::
     *error = prefix + (in.bad() ? "read error" : "grew beyond the limit while being read");
     return false;
   }
+  // A UTF-8 byte-order mark (editors on Windows write one) is not part of the first line,
+  // as a CR before each newline is not part of its line.
+  if (text->compare(0, 3, "\xEF\xBB\xBF") == 0) text->erase(0, 3);
   return true;
 }
 

@@ -44,7 +44,8 @@ bool SplitFlagArgument(const std::string& arg, std::string* name, std::string* v
                        bool* has_value);
 
 // Reads a small text file (a flagfile or a list file) after checking that it is a regular,
-// readable file of at most kMaxFlagfileBytes. Errors start with `prefix` ("--flag=path: ").
+// readable file of at most kMaxFlagfileBytes, without a leading UTF-8 byte-order mark.
+// Errors start with `prefix` ("--flag=path: ").
 bool ReadSmallTextFile(const std::string& path, const std::string& prefix, std::string* text,
                        std::string* error);
 

@@ -160,10 +160,46 @@ const OutputPlan::Entry* OutputPlan::FindInput(const Index& index, size_t i) con
   return by_inode == index.input_by_inode.end() ? nullptr : &entries_[by_inode->second];
 }
 
+namespace {
+
+// Longest file name (one path component) Linux file systems take (NAME_MAX).
+constexpr size_t kMaxNameBytes = 255;
+
+// Why `path` cannot be written or created whatever the permissions, or "": a component
+// longer than kMaxNameBytes, or a symlink on it whose target is missing or loops.
+std::string PathProblem(const std::string& path) {
+  fs::path prefix;
+  for (const fs::path& part : fs::path(path)) {
+    const std::string name = part.string();
+    if (name.size() > kMaxNameBytes) {
+      return "a name in it is " + std::to_string(name.size()) + " bytes long, more than the " +
+             std::to_string(kMaxNameBytes) + " a file system takes";
+    }
+    prefix /= part;
+    std::error_code ec;
+    if (!fs::is_symlink(fs::symlink_status(prefix, ec))) continue;
+    if (fs::exists(fs::status(prefix, ec)) && !ec) continue;
+    std::error_code read_ec;
+    const fs::path target = fs::read_symlink(prefix, read_ec);
+    return prefix.string() + " is a symlink" +
+           (ec == std::errc::no_such_file_or_directory
+                ? " to a missing file or folder (" + target.string() + ")"
+                : " that cannot be followed (" + ec.message() + ")");
+  }
+  return "";
+}
+
+}  // namespace
+
 bool OutputPlan::CheckFolder(const Index& index, size_t f, std::string* error) const {
   const Entry& folder = entries_[f];
   const std::string prefix = "--" + folder.flag + "=" + folder.value + ": ";
   const std::string what = folder.path == folder.value ? "" : " " + folder.path;
+  const std::string problem = PathProblem(folder.path);
+  if (!problem.empty()) {
+    *error = prefix + "cannot create the folder" + what + ": " + problem;
+    return false;
+  }
   if (const Entry* input = FindInput(index, f)) {
     *error = prefix + "cannot create the folder" + what + ": it is the input " + Describe(*input);
     return false;
@@ -207,6 +243,15 @@ std::string SpecialFileKind(mode_t mode) {
 bool OutputPlan::CheckOutputFile(const Index& index, size_t o, std::string* error) const {
   const Entry& out = entries_[o];
   const std::string prefix = Describe(out) + ": ";
+  if (!out.path.empty() && out.path.back() == '/') {
+    *error = prefix + "ends with '/', expected a file name";
+    return false;
+  }
+  const std::string problem = PathProblem(out.path);
+  if (!problem.empty()) {
+    *error = prefix + problem;
+    return false;
+  }
   const auto folder = index.folder_by_path.find(out.canonical);
   if (folder != index.folder_by_path.end()) {
     *error = Describe(out) + " is the folder that " + Describe(entries_[folder->second]) +

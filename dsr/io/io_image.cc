@@ -5,9 +5,12 @@
 // VerifyWritten) and atomic (atomic_file.h), so a failed write never replaces a file.
 #include "dsr/io/io_image.h"
 
+#include <zlib.h>
+
 #include <algorithm>
 #include <cctype>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
 #include <sstream>
 
@@ -135,9 +138,63 @@ bool HasSupportedImageExtension(const std::string& path) {
                      [&](const char* ext) { return EndsWith(lower, ext); });
 }
 
+namespace {
+
+// A NIfTI header's pixdim[1..3] of 0, which ITK reads as a spacing of 1 mm (a negative one
+// it refuses): "" when the file is no NIfTI-1/2 file or its spacings are not 0. The header
+// is read through zlib, which reads .nii and .nii.gz alike.
+std::string ZeroNiftiSpacing(const std::string& path) {
+  std::string lower = path;
+  std::transform(lower.begin(), lower.end(), lower.begin(), ::tolower);
+  const auto ends_with = [&](const std::string& ext) {
+    return lower.size() >= ext.size() &&
+           lower.compare(lower.size() - ext.size(), ext.size(), ext) == 0;
+  };
+  if (!ends_with(".nii") && !ends_with(".nii.gz")) return "";
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (file == nullptr) return "";
+  unsigned char header[540];
+  const int got = gzread(file, header, sizeof(header));
+  gzclose(file);
+  if (got < 348) return "";
+  int32_t size;
+  std::memcpy(&size, header, 4);
+  const bool swapped = size != 348 && size != 540;
+  if (swapped) size = static_cast<int32_t>(__builtin_bswap32(static_cast<uint32_t>(size)));
+  if ((size != 348 && size != 540) || got < size) return "";
+  for (int d = 1; d <= 3; ++d) {
+    double pixdim = 0.0;
+    if (size == 348) {  // NIfTI-1: float32 pixdim[8] at byte 76
+      uint32_t bits;
+      std::memcpy(&bits, header + 76 + 4 * d, 4);
+      if (swapped) bits = __builtin_bswap32(bits);
+      float value;
+      std::memcpy(&value, &bits, 4);
+      pixdim = value;
+    } else {  // NIfTI-2: double pixdim[8] at byte 104
+      uint64_t bits;
+      std::memcpy(&bits, header + 104 + 8 * d, 8);
+      if (swapped) bits = __builtin_bswap64(bits);
+      std::memcpy(&pixdim, &bits, 8);
+    }
+    if (pixdim == 0.0) {
+      return "pixdim[" + std::to_string(d) + "] is 0 in the NIfTI header: the voxel spacing "
+             "must be finite and > 0 (a reader would take 1 mm)";
+    }
+  }
+  return "";
+}
+
+}  // namespace
+
 bool ReadImage(const std::string& path, Image* image, std::string* error) {
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
+    return false;
+  }
+  const std::string zero_spacing = ZeroNiftiSpacing(path);
+  if (!zero_spacing.empty()) {
+    *error = path + ": " + zero_spacing;
     return false;
   }
   itk_io::RawVolume raw;

@@ -52,6 +52,11 @@ bool ReadText(const std::string& path, std::string* text, std::string* error) {
     *error = path + ": is a folder, expected a poses file";
     return false;
   }
+  // A FIFO or a device would block or never end: a poses file is a regular file.
+  if (!fs::is_regular_file(path, ec)) {
+    *error = path + ": not a regular file (a poses file is a JSON file)";
+    return false;
+  }
   std::ifstream in(path, std::ios::binary);
   if (!in) {
     *error = path + ": cannot open (" + std::strerror(errno) + ")";

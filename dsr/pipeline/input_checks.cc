@@ -25,6 +25,46 @@ Eigen::Vector3d Extent(const ImageGeometry& g) {
   return g.size.cast<double>().cwiseProduct(g.spacing_mm);
 }
 
+// A frame whose single largest squared deviation from its median is more than this share
+// of the sum over all its voxels: one voxel would outweigh all the others together in the
+// sum of squared differences the registration minimises.
+constexpr double kMaxOneVoxelShare = 0.5;
+
+// The frames' outlier voxels (a corrupt or saturated value such as 1e30): false with
+// `error` naming the frame, the voxel, its value and its share of the frame's squared
+// deviation. The median comes from at most about 10^5 evenly spaced voxels.
+bool CheckOutlierVoxels(const std::vector<Image>& images, std::string* error) {
+  for (size_t f = 0; f < images.size(); ++f) {
+    const std::vector<float>& v = images[f].voxels;
+    if (v.empty()) continue;
+    const size_t stride = std::max<size_t>(1, v.size() / 100000);
+    std::vector<float> sample;
+    for (size_t l = 0; l < v.size(); l += stride) sample.push_back(v[l]);
+    std::nth_element(sample.begin(), sample.begin() + sample.size() / 2, sample.end());
+    const double median = sample[sample.size() / 2];
+    double sum = 0.0, largest = 0.0;
+    size_t at = 0;
+    for (size_t l = 0; l < v.size(); ++l) {
+      const double deviation = static_cast<double>(v[l]) - median;
+      const double d = deviation * deviation;
+      sum += d;
+      if (d > largest) largest = d, at = l;
+    }
+    if (!(sum > 0.0) || largest <= kMaxOneVoxelShare * sum) continue;
+    const Eigen::Vector3i& n = images[f].geometry.size;
+    std::ostringstream text;
+    text << "frame " << f << " has an outlier intensity: its voxel ("
+         << at % n[0] << "," << at / n[0] % n[1] << "," << at / (size_t(n[0]) * n[1]) << ") is "
+         << v[at] << " (the frame's median " << median << ") and holds "
+         << Format(100.0 * largest / sum) << "% of the frame's squared deviation from its "
+         << "median: that one voxel would outweigh all the others in the registration's cost; "
+         << "clip or remove it";
+    *error = text.str();
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 bool CheckRegistrationInputs(const std::vector<Image>& images,
@@ -45,6 +85,7 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
       return false;
     }
   }
+  if (!CheckOutlierVoxels(images, error)) return false;
   const int shortest_axis = first.size.minCoeff();
   if (options.smoothing > 0.25 * shortest_axis) {
     *error = "smoothing=" + Format(options.smoothing) +

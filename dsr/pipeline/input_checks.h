@@ -29,7 +29,9 @@ constexpr double kMaxInitialSpread = 1000.0;
 
 struct RegistrationOptions;
 
-// The checks above and: the finest level's smoothing (--smoothing) must leave structure,
+// The checks above and: no frame has an outlier voxel that holds more than half of its
+// squared deviation from its median (one voxel would outweigh the rest in the cost); the
+// finest level's smoothing (--smoothing) must leave structure,
 // at most a quarter of frame 0's shortest axis; the panorama voxel (frame 0's spacing times
 // --panorama_spacing) at most an eighth of frame 0's shortest extent. Returns false with
 // `error` naming the frame (by index) or the option's flag.

@@ -519,6 +519,13 @@ bool SimulationOptions::Validate(std::string* error) const {
     s << "azimuth_deg=" << azimuth_deg << ": must be in (0, 180)";
   } else if (!(std::isfinite(elevation_deg) && elevation_deg > 0.0 && elevation_deg < 180.0)) {
     s << "elevation_deg=" << elevation_deg << ": must be in (0, 180)";
+  } else if (std::isfinite(min_depth_voxels) && min_depth_voxels >= 0.0 &&
+             min_depth_voxels > frame_size[2] - 3.0) {
+    // A depth the frame cannot hold: the frame may be too thin as well as the cut too deep.
+    s << "frame_size=" << frame_size[0] << "," << frame_size[1] << "," << frame_size[2]
+      << ": a frame depth of " << frame_size[2] << " leaves no field of view below "
+      << "min_depth_voxels=" << min_depth_voxels << " (the depth must be at least "
+      << "min_depth_voxels + 3 = " << min_depth_voxels + 3.0 << ")";
   } else if (!range(min_depth_voxels, 0.0, frame_size[2] - 3.0)) {
     s << "min_depth_voxels=" << min_depth_voxels
       << ": must be in [0, frame depth - 3 = " << frame_size[2] - 3 << "]";

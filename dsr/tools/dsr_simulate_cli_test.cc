@@ -363,7 +363,9 @@ TEST_F(DsrSimulateCli, BadInputFoundAfterStartExitsWithOneErrorLine) {
   const Case cases[] = {
       {"--source=" + (dir_ / "corrupt.nii.gz").string() + out, "corrupt.nii.gz"},
       {"--min_depth_voxels=90" + out,
-       "--min_depth_voxels=90: must be in [0, frame depth - 3 = 77]"},
+       "a frame depth of 80 leaves no field of view below --min_depth_voxels=90"},
+      // The frame too thin for the default cut: --frame_size is named too.
+      {"--frame_size=4,4,4" + out, "--frame_size=4,4,4: a frame depth of 4 leaves no field"},
       {"--phantom_size=40" + out, "outside the source grid"},
       {"--mask_erosion=20 --frame_size=20,20,16 --min_depth_voxels=2" + out,
        "empty after the 20-voxel erosion (--mask_erosion)"},

@@ -12,6 +12,7 @@
 
 #include "dsr/app/flagfile.h"
 #include "dsr/tools/flags.h"
+#include "dsr/util/atomic_file.h"
 
 // gflags calls this on parse errors and after printing --help (both with status 1). It is
 // exported by libgflags and used by its own tests; InitTool swaps it while parsing.
@@ -63,8 +64,11 @@ bool CheckFlagArguments(const std::vector<std::string>& args, std::string* error
     }
     if (!has_value) {
       if (info.type == "bool") continue;  // --bool
-      if (a + 1 == args.size()) {
-        *error = "--" + name + ": needs a value (--" + name + "=VALUE)";
+      // "--images --out_poses=x": gflags would take the next flag as the value.
+      if (a + 1 == args.size() || args[a + 1].compare(0, 2, "--") == 0) {
+        *error = "--" + name + ": needs a value (--" + name + "=VALUE)" +
+                 (a + 1 == args.size() ? "" : "; the next argument, " + args[a + 1] +
+                                                  ", is a flag of its own");
         ok = false;
         break;
       }
@@ -123,6 +127,7 @@ int RunToolMain(int argc, char** argv, int (*body)(int, char**)) {
   SetToolName(argc > 0 ? argv[0] : nullptr);
   LimitAtStart() = AddressSpaceLimitBytes();
   std::set_terminate(&OnTerminate);
+  RemoveTemporaryFilesOnTermination();  // an interrupted write leaves no temporary file
   try {
     return body(argc, argv);
   } catch (...) {

@@ -6,7 +6,10 @@
 #include "dsr/util/atomic_file.h"
 
 #include <fcntl.h>
+#include <signal.h>
 #include <unistd.h>
+
+#include <atomic>
 
 #include <cctype>
 #include <cerrno>
@@ -58,6 +61,54 @@ std::string RandomSuffix() {
 fs::path FolderOf(const std::string& path) {
   const fs::path p(path);
   return p.has_parent_path() ? p.parent_path() : fs::path(".");
+}
+
+// The temporary files being written, so that a signal that ends the process removes them
+// (RemoveTemporaryFilesOnTermination): fixed slots a signal handler can read without
+// allocating or locking. A path that does not fit a slot is not recorded.
+constexpr int kPendingSlots = 64;
+constexpr size_t kPendingPathBytes = 4096;
+struct PendingSlot {
+  std::atomic<bool> used{false};
+  char path[kPendingPathBytes];
+};
+PendingSlot pending_slots[kPendingSlots];
+
+// Records `path` as a temporary file being written while it lives.
+class PendingTemporary {
+ public:
+  explicit PendingTemporary(const std::string& path) {
+    if (path.size() >= kPendingPathBytes) return;
+    for (int i = 0; i < kPendingSlots; ++i) {
+      bool expected = false;
+      PendingSlot& s = pending_slots[i];
+      if (!s.used.load(std::memory_order_relaxed) &&
+          s.used.compare_exchange_strong(expected, true, std::memory_order_acquire)) {
+        std::memcpy(s.path, path.c_str(), path.size() + 1);
+        std::atomic_signal_fence(std::memory_order_release);
+        slot_ = i;
+        return;
+      }
+    }
+  }
+  ~PendingTemporary() {
+    if (slot_ >= 0) pending_slots[slot_].used.store(false, std::memory_order_release);
+  }
+  PendingTemporary(const PendingTemporary&) = delete;
+  PendingTemporary& operator=(const PendingTemporary&) = delete;
+
+ private:
+  int slot_ = -1;
+};
+
+// Removes the temporary files being written (unlink is async-signal-safe), then ends the
+// process as the signal would have.
+extern "C" void RemoveTemporaryFilesAndReraise(int signal_number) {
+  for (PendingSlot& s : pending_slots) {
+    if (s.used.load(std::memory_order_acquire)) ::unlink(s.path);
+  }
+  ::signal(signal_number, SIG_DFL);
+  ::raise(signal_number);
 }
 
 // Creates an empty, unused file ".<stem>.tmp-XXXXXXXX<ext>" next to `path` (mode 0666
@@ -172,6 +223,7 @@ bool WriteViaTemporaryFile(
   if (!CheckWritableOutputPath(path, error)) return false;
   std::string temp;
   if (!CreateTemporaryFile(path, &temp, error)) return false;
+  const PendingTemporary pending(temp);
   std::string why;
   bool written = false;
   try {
@@ -285,6 +337,21 @@ bool WriteFileAtomically(const std::string& path, const std::string& contents, s
         return true;
       },
       error);
+}
+
+void RemoveTemporaryFilesOnTermination() {
+  struct sigaction action;
+  std::memset(&action, 0, sizeof(action));
+  action.sa_handler = &RemoveTemporaryFilesAndReraise;
+  sigemptyset(&action.sa_mask);
+  for (const int signal_number : {SIGINT, SIGTERM, SIGHUP}) {
+    struct sigaction previous;
+    // A signal the caller ignores (nohup, a shell's background job) stays ignored.
+    if (::sigaction(signal_number, nullptr, &previous) == 0 && previous.sa_handler == SIG_IGN) {
+      continue;
+    }
+    ::sigaction(signal_number, &action, nullptr);
+  }
 }
 
 }  // namespace dsr

@@ -35,6 +35,13 @@ bool WriteFilesViaTemporaryFolder(
     const std::function<bool(const std::string& temp_path, std::string* error)>& write,
     std::string* error);
 
+// For programs (the command-line tools): SIGINT, SIGTERM and SIGHUP first remove the
+// temporary files of writes in progress (WriteFileAtomically, WriteViaTemporaryFile), then
+// end the process as the signal would have, so that an interrupted write leaves the previous
+// output and nothing beside it. Signals the process ignores stay ignored. Not for a library
+// inside another program (Python handles its own signals).
+void RemoveTemporaryFilesOnTermination();
+
 // Checks that `path` can be created: its folder exists and is writable, and `path` is not
 // a folder. Used by tools before long computations.
 bool CheckWritableOutputPath(const std::string& path, std::string* error);

@@ -2,7 +2,9 @@
 // behind, the old file kept on every failure, and one-line errors naming the output.
 #include "dsr/util/atomic_file.h"
 
+#include <signal.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <filesystem>
@@ -224,6 +226,58 @@ TEST(AtomicFile, TemporaryFolderPublishesEveryFileHeaderLast) {
   EXPECT_EQ(error, path + ": cannot write (disk full)");
   EXPECT_EQ(ReadAll(path), "ElementDataFile = volume.raw");
   EXPECT_THAT(dir.Entries(), ElementsAre("volume.mhd", "volume.raw"));
+}
+
+}  // namespace
+}  // namespace dsr
+
+namespace dsr {
+namespace {
+
+// The files in `dir` by name.
+std::set<std::string> FilesIn(const std::string& dir) {
+  std::set<std::string> names;
+  for (const auto& entry : std::filesystem::directory_iterator(dir)) {
+    names.insert(entry.path().filename().string());
+  }
+  return names;
+}
+
+// SIGINT or SIGTERM while a write is in progress: the process ends as the signal says, the
+// previous output stays, and no temporary file is left beside it.
+TEST(AtomicFile, ASignalDuringAWriteRemovesTheTemporaryFile) {
+  for (const int signal_number : {SIGINT, SIGTERM}) {
+    ScopedTempDir dir;
+    const std::string path = dir.path() + "/pan.nii.gz";
+    std::string error;
+    ASSERT_TRUE(WriteFileAtomically(path, "previous", &error)) << error;
+    const pid_t child = fork();
+    ASSERT_GE(child, 0);
+    if (child == 0) {
+      RemoveTemporaryFilesOnTermination();
+      WriteViaTemporaryFile(
+          path,
+          [](const std::string& temp, std::string*) {
+            std::ofstream(temp) << "partial";
+            for (;;) pause();  // the signal arrives here, mid-write
+            return true;
+          },
+          &error);
+      _exit(0);
+    }
+    // Wait for the temporary file, then signal.
+    for (int i = 0; i < 1000 && FilesIn(dir.path()).size() < 2; ++i) usleep(5000);
+    ASSERT_EQ(FilesIn(dir.path()).size(), 2u) << "no temporary file appeared";
+    kill(child, signal_number);
+    int status = 0;
+    ASSERT_EQ(waitpid(child, &status, 0), child);
+    EXPECT_TRUE(WIFSIGNALED(status) && WTERMSIG(status) == signal_number);
+    EXPECT_EQ(FilesIn(dir.path()), std::set<std::string>{"pan.nii.gz"});
+    std::ifstream in(path);
+    std::string contents;
+    in >> contents;
+    EXPECT_EQ(contents, "previous");
+  }
 }
 
 }  // namespace

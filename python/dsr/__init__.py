@@ -100,6 +100,10 @@ def _as_path(value: Any) -> Optional[str]:
 def _as_image(value: Any, what: str) -> Image:
     """An Image from a dsr.Image, a SimpleITK image or a nibabel image."""
     if isinstance(value, Image):
+        direction = np.asarray(value.direction, dtype=float)
+        if direction.size != 9:
+            raise ValueError(f"{what}: the direction needs 9 numbers (a 3x3 matrix), got "
+                             f"shape {direction.shape}")
         return value
     if isinstance(value, np.ndarray):
         raise ValueError(
@@ -108,6 +112,11 @@ def _as_image(value: Any, what: str) -> Image:
     if hasattr(value, "GetSpacing") and hasattr(value, "GetDirection"):  # SimpleITK
         import SimpleITK as sitk  # noqa: PLC0415 (only when given one)
 
+        if value.GetNumberOfComponentsPerPixel() > 1:
+            raise ValueError(f"{what}: vector pixels ({value.GetNumberOfComponentsPerPixel()} "
+                             "components per voxel); dsr registers images of scalar voxels")
+        if value.GetDimension() != 3:
+            raise ValueError(f"{what}: {value.GetDimension()}D image; dsr registers 3D images")
         return Image(
             sitk.GetArrayFromImage(value),
             tuple(value.GetSpacing()),
@@ -120,6 +129,9 @@ def _as_image(value: Any, what: str) -> Image:
         linear = affine[:3, :3]
         spacing = np.linalg.norm(linear, axis=0)
         data = np.asanyarray(value.dataobj)
+        if data.ndim != 3:
+            raise ValueError(f"{what}: {data.ndim}D data (shape {data.shape}); dsr registers 3D "
+                             "images of scalar voxels")
         return Image(
             np.ascontiguousarray(np.transpose(data, (2, 1, 0))),
             tuple(spacing),
@@ -133,6 +145,10 @@ def _as_image(value: Any, what: str) -> Image:
 def _inputs(images, masks, names):
     """What _core takes for images and masks: all paths, or all (array, geometry) pairs;
     and the images' names (default: the file names, or frame_NN)."""
+    for given, what in ((images, "images"), (masks, "masks")):
+        if isinstance(given, (str, bytes, os.PathLike)):
+            raise TypeError(f"{what}: a sequence of images or paths, not one path ({given!r}); "
+                            f"give a list: [{given!r}, ...]")
     images = list(images)
     paths = [_as_path(image) for image in images]
     mask_list = list(masks) if masks is not None else []

@@ -13,8 +13,10 @@
 #include <cmath>
 #include <exception>
 #include <filesystem>
+#include <limits>
 #include <memory>
 #include <optional>
+#include <sstream>
 #include <string>
 #include <type_traits>
 #include <utility>
@@ -93,11 +95,15 @@ Settings MakeSettings(const Options& options, uint32_t front_end) {
 // order) and the geometry (spacing, origin, direction as 9 numbers, row-major).
 using Geometry = std::tuple<std::vector<double>, std::vector<double>, std::vector<double>>;
 
-ImageGeometry ToGeometry(const std::vector<ssize_t>& shape, const Geometry& g) {
+ImageGeometry ToGeometry(const std::vector<ssize_t>& shape, const Geometry& g,
+                         const std::string& what) {
   const auto& [spacing, origin, direction] = g;
-  if (shape.size() != 3) BadInput("an image must have 3 axes, not " + std::to_string(shape.size()));
+  if (shape.size() != 3) {
+    BadInput(what + ": " + std::to_string(shape.size()) + "D array; dsr registers 3D images " +
+             "of scalar voxels (an array of 3 axes)");
+  }
   if (spacing.size() != 3 || origin.size() != 3 || direction.size() != 9) {
-    BadInput("an image's spacing and origin need 3 numbers and its direction 9");
+    BadInput(what + ": spacing and origin need 3 numbers and the direction 9 (a 3x3 matrix)");
   }
   ImageGeometry out;
   out.size = Eigen::Vector3i(static_cast<int>(shape[2]), static_cast<int>(shape[1]),
@@ -120,6 +126,25 @@ Geometry FromGeometry(const ImageGeometry& g) {
           direction};
 }
 
+// Wider floating-point values beyond float32's range (which the cast would make Inf):
+// named as what they are, not as Inf.
+void CheckFloatRange(const py::array& input, const std::string& what) {
+  // The dtype's Python attribute: pybind11's itemsize() reads a field numpy 2 moved.
+  if (input.dtype().kind() != 'f' || input.dtype().attr("itemsize").cast<int>() <= 4) return;
+  const auto wide = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(input);
+  if (!wide || wide.ndim() != 3) return;
+  const double* v = wide.data();
+  for (ssize_t n = 0; n < wide.size(); ++n) {
+    if (!std::isfinite(v[n]) || std::abs(v[n]) <= std::numeric_limits<float>::max()) continue;
+    const ssize_t nx = wide.shape(2), ny = wide.shape(1);
+    std::ostringstream value;
+    value << v[n];
+    BadInput(what + ": voxel (" + std::to_string(n % nx) + "," + std::to_string(n / nx % ny) +
+             "," + std::to_string(n / (nx * ny)) + ") is " + value.str() +
+             ", beyond float32's range (dsr registers float32 intensities): rescale the image");
+  }
+}
+
 template <typename T>
 Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::string& what) {
   // numpy would cast complex values to their real part with no more than a warning.
@@ -127,10 +152,11 @@ Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::
     BadInput(what + ": complex pixels (" + std::string(py::str(input.dtype())) +
              "); dsr registers real intensities: pass the magnitude (numpy.abs) or the real part");
   }
+  if constexpr (std::is_same_v<T, float>) CheckFloatRange(input, what);  // before the cast
   const auto array = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(input);
   if (!array) BadInput(what + ": not an array of numbers");
   std::vector<ssize_t> shape(array.shape(), array.shape() + array.ndim());
-  Volume<T> out(ToGeometry(shape, geometry));
+  Volume<T> out(ToGeometry(shape, geometry, what));
   std::string error;
   if (!out.geometry.Validate(what, &error)) BadInput(error);
   std::copy(array.data(), array.data() + out.voxels.size(), out.voxels.begin());
@@ -445,19 +471,21 @@ py::dict RegisterImages(const py::list& images,
   PrepareRun(images, masks, names, MakeSettings(options_in, kPyRegister), initial_poses, &run);
   RegistrationOptions& options = run.options();
   options.solve.progress = false;  // Python has on_iteration and progress_bar instead
-  // The callback's exception stops the solve and is raised once the registration returns.
+  // After every iteration: Python's signal handlers run (Ctrl-C raises KeyboardInterrupt
+  // between iterations, not when the solve ends), then the callback. Their exception stops
+  // the solve and is raised once the registration returns.
   std::exception_ptr callback_error;
-  if (on_iteration) {
-    options.solve.on_iteration = [&](const std::string& label, const IterationRecord& r) {
-      if (callback_error) return false;
-      try {
-        return on_iteration(label, r);
-      } catch (...) {
-        callback_error = std::current_exception();
-        return false;
-      }
-    };
-  }
+  options.solve.on_iteration = [&](const std::string& label, const IterationRecord& r) {
+    if (callback_error) return false;
+    py::gil_scoped_acquire gil;
+    try {
+      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+      return on_iteration ? on_iteration(label, r) : true;
+    } catch (...) {
+      callback_error = std::current_exception();
+      return false;
+    }
+  };
   std::string error;
   if (!run.Check(&error)) BadInput(error);
   bool ok = false;
