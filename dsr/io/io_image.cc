@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <sstream>
 
 #include <glog/logging.h>
@@ -143,14 +144,41 @@ namespace {
 // A NIfTI header's pixdim[1..3] of 0, which ITK reads as a spacing of 1 mm (a negative one
 // it refuses): "" when the file is no NIfTI-1/2 file or its spacings are not 0. The header
 // is read through zlib, which reads .nii and .nii.gz alike.
-std::string ZeroNiftiSpacing(const std::string& path) {
+bool IsNifti(const std::string& path) {
   std::string lower = path;
   std::transform(lower.begin(), lower.end(), lower.begin(), ::tolower);
   const auto ends_with = [&](const std::string& ext) {
     return lower.size() >= ext.size() &&
            lower.compare(lower.size() - ext.size(), ext.size(), ext) == 0;
   };
-  if (!ends_with(".nii") && !ends_with(".nii.gz")) return "";
+  return ends_with(".nii") || ends_with(".nii.gz");
+}
+
+// A NIfTI header stores the origin in float32: far from 0 its precision (half the gap to
+// the next float) exceeds half a voxel, and the file no longer places the frame where it
+// was (frames of one sequence move against each other). Refused, naming the magnitude.
+bool CheckNiftiOriginPrecision(const std::string& path, const ImageGeometry& g,
+                               std::string* error) {
+  const double half_voxel = 0.5 * g.spacing_mm.minCoeff();
+  for (int d = 0; d < 3; ++d) {
+    const float stored = static_cast<float>(g.origin_mm[d]);
+    const double precision =
+        0.5 * (std::nextafter(std::abs(stored), std::numeric_limits<float>::infinity()) -
+               std::abs(stored));
+    if (precision <= half_voxel) continue;
+    std::ostringstream text;
+    text << path << ": origin " << g.origin_mm[d] << " mm (axis " << d << ") is so far from 0 "
+         << "that a NIfTI header, which stores it in float32, holds it only to +/-" << precision
+         << " mm, more than half a voxel (" << half_voxel << " mm): the file cannot place the "
+         << "frame; move the origin nearer 0, or store the frames as .nrrd or .mha";
+    *error = text.str();
+    return false;
+  }
+  return true;
+}
+
+std::string ZeroNiftiSpacing(const std::string& path) {
+  if (!IsNifti(path)) return "";
   gzFile file = gzopen(path.c_str(), "rb");
   if (file == nullptr) return "";
   unsigned char header[540];
@@ -197,6 +225,7 @@ bool ReadImage(const std::string& path, Image* image, std::string* error) {
     *error = path + ": " + zero_spacing;
     return false;
   }
+  const bool nifti = IsNifti(path);
   itk_io::RawVolume raw;
   const auto check_header = [&](const itk_io::RawVolume& header, std::string* header_error) {
     return ToGeometry(header).Validate(path, header_error);
@@ -204,6 +233,7 @@ bool ReadImage(const std::string& path, Image* image, std::string* error) {
   if (!itk_io::Read(path, check_header, &raw, error)) return false;
   Image out;
   out.geometry = ToGeometry(raw);
+  if (nifti && !CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
   out.voxels = std::move(raw.voxels);
   if (!CheckFiniteVoxels(out, path, error)) return false;
   *image = std::move(out);
