@@ -177,3 +177,24 @@ def test_arrays_numpy_would_convert_quietly_are_named(sequence):
                         frames[1].direction)
     with pytest.raises(ValueError, match=r"image 1: 4D array"):
         dsr.register(four)
+
+
+def test_a_nifti_origin_its_header_cannot_hold_is_named(sequence, tmp_path):
+    _, frames, _ = sequence
+    moved = []
+    for i, path in enumerate(frames):
+        image = sitk.ReadImage(path)
+        image.SetOrigin(tuple(o + 1e9 for o in image.GetOrigin()))
+        moved.append(str(tmp_path / f"f{i}.nii.gz"))
+        sitk.WriteImage(image, moved[-1])
+    line = error_line("dsr_register", images_flag(moved), f"--out_poses={tmp_path / 'p.json'}")
+    assert "f0.nii.gz: origin 1e+09 mm" in line and "float32" in line
+
+
+def test_bad_initial_poses_and_unknown_options_are_named(sequence):
+    _, frames, _ = sequence
+    start = [np.eye(4), np.eye(4), np.full((4, 4), np.nan)]
+    with pytest.raises(ValueError, match=r"initial_poses: pose 2: .*not finite"):
+        dsr.register(frames, initial_poses=start)
+    with pytest.raises(ValueError, match=r"--out_dir=simout: unknown flag"):
+        dsr.simulate(out_dir="simout", num_frames=2)
