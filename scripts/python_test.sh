@@ -5,12 +5,13 @@
 # only python/src/module.cc is compiled here. The package goes
 # into .venv (scripts/python_env.sh); scikit-build-core comes from PyPI (Debian has none),
 # pybind11 from Debian; SimpleITK and tqdm (and nibabel, python_env.sh) for the tests that
-# pass their images and show a bar. Called by scripts/test.sh after the Release ctest.
+# pass their images and show a bar, Dask distributed for the cohort runner (dsr.cohort). Called by scripts/test.sh after the Release ctest.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 build="$PWD/${DSR_BUILD_DIR:-build}"
 python=$(bash scripts/python_env.sh)
-"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" SimpleITK tqdm
+"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" SimpleITK tqdm \
+  "dask[distributed]==2024.8.2"
 cmake --install "$build" --prefix "$build/python-prefix" >/dev/null
 "$python" -m pip install -q --disable-pip-version-check ./python \
   -Ccmake.define.dsr_DIR="$build/python-prefix/lib/cmake/dsr" -Cbuild-dir="$build/python"

@@ -10,6 +10,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <chrono>
 #include <cmath>
 #include <exception>
 #include <filesystem>
@@ -39,6 +40,7 @@
 #include "dsr/pipeline/input_checks.h"
 #include "dsr/pipeline/registration.h"
 #include "dsr/pipeline/report.h"
+#include "dsr/util/clock.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
 
@@ -506,6 +508,64 @@ py::dict RegisterImages(const py::list& images,
   return out;
 }
 
+// register_files(options): dsr_register as a function, for front ends that want its outputs
+// (dsr.cohort): the options are dsr_register's flags (--images, --out_poses, --report_dir,
+// --gt_poses, ...), checked, run and written by the same RegistrationRun, so the files are
+// dsr_register's byte for byte. Returns the summary's lines and figures; ValueError for bad
+// input, RegistrationError for a registration without a result, OSError for a failed write.
+py::dict RegisterFiles(const Options& options_in) {
+  Settings settings = MakeSettings(options_in, kDsrRegister);
+  const auto start = std::chrono::steady_clock::now();
+  const RegistrationOutputs outputs = RegistrationOutputsFrom(settings);
+  std::string error;
+  if (settings.String("images").empty() || outputs.poses.empty()) {
+    BadInput("--images and --out_poses are required");
+  }
+  RegistrationRun run(kDsrRegister);
+  if (!run.PlanFiles(settings, outputs, &error) || !run.ReadFiles(&error)) BadInput(error);
+  run.RememberInputs(&ReadInputs());
+  const double load_seconds = SecondsSince(start);
+  std::exception_ptr interrupted;
+  run.options().solve.on_iteration = [&](const std::string&, const IterationRecord&) {
+    if (interrupted) return false;
+    py::gil_scoped_acquire gil;
+    if (PyErr_CheckSignals() == 0) return true;
+    interrupted = std::make_exception_ptr(py::error_already_set());
+    return false;
+  };
+  if (!run.Check(&error)) BadInput(error);
+  bool ok = false;
+  {
+    py::gil_scoped_release release;
+    ok = run.Run(&error);
+  }
+  if (interrupted) std::rethrow_exception(interrupted);
+  if (!ok) BadInput(error);
+  const RegistrationResult& result = run.result();
+  if (!result.usable) {
+    PyErr_SetString(registration_error, FieldPathsAsOptions(result.failure, kDsrRegister).c_str());
+    throw py::error_already_set();
+  }
+  if (!run.Write(&error)) WriteFailed(error);
+  py::dict out;
+  out["lines"] = run.SummaryLines(SecondsSince(start), load_seconds);
+  out["iterations"] = result.total_iterations;
+  out["recoveries"] = result.recoveries.size();
+  out["seconds"] = SecondsSince(start);
+  out["report_index"] = run.report_index();
+  if (!outputs.gt_poses.empty()) {
+    const PoseErrorSummary& e = run.gt_errors();
+    out["tre_mean_mm"] = e.tre_mean_mm;
+    out["tre_max_mm"] = e.tre_max_mm;
+    out["mae_rotation_rad"] = e.mae_rotation_rad;
+    out["mae_translation_mm"] = e.mae_translation_mm;
+  }
+  if (!result.uncertainty.predicted_tre_mm.empty()) {
+    out["predicted_tre_mm"] = result.uncertainty.predicted_tre_mm;
+  }
+  return out;
+}
+
 // simulate(options): dsr_simulate's sequence (frames, masks, ground truth) in memory.
 py::dict SimulateSequence(const Options& options_in) {
   SimulationOptions options;
@@ -664,6 +724,7 @@ PYBIND11_MODULE(_core, m) {
   m.def("register", &dsr::RegisterImages, py::arg("images"), py::arg("masks"), py::arg("names"),
         py::arg("options"), py::arg("initial_poses"), py::arg("on_iteration"));
   m.def("simulate", &dsr::SimulateSequence, py::arg("options"));
+  m.def("register_files", &dsr::RegisterFiles, py::arg("options"));
   m.def("fuse", &dsr::FuseImages, py::arg("images"), py::arg("masks"), py::arg("names"),
         py::arg("poses"), py::arg("options"));
   m.def("write_tfm", &dsr::WriteTransformFile, py::arg("pose"), py::arg("path"));
