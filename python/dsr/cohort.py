@@ -14,8 +14,9 @@ a study without a record was never finished and is done again; a study whose rec
 its inputs (file sizes and times) and options is skipped by a rerun (``force=True`` redoes
 it). A worker that dies during a study (killed, out of memory) has it retried once on another
 worker; a second death records the study as failed (a rerun tries it again).
-``OUT/results.csv`` has one row per study, failures first, and ``OUT/index.html`` shows it
-sortable, with each study's thumbnails linking to its report.
+``OUT/results.csv`` (and ``results.parquet`` with pyarrow installed) has one row per study,
+failures first, and ``OUT/index.html`` shows it sortable, with each study's thumbnails
+linking to its report.
 
 Usage::
 
@@ -243,6 +244,17 @@ def _write_results(out_dir: str, records: List[Dict[str, Any]]) -> None:
         lines.append(",".join('"' + c.replace('"', '""') + '"' if any(x in c for x in ',"\n')
                               else c for c in cells))
     _write_atomically(os.path.join(out_dir, "results.csv"), "\n".join(lines) + "\n")
+    try:  # Parquet too, when pyarrow is installed
+        import pyarrow  # noqa: PLC0415
+        import pyarrow.parquet  # noqa: PLC0415
+    except ImportError:
+        return
+    table = pyarrow.table({c: [None if r.get(c) is None else str(r.get(c)) for r in rows]
+                           for c in _RESULT_COLUMNS})
+    fd, temp = tempfile.mkstemp(prefix=".results.parquet.tmp-", dir=out_dir)
+    os.close(fd)
+    pyarrow.parquet.write_table(table, temp)
+    os.replace(temp, os.path.join(out_dir, "results.parquet"))
 
 
 _SORT_SCRIPT = """

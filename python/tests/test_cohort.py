@@ -24,20 +24,22 @@ def write_study(folder, seed):
     for i, frame in enumerate(sequence.frames):
         paths.append(os.path.join(folder, f"frame_{i:02d}.nii.gz"))
         dsr.write_image(frame, paths[-1])
+    dsr.write_poses(os.path.join(folder, "gt_poses.json"), sequence.frame_from_world,
+                    images=[os.path.basename(p) for p in paths])
     return paths
 
 
 @pytest.fixture
 def manifest(tmp_path):
-    rows = ["study,images,options"]
+    rows = ["study,images,gt_poses,options"]
     for s in range(1, 4):
         paths = write_study(tmp_path / f"s{s}", s)
         rows.append(f"s{s},{';'.join(os.path.relpath(p, tmp_path) for p in paths)},"
-                    "--pyramid_levels=2")
+                    f"s{s}/gt_poses.json,--pyramid_levels=2")
     broken = write_study(tmp_path / "broken", 4)
     with open(broken[1], "wb") as f:
         f.write(b"not an image")
-    rows.append(f"broken,{';'.join(broken)},")
+    rows.append(f"broken,{';'.join(broken)},,")
     path = tmp_path / "studies.csv"
     path.write_text("\n".join(rows) + "\n")
     return str(path)
@@ -48,6 +50,8 @@ def test_four_studies_on_two_workers_one_broken(manifest, tmp_path):
     records = cohort.run(manifest, out, workers=2, progress=False, pyramid_min_size=8)
     status = {r["study"]: r for r in records}
     assert [status[s]["status"] for s in ("s1", "s2", "s3")] == ["ok"] * 3
+    # Errors against the ground truth each study's manifest row names.
+    assert all(0 <= status[s]["tre_mean_mm"] < 0.5 for s in ("s1", "s2", "s3"))
     assert status["broken"]["status"] == "failed"
     assert "frame_01.nii.gz" in status["broken"]["reason"]
     # Each study's poses equal a registration of the same files in this process.
