@@ -68,8 +68,10 @@ fs::path FolderOf(const std::string& path) {
 // allocating or locking. A path that does not fit a slot is not recorded.
 constexpr int kPendingSlots = 64;
 constexpr size_t kPendingPathBytes = 4096;
+// A slot is free (0), being filled (1) or holds the path of a file being written (2): the
+// handler reads only filled slots, so it never sees half a path.
 struct PendingSlot {
-  std::atomic<bool> used{false};
+  std::atomic<int> state{0};
   char path[kPendingPathBytes];
 };
 PendingSlot pending_slots[kPendingSlots];
@@ -80,19 +82,19 @@ class PendingTemporary {
   explicit PendingTemporary(const std::string& path) {
     if (path.size() >= kPendingPathBytes) return;
     for (int i = 0; i < kPendingSlots; ++i) {
-      bool expected = false;
+      int expected = 0;
       PendingSlot& s = pending_slots[i];
-      if (!s.used.load(std::memory_order_relaxed) &&
-          s.used.compare_exchange_strong(expected, true, std::memory_order_acquire)) {
+      if (s.state.load(std::memory_order_relaxed) == 0 &&
+          s.state.compare_exchange_strong(expected, 1, std::memory_order_acquire)) {
         std::memcpy(s.path, path.c_str(), path.size() + 1);
-        std::atomic_signal_fence(std::memory_order_release);
+        s.state.store(2, std::memory_order_release);
         slot_ = i;
         return;
       }
     }
   }
   ~PendingTemporary() {
-    if (slot_ >= 0) pending_slots[slot_].used.store(false, std::memory_order_release);
+    if (slot_ >= 0) pending_slots[slot_].state.store(0, std::memory_order_release);
   }
   PendingTemporary(const PendingTemporary&) = delete;
   PendingTemporary& operator=(const PendingTemporary&) = delete;
@@ -105,7 +107,7 @@ class PendingTemporary {
 // process as the signal would have.
 extern "C" void RemoveTemporaryFilesAndReraise(int signal_number) {
   for (PendingSlot& s : pending_slots) {
-    if (s.used.load(std::memory_order_acquire)) ::unlink(s.path);
+    if (s.state.load(std::memory_order_acquire) == 2) ::unlink(s.path);
   }
   ::signal(signal_number, SIG_DFL);
   ::raise(signal_number);

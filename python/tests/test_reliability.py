@@ -3,7 +3,6 @@ byte-order marks, paths that cannot be written, and arrays numpy would quietly c
 gets one clear line (exit 2 for the tools, ValueError/TypeError/OSError in Python) or is
 handled; nothing is replaced, nothing hangs."""
 import os
-import pathlib
 import signal
 import stat
 import threading
