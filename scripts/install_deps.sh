@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
-# Installs the Debian packages dsr needs, only those missing. Idempotent; quiet when all
-# are present. Runs apt-get directly as root, or through sudo when available.
+# Installs the Debian packages dsr needs, only those missing, and any packages given as
+# arguments (scripts/python_test.sh: chromium, the browser the cohort page is opened in).
+# Idempotent; quiet when all are present. Runs apt-get directly as root, or through sudo
+# when available.
 set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
@@ -9,6 +11,7 @@ packages=(
   libinsighttoolkit5-dev nlohmann-json3-dev libfftw3-dev libqhull-dev zlib1g-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-dev python3-venv pybind11-dev
+  "$@"
 )
 missing=()
 for p in "${packages[@]}"; do

@@ -277,10 +277,14 @@ def _write_index(out_dir: str, records: List[Dict[str, Any]]) -> None:
 
     columns = ("study", "status", "reason", "seconds", "iterations", "predicted_tre_mm",
                "tre_mean_mm", "peak_memory_mb")
+    def text(value: Any) -> str:
+        if value is None:
+            return ""
+        return f"{value:.4g}" if isinstance(value, float) else str(value)
+
     rows = []
     for r in sorted(records, key=lambda r: (r.get("status") != "failed", r["study"])):
-        cells = [f"<td>{html.escape('' if r.get(c) is None else str(r.get(c)))}</td>"
-                 for c in columns]
+        cells = [f"<td>{html.escape(text(r.get(c)))}</td>" for c in columns]
         pictures = ""
         report = r.get("report")
         if report:
@@ -291,12 +295,12 @@ def _write_index(out_dir: str, records: List[Dict[str, Any]]) -> None:
                 for p in ("panorama_slices.png", "pair_00_01.png")
                 if os.path.exists(os.path.join(out_dir, folder, p)))
         rows.append(f'<tr class="{html.escape(str(r.get("status")))}">' + "".join(cells) +
-                    f"<td>{pictures}</td></tr>")
+                    f'<td class="pictures">{pictures}</td></tr>')
     failed = sum(r.get("status") == "failed" for r in records)
     page = ("<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>dsr cohort</title>"
             "<style>body{font-family:sans-serif}table{border-collapse:collapse}"
             "td,th{border:1px solid #ccc;padding:4px}th{cursor:pointer}"
-            "tr.failed{background:#fdd}</style></head><body>"
+            "tr.failed{background:#fdd}td.pictures{white-space:nowrap}</style></head><body>"
             f"<h1>dsr cohort: {len(records)} studies, {failed} failed</h1>"
             "<table><thead><tr>" + "".join(f"<th>{c}</th>" for c in columns) +
             "<th>pictures</th></tr></thead><tbody>\n" + "\n".join(rows) +

@@ -70,6 +70,9 @@ def test_four_studies_on_two_workers_one_broken(manifest, tmp_path):
     assert page.index('<tr class="failed">') < page.index('<tr class="ok">')
     assert 's1/report/panorama_slices.png' in page and 's1/report/index.md' in page
     assert os.path.exists(os.path.join(out, "s1", "report", "panorama_slices.png"))
+    # In a real browser: headless Chromium renders one row per study and loads the pictures.
+    dom = open_in_chromium(os.path.join(out, "index.html"))
+    assert dom.count("<tr class=") == 4 and "4 studies, 1 failed" in dom
     # A rerun does no work: every record is kept as it was.
     times = {s: os.stat(os.path.join(out, s, "record.json")).st_mtime_ns for s in status}
     cohort.run(manifest, out, workers=2, progress=False, pyramid_min_size=8)
@@ -77,6 +80,21 @@ def test_four_studies_on_two_workers_one_broken(manifest, tmp_path):
     # A changed option is new work.
     cohort.run(manifest, out, workers=2, progress=False, pyramid_min_size=9)
     assert times["s1"] != os.stat(os.path.join(out, "s1", "record.json")).st_mtime_ns
+
+
+def open_in_chromium(page):
+    """The page's DOM after headless Chromium has loaded it and run its script."""
+    import shutil  # noqa: PLC0415
+    import subprocess  # noqa: PLC0415
+
+    browser = shutil.which("chromium")
+    if browser is None:
+        pytest.skip("chromium is not installed (scripts/python_test.sh installs it)")
+    run = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu",
+                          "--dump-dom", "file://" + os.path.abspath(page)],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    return run.stdout
 
 
 def test_a_killed_worker_leaves_no_partial_study(tmp_path):
