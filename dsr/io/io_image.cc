@@ -145,13 +145,8 @@ namespace {
 // it refuses): "" when the file is no NIfTI-1/2 file or its spacings are not 0. The header
 // is read through zlib, which reads .nii and .nii.gz alike.
 bool IsNifti(const std::string& path) {
-  std::string lower = path;
-  std::transform(lower.begin(), lower.end(), lower.begin(), ::tolower);
-  const auto ends_with = [&](const std::string& ext) {
-    return lower.size() >= ext.size() &&
-           lower.compare(lower.size() - ext.size(), ext.size(), ext) == 0;
-  };
-  return ends_with(".nii") || ends_with(".nii.gz");
+  const std::string lower = Lower(path);
+  return EndsWith(lower, ".nii") || EndsWith(lower, ".nii.gz");
 }
 
 // A NIfTI header stores the origin in float32: far from 0 its precision (half the gap to

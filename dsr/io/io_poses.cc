@@ -109,11 +109,7 @@ bool ParseMatrix(const Json& t, const std::string& where, Eigen::Matrix4d* m, st
         *error = shape + " (" + entry + " is " + WithArticle(row[c]) + ")";
         return false;
       }
-      (*m)(r, c) = row[c].get<double>();
-      if (!std::isfinite((*m)(r, c))) {
-        *error = where + entry + " is not finite (" + Number((*m)(r, c)) + ")";
-        return false;
-      }
+      (*m)(r, c) = row[c].get<double>();  // finite and rigid: PoseFromMatrix
     }
   }
   return true;

@@ -25,6 +25,13 @@ Eigen::Vector3d Extent(const ImageGeometry& g) {
   return g.size.cast<double>().cwiseProduct(g.spacing_mm);
 }
 
+// The median of `values` (reordered).
+double MedianOf(std::vector<float>* values) {
+  const size_t mid = values->size() / 2;
+  std::nth_element(values->begin(), values->begin() + mid, values->end());
+  return static_cast<double>((*values)[mid]);
+}
+
 // A frame whose single largest squared deviation from its median is more than this share
 // of the sum over all its voxels: one voxel would outweigh all the others together in the
 // sum of squared differences the registration minimises.
@@ -40,8 +47,7 @@ bool CheckOutlierVoxels(const std::vector<Image>& images, std::string* error) {
     const size_t stride = std::max<size_t>(1, v.size() / 100000);
     std::vector<float> sample;
     for (size_t l = 0; l < v.size(); l += stride) sample.push_back(v[l]);
-    std::nth_element(sample.begin(), sample.begin() + sample.size() / 2, sample.end());
-    const double median = sample[sample.size() / 2];
+    const double median = MedianOf(&sample);
     double sum = 0.0, largest = 0.0;
     size_t at = 0;
     for (size_t l = 0; l < v.size(); ++l) {
@@ -146,12 +152,7 @@ double IntensitySpread(const std::vector<Image>& images, const std::vector<Mask>
     }
   }
   if (samples.empty()) return 0.0;
-  const auto median_of = [](std::vector<float>* values) {
-    const size_t mid = values->size() / 2;
-    std::nth_element(values->begin(), values->begin() + mid, values->end());
-    return static_cast<double>((*values)[mid]);
-  };
-  const double median = median_of(&samples);
+  const double median = MedianOf(&samples);
   std::vector<float> deviations(samples.size());
   double sum = 0.0;
   for (size_t s = 0; s < samples.size(); ++s) {
@@ -159,7 +160,7 @@ double IntensitySpread(const std::vector<Image>& images, const std::vector<Mask>
     deviations[s] = static_cast<float>(d);
     sum += d;
   }
-  const double mad = median_of(&deviations);
+  const double mad = MedianOf(&deviations);
   return mad > 0.0 ? mad : sum / static_cast<double>(samples.size());
 }
 

@@ -460,6 +460,40 @@ void PrepareRun(const py::list& images, const py::list& masks,
   }
 }
 
+// Checks `run` as dsr_register checks it and solves it without the GIL. After every
+// iteration Python's signal handlers run (Ctrl-C raises KeyboardInterrupt between
+// iterations, not when the solve ends), then `on_iteration` when given; their exception stops
+// the solve and is raised once it returns. ValueError for bad input, RegistrationError (its
+// message through `as_options`) for a registration without a result.
+void SolveRun(RegistrationRun* run, const IterationObserver& on_iteration,
+              std::string (*as_options)(const std::string&)) {
+  std::exception_ptr callback_error;
+  run->options().solve.on_iteration = [&](const std::string& label, const IterationRecord& r) {
+    if (callback_error) return false;
+    py::gil_scoped_acquire gil;
+    try {
+      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
+      return on_iteration ? on_iteration(label, r) : true;
+    } catch (...) {
+      callback_error = std::current_exception();
+      return false;
+    }
+  };
+  std::string error;
+  if (!run->Check(&error)) BadInput(error);
+  bool ok = false;
+  {
+    py::gil_scoped_release release;
+    ok = run->Run(&error);
+  }
+  if (callback_error) std::rethrow_exception(callback_error);
+  if (!ok) BadInput(error);
+  if (!run->result().usable) {
+    PyErr_SetString(registration_error, as_options(run->result().failure).c_str());
+    throw py::error_already_set();
+  }
+}
+
 // register(images, masks, names, options, initial_poses, on_iteration): PrepareRun's run,
 // checked as dsr_register checks it and solved without the GIL; the poses file's contents,
 // a summary and the input files (Result.save refuses to write over them).
@@ -473,35 +507,8 @@ py::dict RegisterImages(const py::list& images,
   PrepareRun(images, masks, names, MakeSettings(options_in, kPyRegister), initial_poses, &run);
   RegistrationOptions& options = run.options();
   options.solve.progress = false;  // Python has on_iteration and progress_bar instead
-  // After every iteration: Python's signal handlers run (Ctrl-C raises KeyboardInterrupt
-  // between iterations, not when the solve ends), then the callback. Their exception stops
-  // the solve and is raised once the registration returns.
-  std::exception_ptr callback_error;
-  options.solve.on_iteration = [&](const std::string& label, const IterationRecord& r) {
-    if (callback_error) return false;
-    py::gil_scoped_acquire gil;
-    try {
-      if (PyErr_CheckSignals() != 0) throw py::error_already_set();
-      return on_iteration ? on_iteration(label, r) : true;
-    } catch (...) {
-      callback_error = std::current_exception();
-      return false;
-    }
-  };
-  std::string error;
-  if (!run.Check(&error)) BadInput(error);
-  bool ok = false;
-  {
-    py::gil_scoped_release release;
-    ok = run.Run(&error);
-  }
-  if (callback_error) std::rethrow_exception(callback_error);
-  if (!ok) BadInput(error);
+  SolveRun(&run, on_iteration, [](const std::string& m) { return AsOptions(m); });
   const RegistrationResult& result = run.result();
-  if (!result.usable) {
-    PyErr_SetString(registration_error, AsOptions(result.failure).c_str());
-    throw py::error_already_set();
-  }
   py::dict out;
   out["poses"] = PosesToDict(ResultPoses(result, run.names()));
   out["summary"] = Summary(options, result, run.FieldOfViewLine(), run.preset_summary());
@@ -525,27 +532,9 @@ py::dict RegisterFiles(const Options& options_in) {
   if (!run.PlanFiles(settings, outputs, &error) || !run.ReadFiles(&error)) BadInput(error);
   run.RememberInputs(&ReadInputs());
   const double load_seconds = SecondsSince(start);
-  std::exception_ptr interrupted;
-  run.options().solve.on_iteration = [&](const std::string&, const IterationRecord&) {
-    if (interrupted) return false;
-    py::gil_scoped_acquire gil;
-    if (PyErr_CheckSignals() == 0) return true;
-    interrupted = std::make_exception_ptr(py::error_already_set());
-    return false;
-  };
-  if (!run.Check(&error)) BadInput(error);
-  bool ok = false;
-  {
-    py::gil_scoped_release release;
-    ok = run.Run(&error);
-  }
-  if (interrupted) std::rethrow_exception(interrupted);
-  if (!ok) BadInput(error);
+  SolveRun(&run, nullptr,
+           [](const std::string& m) { return FieldPathsAsOptions(m, kDsrRegister); });
   const RegistrationResult& result = run.result();
-  if (!result.usable) {
-    PyErr_SetString(registration_error, FieldPathsAsOptions(result.failure, kDsrRegister).c_str());
-    throw py::error_already_set();
-  }
   if (!run.Write(&error)) WriteFailed(error);
   py::dict out;
   out["lines"] = run.SummaryLines(SecondsSince(start), load_seconds);
