@@ -244,19 +244,10 @@ void PlanComparisonFiles(const Comparison& c, OutputPlan* plan) {
 bool LoadSequence(const Comparison& c, const SequenceFiles& files, ExperimentSequence* out,
                   std::vector<MaskRule>* mask_rules, std::string* error) {
   out->name = files.name;
-  out->frames.resize(files.frames.size());
-  out->masks.resize(files.frames.size());
-  mask_rules->assign(c.sequence_masks ? 0 : files.frames.size(), MaskRule::kHull);
-  for (size_t i = 0; i < files.frames.size(); ++i) {
-    if (!ReadImage(files.frames[i], &out->frames[i], error)) return false;
-    if (!c.sequence_masks) {
-      if (!MaskFromImage(out->frames[i], c.field_of_view, files.frames[i], &out->masks[i],
-                         &(*mask_rules)[i], error)) {
-        return false;
-      }
-    } else if (!ReadMask(files.masks[i], out->frames[i].geometry, &out->masks[i], error)) {
-      return false;
-    }
+  // Without masks, each frame's by the comparison's rule (files.masks is then empty).
+  if (!ReadFrames(files.frames, files.masks, c.field_of_view, 0, &out->frames, &out->masks,
+                  mask_rules, error)) {
+    return false;
   }
   out->ground_truth = files.ground_truth.frame_from_world;
   out->ground_truth_photometric = PhotometricFromPoses(files.ground_truth);
