@@ -11,6 +11,9 @@
 //   BM_DsrEvaluationFrames/{frames}              DSR with Jacobians, 3..11 frames
 //   BM_DsrEvaluationClinical/{jacobian}          DSR, 11 frames of 176x176x200 at 0.6 mm
 //   BM_BuildCandidatesClinical                   the candidate set at that size
+//   BM_DsrTiedEvaluationClinical/{phases}        DSR's tied problem (DsrProblem) of those
+//                                                views with 1, 2 or 4 phases each: one
+//                                                evaluation with the gradient
 //   BM_DbaEvaluation                             Ceres Problem::Evaluate of DBA with
 //                                                Jacobians, 6 frames of 48x48x40
 // Counters: ns per observation (an intensity difference the objective evaluates). The
@@ -22,6 +25,7 @@
 
 #include "dsr/baselines/baselines.h"
 #include "dsr/dba/dba_problem.h"
+#include "dsr/dsr_reduced/dsr_solver.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/model/panorama.h"
 #include "dsr/sim/phantom.h"
@@ -261,6 +265,60 @@ void BM_BuildCandidatesClinical(benchmark::State& state) {
   }
 }
 BENCHMARK(BM_BuildCandidatesClinical)->Unit(benchmark::kMillisecond)->UseRealTime();
+
+// The clinical views with `phases` phases each: phase 0 the simulated frame, phase t > 0 the
+// same with independent Gaussian noise of the simulator's sigma (25) added, on the one mask.
+std::unique_ptr<Problem> ClinicalPhases(int phases) {
+  static const SimulatedSequence s = [] {
+    PhantomOptions phantom_options;
+    SimulationOptions o;
+    o.frame_size = Eigen::Vector3i(176, 176, 200);
+    o.frame_spacing = 0.6;
+    SimulatedSequence out;
+    std::string error;
+    if (!Simulate(MakePhantom(phantom_options), o, &out, &error)) std::abort();
+    return out;
+  }();
+  auto p = std::make_unique<Problem>();
+  std::mt19937_64 rng(7);
+  std::normal_distribution<float> noise(0.0f, 25.0f);
+  for (size_t i = 0; i < s.frames.size(); ++i) {
+    std::vector<Image> views(1, s.frames[i]);
+    for (int t = 1; t < phases; ++t) {
+      views.push_back(s.frames[i]);
+      for (float& v : views.back().voxels) v += noise(rng);
+    }
+    p->frames.emplace_back(views, s.masks[i]);
+  }
+  p->poses = RelativeToFrame0(s.frame_from_world);
+  p->candidates = Clinical().candidates;
+  return p;
+}
+
+// One evaluation of DSR's tied problem (every phase's chunk costs over the views' pose
+// blocks; Ceres sums them) with the gradient, 2 threads. Counters: ms and observations per
+// phase; the frames' bytes per phase.
+void BM_DsrTiedEvaluationClinical(benchmark::State& state) {
+  const int phases = static_cast<int>(state.range(0));
+  const std::unique_ptr<Problem> p = ClinicalPhases(phases);
+  DsrOptions options;
+  options.solve.num_threads = 2;
+  DsrProblem dsr(p->frames, p->candidates, p->poses, options);
+  std::vector<double> gradient;
+  double cost = 0.0;
+  for (auto _ : state) {
+    dsr.problem().Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr, &gradient, nullptr);
+    benchmark::DoNotOptimize(cost);
+  }
+  const int64_t voxels = p->frames.size() * p->frames[0].geometry().NumVoxels();
+  state.counters["ms_per_phase"] = benchmark::Counter(
+      1e-3 * phases * state.iterations(), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  state.counters["observations_per_phase"] =
+      static_cast<double>(dsr.LastObservations()) / phases;
+  state.counters["frame_MiB_per_phase"] = 16.0 * voxels / 1048576.0;
+}
+BENCHMARK(BM_DsrTiedEvaluationClinical)->Arg(1)->Arg(2)->Arg(4)->Unit(benchmark::kMillisecond)
+    ->UseRealTime()->Iterations(3);
 
 // DSR and DBA evaluations with Jacobians of the same small problem.
 const Problem& Small() {

@@ -79,11 +79,15 @@ Vector6d GaugeStiffness(const std::vector<Frame>& frames,
     return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, nullptr,
                                 context);
   }
-  ObservationWeights weights(candidates);
-  ReweightStats stats;
-  UpdateObservationWeights(frames, candidates, frame_from_world, photometric, loss, context,
-                           &weights, &stats);
-  return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, &weights,
+  // One set of weights per phase (each phase's observations have their own voxel locations).
+  const int phases = NumPhases(frames);
+  std::vector<ObservationWeights> weights(phases, ObservationWeights(candidates));
+  for (int p = 0; p < phases; ++p) {
+    ReweightStats stats;
+    UpdateObservationWeights(phases == 1 ? frames : PhaseFrames(frames, p), candidates,
+                             frame_from_world, photometric, loss, context, &weights[p], &stats);
+  }
+  return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, weights.data(),
                               context);
 }
 
@@ -133,7 +137,8 @@ std::string DbaMemoryEstimate::ToString() const {
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
                                     ceres::LinearSolverType linear_solver,
-                                    bool photometric) {
+                                    bool photometric,
+                                    int num_phases) {
   // Per-item costs in bytes for Ceres 2.1: a residual block (ResidualBlock, the DbaResidual
   // object, parameter pointers, its Jacobian row (8 doubles) and row-block structure in the
   // BlockSparseMatrix, residual, program copies) and an intensity block (ParameterBlock, map
@@ -150,8 +155,8 @@ DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
   // system has 8 parameters per frame instead of 6.
   constexpr double kBytesPerPhotometricResidualBlock = 48.0;
   DbaMemoryEstimate e;
-  e.residual_blocks = candidates.NumObservations();
-  e.intensity_blocks = candidates.num_voxels();
+  e.residual_blocks = candidates.NumObservations() * num_phases;
+  e.intensity_blocks = candidates.num_voxels() * num_phases;
   double bytes = kBytesPerResidualBlock * e.residual_blocks +
                  kBytesPerIntensityBlock * e.intensity_blocks;
   if (photometric) bytes += kBytesPerPhotometricResidualBlock * e.residual_blocks;
@@ -223,12 +228,54 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     problem_->SetParameterBlockConstant(photometric_[0].data());
   }
 
+  // Each phase's one-phase frames (a 3D sequence's are the caller's frames): one intensity
+  // block per (voxel, phase), every phase's residuals on the view's one pose block.
+  const int phases = NumPhases(frames);
+  std::vector<const std::vector<Frame>*> phase_frames(1, &frames);
+  if (phases > 1) {
+    phase_frames.clear();
+    for (int p = 0; p < phases; ++p) {
+      phase_frames_.push_back(std::make_unique<std::vector<Frame>>(PhaseFrames(frames, p)));
+      phase_frames.push_back(phase_frames_.back().get());
+    }
+  }
+  const int64_t n = candidates.num_voxels();
+  intensities_.assign(n * phases, 0.0);
+  for (int p = 0; p < phases; ++p) {
+    InitialIntensities(*phase_frames[p], candidates, frame_from_world, correction,
+                       &intensities_[p * n]);
+  }
+  for (int64_t v = 0; v < n; ++v) {
+    const Eigen::Vector3d centre = candidates.VoxelCenter(v);
+    for (int p = 0; p < phases; ++p) {
+      for (int i = 0; i < m; ++i) {
+        if (!(candidates.observers[v] >> i & 1u)) continue;
+        const Frame* frame = &(*phase_frames[p])[i];
+        if (photometric_.empty()) {
+          problem_->AddResidualBlock(new DbaResidual(frame, centre), loss_.get(),
+                                     poses_[i].data(), &intensities_[p * n + v]);
+        } else {
+          problem_->AddResidualBlock(new DbaPhotometricResidual(frame, centre), loss_.get(),
+                                     poses_[i].data(), &intensities_[p * n + v],
+                                     photometric_[i].data());
+        }
+        ++num_residual_blocks_;
+      }
+    }
+  }
+}
+
+void DbaProblem::InitialIntensities(const std::vector<Frame>& frames,
+                                    const CandidateSet& candidates,
+                                    const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                    const std::vector<Photometric>& correction,
+                                    double* intensities) {
   // Initial intensities: the minimiser over M of the squared residuals, the per-voxel mean
   // of the observations (paper eq. 10); with photometric blocks the mean of the corrected
   // observations weighted by u_i^2 = 1 / gain_i^2 (docs/design.md 2.8), which is the plain
   // mean at the gauge.
+  const int m = static_cast<int>(frames.size());
   const int64_t n = candidates.num_voxels();
-  intensities_.assign(n, 0.0);
   ParallelFor(0, n, 0, [&](int64_t v) {
     const Eigen::Vector3d p = candidates.VoxelCenter(v);
     double sum = 0.0, total = 0.0;
@@ -253,23 +300,8 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
         total += w;
       }
     }
-    intensities_[v] = total > 0.0 ? sum / total : 0.0;
+    intensities[v] = total > 0.0 ? sum / total : 0.0;
   });
-
-  for (int64_t v = 0; v < n; ++v) {
-    const Eigen::Vector3d p = candidates.VoxelCenter(v);
-    for (int i = 0; i < m; ++i) {
-      if (!(candidates.observers[v] >> i & 1u)) continue;
-      if (photometric_.empty()) {
-        problem_->AddResidualBlock(new DbaResidual(&frames[i], p), loss_.get(),
-                                   poses_[i].data(), &intensities_[v]);
-      } else {
-        problem_->AddResidualBlock(new DbaPhotometricResidual(&frames[i], p), loss_.get(),
-                                   poses_[i].data(), &intensities_[v], photometric_[i].data());
-      }
-      ++num_residual_blocks_;
-    }
-  }
 }
 
 std::vector<Eigen::Isometry3d> DbaProblem::Poses() const {
@@ -307,7 +339,7 @@ bool SolveDba(const std::vector<Frame>& frames,
   const ceres::LinearSolverType linear_solver = options.solve.LinearSolverOr(ceres::DENSE_SCHUR);
   const DbaMemoryEstimate estimate =
       EstimateDbaMemory(candidates, static_cast<int>(frames.size()), linear_solver,
-                        options.photometric);
+                        options.photometric, NumPhases(frames));
   const double budget = options.memory_budget_mb > 0.0
                             ? options.memory_budget_mb * 1048576.0
                             : 0.5 * static_cast<double>(PhysicalMemoryBytes());

@@ -109,10 +109,12 @@ struct DbaMemoryEstimate {
   std::string ToString() const;
 };
 // `photometric`: with a [log_gain, offset] block per frame (DbaOptions::photometric).
+// `num_phases`: the frames' phases (each candidate observation and intensity once per phase).
 DbaMemoryEstimate EstimateDbaMemory(const CandidateSet& candidates,
                                     int num_frames,
                                     ceres::LinearSolverType linear_solver,
-                                    bool photometric = false);
+                                    bool photometric = false,
+                                    int num_phases = 1);
 
 // The Ceres problem, kept as an object so tests can evaluate its Jacobian.
 class DbaProblem {
@@ -157,13 +159,25 @@ class DbaProblem {
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
   std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
+  // The per-voxel means of one phase's observations at `frame_from_world` (n of them).
+  static void InitialIntensities(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const std::vector<Photometric>& correction,
+                                 double* intensities);
+  // One per (voxel, phase), phase by phase: voxel v of phase p at p n + v.
   std::vector<double> intensities_;
+  // With T > 1 phases, each phase's one-phase frames (the residuals point to them).
+  std::vector<std::unique_ptr<std::vector<Frame>>> phase_frames_;
   int64_t num_residual_blocks_ = 0;
 };
 
 // Builds and solves. Fails (false, `error`) when the memory estimate exceeds the budget,
 // naming the estimate and suggesting a coarser --panorama_spacing or --mode=dsr. A solve
 // that runs but is not usable returns true with report->usable = false.
+// With frames of T phases (Frame::num_phases), one intensity per (voxel, phase) and every
+// phase's residuals on the view's one pose block (docs/design.md section 12); `intensities`
+// then holds T x n values, phase by phase.
 // report->frame_from_world and `intensities` (one per candidate voxel, at its centre) are
 // in the world of `initial_frame_from_world` (frame 0's pose is its initial one unless
 // options.gauge is kMean). With

@@ -45,9 +45,21 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   const int m = static_cast<int>(frames.size());
   CHECK_GE(m, 2);
   CHECK_EQ(candidates.num_frames, m);
-  CHECK(weights == nullptr ||
-        static_cast<int64_t>(weights->offset.size()) == candidates.num_voxels() + 1)
-      << "weights built for another candidate set";
+  const int phases = NumPhases(frames);
+  for (int p = 0; weights != nullptr && p < phases; ++p) {
+    CHECK(static_cast<int64_t>(weights[p].offset.size()) == candidates.num_voxels() + 1)
+        << "weights built for another candidate set";
+  }
+  // Each phase's one-phase frames (the theorem eliminates every (voxel, phase) intensity);
+  // a 3D sequence's are the caller's frames.
+  std::vector<const std::vector<Frame>*> phase_frames(1, &frames);
+  if (phases > 1) {
+    phase_frames.clear();
+    for (int p = 0; p < phases; ++p) {
+      phase_frames_.push_back(std::make_unique<std::vector<Frame>>(PhaseFrames(frames, p)));
+      phase_frames.push_back(phase_frames_.back().get());
+    }
+  }
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_ = std::make_unique<ceres::Problem>(problem_options);
@@ -93,34 +105,9 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
       for (int i = 0; i < m; ++i) problem_->AddParameterBlock(photometric_[i].data(), 2);
       problem_->SetParameterBlockConstant(photometric_[0].data());
     }
-    for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
-      std::vector<const Frame*> observers;
-      std::vector<double*> blocks;
-      for (int i = 0; i < m; ++i) {
-        if (candidates.observers[v] >> i & 1u) {
-          observers.push_back(&frames[i]);
-          blocks.push_back(poses_[i].data());
-        }
-      }
-      // The voxel's weights, in the observers' (increasing frame) order; none unweighted.
-      std::vector<double> voxel_weights;
-      if (weights != nullptr) {
-        voxel_weights.assign(weights->weight.begin() + weights->offset[v],
-                             weights->weight.begin() + weights->offset[v + 1]);
-      }
-      if (options.photometric) {
-        for (int i = 0; i < m; ++i) {
-          if (candidates.observers[v] >> i & 1u) blocks.push_back(photometric_[i].data());
-        }
-        problem_->AddResidualBlock(
-            new VoxelReducedPhotometricCost(observers, candidates.VoxelCenter(v),
-                                            std::move(voxel_weights)),
-            nullptr, blocks);
-      } else {
-        problem_->AddResidualBlock(
-            new VoxelReducedCost(observers, candidates.VoxelCenter(v), std::move(voxel_weights)),
-            nullptr, blocks);
-      }
+    for (int p = 0; p < phases; ++p) {
+      AddReferenceCosts(*phase_frames[p], candidates, weights != nullptr ? weights + p : nullptr,
+                        options.photometric);
     }
     return;
   }
@@ -138,17 +125,58 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   }
   const int64_t n = candidates.num_voxels();
   const int64_t chunks = std::max<int64_t>(1, std::min<int64_t>(options.num_chunks, n));
-  for (int64_t c = 0; c < chunks; ++c) {
-    const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
-    auto* chunk = new ReducedChunkCost(&frames, &candidates, frame_from_world[0], begin, end,
-                                       StreamContextFor(options.solve), options.photometric,
-                                       weights, options.gauge, options.backend);
-    chunks_.push_back(chunk);
-    problem_->AddResidualBlock(chunk, nullptr, free_blocks);
+  // Every phase's chunks, over the same pose (and photometric) blocks: Ceres sums them.
+  for (int p = 0; p < phases; ++p) {
+    for (int64_t c = 0; c < chunks; ++c) {
+      const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
+      auto* chunk = new ReducedChunkCost(phase_frames[p], &candidates, frame_from_world[0], begin,
+                                         end, StreamContextFor(options.solve),
+                                         options.photometric,
+                                         weights != nullptr ? weights + p : nullptr,
+                                         options.gauge, options.backend);
+      chunks_.push_back(chunk);
+      problem_->AddResidualBlock(chunk, nullptr, free_blocks);
+    }
   }
   if (mean_gauge) {
     problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, centres, gauge_stiffness_),
                                nullptr, all_poses);
+  }
+}
+
+void DsrProblem::AddReferenceCosts(const std::vector<Frame>& frames,
+                                   const CandidateSet& candidates,
+                                   const ObservationWeights* weights,
+                                   bool photometric) {
+  const int m = static_cast<int>(frames.size());
+  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+    std::vector<const Frame*> observers;
+    std::vector<double*> blocks;
+    for (int i = 0; i < m; ++i) {
+      if (candidates.observers[v] >> i & 1u) {
+        observers.push_back(&frames[i]);
+        blocks.push_back(poses_[i].data());
+      }
+    }
+    // The voxel's weights, in the observers' (increasing frame) order; none unweighted.
+    std::vector<double> voxel_weights;
+    if (weights != nullptr) {
+      voxel_weights.assign(weights->weight.begin() + weights->offset[v],
+                           weights->weight.begin() + weights->offset[v + 1]);
+    }
+    if (photometric) {
+      for (int i = 0; i < m; ++i) {
+        if (candidates.observers[v] >> i & 1u) blocks.push_back(photometric_[i].data());
+      }
+      problem_->AddResidualBlock(
+          new VoxelReducedPhotometricCost(observers, candidates.VoxelCenter(v),
+                                          std::move(voxel_weights)),
+          nullptr, blocks);
+    } else {
+      problem_->AddResidualBlock(
+          new VoxelReducedCost(observers, candidates.VoxelCenter(v), std::move(voxel_weights)),
+          nullptr, blocks);
+    }
   }
 }
 
@@ -262,13 +290,43 @@ bool SolveOnce(const std::vector<Frame>& frames,
     }
   }
   if (report->observations_per_iteration < 0) {  // reference cost: count once (small problems)
-    ReducedSystem counts;
-    AccumulateReducedSystem(frames, candidates, report->frame_from_world, 0,
-                            candidates.num_voxels(), false, StreamContextFor(options.solve),
-                            &counts);
-    report->observations_per_iteration = counts.observations;
+    report->observations_per_iteration = 0;
+    for (int p = 0; p < NumPhases(frames); ++p) {
+      ReducedSystem counts;
+      AccumulateReducedSystem(PhaseFrames(frames, p), candidates, report->frame_from_world, 0,
+                              candidates.num_voxels(), false, StreamContextFor(options.solve),
+                              &counts);
+      report->observations_per_iteration += counts.observations;
+    }
   }
   return true;
+}
+
+// UpdateObservationWeights phase by phase (`weights`: one per phase); the stats summed
+// (robust cost, observations) or the largest (weight change) over the phases.
+void UpdatePhaseWeights(const std::vector<Frame>& frames,
+                        const CandidateSet& candidates,
+                        const std::vector<Eigen::Isometry3d>& frame_from_world,
+                        const std::vector<Photometric>& photometric,
+                        const RobustLoss& loss,
+                        const StreamContext& context,
+                        std::vector<ObservationWeights>* weights,
+                        ReweightStats* stats) {
+  const int phases = NumPhases(frames);
+  if (phases == 1) {
+    UpdateObservationWeights(frames, candidates, frame_from_world, photometric, loss, context,
+                             &weights->front(), stats);
+    return;
+  }
+  *stats = ReweightStats();
+  for (int p = 0; p < phases; ++p) {
+    ReweightStats part;
+    UpdateObservationWeights(PhaseFrames(frames, p), candidates, frame_from_world, photometric,
+                             loss, context, &(*weights)[p], &part);
+    stats->robust_cost += part.robust_cost;
+    stats->max_weight_change = std::max(stats->max_weight_change, part.max_weight_change);
+    stats->observations += part.observations;
+  }
 }
 
 // IRLS for a robust loss (SolveDsr's comment in dsr_solver.h).
@@ -286,10 +344,10 @@ bool SolveReweighted(const std::vector<Frame>& frames,
     photometric = options.initial_photometric.empty() ? std::vector<Photometric>(m)
                                                       : options.initial_photometric;
   }
-  ObservationWeights weights(candidates);
+  std::vector<ObservationWeights> weights(NumPhases(frames), ObservationWeights(candidates));
   ReweightStats stats;
-  UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
-                           &stats);
+  UpdatePhaseWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
+                     &stats);
   *report = SolveReport();
   report->initial_cost = 0.5 * stats.robust_cost;
   report->usable = true;
@@ -300,7 +358,9 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   for (; solves < kMaxReweightings; ++solves) {
     if (options.photometric) solve_options.initial_photometric = photometric;
     SolveReport part;
-    if (!SolveOnce(frames, candidates, poses, solve_options, &weights, &part, error)) return false;
+    if (!SolveOnce(frames, candidates, poses, solve_options, weights.data(), &part, error)) {
+      return false;
+    }
     // Sum the solves: iteration records follow one another, renumbered.
     for (IterationRecord record : part.iterations) {
       record.iteration += report->num_iterations;
@@ -322,8 +382,8 @@ bool SolveReweighted(const std::vector<Frame>& frames,
     const double motion = LargestMotionVoxels(frames, poses, part.frame_from_world);
     poses = part.frame_from_world;
     if (options.photometric) photometric = part.photometric;
-    UpdateObservationWeights(frames, candidates, poses, photometric, options.loss, context,
-                             &weights, &stats);
+    UpdatePhaseWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
+                       &stats);
     if (tolerance > 0.0 ? motion < tolerance
                         : (stats.max_weight_change <= kWeightChangeTolerance || motion == 0.0)) {
       ++solves;

@@ -64,7 +64,10 @@ constexpr double kWeightChangeTolerance = 2.5e-7;
 class DsrProblem {
  public:
   // With `weights` (built for `candidates`; not owned, must outlive the problem and not
-  // change while it is solved), the weighted cost f_w; null: the plain cost f.
+  // change while it is solved), the weighted cost f_w; null: the plain cost f. With frames
+  // of T phases (Frame::num_phases), `weights` points to T of them, phase by phase, and
+  // the cost is the sum over the phases of each phase's cost, every phase's chunks over the
+  // same pose blocks (docs/design.md section 12).
   // options.loss is not used here (SolveDsr computes the weights from it).
   DsrProblem(const std::vector<Frame>& frames,
              const CandidateSet& candidates,
@@ -88,10 +91,17 @@ class DsrProblem {
   void SetEvaluationPolicy(const StreamedEvaluationPolicy& policy);
 
  private:
+  // The per-voxel reference's blocks of one phase's frames (the pose blocks shared).
+  void AddReferenceCosts(const std::vector<Frame>& frames,
+                         const CandidateSet& candidates,
+                         const ObservationWeights* weights,
+                         bool photometric);
   std::unique_ptr<ceres::Problem> problem_;
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
   std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
-  std::vector<ReducedChunkCost*> chunks_;  // owned by problem_
+  std::vector<ReducedChunkCost*> chunks_;  // owned by problem_ (phase by phase)
+  // With T > 1 phases, each phase's one-phase frames (the chunks point to them).
+  std::vector<std::unique_ptr<std::vector<Frame>>> phase_frames_;
   Vector6d gauge_stiffness_ = Vector6d::Zero();  // the mean gauge's prior
 };
 

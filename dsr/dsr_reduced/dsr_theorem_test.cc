@@ -6,12 +6,14 @@
 //  3. f(T) equals the DBA cost minimised over the intensities (at M = the per-voxel mean);
 //  4. full solves of DBA (Ceres Schur) and DSR (fast and reference cost) from the same
 //     initial poses converge to the same poses, although Levenberg-Marquardt's damping of
-//     the intensity blocks makes their intermediate iterates differ.
+//     the intensity blocks makes their intermediate iterates differ;
+//  5. all of it with tied poses: views of T phases, one pose each (TiedPoses).
 #include <ceres/ceres.h>
 #include <ceres/gradient_checker.h>
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <array>
 #include <random>
 #include <utility>
@@ -860,6 +862,191 @@ TEST(ReducedCost, CompressionReproducesTheNormalEquations) {
   EXPECT_LT((j.transpose() * j - h).norm(), 1e-10 * h.norm());
   EXPECT_LT((j.transpose() * r - g).norm(), 1e-10 * g.norm());
   EXPECT_NEAR(r.squaredNorm(), f, 1e-10 * f);
+}
+
+// ECG-gated views (docs/design.md section 12): every view has T phases and one pose, the
+// panorama one intensity per (voxel, phase). DSR sums each phase's reduced cost over the
+// views' shared pose blocks; DBA has an intensity block per (voxel, phase) and every phase's
+// residuals on the view's pose block. The theorem holds phase by phase, so it holds for
+// the sum.
+
+SequenceOptions PhasedOptionsFor(const Case& c, uint64_t seed, int phases) {
+  SequenceOptions o = OptionsFor(c, seed);
+  o.num_phases = phases;
+  return o;
+}
+
+// DsrProblem's dense (compressed) Jacobian over `blocks` and its Gauss-Newton step.
+Eigen::VectorXd DsrStep(DsrProblem* dsr, const std::vector<double*>& blocks, double* cost) {
+  Eigen::VectorXd r;
+  const Eigen::MatrixXd j = DenseJacobian(&dsr->problem(), blocks, &r, cost);
+  return (j.transpose() * j).ldlt().solve(-j.transpose() * r);
+}
+
+TEST(TiedPoses, DbaSchurStepEqualsReducedStepOverPhases) {
+  uint64_t seed = 211;
+  for (Gauge gauge : {Gauge::kFrame0, Gauge::kMean}) {
+    for (bool photometric : {false, true}) {
+      for (const Case& c : Cases()) {
+        const auto s = MakeSequence(PhasedOptionsFor(c, seed++, 3));
+        ASSERT_EQ(NumPhases(s.frames), 3);
+        std::vector<Eigen::Isometry3d> poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
+        if (gauge == Gauge::kMean) poses = MovedTogether(poses, seed++);
+        const std::vector<Photometric> start =
+            photometric ? RandomPhotometric(c.num_frames, seed++) : std::vector<Photometric>();
+        const CandidateSet cand = Candidates(s, poses);
+        DsrOptions options;
+        options.gauge = gauge;
+        options.photometric = photometric;
+        options.initial_photometric = start;
+        options.solve.num_threads = 2;
+        DsrProblem dsr(s.frames, cand, poses, options);
+        DbaProblem dba(s.frames, cand, poses, start, RobustLoss(), gauge,
+                       StreamContextFor(options.solve));
+        EXPECT_EQ(dba.num_intensities(), 3 * cand.num_voxels());
+        // The free blocks in the order of DSR's fast path: poses, then photometric blocks.
+        std::vector<double*> dsr_blocks, dba_blocks;
+        for (int i = gauge == Gauge::kMean ? 0 : 1; i < c.num_frames; ++i) {
+          dsr_blocks.push_back(dsr.pose_parameters(i));
+          dba_blocks.push_back(dba.pose_parameters(i));
+        }
+        for (int i = 1; photometric && i < c.num_frames; ++i) {
+          dsr_blocks.push_back(dsr.photometric_parameters(i));
+          dba_blocks.push_back(dba.photometric_parameters(i));
+        }
+        double cost;
+        const Eigen::VectorXd dsr_step = DsrStep(&dsr, dsr_blocks, &cost);
+        const Eigen::VectorXd dba_step = DbaSchurStep(&dba, dba_blocks);
+        EXPECT_LT(RelativeDifference(dba_step, dsr_step), kStepRelativeTolerance)
+            << "m=" << c.num_frames << " photometric=" << photometric << " mean gauge="
+            << (gauge == Gauge::kMean) << "\nDBA " << dba_step.transpose() << "\nDSR "
+            << dsr_step.transpose();
+        // Whatever the (voxel, phase) intensities are (with photometric blocks the step
+        // is the reduced one at the eliminated intensities only, where DbaProblem starts:
+        // their derivatives depend on M).
+        if (photometric) continue;
+        std::mt19937_64 rng(seed++);
+        std::uniform_real_distribution<double> u(-500.0, 500.0);
+        for (int64_t v = 0; v < dba.num_intensities(); ++v) *dba.intensity(v) = u(rng);
+        EXPECT_LT(RelativeDifference(DbaSchurStep(&dba, dba_blocks), dsr_step),
+                  kStepRelativeTolerance)
+            << "m=" << c.num_frames << " with random intensities";
+      }
+    }
+  }
+}
+
+// The tied cost is the sum of the phases' costs, each the 3D problem of that phase's
+// volumes (frames built from the phase images themselves, not from Frame::Phase), and the
+// fast path equals the per-voxel reference over the phases.
+TEST(TiedPoses, ReducedCostIsTheSumOfThePhasesCosts) {
+  uint64_t seed = 241;
+  for (const Case& c : Cases()) {
+    const auto s = MakeSequence(PhasedOptionsFor(c, seed++, 4));
+    const auto poses = Perturbed(s.ground_truth, 0.02, 0.7, seed++);
+    const CandidateSet cand = Candidates(s, poses);
+    std::vector<double*> blocks;
+    DsrOptions options;
+    options.solve.num_threads = 2;
+    DsrProblem tied(s.frames, cand, poses, options);
+    for (int i = 1; i < c.num_frames; ++i) blocks.push_back(tied.pose_parameters(i));
+    Eigen::VectorXd r;
+    double tied_cost;
+    const Eigen::MatrixXd j = DenseJacobian(&tied.problem(), blocks, &r, &tied_cost);
+    double sum = 0.0;
+    Eigen::VectorXd gradient = Eigen::VectorXd::Zero(j.cols());
+    Eigen::MatrixXd hessian = Eigen::MatrixXd::Zero(j.cols(), j.cols());
+    std::vector<double> phase_costs;
+    for (int p = 0; p < 4; ++p) {
+      std::vector<Frame> frames;
+      for (int i = 0; i < c.num_frames; ++i) frames.emplace_back(s.phase_images[i][p], s.masks[i]);
+      DsrProblem one(frames, cand, poses, options);
+      std::vector<double*> one_blocks;
+      for (int i = 1; i < c.num_frames; ++i) one_blocks.push_back(one.pose_parameters(i));
+      Eigen::VectorXd rp;
+      double cost;
+      const Eigen::MatrixXd jp = DenseJacobian(&one.problem(), one_blocks, &rp, &cost);
+      sum += cost;
+      phase_costs.push_back(cost);
+      gradient += jp.transpose() * rp;
+      hessian += jp.transpose() * jp;
+    }
+    EXPECT_NEAR(tied_cost, sum, kSystemRelativeTolerance * sum) << "m=" << c.num_frames;
+    EXPECT_LT(RelativeDifference(j.transpose() * r, gradient), kSystemRelativeTolerance);
+    EXPECT_LT((j.transpose() * j - hessian).norm(), kSystemRelativeTolerance * hessian.norm());
+    // The phases differ (the beating blobs): no phase's cost is a quarter of the sum.
+    const auto [lo, hi] = std::minmax_element(phase_costs.begin(), phase_costs.end());
+    EXPECT_GT(*hi - *lo, 1e-3 * sum) << "m=" << c.num_frames;
+
+    DsrOptions reference = options;
+    reference.reference_cost = true;
+    DsrProblem per_voxel(s.frames, cand, poses, reference);
+    std::vector<double*> reference_blocks;
+    for (int i = 1; i < c.num_frames; ++i) reference_blocks.push_back(per_voxel.pose_parameters(i));
+    double reference_cost;
+    const Eigen::MatrixXd jr = DenseJacobian(&per_voxel.problem(), reference_blocks, &r,
+                                             &reference_cost);
+    EXPECT_NEAR(reference_cost, tied_cost, kSystemRelativeTolerance * sum);
+    EXPECT_LT(RelativeDifference(jr.transpose() * r, gradient), kSystemRelativeTolerance);
+    EXPECT_LT((jr.transpose() * jr - hessian).norm(), kSystemRelativeTolerance * hessian.norm());
+  }
+}
+
+// Full solves over 3 phases per view: DBA (an intensity block per voxel and phase), DSR's
+// fast path and its per-voxel reference reach the same poses, the ground truth (lattice
+// sequences: every residual of every phase vanishes there).
+TEST(TiedPoses, FullSolvesOfBothModesConvergeToTheSamePoses) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  uint64_t seed = 271;
+  for (const Case& c : {Case{3, 16, 0.0, 1}, Case{4, 16, 5.0, 1}}) {
+    SequenceOptions o = LatticeOptionsFor(c, seed++);
+    o.num_phases = 3;
+    const auto s = MakeSequence(o);
+    const auto init = Perturbed(s.ground_truth, 0.02, 0.5, seed++);
+    const CandidateSet cand = InteriorCandidates(s, init, 1.5);
+    ASSERT_GT(cand.num_voxels(), 200);
+    const ModePoses converged = SolveAllModes(s, cand, init, 1000);
+    for (const auto* other : {&converged.dsr_fast, &converged.dsr_reference}) {
+      EXPECT_THAT(*other, FramesFromWorldNear(converged.dba, kFixedPointRotationRad,
+                                              kFixedPointTranslationMm))
+          << "m=" << c.num_frames;
+    }
+    for (const auto* poses : {&converged.dba, &converged.dsr_fast, &converged.dsr_reference}) {
+      EXPECT_THAT(*poses, FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
+                                              kFixedPointTranslationMm))
+          << "m=" << c.num_frames << " mode " << (poses - &converged.dba);
+    }
+    EXPECT_GT(MaxPoseDifference(converged.dba, init).second, 0.1);
+  }
+}
+
+// A robust loss over phases: DSR's reweighted solves (one set of weights per phase) and
+// DBA with Ceres's loss reach the same fixed point.
+TEST(TiedPoses, RobustSolvesOfBothModesAgree) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  SequenceOptions o = LatticeOptionsFor(Case{3, 16, 5.0, 1}, 301);
+  o.num_phases = 2;
+  const auto s = MakeSequence(o);
+  const auto init = Perturbed(s.ground_truth, 0.02, 0.5, 302);
+  const CandidateSet cand = InteriorCandidates(s, init, 1.5);
+  RobustLoss loss;
+  std::string error;
+  ASSERT_TRUE(MakeRobustLoss("cauchy", 5.0, &loss, &error)) << error;
+  SolveReport report;
+  DbaOptions dba;
+  dba.loss = loss;
+  dba.solve = FixedPointOptions(4000);
+  ASSERT_TRUE(SolveDba(s.frames, cand, init, dba, &report, nullptr, &error)) << error;
+  const auto dba_poses = report.frame_from_world;
+  DsrOptions dsr;
+  dsr.loss = loss;
+  dsr.solve = FixedPointOptions(1000);
+  ASSERT_TRUE(SolveDsr(s.frames, cand, init, dsr, &report, &error)) << error;
+  EXPECT_TRUE(report.usable) << report.termination;
+  EXPECT_THAT(report.frame_from_world,
+              FramesFromWorldNear(dba_poses, kFixedPointRotationRad, kFixedPointTranslationMm));
+  EXPECT_THAT(report.frame_from_world, FramesFromWorldNear(s.ground_truth, kFixedPointRotationRad,
+                                                           kFixedPointTranslationMm));
 }
 
 }  // namespace

@@ -40,16 +40,31 @@ void DilateAlongAxis(const Eigen::Vector3i& n, int axis, int r, std::vector<uint
 
 }  // namespace
 
-Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
-  CHECK(image.geometry.SameGrid(mask.geometry)) << "mask and image grids differ";
-  CHECK_EQ(static_cast<int64_t>(image.voxels.size()), geometry_.NumVoxels());
+Frame::Frame(const Image& image, const Mask& mask) : Frame(std::vector<const Image*>{&image}, mask) {}
+
+Frame::Frame(const std::vector<Image>& phases, const Mask& mask)
+    : Frame(
+          [&phases] {
+            CHECK(!phases.empty()) << "a frame needs at least one phase";
+            std::vector<const Image*> pointers;
+            for (const Image& phase : phases) pointers.push_back(&phase);
+            return pointers;
+          }(),
+          mask) {}
+
+Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
+    : geometry_(phases.front()->geometry) {
+  CHECK(geometry_.SameGrid(mask.geometry)) << "mask and image grids differ";
+  for (const Image* image : phases) {
+    CHECK(image->geometry.SameGrid(geometry_)) << "a frame's phases lie on different grids";
+    CHECK_EQ(static_cast<int64_t>(image->voxels.size()), geometry_.NumVoxels());
+  }
   index_from_physical_ = geometry_.PhysicalToIndexMatrix();
   gradient_to_physical_ = index_from_physical_.transpose();
 
   const Eigen::Vector3i n = geometry_.size;
   const int64_t num = geometry_.NumVoxels();
   const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
-  const float* v = image.voxels.data();
   const uint8_t* m = mask.voxels.data();
 
   // Stencil voxels (the gradient rule, frame.h): inside the mask with all 6 neighbours in
@@ -68,16 +83,25 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
   }
 
   // Values everywhere (resampling reads them without the mask rule); central differences
-  // at stencil voxels only, 0 elsewhere (no valid cell reads those).
-  std::vector<float> interleaved;
-  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
-  for (int64_t l = 0; l < num; ++l) {
-    float* out = &interleaved[4 * l];
-    out[0] = v[l];
-    if (!stencil[l]) continue;
-    for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
+  // at stencil voxels only, 0 elsewhere (no valid cell reads those). One such volume per
+  // phase, all with the one mask's stencil.
+  for (const Image* image : phases) {
+    const float* v = image->voxels.data();
+    std::vector<float> interleaved;
+    AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
+    for (int64_t l = 0; l < num; ++l) {
+      float* out = &interleaved[4 * l];
+      out[0] = v[l];
+      if (!stencil[l]) continue;
+      for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
+    }
+    auto shared = std::make_shared<const std::vector<float>>(std::move(interleaved));
+    if (interleaved_ == nullptr) {
+      interleaved_ = std::move(shared);
+    } else {
+      more_phases_.push_back(std::move(shared));
+    }
   }
-  interleaved_ = std::make_shared<const std::vector<float>>(std::move(interleaved));
 
   std::vector<uint8_t> valid(static_cast<size_t>(num / 8 + 2), uint8_t{0});
   int lo[3] = {n[0], n[1], n[2]}, hi[3] = {-1, -1, -1};  // valid cells' index range
@@ -110,6 +134,30 @@ Frame::Frame(const Image& image, const Mask& mask) : geometry_(image.geometry) {
     valid_index_box_.extend(Eigen::Vector3d(hi[0] + 1, hi[1] + 1, hi[2] + 1));
   }
   valid_bits_ = std::make_shared<const std::vector<uint8_t>>(std::move(valid));
+}
+
+Frame Frame::Phase(int phase) const {
+  CHECK(phase >= 0 && phase < num_phases()) << "phase " << phase << " of " << num_phases();
+  Frame one = *this;
+  one.more_phases_.clear();
+  if (phase > 0) one.interleaved_ = more_phases_[phase - 1];
+  return one;
+}
+
+int NumPhases(const std::vector<Frame>& frames) {
+  if (frames.empty()) return 1;
+  const int phases = frames.front().num_phases();
+  for (const Frame& frame : frames) {
+    CHECK_EQ(frame.num_phases(), phases) << "frames with different numbers of phases";
+  }
+  return phases;
+}
+
+std::vector<Frame> PhaseFrames(const std::vector<Frame>& frames, int phase) {
+  std::vector<Frame> out;
+  out.reserve(frames.size());
+  for (const Frame& frame : frames) out.push_back(frame.Phase(phase));
+  return out;
 }
 
 bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {

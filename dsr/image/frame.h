@@ -49,6 +49,16 @@ class Frame {
   Frame() = default;
   // `mask` must lie on `image`'s grid (CHECKed; validate user input with ReadMask first).
   Frame(const Image& image, const Mask& mask);
+  // A view recorded over T = phases.size() >= 1 phases (an ECG-gated loop; docs/design.md
+  // section 12): one grid, one mask and so one valid-cell map, one interleaved volume per
+  // phase. Every phase must lie on the mask's grid (CHECKed). One phase is the frame above.
+  Frame(const std::vector<Image>& phases, const Mask& mask);
+  // Number of phases (1 for a 3D frame). interleaved() and the sampling functions read
+  // phase 0; Phase(p) gives phase p as a one-phase frame.
+  int num_phases() const { return 1 + static_cast<int>(more_phases_.size()); }
+  // Phase `phase` (in [0, num_phases())) as a one-phase frame sharing this one's data and
+  // geometry (cheap: no voxel is copied).
+  Frame Phase(int phase) const;
 
   const ImageGeometry& geometry() const { return geometry_; }
   int64_t num_valid_cells() const { return num_valid_cells_; }
@@ -107,15 +117,26 @@ class Frame {
   const uint8_t* valid_bits() const { return valid_bits_ ? valid_bits_->data() : nullptr; }
 
  private:
+  Frame(const std::vector<const Image*>& phases, const Mask& mask);
   ImageGeometry geometry_;
   Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
   // Shared and immutable: copying a Frame (e.g. into a two-frame sub-problem) is cheap.
   std::shared_ptr<const std::vector<float>> interleaved_;
   std::shared_ptr<const std::vector<uint8_t>> valid_bits_;
+  // Phases 1..T-1's interleaved data (phase 0's is interleaved_); empty for a 3D frame.
+  std::vector<std::shared_ptr<const std::vector<float>>> more_phases_;
   int64_t num_valid_cells_ = 0;
   Eigen::AlignedBox3d valid_index_box_;
 };
+
+// The frames' common number of phases (CHECKed equal; 1 for none): a registration's views
+// all have the same phases, aligned by index.
+int NumPhases(const std::vector<Frame>& frames);
+
+// Every frame's phase `phase` (Frame::Phase): the one-phase frames of that phase, the
+// problem the theorem eliminates phase by phase.
+std::vector<Frame> PhaseFrames(const std::vector<Frame>& frames, int phase);
 
 }  // namespace dsr
 

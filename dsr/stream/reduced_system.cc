@@ -399,8 +399,19 @@ Vector6d MeanGaugeStiffnessAt(const std::vector<Frame>& frames,
                               const ObservationWeights* weights,
                               const StreamContext& context) {
   ReducedSystem system;
-  AccumulateDsrCostSystem(frames, candidates, frame_from_world, photometric, weights, 0,
-                          candidates.num_voxels(), true, context, &system);
+  const int phases = NumPhases(frames);
+  if (phases == 1) {
+    AccumulateDsrCostSystem(frames, candidates, frame_from_world, photometric, weights, 0,
+                            candidates.num_voxels(), true, context, &system);
+  } else {  // the sum of the phases' systems: every phase's cost shares the pose blocks
+    for (int phase = 0; phase < phases; ++phase) {
+      ReducedSystem part;
+      AccumulateDsrCostSystem(PhaseFrames(frames, phase), candidates, frame_from_world,
+                              photometric, weights != nullptr ? weights + phase : nullptr, 0,
+                              candidates.num_voxels(), true, context, &part);
+      system.hessian = phase == 0 ? part.hessian : Eigen::MatrixXd(system.hessian + part.hessian);
+    }
+  }
   const int p = photometric.empty() ? kJacobianSize : kWideJacobianSize;
   return MeanGaugeStiffness(system.hessian, static_cast<int>(frames.size()), p);
 }

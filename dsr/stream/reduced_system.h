@@ -163,6 +163,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
 // (AccumulateDsrCostSystem over every candidate voxel, with `photometric` and `weights` as
 // there; 6 or 8 parameters per frame). It is DSR's Gauss-Newton matrix and DBA's Schur
 // complement onto the poses (the theorem), so both modes' priors take it from this one pass.
+// With frames of T phases, the sum of the T phases' systems, `weights` (null or) T of them.
 Vector6d MeanGaugeStiffnessAt(const std::vector<Frame>& frames,
                               const CandidateSet& candidates,
                               const std::vector<Eigen::Isometry3d>& frame_from_world,

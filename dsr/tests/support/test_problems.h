@@ -30,7 +30,8 @@ struct Blob {
 
 struct TestSequence {
   std::vector<Frame> frames;
-  std::vector<Image> images;
+  std::vector<Image> images;  // phase 0's
+  std::vector<std::vector<Image>> phase_images;  // [frame][phase]
   std::vector<Mask> masks;
   std::vector<Eigen::Isometry3d> ground_truth;  // frame_from_world, world = frame 0 (T_0 = I)
 };
@@ -58,6 +59,10 @@ struct SequenceOptions {
   // ground truth every observer of a point interpolates the same data: every residual is 0
   // and the ground truth is the exact minimum of the cost and a Gauss-Newton fixed point.
   bool lattice = false;
+  // Phases of the heart cycle per view (Frame::num_phases): phase p's scene has every third
+  // blob's amplitude scaled by 1 + 0.4 sin(2 pi p / num_phases + its own phase), the rest
+  // still; each phase has its own noise. 1: the 3D sequence (the same draws as before).
+  int num_phases = 1;
 };
 
 // Unit-variance noise that depends only on the world lattice point near `x` (mm).
@@ -82,10 +87,15 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
                                      u(rng) * extent, u(rng) * extent),
                      60.0 * u(rng), (2.5 + 1.5 * std::abs(u(rng))) * o.spacing});
   }
+  int phase = 0;  // the phase world_intensity shows
   auto world_intensity = [&](const Eigen::Vector3d& x) {
     double v = 100.0 + 0.5 * x[0] - 0.3 * x[1] + 0.2 * x[2];
-    for (const Blob& b : blobs) {
-      v += b.amplitude * std::exp(-(x - b.center).squaredNorm() / (2.0 * b.sigma * b.sigma));
+    for (size_t b = 0; b < blobs.size(); ++b) {
+      const double beat = o.num_phases > 1 && b % 3 == 0
+                              ? 1.0 + 0.4 * std::sin(2.0 * M_PI * phase / o.num_phases + b)
+                              : 1.0;
+      v += beat * blobs[b].amplitude *
+           std::exp(-(x - blobs[b].center).squaredNorm() / (2.0 * blobs[b].sigma * blobs[b].sigma));
     }
     return v;
   };
@@ -112,17 +122,23 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
     ImageGeometry g;
     g.size = Eigen::Vector3i::Constant(o.size);
     g.spacing_mm = Eigen::Vector3d::Constant(o.spacing);
-    Image image(g);
     const Eigen::Isometry3d world_from_frame = raw[i].inverse();
-    for (int k = 0; k < o.size; ++k)
-      for (int j = 0; j < o.size; ++j)
-        for (int a = 0; a < o.size; ++a)
-          image.at(a, j, k) = static_cast<float>(
-              world_intensity(world_from_frame * g.IndexToPhysical(Eigen::Vector3d(a, j, k))) +
-              o.noise_sigma * (o.lattice ? LatticeNoise(world_from_frame * g.IndexToPhysical(
-                                                            Eigen::Vector3d(a, j, k)) + frame_center,
-                                                        o.spacing, o.seed)
-                                         : noise(rng)));
+    std::vector<Image> phases;
+    for (phase = 0; phase < o.num_phases; ++phase) {
+      Image image(g);
+      for (int k = 0; k < o.size; ++k)
+        for (int j = 0; j < o.size; ++j)
+          for (int a = 0; a < o.size; ++a)
+            image.at(a, j, k) = static_cast<float>(
+                world_intensity(world_from_frame * g.IndexToPhysical(Eigen::Vector3d(a, j, k))) +
+                o.noise_sigma *
+                    (o.lattice ? LatticeNoise(world_from_frame * g.IndexToPhysical(
+                                                  Eigen::Vector3d(a, j, k)) + frame_center,
+                                              o.spacing, o.seed + 7919 * phase)
+                               : noise(rng)));
+      phases.push_back(std::move(image));
+    }
+    Image& image = phases.front();
     Mask mask(g, 0);
     if (o.ball_field_of_view) {
       const double radius = 0.45 * o.size;
@@ -132,7 +148,9 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
           for (int a = 0; a < o.size; ++a) {
             const bool inside = (Eigen::Vector3d(a, j, k) - center).norm() <= radius;
             mask.at(a, j, k) = inside ? 1 : 0;
-            if (!inside) image.at(a, j, k) = 0.0f;
+            for (Image& phase_image : phases) {
+              if (!inside) phase_image.at(a, j, k) = 0.0f;
+            }
           }
     } else {
       const int e = std::max(0, o.erosion - 1);
@@ -140,8 +158,9 @@ inline TestSequence MakeSequence(const SequenceOptions& o) {
         for (int j = e; j < o.size - e; ++j)
           for (int a = e; a < o.size - e; ++a) mask.at(a, j, k) = 1;
     }
-    s.frames.emplace_back(image, mask);
-    s.images.push_back(std::move(image));
+    s.frames.emplace_back(phases, mask);
+    s.images.push_back(image);
+    s.phase_images.push_back(std::move(phases));
     s.masks.push_back(std::move(mask));
   }
   s.ground_truth = RelativeToFrame0(raw);
