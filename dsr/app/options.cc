@@ -698,6 +698,28 @@ const OptionSpec kOptionTable[] = {
    "no interfaces.",
    DSR_RULE(InRange(D(v), 0.0, 1.0), "must be in [0, 1]"),
    DSR_FIELD(simulation.echo_edge_weight)},
+  {"phases", OptionType::kInt32, "1", "Simulation", kDsrSimulate | kPySimulate,
+   "Beating source (ECG-gated loops): the number T of phases of one heart cycle recorded "
+   "per view, in [1, 64]; all phases of a view share its pose and mask. Phase p samples the "
+   "source at x - d_p(x), a smooth radial contraction of a ball around the source's centre "
+   "(--beat_radius_mm) by up to --beat_amplitude_mm at t = p/T = 1/2, zero at phase 0 and "
+   "outside the ball; each phase draws its own noise and per-frame speckle. 1: a still "
+   "source (the former sequences). With T > 1 dsr_simulate writes frame_XX_phase_YY.nii.gz "
+   "(gt_poses.json names each view's phase 0) and dsr.simulate returns \"phases\".",
+   DSR_RULE(I(v) >= 1 && I(v) <= 64, "must be in [1, 64]"),
+   DSR_FIELD(simulation.num_phases)},
+  {"beat_amplitude_mm", OptionType::kDouble, "4.0", "Simulation", kDsrSimulate | kPySimulate,
+   "With --phases > 1: the largest displacement of the beat (end-systole), in mm, in [0, "
+   "50]; 0: still anatomy in every phase. At most 0.25 times the beat's radius, so that it "
+   "folds no tissue.",
+   DSR_RULE(InRange(D(v), 0.0, 50.0), "must be in [0, 50]"),
+   DSR_FIELD(simulation.beat_amplitude_mm)},
+  {"beat_radius_mm", OptionType::kDouble, "0.0", "Simulation", kDsrSimulate | kPySimulate,
+   "With --phases > 1: the radius of the moving ball around the source's centre, in mm, 0 "
+   "or in [0.001, 1e6]; 0: a quarter of the frame depth (20 mm for the default frames). "
+   "Anatomy outside it stays still.",
+   DSR_RULE(D(v) == 0.0 || InRange(D(v), 1e-3, 1e6), "must be 0 or in [0.001, 1e+06]"),
+   DSR_FIELD(simulation.beat_radius_mm)},
   // Comparison
   {"methods", OptionType::kString, "dsr,ape,sequential,lie_normalization,pairwise", "Comparison",
    kDsrCompare,

@@ -23,6 +23,12 @@ std::string SimulatedMaskName(int f) {
   return name;
 }
 
+std::string SimulatedPhaseName(int f, int p) {
+  char name[48];
+  std::snprintf(name, sizeof(name), "frame_%02d_phase_%02d.nii.gz", f, p);
+  return name;
+}
+
 namespace {
 
 // One look's world speckle field: complex double on the source's axis-aligned box in frame
@@ -60,12 +66,17 @@ bool CheckSimulationMemory(const SimulationOptions& options, const ImageGeometry
   const double echo_bytes_per_voxel =
       options.intensity_mapping == IntensityMapping::kEcho ? 13.0 : 0.0;
   const double source_voxels = source.size.cast<double>().prod();
+  // A beating sequence's later phases: a float frame each.
+  const double phase_bytes = 4.0 * frame_voxels * options.num_frames * (options.num_phases - 1);
   const double bytes = frame_voxels * (5.0 * options.num_frames + 9.0) + effects_bytes +
-                       (4.0 + echo_bytes_per_voxel) * source_voxels;
+                       phase_bytes + (4.0 + echo_bytes_per_voxel) * source_voxels;
   const Eigen::Vector3i& n = options.frame_size;
   return CheckMemoryEstimate("--frame_size=" + std::to_string(n[0]) + "," + std::to_string(n[1]) +
                                  "," + std::to_string(n[2]) +
-                                 " --num_frames=" + std::to_string(options.num_frames),
+                                 " --num_frames=" + std::to_string(options.num_frames) +
+                                 (options.num_phases > 1
+                                      ? " --phases=" + std::to_string(options.num_phases)
+                                      : ""),
                              bytes,
                              std::to_string(options.num_frames) +
                                  " frames and masks and the source",
@@ -90,11 +101,17 @@ bool LoadSimulationSource(const SimulationOptions& options, const PhantomOptions
   return CheckSimulationMemory(options, source->geometry, error);
 }
 
-void PlanSequenceFiles(const std::string& folder, int num_frames, bool write_source,
-                       OutputPlan* plan) {
+void PlanSequenceFiles(const std::string& folder, int num_frames, int num_phases,
+                       bool write_source, OutputPlan* plan) {
   plan->AddOutputFolder("out_dir", folder, folder);
   for (int f = 0; f < num_frames; ++f) {
-    plan->AddDerivedImage("out_dir", folder, SimulatedFrameName(f));
+    if (num_phases > 1) {
+      for (int p = 0; p < num_phases; ++p) {
+        plan->AddDerivedImage("out_dir", folder, SimulatedPhaseName(f, p));
+      }
+    } else {
+      plan->AddDerivedImage("out_dir", folder, SimulatedFrameName(f));
+    }
     plan->AddDerivedImage("out_dir", folder, SimulatedMaskName(f));
   }
   if (write_source) plan->AddDerivedImage("out_dir", folder, "source.nii.gz");
@@ -109,11 +126,20 @@ bool WriteSequence(const std::string& folder, const SimulationOptions& options,
     // The ground truth of the intensity corrections a registration estimates.
     Frame0IntensityCorrections(sequence.gain, sequence.offset, &poses.gain, &poses.offset);
   }
+  const int num_phases = sequence.num_phases();
   for (size_t f = 0; f < sequence.frames.size(); ++f) {
-    const std::string frame_name = SimulatedFrameName(static_cast<int>(f));
+    const int view = static_cast<int>(f);
+    // A beating sequence: every phase, the poses naming phase 0.
+    for (int p = 1; p < num_phases; ++p) {
+      if (!WriteImage(sequence.Phase(view, p), (dir / SimulatedPhaseName(view, p)).string(),
+                      error)) {
+        return false;
+      }
+    }
+    const std::string frame_name =
+        num_phases > 1 ? SimulatedPhaseName(view, 0) : SimulatedFrameName(view);
     if (!WriteImage(sequence.frames[f], (dir / frame_name).string(), error) ||
-        !WriteMask(sequence.masks[f], (dir / SimulatedMaskName(static_cast<int>(f))).string(),
-                   error)) {
+        !WriteMask(sequence.masks[f], (dir / SimulatedMaskName(view)).string(), error)) {
       return false;
     }
     poses.images.push_back(frame_name);

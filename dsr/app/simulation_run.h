@@ -16,10 +16,13 @@ namespace dsr {
 // The names of frame f's files in a sequence folder: "frame_03.nii.gz", "mask_03.nii.gz".
 std::string SimulatedFrameName(int f);
 std::string SimulatedMaskName(int f);
+// The name of view f's phase p in a beating sequence (num_phases > 1; until 4D files exist
+// each phase is a 3D file): "frame_03_phase_01.nii.gz".
+std::string SimulatedPhaseName(int f, int p);
 
 // For clear cases, before any work: true when the simulation of `options` from a source on
 // the grid `source` fits in the memory this process can allocate (CheckMemoryEstimate):
-// the frames (float) and masks (uint8), the field of view and one frame's copies while it
+// the frames (float; num_phases per view) and masks (uint8), the field of view and one frame's copies while it
 // is written, the source, and the effects' scratch: the attenuation (double) and the
 // speckle's three complex double grids, padded by 3 speckle_correlation_voxels per side, its
 // sum (double) and its field (float); with speckle_world_fraction also every frame's field
@@ -37,14 +40,18 @@ bool CheckSimulationMemory(const SimulationOptions& options, const ImageGeometry
 bool LoadSimulationSource(const SimulationOptions& options, const PhantomOptions& phantom,
                           const std::string& source_path, Image* source, std::string* error);
 
-// The files a sequence of `num_frames` writes into `folder` (--out_dir): frames, masks,
-// gt_poses.json and, with `write_source`, source.nii.gz.
-void PlanSequenceFiles(const std::string& folder, int num_frames, bool write_source,
-                       OutputPlan* plan);
+// The files a sequence of `num_frames` views of `num_phases` phases writes into `folder`
+// (--out_dir): frames (one per view, or with num_phases > 1 one per view and phase,
+// SimulatedPhaseName), masks (one per view), gt_poses.json and, with `write_source`,
+// source.nii.gz.
+void PlanSequenceFiles(const std::string& folder, int num_frames, int num_phases,
+                       bool write_source, OutputPlan* plan);
 
 // Writes the sequence into `folder` (PlanSequenceFiles' names; each file atomically, the
 // ground truth last) with, when the options have brightness changes, each frame's "gain"
-// and "offset" in gt_poses.json. False with `error` naming the file.
+// and "offset" in gt_poses.json. A beating sequence (num_phases() > 1) writes every phase
+// of view i as SimulatedPhaseName(i, p), and gt_poses.json names each view's phase 0 with
+// the view's pose (all its phases share it). False with `error` naming the file.
 bool WriteSequence(const std::string& folder, const SimulationOptions& options,
                    const SimulatedSequence& sequence, const Image* source, std::string* error);
 

@@ -58,6 +58,18 @@ constexpr double kSpeckleKernelSigmas = 3.0;
 constexpr uint64_t kGainOffsetStream = 0x6761696e5f6f6666ull;
 constexpr uint64_t kSpeckleStream = 0x737065636b6c655full;
 constexpr uint64_t kSpeckleWorldStream = 0x737065636b6c6557ull;
+// The beating source's later phases (ASCII "phase_no", "speckleP"): each phase's noise and
+// per-frame speckle part.
+constexpr uint64_t kPhaseNoiseStream = 0x70686173655f6e6full;
+constexpr uint64_t kSpecklePhaseStream = 0x737065636b6c6550ull;
+
+// Ranges of the beating source (simulate.h).
+constexpr int kMaxPhases = 64;
+constexpr double kMaxBeatAmplitudeMm = 50.0;
+constexpr double kMinBeatRadiusMm = 1e-3;
+constexpr double kMaxBeatRadiusMm = 1e6;
+// kappa = sqrt(7) (7/6)^3: 1 / max over rho in [0, 1] of rho (1 - rho^2)^3 (at 1/sqrt(7)).
+const double kBeatKappa = std::sqrt(7.0) * (343.0 / 216.0);
 
 // SplitMix64's output function: a bijection of 64-bit words in which every input bit
 // changes about half the output bits, so that neighbouring seeds and indices give unrelated
@@ -76,6 +88,21 @@ uint64_t StreamSeed(uint64_t seed, uint64_t tag, std::initializer_list<uint64_t>
   uint64_t h = Mix64(seed ^ Mix64(tag));
   for (uint64_t index : indices) h = Mix64(h ^ Mix64(index));
   return h;
+}
+
+// The generator seed of one padded slice k of look `look` of frame `frame_index`'s per-frame
+// speckle: the still frame's stream for phase 0, a stream of its own for each later phase.
+uint64_t FrameSpeckleSeed(uint64_t seed, int frame_index, int phase, int look, int64_t k) {
+  const uint64_t f = static_cast<uint64_t>(frame_index), l = static_cast<uint64_t>(look);
+  const uint64_t slice = static_cast<uint64_t>(k);
+  return phase == 0
+             ? StreamSeed(seed, kSpeckleStream, {f, l, slice})
+             : StreamSeed(seed, kSpecklePhaseStream, {f, static_cast<uint64_t>(phase), l, slice});
+}
+
+// Whether phase `phase` of a sequence with `beat` moves anything.
+bool Moves(const BeatRegion* beat, int phase) {
+  return beat != nullptr && phase > 0 && beat->amplitude_mm > 0.0;
 }
 
 // Translate(c_f) * R * Translate(t - c_s).
@@ -209,7 +236,8 @@ struct FrameLookScratch {
   std::vector<double> along_y;  // x and y smoothed: n_x n_y by the padded z
 };
 
-// Look `look` of frame `frame_index`'s per-frame complex field on the frame grid `g`: white
+// Look `look` of frame `frame_index`'s per-frame complex field (of phase `phase`: seeds by
+// FrameSpeckleSeed) on the frame grid `g`: white
 // N(0, 1) components drawn on g padded by the kernel radius on every side (one generator
 // per padded slice, its re and im draws in voxel order, so the draws do not depend on which
 // thread takes the slice), then the three separable passes of `w`, each dropping the
@@ -221,6 +249,7 @@ void FrameSpeckleLook(const ImageGeometry& g,
                       const std::vector<double>& w,
                       uint64_t seed,
                       int frame_index,
+                      int phase,
                       int look,
                       int num_threads,
                       FrameLookScratch* scratch,
@@ -237,11 +266,7 @@ void FrameSpeckleLook(const ImageGeometry& g,
   along_x.resize(2 * int64_t{n[0]} * p[1] * p[2]);
   along_y.resize(2 * int64_t{n[0]} * n[1] * p[2]);
   ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    std::mt19937_64 rng(StreamSeed(seed,
-                                   kSpeckleStream,
-                                   {static_cast<uint64_t>(frame_index),
-                                    static_cast<uint64_t>(look),
-                                    static_cast<uint64_t>(k)}));
+    std::mt19937_64 rng(FrameSpeckleSeed(seed, frame_index, phase, look, k));
     // Each component N(0, 1): |z|^2 / 2 then has mean 1 after the unit-norm kernel.
     std::normal_distribution<double> normal(0.0, 1.0);
     double* slice = white.data() + 2 * k * p_slice;
@@ -562,11 +587,62 @@ bool SimulationOptions::Validate(std::string* error) const {
       << kMaxEchoEdgeSigmaMm << "]";
   } else if (!range(echo_edge_weight, 0.0, 1.0)) {
     s << "echo_edge_weight=" << echo_edge_weight << ": must be in [0, 1]";
+  } else if (num_phases < 1 || num_phases > kMaxPhases) {
+    s << "num_phases=" << num_phases << ": must be in [1, " << kMaxPhases << "]";
+  } else if (!range(beat_amplitude_mm, 0.0, kMaxBeatAmplitudeMm)) {
+    s << "beat_amplitude_mm=" << beat_amplitude_mm << ": must be in [0, " << kMaxBeatAmplitudeMm
+      << "]";
+  } else if (!(beat_radius_mm == 0.0 || range(beat_radius_mm, kMinBeatRadiusMm, kMaxBeatRadiusMm))) {
+    s << "beat_radius_mm=" << beat_radius_mm << ": must be 0 (a quarter of the frame depth) or in ["
+      << kMinBeatRadiusMm << ", " << kMaxBeatRadiusMm << "]";
+  } else if (!beat_center_offset_mm.allFinite()) {
+    s << "beat_center_offset_mm=" << beat_center_offset_mm[0] << "," << beat_center_offset_mm[1]
+      << "," << beat_center_offset_mm[2] << ": must be finite";
+  } else if (num_phases > 1 && beat_radius_mm > 0.0 &&
+             beat_amplitude_mm > kMaxBeatAmplitudeRatio * beat_radius_mm) {
+    s << "beat_amplitude_mm=" << beat_amplitude_mm << ": must be at most "
+      << kMaxBeatAmplitudeRatio << " beat_radius_mm=" << beat_radius_mm
+      << " (a larger beat would fold the tissue)";
   } else {
     return true;
   }
   if (error != nullptr) *error = s.str();
   return false;
+}
+
+BeatRegion SimulatedBeatRegion(const ImageGeometry& source, const SimulationOptions& o) {
+  BeatRegion region;
+  region.center_mm =
+      source.IndexToPhysical(0.5 * (source.size.cast<double>() - Eigen::Vector3d::Ones())) +
+      o.beat_center_offset_mm;
+  region.radius_mm = o.beat_radius_mm > 0.0
+                         ? o.beat_radius_mm
+                         : 0.25 * o.frame_size[2] * SimulatedFrameGeometry(source, o).spacing_mm[0];
+  region.amplitude_mm = o.beat_amplitude_mm;
+  return region;
+}
+
+double BeatCycleWeight(double t) { return 0.5 * (1.0 - std::cos(2.0 * M_PI * t)); }
+
+Eigen::Vector3d BeatDisplacement(const BeatRegion& region, double t, const Eigen::Vector3d& x_mm) {
+  const Eigen::Vector3d r = x_mm - region.center_mm;
+  const double rho2 = r.squaredNorm() / (region.radius_mm * region.radius_mm);
+  if (rho2 >= 1.0) return Eigen::Vector3d::Zero();
+  const double q = (1.0 - rho2) * (1.0 - rho2) * (1.0 - rho2);
+  const double beta = region.amplitude_mm * BeatCycleWeight(t) * kBeatKappa / region.radius_mm;
+  return -beta * q * r;
+}
+
+Eigen::Matrix3d BeatPullbackJacobian(const BeatRegion& region, double t,
+                                     const Eigen::Vector3d& x_mm) {
+  const Eigen::Vector3d r = x_mm - region.center_mm;
+  const double radius2 = region.radius_mm * region.radius_mm;
+  const double rho2 = r.squaredNorm() / radius2;
+  if (rho2 >= 1.0) return Eigen::Matrix3d::Identity();
+  const double beta = region.amplitude_mm * BeatCycleWeight(t) * kBeatKappa / region.radius_mm;
+  const double s = 1.0 - rho2;
+  return Eigen::Matrix3d::Identity() +
+         beta * (s * s * s * Eigen::Matrix3d::Identity() - (6.0 * s * s / radius2) * r * r.transpose());
 }
 
 ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& o) {
@@ -648,12 +724,14 @@ void Frame0IntensityCorrections(const std::vector<double>& gain,
 Image SpeckleField(const ImageGeometry& g,
                    const SimulationOptions& options,
                    int frame_index,
-                   int num_threads) {
+                   int num_threads,
+                   int phase) {
   std::string error;
   CHECK(options.Validate(&error)) << error;
   CHECK_GE(options.speckle_looks, 1);
   CHECK_EQ(options.speckle_world_fraction, 0.0) << "a world-fixed part needs SpeckleFields";
   CHECK_GE(frame_index, 0);
+  CHECK_GE(phase, 0);
   const std::vector<double> w = SpeckleKernel(options.speckle_correlation_voxels);
   FrameLookScratch scratch;
   std::vector<double> sum(g.NumVoxels(), 0.0);
@@ -663,6 +741,7 @@ Image SpeckleField(const ImageGeometry& g,
                      w,
                      options.seed,
                      frame_index,
+                     phase,
                      look,
                      num_threads,
                      &scratch,
@@ -679,7 +758,8 @@ Image SpeckleField(const ImageGeometry& g,
 
 ImageGeometry SpeckleWorldGrid(const ImageGeometry& g,
                                const std::vector<Eigen::Isometry3d>& frame_from_world,
-                               const SimulationOptions& options) {
+                               const SimulationOptions& options,
+                               const BeatRegion* beat) {
   std::string error;
   CHECK(options.Validate(&error)) << error;
   CHECK(!frame_from_world.empty());
@@ -722,6 +802,10 @@ ImageGeometry SpeckleWorldGrid(const ImageGeometry& g,
       }
     }
   }
+  if (beat != nullptr) {  // psi_p keeps the ball's points in the ball (simulate.h)
+    lo = lo.cwiseMin(beat->center_mm - Eigen::Vector3d::Constant(beat->radius_mm));
+    hi = hi.cwiseMax(beat->center_mm + Eigen::Vector3d::Constant(beat->radius_mm));
+  }
   ImageGeometry world;
   world.spacing_mm = Eigen::Vector3d::Constant(s);
   for (int a = 0; a < 3; ++a) {
@@ -737,23 +821,29 @@ ImageGeometry SpeckleWorldGrid(const ImageGeometry& g,
 std::vector<Image> SpeckleFields(const ImageGeometry& g,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
                                  const SimulationOptions& options,
-                                 int num_threads) {
+                                 int num_threads,
+                                 int phase,
+                                 const BeatRegion* beat) {
   std::string error;
   CHECK(options.Validate(&error)) << error;
   CHECK_GE(options.speckle_looks, 1);
   CHECK(!frame_from_world.empty());
+  CHECK_GE(phase, 0);
+  CHECK(phase == 0 || (beat != nullptr && phase < options.num_phases)) << phase;
   const int num_frames = static_cast<int>(frame_from_world.size());
   std::vector<Image> fields;
   const double rho = options.speckle_world_fraction;
   if (rho == 0.0) {
     for (int f = 0; f < num_frames; ++f) {
-      fields.push_back(SpeckleField(g, options, f, num_threads));
+      fields.push_back(SpeckleField(g, options, f, num_threads, phase));
     }
     return fields;
   }
+  const bool moves = Moves(beat, phase);
+  const double t = static_cast<double>(phase) / options.num_phases;
   const std::vector<double> w = SpeckleKernel(options.speckle_correlation_voxels);
   const int radius = static_cast<int>(w.size()) / 2;
-  const ImageGeometry world = SpeckleWorldGrid(g, frame_from_world, options);
+  const ImageGeometry world = SpeckleWorldGrid(g, frame_from_world, options, beat);
   WorldLookSampler sampler;
   sampler.size = world.size;
   sampler.stride_y = world.size[0] + 2 * radius;
@@ -762,8 +852,10 @@ std::vector<Image> SpeckleFields(const ImageGeometry& g,
   // Frame index -> world-grid index, u = index_from_frame * ijk + shift.
   std::vector<Eigen::Matrix3d> index_from_frame(num_frames);
   std::vector<Eigen::Vector3d> shift(num_frames);
+  std::vector<Eigen::Isometry3d> world_from_frames(num_frames);  // for a moving phase
   for (int f = 0; f < num_frames; ++f) {
     const Eigen::Isometry3d world_from_frame = frame_from_world[f].inverse();
+    world_from_frames[f] = world_from_frame;
     index_from_frame[f] =
         world.PhysicalToIndexMatrix() * world_from_frame.linear() * g.IndexToPhysicalMatrix();
     shift[f] = world.PhysicalToIndex(world_from_frame * g.origin_mm);
@@ -785,16 +877,20 @@ std::vector<Image> SpeckleFields(const ImageGeometry& g,
         const int64_t l = g.LinearIndex(i, j, static_cast<int>(k));
         if (!fov.voxels[l]) return;
         double world_re = 0.0, world_im = 0.0;
-        sampler.Sample(index_from_frame[f] * Eigen::Vector3d(i, j, static_cast<double>(k)) +
-                           shift[f],
-                       &world_re,
-                       &world_im);
+        const Eigen::Vector3d ijk(i, j, static_cast<double>(k));
+        if (moves) {  // the tissue's scatterers: the world field at psi_p(x)
+          const Eigen::Vector3d x = world_from_frames[f] * g.IndexToPhysical(ijk);
+          sampler.Sample(world.PhysicalToIndex(x - BeatDisplacement(*beat, t, x)), &world_re,
+                         &world_im);
+        } else {
+          sampler.Sample(index_from_frame[f] * ijk + shift[f], &world_re, &world_im);
+        }
         const double z_re = world_weight * world_re + frame_weight * re;
         const double z_im = world_weight * world_im + frame_weight * im;
         sum[l] = static_cast<float>(sum[l] + 0.5 * (z_re * z_re + z_im * z_im));
       };
       if (rho < 1.0) {
-        FrameSpeckleLook(g, w, options.seed, f, look, num_threads, &scratch, add);
+        FrameSpeckleLook(g, w, options.seed, f, phase, look, num_threads, &scratch, add);
       } else {  // the per-frame fields have weight 0: not drawn
         ParallelFor(0, g.size[2], num_threads, [&](int64_t k) {
           for (int j = 0; j < g.size[1]; ++j) {
@@ -813,6 +909,107 @@ std::vector<Image> SpeckleFields(const ImageGeometry& g,
   }
   return fields;
 }
+
+namespace {
+
+// What a frame samples and how (Simulate): the source or its echo map, as a Frame for the
+// trilinear values and the index map.
+struct SourceSampler {
+  const Image* sampled = nullptr;
+  const Frame* frame = nullptr;
+  const ImageGeometry* grid = nullptr;  // the source's
+  SourceInterpolation interpolation = SourceInterpolation::kLinear;
+};
+
+// View `view`'s frame at `frame_from_world` sampled into *frame (zero outside `fov`); in
+// phase `phase` of a beat (Moves) at psi_p of each world point (t = phase / num_phases).
+// False with `error` naming the first field-of-view voxel that maps outside the source.
+bool SampleFrame(const SourceSampler& source, const ImageGeometry& g, const Mask& fov,
+                 const Eigen::Isometry3d& frame_from_world, int view, int phase,
+                 const BeatRegion* beat, double t, Image* frame, std::string* error) {
+  const bool moves = Moves(beat, phase);
+  const Eigen::Isometry3d world_from_frame = frame_from_world.inverse();
+  const auto world_point = [&](const Eigen::Vector3d& ijk) {
+    const Eigen::Vector3d x_in_world = world_from_frame * g.IndexToPhysical(ijk);
+    return moves ? Eigen::Vector3d(x_in_world - BeatDisplacement(*beat, t, x_in_world))
+                 : x_in_world;
+  };
+  const Eigen::Vector3d upper = source.grid->size.cast<double>() - Eigen::Vector3d::Ones();
+  // Slack for rounding: a voxel that maps to -1e-9 still samples the border voxel.
+  constexpr double kIndexSlack = 1e-6;
+  // Sample in parallel (each slice writes its own voxels and its own first-miss record).
+  std::vector<int64_t> first_miss(g.size[2], -1);  // linear index of the first miss per slice
+  ParallelFor(0, g.size[2], 0, [&](int64_t k) {
+    for (int j = 0; j < g.size[1]; ++j) {
+      for (int i = 0; i < g.size[0]; ++i) {
+        const int64_t l = g.LinearIndex(i, j, static_cast<int>(k));
+        if (!fov.voxels[l]) continue;
+        const Eigen::Vector3d ijk_source =
+            source.frame->ToIndex(world_point(Eigen::Vector3d(i, j, static_cast<double>(k))));
+        if ((ijk_source.array() < -kIndexSlack).any() ||
+            (ijk_source.array() > upper.array() + kIndexSlack).any()) {
+          if (first_miss[k] < 0) first_miss[k] = l;
+          continue;
+        }
+        frame->voxels[l] = static_cast<float>(
+            source.interpolation == SourceInterpolation::kCubic
+                ? CubicInterpolateValue(*source.sampled, ijk_source)
+                : source.frame->InterpolateValue(ijk_source));
+      }
+    }
+  });
+  for (int k = 0; k < g.size[2]; ++k) {
+    if (first_miss[k] < 0) continue;
+    const int64_t l = first_miss[k];
+    const Eigen::Vector3d ijk(l % g.size[0], (l / g.size[0]) % g.size[1], k);
+    const Eigen::Vector3d ijk_source = source.frame->ToIndex(world_point(ijk));
+    std::ostringstream s;
+    s << "frame " << view;
+    if (phase > 0) s << " phase " << phase;
+    s << ": field-of-view voxel (" << ijk.transpose() << ") maps to source index ("
+      << ijk_source.transpose() << "), outside the source grid (" << source.grid->DebugString()
+      << "); use a larger source, a smaller frame_size or smaller motions";
+    *error = s.str();
+    return false;
+  }
+  return true;
+}
+
+// Source value x attenuation x speckle, x gain + offset, + noise, clamped, in the field of
+// view, in voxel order: each step skipped when off, so that a sequence without effects is
+// bit for bit the former one. `normal` and `rng` carry on from frame to frame.
+void ApplyEffectsAndNoise(const Mask& fov, const std::vector<double>& attenuation,
+                          const Image& speckle, double gain, double offset, double sigma,
+                          std::normal_distribution<double>* normal, std::mt19937_64* rng,
+                          Image* frame) {
+  for (size_t l = 0; l < frame->voxels.size(); ++l) {
+    if (!fov.voxels[l]) continue;
+    double value = frame->voxels[l];
+    if (!attenuation.empty()) value *= attenuation[l];
+    if (!speckle.empty()) value *= speckle.voxels[l];
+    if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
+    const double noisy = value + sigma * (*normal)(*rng);
+    frame->voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
+  }
+}
+
+// The beat's region for a beating sequence (num_phases >= 2), checked against folding once
+// its radius is known; false with `error` naming beat_amplitude_mm.
+bool ResolveBeat(const ImageGeometry& source, const SimulationOptions& options,
+                 BeatRegion* region, std::string* error) {
+  *region = SimulatedBeatRegion(source, options);
+  if (region->amplitude_mm <= kMaxBeatAmplitudeRatio * region->radius_mm) return true;
+  std::ostringstream s;
+  s << "beat_amplitude_mm=" << options.beat_amplitude_mm << ": must be at most "
+    << kMaxBeatAmplitudeRatio << " times the beat's radius, " << region->radius_mm << " mm"
+    << (options.beat_radius_mm > 0.0 ? "" : " (beat_radius_mm=0: a quarter of the frame depth)")
+    << ", i.e. <= " << kMaxBeatAmplitudeRatio * region->radius_mm
+    << " (a larger beat would fold the tissue); decrease it or set beat_radius_mm";
+  *error = s.str();
+  return false;
+}
+
+}  // namespace
 
 bool Simulate(const Image& source,
               const SimulationOptions& options,
@@ -840,6 +1037,12 @@ bool Simulate(const Image& source,
       << " or mask_erosion=" << options.mask_erosion;
     *error = s.str();
     return false;
+  }
+  BeatRegion region;
+  const BeatRegion* beat = nullptr;  // only for a beating sequence
+  if (options.num_phases > 1) {
+    if (!ResolveBeat(source.geometry, options, &region, error)) return false;
+    beat = &region;
   }
   std::mt19937_64 rng(options.seed);
   const std::vector<Eigen::Isometry3d> poses = DrawPoses(source.geometry, g, options, &rng);
@@ -889,9 +1092,7 @@ bool Simulate(const Image& source,
   }
   const Image& sampled = mapped.empty() ? source : mapped;
   const Frame source_frame(sampled, Mask(source.geometry, 1));
-  const Eigen::Vector3d upper = source.geometry.size.cast<double>() - Eigen::Vector3d::Ones();
-  // Slack for rounding: a voxel that maps to -1e-9 still samples the border voxel.
-  constexpr double kIndexSlack = 1e-6;
+  const SourceSampler sampler{&sampled, &source_frame, &source.geometry, options.interpolation};
   std::normal_distribution<double> normal(0.0, 1.0);
   SimulatedSequence out;
   // Every frame is sampled (and checked against the source grid) before the effects: a
@@ -899,74 +1100,48 @@ bool Simulate(const Image& source,
   // field of view is known to lie in the source.
   for (int f = 0; f < options.num_frames; ++f) {
     Image frame(g, 0.0f);
-    const Eigen::Isometry3d world_from_frame = poses[f].inverse();
-    // Sample in parallel (each slice writes its own voxels and its own first-miss record),
-    // then add noise in a fixed serial order so the result does not depend on threads.
-    std::vector<int64_t> first_miss(g.size[2], -1);  // linear index of the first miss per slice
-    ParallelFor(0, g.size[2], 0, [&](int64_t k) {
-      for (int j = 0; j < g.size[1]; ++j) {
-        for (int i = 0; i < g.size[0]; ++i) {
-          const int64_t l = g.LinearIndex(i, j, static_cast<int>(k));
-          if (!fov.voxels[l]) continue;
-          const Eigen::Vector3d x_in_world =
-              world_from_frame * g.IndexToPhysical(Eigen::Vector3d(i, j, static_cast<double>(k)));
-          const Eigen::Vector3d ijk_source = source_frame.ToIndex(x_in_world);
-          if ((ijk_source.array() < -kIndexSlack).any() ||
-              (ijk_source.array() > upper.array() + kIndexSlack).any()) {
-            if (first_miss[k] < 0) first_miss[k] = l;
-            continue;
-          }
-          frame.voxels[l] = static_cast<float>(
-              options.interpolation == SourceInterpolation::kCubic
-                  ? CubicInterpolateValue(sampled, ijk_source)
-                  : source_frame.InterpolateValue(ijk_source));
-        }
-      }
-    });
-    for (int k = 0; k < g.size[2]; ++k) {
-      if (first_miss[k] < 0) continue;
-      const int64_t l = first_miss[k];
-      const Eigen::Vector3d ijk(l % g.size[0], (l / g.size[0]) % g.size[1], k);
-      const Eigen::Vector3d ijk_source =
-          source_frame.ToIndex(world_from_frame * g.IndexToPhysical(ijk));
-      std::ostringstream s;
-      s << "frame " << f << ": field-of-view voxel (" << ijk.transpose()
-        << ") maps to source index (" << ijk_source.transpose() << "), outside the source grid ("
-        << source.geometry.DebugString()
-        << "); use a larger source, a smaller frame_size or smaller motions";
-      *error = s.str();
-      return false;
-    }
+    if (!SampleFrame(sampler, g, fov, poses[f], f, 0, beat, 0.0, &frame, error)) return false;
     out.frames.push_back(std::move(frame));
   }
+  const bool world_part = options.speckle_looks > 0 && options.speckle_world_fraction > 0.0;
   std::vector<Image> world_speckle;  // all frames' speckle when it has a world-fixed part
-  if (options.speckle_looks > 0 && options.speckle_world_fraction > 0.0) {
-    world_speckle = SpeckleFields(g, poses, options, 0);
-  }
+  if (world_part) world_speckle = SpeckleFields(g, poses, options, 0, 0, beat);
   for (int f = 0; f < options.num_frames; ++f) {
-    Image& frame = out.frames[f];
     Image speckle;
     if (!world_speckle.empty()) {
       speckle = std::move(world_speckle[f]);  // freed with this frame
     } else if (options.speckle_looks > 0) {
       speckle = SpeckleField(g, options, f, 0);
     }
-    const double gain = gains[f], offset = offsets[f];
-    // Source value x attenuation x speckle, x gain + offset, + noise, clamped: each step
-    // skipped when off, so that a sequence without effects is bit for bit the former one.
-    for (size_t l = 0; l < frame.voxels.size(); ++l) {
-      if (!fov.voxels[l]) continue;
-      double value = frame.voxels[l];
-      if (!attenuation.empty()) value *= attenuation[l];
-      if (!speckle.empty()) value *= speckle.voxels[l];
-      if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
-      const double noisy = value + options.sigma * normal(rng);
-      frame.voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
-    }
+    ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma, &normal,
+                         &rng, &out.frames[f]);
     out.masks.push_back(mask);
     out.frame_from_world.push_back(poses[f]);
-    out.gain.push_back(gain);
-    out.offset.push_back(offset);
+    out.gain.push_back(gains[f]);
+    out.offset.push_back(offsets[f]);
+  }
+  // The later phases of a beating sequence, phase by phase (one phase's world speckle at a
+  // time), each view's frame sampled, speckled and made noisy from its own streams.
+  out.later_phases.assign(options.num_frames, {});
+  for (int p = 1; p < options.num_phases; ++p) {
+    const double t = static_cast<double>(p) / options.num_phases;
+    if (world_part) world_speckle = SpeckleFields(g, poses, options, 0, p, beat);
+    for (int f = 0; f < options.num_frames; ++f) {
+      Image frame(g, 0.0f);
+      if (!SampleFrame(sampler, g, fov, poses[f], f, p, beat, t, &frame, error)) return false;
+      Image speckle;
+      if (world_part) {
+        speckle = std::move(world_speckle[f]);
+      } else if (options.speckle_looks > 0) {
+        speckle = SpeckleField(g, options, f, 0, p);
+      }
+      std::mt19937_64 phase_rng(StreamSeed(
+          options.seed, kPhaseNoiseStream, {static_cast<uint64_t>(f), static_cast<uint64_t>(p)}));
+      std::normal_distribution<double> phase_normal(0.0, 1.0);
+      ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma,
+                           &phase_normal, &phase_rng, &frame);
+      out.later_phases[f].push_back(std::move(frame));
+    }
   }
   *sequence = std::move(out);
   return true;

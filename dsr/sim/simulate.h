@@ -90,6 +90,42 @@
 // sigma = echo_edge_sigma_mm: bright interfaces), and the frames sample E instead of S; the
 // poses, the effects and the noise are drawn and applied exactly as without it.
 //
+// Beating source (ECG-gated loops), off with num_phases = 1 (the default: every sequence
+// bit for bit the simulator's before the option). Each view i is recorded over T =
+// num_phases phases p = 0 .. T - 1 of one heart cycle, at cycle fraction t = p / T; the probe
+// does not move during a loop, so all phases of a view share its pose, field of view and
+// mask. Phase p samples the source at the pull-back
+//   psi_p(x) = x - d_p(x),  i.e.  S_p(x) = S(x - d_p(x))   (world points x, mm),
+// d_p the Eulerian displacement: the tissue seen at x in phase p is the tissue at x - d_p(x)
+// in phase 0. No inversion is approximated: psi_p is a diffeomorphism (identity outside the
+// region, Jacobian determinant > 0 inside, BeatPullbackJacobian), so the tissue moves by its
+// inverse. The field is a radial contraction towards the region's centre c (radius R):
+//   d_p(x) = -A b(t) kappa (1 - rho^2)^3 (x - c) / R  for rho = |x - c| / R < 1, else 0,
+//   b(t) = (1 - cos(2 pi t)) / 2,  kappa = sqrt(7) (7/6)^3
+// (A = beat_amplitude_mm; kappa makes max |d| = A b(t), reached at rho = 1/sqrt(7)). It is a
+// polynomial inside the ball, C^2 across its sphere (a triple zero) and exactly 0 outside
+// it, periodic in t (b(1) = b(0) = 0: phase 0 is the undeformed source, phase T would be
+// phase 0 again), largest at end-systole t = 1/2. In the radial direction the pull-back
+// stretches by 1 + A b kappa (1 - rho^2)^2 (1 - 7 rho^2) / R >= 1 - (32/49) kappa A / R, so
+// A <= kMaxBeatAmplitudeRatio R (checked) keeps every determinant above 0.3. The region:
+// c = the source grid's physical centre (which every frame centre sees, up to its
+// translation) + beat_center_offset_mm, R = beat_radius_mm or, at 0, a quarter of the frame
+// depth (frame_size[2] s): for the default frames a 20 mm ball in the middle of every
+// view, with still anatomy all around it.
+// Noise with phases: phase 0 takes exactly the draws a still sequence takes (the
+// poses-and-noise generator, speckle, gain and offset), so it is the still sequence bit for
+// bit (with a world-fixed speckle part: when the region's ball lies inside the box of the
+// fields of view, as it does for the defaults; else the world grid grows to hold it,
+// SpeckleWorldGrid). Each later phase (view i, phase p >= 1) draws its own Gaussian noise from a generator
+// of its own (seed, "phase_no", i, p; voxel order) and its own per-frame speckle part
+// (seed, "speckleP", i, p, look, padded slice); the world-fixed speckle part (rho > 0) is the
+// tissue's, so it moves with it: phase p samples the world field at psi_p(world point). The
+// gain and offset of a view are shared by its phases. Cost per later phase and view: one
+// frame's sampling (plus d_p per field-of-view voxel), its speckle looks and its noise, as a
+// still frame's; with rho > 0 the world fields of every look are drawn again per phase
+// (memory: as a still sequence's, one phase's speckle fields at a time). Memory: the output
+// (T frames per view) plus one frame in the making.
+//
 // Masks: the field of view eroded by mask_erosion (default 1) voxels, each voxel of
 // erosion a 6-neighbourhood erosion that also drops the grid border. 0 writes the exact
 // field of view. The registration's gradients read mask voxels only whatever the mask
@@ -187,14 +223,32 @@ struct SimulationOptions {
   // Share w of the full scale that the interfaces (gradient magnitude at or above its 99th
   // percentile) add, in [0, 1]; 0: no edge term.
   double echo_edge_weight = 0.35;
+  // Beating source (see the header comment); the beat_ parameters are used only with
+  // num_phases >= 2.
+  int num_phases = 1;  // T phases of the heart cycle per view, in [1, 64]; 1: a still source
+  // A: the largest displacement (end-systole), mm, in [0, 50]; 0: still anatomy in every
+  // phase. At most kMaxBeatAmplitudeRatio R.
+  double beat_amplitude_mm = 4.0;
+  // R: the moving region's radius, mm, 0 or in [1e-3, 1e6]; 0: a quarter of the frame depth.
+  double beat_radius_mm = 0.0;
+  // The region's centre minus the source grid's physical centre, mm, finite.
+  Eigen::Vector3d beat_center_offset_mm = Eigen::Vector3d::Zero();
 
   // Checks ranges and cross-field rules. The message names the field
   // (util/option_fields.h; e.g. "num_frames=1: must be in [2, 1000]").
   bool Validate(std::string* error) const;
 };
 
+// A <= this R: the beat folds no tissue (see the header comment).
+constexpr double kMaxBeatAmplitudeRatio = 0.25;
+
 struct SimulatedSequence {
-  std::vector<Image> frames;  // on the frame grid, 0..255, 0 outside the FOV
+  // View i at phase 0 (with num_phases = 1: the only phase); on the frame grid, 0..255, 0
+  // outside the FOV.
+  std::vector<Image> frames;
+  // The later phases: later_phases[i][p - 1] = view i at phase p, p in [1, num_phases)
+  // (one vector per view, empty with num_phases = 1). Phase(i, p) reads either.
+  std::vector<std::vector<Image>> later_phases;
   std::vector<Mask> masks;    // the field of view eroded by mask_erosion (all equal)
   std::vector<Eigen::Isometry3d> frame_from_world;  // world = the source's physical space
   // The frames' drawn gains g_i and offsets o_i (frame i = g_i S + o_i before noise, S the
@@ -202,7 +256,41 @@ struct SimulatedSequence {
   // the registration's convention see Frame0IntensityCorrections.
   std::vector<double> gain;
   std::vector<double> offset;
+
+  // The phases per view (1 + later_phases[0].size(); 1 without later phases).
+  int num_phases() const {
+    return later_phases.empty() ? 1 : 1 + static_cast<int>(later_phases[0].size());
+  }
+  // View `view` at phase `phase` (in [0, num_phases())).
+  const Image& Phase(int view, int phase) const {
+    return phase == 0 ? frames.at(view) : later_phases.at(view).at(phase - 1);
+  }
 };
+
+// The beating region (see the header comment) in the world (the source's physical space).
+struct BeatRegion {
+  Eigen::Vector3d center_mm = Eigen::Vector3d::Zero();  // c
+  double radius_mm = 1.0;                               // R > 0
+  double amplitude_mm = 0.0;                            // A >= 0
+};
+
+// The region Simulate uses for `source` (options valid): c = the grid's physical centre +
+// beat_center_offset_mm, R = beat_radius_mm or a quarter of the frame depth, A =
+// beat_amplitude_mm.
+BeatRegion SimulatedBeatRegion(const ImageGeometry& source, const SimulationOptions& options);
+
+// The cycle fraction's weight b(t) = (1 - cos(2 pi t)) / 2.
+double BeatCycleWeight(double t);
+
+// d(x) at cycle fraction t (phase p of T: t = p / T), see the header comment; exactly 0
+// outside the region's open ball and at t = 0.
+Eigen::Vector3d BeatDisplacement(const BeatRegion& region, double t, const Eigen::Vector3d& x_mm);
+
+// The Jacobian of the pull-back psi(x) = x - d(x) at cycle fraction t (analytic):
+//   I + beta (q I - 6 (1 - rho^2)^2 (x - c)(x - c)^T / R^2),  q = (1 - rho^2)^3,
+// beta = A b(t) kappa / R, inside the ball; I outside.
+Eigen::Matrix3d BeatPullbackJacobian(const BeatRegion& region, double t,
+                                     const Eigen::Vector3d& x_mm);
 
 // The frame grid for `source` (see the header comment). options must be valid.
 ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& options);
@@ -235,10 +323,13 @@ void Frame0IntensityCorrections(const std::vector<double>& gain,
 // speckle_correlation_voxels. Bit-identical for every num_threads (<= 0: all hardware
 // threads). options must be valid with speckle_looks >= 1 and speckle_world_fraction 0
 // (a world-fixed part depends on every frame's pose: SpeckleFields).
+// Phase `phase` >= 1 of a beating sequence draws the per-frame field from a stream of its
+// own (see the header comment), phase 0 the still frame's.
 Image SpeckleField(const ImageGeometry& frame,
                    const SimulationOptions& options,
                    int frame_index,
-                   int num_threads);
+                   int num_threads,
+                   int phase = 0);
 
 // The axis-aligned world grid that carries the world-fixed speckle of the frames at
 // `frame_from_world` (frame i at frame_from_world[i], all on the grid `frame`, whose
@@ -246,10 +337,13 @@ Image SpeckleField(const ImageGeometry& frame,
 // world points n s (n integer), and the smallest such box that holds every frame's
 // field-of-view voxel centres (PyramidFieldOfView of `frame`), so that trilinear sampling
 // inside the fields of view never leaves it. options must be valid; frame_from_world
-// non-empty.
+// non-empty. With a `beat` (a beating sequence's later phases sample the world field at
+// psi_p of the field-of-view points, which stay in the region's ball or are not moved) the
+// box also holds the ball's box; the grid is the same as without it when it already did.
 ImageGeometry SpeckleWorldGrid(const ImageGeometry& frame,
                                const std::vector<Eigen::Isometry3d>& frame_from_world,
-                               const SimulationOptions& options);
+                               const SimulationOptions& options,
+                               const BeatRegion* beat = nullptr);
 
 // Every frame's multiplicative speckle (frame i at frame_from_world[i], on the grid
 // `frame`), as Simulate applies it. With speckle_world_fraction rho = 0 frame i's field is
@@ -274,15 +368,24 @@ ImageGeometry SpeckleWorldGrid(const ImageGeometry& frame,
 // (16 bytes per padded world voxel) at a time, plus the returned fields.
 // Bit-identical for every num_threads (<= 0: all hardware threads). options must be valid
 // with speckle_looks >= 1; frame_from_world non-empty.
+// Phase `phase` >= 1 of a beating sequence (`beat` non-null, options.num_phases > phase):
+// the per-frame parts are SpeckleField's of that phase, and the world part is sampled at
+// psi_p(p) (the tissue moves, its scatterers with it) on SpeckleWorldGrid(..., beat); phase
+// 0 with a beat: the world grid with the ball, otherwise as without. Each call draws every
+// look's world field again.
 std::vector<Image> SpeckleFields(const ImageGeometry& frame,
                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
                                  const SimulationOptions& options,
-                                 int num_threads);
+                                 int num_threads,
+                                 int phase = 0,
+                                 const BeatRegion* beat = nullptr);
 
 // Runs the protocol. Returns false with a one-line `error` when options are invalid, the
 // source is empty or has an invalid grid, the (eroded) mask is empty, or a
 // field-of-view voxel of some frame maps outside the source grid (source too small for
-// these poses and this frame size). `sequence` is only written on success.
+// these poses and this frame size), also in a later phase of a beating sequence, or the
+// beat would fold the tissue (beat_amplitude_mm > kMaxBeatAmplitudeRatio R once R is
+// known). `sequence` is only written on success.
 bool Simulate(const Image& source,
               const SimulationOptions& options,
               SimulatedSequence* sequence,

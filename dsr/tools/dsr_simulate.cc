@@ -4,13 +4,16 @@
 // frame_from_world with world = the source's physical space (not yet frame 0's: consumers
 // re-express them relative to frame 0). With --gain_range or --offset_range, each frame of
 // gt_poses.json also has "gain" and "offset": the correction gain_i * I_i + offset_i that
-// puts frame i on frame 0's intensity scale (dsr::Frame0IntensityCorrections).
+// puts frame i on frame 0's intensity scale (dsr::Frame0IntensityCorrections). With
+// --phases=T > 1 (a beating source) each view's phases are DIR/frame_XX_phase_YY.nii.gz and
+// gt_poses.json names phase 0 of each view (its phases share its pose).
 #include <chrono>
 #include <cinttypes>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <string>
 
 #include <gflags/gflags.h>
 #include <glog/logging.h>
@@ -37,8 +40,10 @@ int Main(int argc, char** argv) {
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
       "[--pose_model=random|walk] [--interpolation=linear|cubic] [--gain_range=0] "
       "[--offset_range=0] [--speckle_looks=0] [--speckle_world_fraction=0] "
-      "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] ...\n"
-      "Writes DIR/frame_XX.nii.gz, DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
+      "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] [--phases=1] "
+      "[--beat_amplitude_mm=4] ...\n"
+      "Writes DIR/frame_XX.nii.gz (with --phases=T > 1: DIR/frame_XX_phase_YY.nii.gz, YY < T), "
+      "DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       dsr::kDsrSimulate, {"out_dir"}, &argc, &argv);
 
@@ -53,7 +58,8 @@ int Main(int argc, char** argv) {
   const std::string& source_path = dsr::StringFlag("source");
   dsr::OutputPlan plan;
   plan.AddInputImage("source", source_path);
-  dsr::PlanSequenceFiles(out_dir, options.num_frames, dsr::BoolFlag("write_source"), &plan);
+  dsr::PlanSequenceFiles(out_dir, options.num_frames, options.num_phases,
+                         dsr::BoolFlag("write_source"), &plan);
   if (!plan.Check(&error)) return dsr::Fail(error);
 
   auto start = std::chrono::steady_clock::now();
@@ -80,11 +86,14 @@ int Main(int argc, char** argv) {
 
   const dsr::ImageGeometry& g = sequence.frames[0].geometry;
   const int64_t fov_voxels = dsr::CountInside(dsr::PyramidFieldOfView(g, options));
-  std::printf("dsr_simulate: wrote %d frames of %dx%dx%d voxels at %g mm (%" PRId64
+  const std::string phases =
+      options.num_phases > 1 ? " x " + std::to_string(options.num_phases) + " phases" : "";
+  std::printf("dsr_simulate: wrote %d frames%s of %dx%dx%d voxels at %g mm (%" PRId64
               " field-of-view voxels, %" PRId64
               " mask voxels each), %d masks and gt_poses.json%s to %s "
               "(source %.2f s, simulation %.2f s, writing %.2f s)\n",
               options.num_frames,
+              phases.c_str(),
               g.size[0],
               g.size[1],
               g.size[2],

@@ -353,13 +353,16 @@ def write_tfm(pose: np.ndarray, path: Union[str, "os.PathLike[str]"]) -> None:
 class Sequence:
     """A simulated sequence: frames and masks (dsr.Image) and the true poses (4x4, the
     source volume's physical space -> frame i), with the true gains and offsets when
-    simulated (frame 0's scale, as Result.gain and Result.offset)."""
+    simulated (frame 0's scale, as Result.gain and Result.offset). With ``phases=T > 1`` (a
+    beating source) ``phases[i][p]`` is view i at phase p of the heart cycle (``phases[i][0]``
+    is ``frames[i]``; all phases of a view share its mask and pose); empty otherwise."""
 
     frames: List[Image]
     masks: List[Image]
     frame_from_world: List[np.ndarray]
     gain: List[float]
     offset: List[float]
+    phases: List[List[Image]] = field(default_factory=list)
 
 
 def simulate(**options: Any) -> Sequence:
@@ -367,12 +370,15 @@ def simulate(**options: Any) -> Sequence:
     e.g. ``seed=3``, ``num_frames=5``, ``source="volume.nii.gz"``; default: the built-in
     phantom and the paper's protocol), in memory."""
     out = _core.simulate(_flags(options))
+    frames = [Image._from_core(f) for f in out["frames"]]
     return Sequence(
-        frames=[Image._from_core(f) for f in out["frames"]],
+        frames=frames,
         masks=[Image._from_core(m) for m in out["masks"]],
         frame_from_world=list(out["frame_from_world"]),
         gain=list(out.get("gain", [])),
         offset=list(out.get("offset", [])),
+        phases=[[frames[i]] + [Image._from_core(p) for p in view]
+                for i, view in enumerate(out.get("later_phases", []))],
     )
 
 

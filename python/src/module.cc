@@ -586,6 +586,17 @@ py::dict SimulateSequence(const Options& options_in) {
   out["frames"] = frames;
   out["masks"] = masks;
   out["frame_from_world"] = truth;
+  if (sequence.num_phases() > 1) {  // a beating source: later_phases[i][p - 1], p >= 1
+    py::list later_phases;
+    for (const std::vector<Image>& view : sequence.later_phases) {
+      py::list phases;
+      for (const Image& phase : view) {
+        phases.append(py::make_tuple(ToArray(phase), FromGeometry(phase.geometry)));
+      }
+      later_phases.append(phases);
+    }
+    out["later_phases"] = later_phases;
+  }
   if (options.gain_range > 0.0 || options.offset_range > 0.0) {
     std::vector<double> gain, offset;
     Frame0IntensityCorrections(sequence.gain, sequence.offset, &gain, &offset);

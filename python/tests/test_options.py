@@ -230,3 +230,19 @@ def test_keyword_arguments_are_typed_and_documented_from_the_table():
     assert table["blend"]["front_end_defaults"] == {"python:fuse": "feather"}
     assert table["init"]["front_end_defaults"] == {"dsr_compare": "identity"}
     typing.get_type_hints(dsr.register)  # the annotations resolve
+
+
+def test_simulate_phases_are_a_beating_source_whose_phase_0_is_the_still_sequence():
+    small = dict(num_frames=3, phantom_size=64, frame_size=(32, 32, 28), max_rotation_deg=6,
+                 max_translation_voxels=3, min_depth_voxels=2, sigma=10)
+    still = dsr.simulate(**small)
+    assert still.phases == []
+    # A 28-voxel depth: the default beat radius is 7 mm, so at most 1.75 mm.
+    beating = dsr.simulate(phases=3, beat_amplitude_mm=1.5, **small)
+    assert len(beating.phases) == 3 and all(len(view) == 3 for view in beating.phases)
+    for i, view in enumerate(beating.phases):
+        assert view[0] is beating.frames[i]
+        assert np.array_equal(view[0].array, still.frames[i].array)
+        assert not np.array_equal(view[1].array, view[0].array)
+    with pytest.raises(ValueError, match=r"--phases=65: must be in \[1, 64\]"):
+        dsr.simulate(phases=65, **small)
