@@ -53,6 +53,8 @@ class Frame {
   // section 12): one grid, one mask and so one valid-cell map, one interleaved volume per
   // phase. Every phase must lie on the mask's grid (CHECKed). One phase is the frame above.
   Frame(const std::vector<Image>& phases, const Mask& mask);
+  // The same from the phases' images held elsewhere (non-null, in phase order).
+  Frame(const std::vector<const Image*>& phases, const Mask& mask);
   // Number of phases (1 for a 3D frame). interleaved() and the sampling functions read
   // phase 0; Phase(p) gives phase p as a one-phase frame.
   int num_phases() const { return 1 + static_cast<int>(more_phases_.size()); }
@@ -117,7 +119,6 @@ class Frame {
   const uint8_t* valid_bits() const { return valid_bits_ ? valid_bits_->data() : nullptr; }
 
  private:
-  Frame(const std::vector<const Image*>& phases, const Mask& mask);
   ImageGeometry geometry_;
   Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();

@@ -25,6 +25,9 @@ namespace dsr {
 struct ImageLevel {
   Image image;
   Mask mask;
+  // A view's later phases at this level (docs/design.md section 12), on `image`'s grid:
+  // phase p at later_phases[p - 1]; empty for a 3D frame.
+  std::vector<Image> later_phases;
 };
 
 // Smooths `image` inside `mask` by normalised convolution (see above) without

@@ -22,7 +22,9 @@ namespace {
 
 // Frames of one pyramid level. When `release` is set, the level's images are freed once
 // the frames hold their copies (no recovery can come back to them).
+// With `later_phases` (views of T > 1 phases, [view][phase - 1]), frames of every phase.
 std::vector<Frame> LevelFrames(const std::vector<Image>& images,
+                               const std::vector<std::vector<Image>>* later_phases,
                                const std::vector<Mask>& masks,
                                Pyramids* pyramids,
                                int level,
@@ -33,8 +35,14 @@ std::vector<Frame> LevelFrames(const std::vector<Image>& images,
   ParallelFor(0, m, num_threads, [&](int64_t i) {
     ImageLevel& stored = pyramids->levels[i][level];
     const bool input_is_level = level == 0 && stored.image.empty();
-    frames[i] = input_is_level ? Frame(images[i], masks[i]).Translated(-pyramids->centre[i])
-                               : Frame(stored.image, stored.mask);
+    std::vector<const Image*> phases(1, input_is_level ? &images[i] : &stored.image);
+    const std::vector<Image>* later =
+        input_is_level ? (later_phases != nullptr && !later_phases->empty() ? &(*later_phases)[i]
+                                                                            : nullptr)
+                       : &stored.later_phases;
+    for (size_t p = 0; later != nullptr && p < later->size(); ++p) phases.push_back(&(*later)[p]);
+    frames[i] = input_is_level ? Frame(phases, masks[i]).Translated(-pyramids->centre[i])
+                               : Frame(phases, stored.mask);
     if (release) stored = ImageLevel();
   });
   return frames;
@@ -107,21 +115,35 @@ Eigen::Vector3d LocalCentre(const ImageGeometry& geometry) {
 
 Pyramids BuildPyramids(const std::vector<Image>& images,
                        const std::vector<Mask>& masks,
-                       const RegistrationOptions& options) {
+                       const RegistrationOptions& options,
+                       const std::vector<std::vector<Image>>* later_phases) {
   const int m = static_cast<int>(images.size());
   Pyramids pyramids;
   pyramids.levels.resize(m);
   pyramids.num_levels = options.pyramid_levels;
+  const auto pyramid = [&](const Image& image, int i) {
+    return BuildPyramid(image, masks[i], options.pyramid_levels, options.pyramid_sigma,
+                        options.smoothing, options.pyramid_min_size, options.solve.num_threads);
+  };
   for (int i = 0; i < m; ++i) {
-    pyramids.levels[i] = BuildPyramid(images[i], masks[i], options.pyramid_levels,
-                                      options.pyramid_sigma, options.smoothing,
-                                      options.pyramid_min_size, options.solve.num_threads);
+    pyramids.levels[i] = pyramid(images[i], i);
+    // Every later phase's pyramid on the same grids (same mask, same sizes).
+    for (int p = 0; later_phases != nullptr && !later_phases->empty() &&
+                    p < static_cast<int>((*later_phases)[i].size());
+         ++p) {
+      std::vector<ImageLevel> phase = pyramid((*later_phases)[i][p], i);
+      CHECK_EQ(phase.size(), pyramids.levels[i].size());
+      for (size_t l = 0; l < phase.size(); ++l) {
+        pyramids.levels[i][l].later_phases.push_back(std::move(phase[l].image));
+      }
+    }
     pyramids.num_levels =
         std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
     pyramids.centre.push_back(LocalCentre(images[i].geometry));
     for (ImageLevel& level : pyramids.levels[i]) {
       level.image.geometry.origin_mm -= pyramids.centre[i];
       level.mask.geometry.origin_mm -= pyramids.centre[i];
+      for (Image& phase : level.later_phases) phase.geometry.origin_mm -= pyramids.centre[i];
     }
   }
   return pyramids;
@@ -154,6 +176,7 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
 }
 
 CoarseToFine::CoarseToFine(const std::vector<Image>& images,
+                           const std::vector<std::vector<Image>>* later_phases,
                            const std::vector<Mask>& masks,
                            const RegistrationOptions& options,
                            bool check_every_level,
@@ -161,6 +184,7 @@ CoarseToFine::CoarseToFine(const std::vector<Image>& images,
                            const std::vector<Frame>& search_frames,
                            Pyramids* pyramids)
     : images_(images),
+      later_phases_(later_phases),
       masks_(masks),
       options_(options),
       stream_(StreamContextFor(options.solve)),
@@ -243,7 +267,8 @@ std::vector<Eigen::Isometry3d> CoarseToFine::SolvePoses() const {
 
 CoarseToFine::Next CoarseToFine::BuildLevelFrames(int level, std::vector<Frame>* frames) {
   const bool release = options_.max_recoveries == 0;
-  *frames = LevelFrames(images_, masks_, pyramids_, level, release, options_.solve.num_threads);
+  *frames = LevelFrames(images_, later_phases_, masks_, pyramids_, level, release,
+                        options_.solve.num_threads);
   int empty_frame = -1;
   for (int i = m_ - 1; i >= 0; --i) {
     if ((*frames)[i].num_valid_cells() == 0) empty_frame = i;
@@ -487,9 +512,15 @@ CoarseToFine::Next CoarseToFine::SolveOnce(int level,
       ImageGeometry placed = grid;
       placed.direction = solved_frame0.linear() * grid.direction;
       placed.origin_mm = solved_frame0 * grid.origin_mm;
+      // One image per phase (DBA's intensities come phase by phase, n each).
+      const int64_t n = candidates.num_voxels();
       result_->dba_intensities = Image(placed, 0.0f);
-      for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+      result_->dba_later_phases.assign(intensities.size() / n - 1, Image(placed, 0.0f));
+      for (int64_t v = 0; v < n; ++v) {
         result_->dba_intensities.voxels[candidates.voxel[v]] = intensities[v];
+        for (size_t p = 0; p < result_->dba_later_phases.size(); ++p) {
+          result_->dba_later_phases[p].voxels[candidates.voxel[v]] = intensities[(p + 1) * n + v];
+        }
       }
     }
   }

@@ -54,10 +54,13 @@ struct Pyramids {
 // The centre of a grid in its physical coordinates, o + D S (n - 1) / 2.
 Eigen::Vector3d LocalCentre(const ImageGeometry& geometry);
 
-// The pyramids of `images` for options' levels and smoothing.
+// The pyramids of `images` for options' levels and smoothing; with `later_phases` (views of
+// T > 1 phases, [view][phase - 1]; null or empty: 3D), every level also holds each later
+// phase's image (ImageLevel::later_phases).
 Pyramids BuildPyramids(const std::vector<Image>& images,
                        const std::vector<Mask>& masks,
-                       const RegistrationOptions& options);
+                       const RegistrationOptions& options,
+                       const std::vector<std::vector<Image>>* later_phases = nullptr);
 
 // The frames the global search works on: the coarsest pyramid level, halved further until
 // no axis is longer than options.search_max_axis.
@@ -70,8 +73,12 @@ class CoarseToFine {
  public:
   // With `check_every_level`, the checks also run after each coarse level; frames marked
   // in `misfit_exempt` are never the misfit check's outlier; `search_frames` are the pair
-  // check's. Everything passed must outlive the object.
+  // check's. `later_phases` (null or empty: 3D views) are the views' later phases
+  // ([view][phase - 1], docs/design.md section 12): the levels' frames then hold every
+  // phase, and every solve and check that streams the cost sums them (the search frames are
+  // phase 0's). Everything passed must outlive the object.
   CoarseToFine(const std::vector<Image>& images,
+               const std::vector<std::vector<Image>>* later_phases,
                const std::vector<Mask>& masks,
                const RegistrationOptions& options,
                bool check_every_level,
@@ -186,6 +193,7 @@ class CoarseToFine {
   std::vector<Eigen::Isometry3d> SolvePoses() const;
 
   const std::vector<Image>& images_;
+  const std::vector<std::vector<Image>>* later_phases_;
   const std::vector<Mask>& masks_;
   const RegistrationOptions& options_;
   const StreamContext stream_;  // options_.solve's threads and kernels

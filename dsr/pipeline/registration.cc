@@ -65,6 +65,9 @@ struct RegistrationRun {
   // The intensities the solves register: the input's, or their transform
   // (RegistrationOptions::intensity_transform), brought to a usual scale further down.
   const std::vector<Image>* images = nullptr;
+  // Views of T > 1 phases: phases 1..T-1 of each view, transformed and scaled as `images`
+  // ([view][phase - 1]); null: 3D views (docs/design.md section 12).
+  const std::vector<std::vector<Image>>* later_phases = nullptr;
   const std::vector<Mask>* masks = nullptr;
   const std::vector<Eigen::Isometry3d>* initial_frame_from_world = nullptr;
   const RegistrationOptions* options = nullptr;
@@ -112,6 +115,7 @@ bool PairwiseStart(const RegistrationRun& run,
   RegistrationRun init_run = run;
   init_run.options = &init_options;
   init_run.search_images = nullptr;  // no check of this run searches: no extra pyramids
+  init_run.later_phases = nullptr;   // the baseline registers phase 0
   init_run.start = std::chrono::steady_clock::now();
   init_run.determination_with_gains = false;
   init_run.result = &init;
@@ -232,6 +236,7 @@ void ResultFromLocal(const std::vector<Eigen::Vector3d>& centre, RegistrationRes
   result->frame_from_world = PosesFromLocal(std::move(result->frame_from_world), centre);
   result->grid.origin_mm += centre[0];
   result->dba_intensities.geometry.origin_mm += centre[0];
+  for (Image& phase : result->dba_later_phases) phase.geometry.origin_mm += centre[0];
   std::vector<Matrix6d>& covariance = result->uncertainty.covariance;
   for (size_t i = 0; i < covariance.size() && i < centre.size(); ++i) {
     Matrix6d adjoint = Matrix6d::Identity();
@@ -266,7 +271,8 @@ bool RunRounds(const RegistrationRun& run,
   RegistrationResult* result = run.result;
   bool affine_round = false;  // photometric kAuto: the round after brightness was detected
   for (int round = 0;; ++round) {
-    CoarseToFine levels(*run.images, *run.masks, options, options.max_recoveries > 0,
+    CoarseToFine levels(*run.images, run.later_phases, *run.masks, options,
+                        options.max_recoveries > 0,
                         recovery->misfit_exempt, search_frames, pyramids);
     if (run.determination_with_gains) levels.JudgeDeterminationWithGains();
     if (!levels.Run(*poses, result, run.error)) return false;
@@ -345,7 +351,7 @@ bool RegisterScaled(const RegistrationRun& run) {
       return true;
     }
   }
-  Pyramids pyramids = BuildPyramids(images, masks, options);
+  Pyramids pyramids = BuildPyramids(images, masks, options, run.later_phases);
   result->pyramid_seconds = SecondsSince(run.start) - result->init_seconds;
   // From here on every pose is in the frames' local coordinates (Pyramids::centre).
   poses = PosesToLocal(poses, pyramids.centre);
@@ -394,6 +400,9 @@ void UnscaleResult(int exponent, RegistrationResult* result) {
   // Gains are ratios of intensities (unchanged); offsets are intensities.
   for (Photometric& p : result->photometric) p.offset = std::ldexp(p.offset, -exponent);
   for (float& v : result->dba_intensities.voxels) v = std::ldexp(v, -exponent);
+  for (Image& phase : result->dba_later_phases) {
+    for (float& v : phase.voxels) v = std::ldexp(v, -exponent);
+  }
   result->uncertainty.noise_sigma = std::ldexp(result->uncertainty.noise_sigma, -exponent);
 }
 
@@ -410,11 +419,20 @@ bool RegisterOnUsualScale(const RegistrationRun& run) {
   for (Image& image : scaled) {
     for (float& v : image.voxels) v = std::ldexp(v, exponent);
   }
+  // Every phase by the same power of two (phase 0's spread decides it).
+  std::vector<std::vector<Image>> scaled_phases;
+  if (run.later_phases != nullptr) scaled_phases = *run.later_phases;
+  for (std::vector<Image>& view : scaled_phases) {
+    for (Image& image : view) {
+      for (float& v : image.voxels) v = std::ldexp(v, exponent);
+    }
+  }
   // The loss's scale is in grey levels: it follows the intensities.
   RegistrationOptions scaled_options = *run.options;
   scaled_options.loss.scale = std::ldexp(run.options->loss.scale, exponent);
   RegistrationRun scaled_run = run;
   scaled_run.images = &scaled;
+  if (run.later_phases != nullptr) scaled_run.later_phases = &scaled_phases;
   scaled_run.options = &scaled_options;
   if (!RegisterScaled(scaled_run)) return false;
   UnscaleResult(exponent, run.result);
@@ -427,6 +445,7 @@ bool RegisterOnUsualScale(const RegistrationRun& run) {
 // When no panorama holds the final poses (a registration that diverged), the photometric
 // parameters and misfits are dropped rather than left on the transform's scale.
 bool ResultOnInputIntensities(const std::vector<Image>& input_images,
+                              const std::vector<std::vector<Image>>& later_phases,
                               const std::vector<Mask>& masks,
                               const RegistrationOptions& options,
                               RegistrationResult* result,
@@ -435,15 +454,28 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   for (float& v : result->dba_intensities.voxels) {
     v = c > 0.0 ? static_cast<float>(InverseIntensity(std::max(0.0f, v), c)) : 0.0f;
   }
+  for (Image& phase : result->dba_later_phases) {
+    for (float& v : phase.voxels) {
+      v = c > 0.0 ? static_cast<float>(InverseIntensity(std::max(0.0f, v), c)) : 0.0f;
+    }
+  }
   if (result->photometric.empty() && result->frame_misfits.empty()) return true;
   const int m = static_cast<int>(input_images.size());
   std::vector<Frame> frames(m);
   // The finest pyramid level of the input (image/pyramid.h: smoothed by options.smoothing).
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
-    frames[i] = options.smoothing > 0.0
-                    ? Frame(SmoothInsideMask(input_images[i], masks[i], options.smoothing, 1),
-                            masks[i])
-                    : Frame(input_images[i], masks[i]);
+    std::vector<const Image*> phases(1, &input_images[i]);
+    for (size_t p = 0; !later_phases.empty() && p < later_phases[i].size(); ++p) {
+      phases.push_back(&later_phases[i][p]);
+    }
+    std::vector<Image> smoothed;
+    if (options.smoothing > 0.0) {
+      for (const Image* phase : phases) {
+        smoothed.push_back(SmoothInsideMask(*phase, masks[i], options.smoothing, 1));
+      }
+      for (size_t p = 0; p < phases.size(); ++p) phases[p] = &smoothed[p];
+    }
+    frames[i] = Frame(phases, masks[i]);
   });
   const std::vector<Eigen::Isometry3d>& poses = result->frame_from_world;
   ImageGeometry grid;
@@ -477,9 +509,76 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   return true;
 }
 
+// Views of T > 1 phases (docs/design.md section 12): `later_phases` empty (3D views) or one
+// entry per view, every view with the same T - 1 later phases, each on its view's grid; only
+// modes dsr and dba tie a view's phases to one pose.
+bool CheckLaterPhases(const std::vector<Image>& images,
+                      const std::vector<std::vector<Image>>& later_phases,
+                      const RegistrationOptions& options,
+                      std::string* error) {
+  if (later_phases.empty()) return true;
+  if (later_phases.size() != images.size()) {
+    *error = "phases given for " + std::to_string(later_phases.size()) + " views, but there are " +
+             std::to_string(images.size()) + " views";
+    return false;
+  }
+  const size_t later = later_phases[0].size();
+  for (size_t i = 0; i < images.size(); ++i) {
+    if (later_phases[i].size() != later) {
+      *error = "view " + std::to_string(i) + " has " + std::to_string(later_phases[i].size() + 1) +
+               " phases, view 0 has " + std::to_string(later + 1) +
+               ": every view needs the same phases of the heart cycle (aligned by index)";
+      return false;
+    }
+    for (size_t p = 0; p < later; ++p) {
+      if (!later_phases[i][p].geometry.SameGrid(images[i].geometry) ||
+          later_phases[i][p].voxels.size() != images[i].voxels.size()) {
+        *error = "view " + std::to_string(i) + ": phase " + std::to_string(p + 1) +
+                 " lies on another grid than its phase 0";
+        return false;
+      }
+    }
+  }
+  if (later > 0 && options.mode != Mode::kDsr && options.mode != Mode::kDba) {
+    *error = std::string("mode=") + ModeToString(options.mode) +
+             " registers 3D frames; views with several phases need mode dsr or dba (or one "
+             "phase: --phases)";
+    return false;
+  }
+  return true;
+}
+
+// The intensity transform of every later phase, with phase 0's constant `scale`.
+bool TransformLaterPhases(const std::vector<std::vector<Image>>& later_phases,
+                          const std::vector<Mask>& masks,
+                          IntensityTransform transform,
+                          double scale,
+                          std::vector<std::vector<Image>>* transformed,
+                          std::string* error) {
+  transformed->assign(later_phases.size(), {});
+  for (size_t i = 0; i < later_phases.size(); ++i) {
+    const std::vector<Mask> view_masks(later_phases[i].size(), masks[i]);
+    if (!ApplyIntensityTransform(later_phases[i], view_masks, transform, scale,
+                                 &(*transformed)[i], error)) {
+      return false;
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 bool Register(const std::vector<Image>& input_images,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error) {
+  return Register(input_images, {}, masks, initial_frame_from_world, options, result, error);
+}
+
+bool Register(const std::vector<Image>& input_images,
+              const std::vector<std::vector<Image>>& later_phases,
               const std::vector<Mask>& masks,
               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
               const RegistrationOptions& options,
@@ -498,12 +597,14 @@ bool Register(const std::vector<Image>& input_images,
   CHECK_EQ(masks.size(), input_images.size());
   CHECK_EQ(initial_frame_from_world.size(), input_images.size());
   if (!options.Validate(error)) return false;
-  if (!CheckRegistrationInputs(input_images, initial_frame_from_world, options, error)) {
+  if (!CheckRegistrationInputs(input_images, initial_frame_from_world, options, error) ||
+      !CheckLaterPhases(input_images, later_phases, options, error)) {
     return false;
   }
   *result = RegistrationResult();
   RegistrationRun run;
   run.images = &input_images;
+  run.later_phases = later_phases.empty() ? nullptr : &later_phases;
   run.masks = &masks;
   run.initial_frame_from_world = &initial_frame_from_world;
   run.options = &options;
@@ -513,17 +614,24 @@ bool Register(const std::vector<Image>& input_images,
   if (options.intensity_transform == IntensityTransform::kNone) return RegisterOnUsualScale(run);
   const double c = IntensityTransformScale(input_images, masks);
   std::vector<Image> transformed;
+  std::vector<std::vector<Image>> transformed_phases;
   if (!ApplyIntensityTransform(input_images, masks, options.intensity_transform, c,
-                               &transformed, error)) {
+                               &transformed, error) ||
+      !TransformLaterPhases(later_phases, masks, options.intensity_transform, c,
+                            &transformed_phases, error)) {
     return false;
   }
   run.images = &transformed;
+  if (run.later_phases != nullptr) run.later_phases = &transformed_phases;
   run.search_images = &input_images;
   if (!RegisterOnUsualScale(run)) return false;
   transformed = std::vector<Image>();  // freed before the input's frames are built
+  transformed_phases = std::vector<std::vector<Image>>();
   result->intensity_transform = options.intensity_transform;
   result->intensity_transform_scale = c;
-  if (!ResultOnInputIntensities(input_images, masks, options, result, error)) return false;
+  if (!ResultOnInputIntensities(input_images, later_phases, masks, options, result, error)) {
+    return false;
+  }
   result->seconds = SecondsSince(start);
   return true;
 }

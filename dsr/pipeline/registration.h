@@ -53,6 +53,20 @@ bool Register(const std::vector<Image>& images,
               const RegistrationOptions& options,
               RegistrationResult* result,
               std::string* error);
+// Views recorded over T > 1 phases of the heart cycle (docs/design.md section 12): `images`
+// are the views' phase 0, `later_phases[i][p - 1]` view i's phase p, every view with the
+// same phases on its own grid, all under its one mask and its one pose (empty: 3D views,
+// the call above). Modes dsr and dba register every phase at once (their solves and the
+// checks that stream the cost sum the phases); the global search, recovery and pair check
+// look at phase 0. The result has one pose per view; with mode dba, DBA's intensities of
+// phase 0 in dba_intensities and of the later phases in dba_later_phases.
+bool Register(const std::vector<Image>& images,
+              const std::vector<std::vector<Image>>& later_phases,
+              const std::vector<Mask>& masks,
+              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+              const RegistrationOptions& options,
+              RegistrationResult* result,
+              std::string* error);
 
 }  // namespace dsr
 

@@ -106,6 +106,8 @@ struct RegistrationResult {
   // 0's last motion in the mean gauge (dba_intensities.geometry).
   ImageGeometry grid;
   Image dba_intensities;
+  // With views of T > 1 phases, DBA's intensities of phases 1..T-1 on the same grid.
+  std::vector<Image> dba_later_phases;
 };
 
 }  // namespace dsr

@@ -196,6 +196,40 @@ ObservationWeights::ObservationWeights(const CandidateSet& candidates) {
   weight.assign(offset[n], 1.0f);
 }
 
+namespace {
+
+// sum += part (every field; both from the same kind of pass).
+void AddNormalEquations(const NormalEquations& part, NormalEquations* sum) {
+  if (part.hessian.size() != 0) sum->hessian += part.hessian;
+  if (part.gradient.size() != 0) sum->gradient += part.gradient;
+  sum->cost += part.cost;
+  sum->observations += part.observations;
+  sum->voxels += part.voxels;
+  for (size_t i = 0; i < part.frame_cost.size() && i < sum->frame_cost.size(); ++i) {
+    sum->frame_cost[i] += part.frame_cost[i];
+    sum->frame_observations[i] += part.frame_observations[i];
+  }
+}
+
+// `accumulate(frames_of_one_phase, out)` for every phase of `frames`, the results summed:
+// the tied cost of views with T phases (docs/design.md section 12). One phase: the call.
+template <class Accumulate>
+void SumOverPhases(const std::vector<Frame>& frames, ReducedSystem* out, Accumulate accumulate) {
+  const int phases = NumPhases(frames);
+  if (phases == 1) {
+    accumulate(frames, out);
+    return;
+  }
+  accumulate(PhaseFrames(frames, 0), out);
+  for (int p = 1; p < phases; ++p) {
+    ReducedSystem part;
+    accumulate(PhaseFrames(frames, p), &part);
+    AddNormalEquations(part, out);
+  }
+}
+
+}  // namespace
+
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -205,6 +239,13 @@ void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const StreamContext& context,
                              ReducedSystem* out,
                              bool batched_hessian) {
+  if (NumPhases(frames) > 1) {
+    SumOverPhases(frames, out, [&](const std::vector<Frame>& phase, ReducedSystem* part) {
+      AccumulateReducedSystem(phase, candidates, frame_from_world, begin, end, with_jacobian,
+                              context, part, batched_hessian);
+    });
+    return;
+  }
   SsdToMeanTerm term;
   term.batched_hessian = batched_hessian;
   term.batched_gradient = batched_hessian;
@@ -223,6 +264,13 @@ void AccumulateReducedPhotometricSystem(const std::vector<Frame>& frames,
                                         ReducedSystem* out,
                                         bool batched_hessian) {
   CHECK_EQ(photometric.size(), frames.size());
+  if (NumPhases(frames) > 1) {
+    SumOverPhases(frames, out, [&](const std::vector<Frame>& phase, ReducedSystem* part) {
+      AccumulateReducedPhotometricSystem(phase, candidates, frame_from_world, photometric, begin,
+                                         end, with_jacobian, context, part, batched_hessian);
+    });
+    return;
+  }
   DsrPhotometricVoxelTerm term;
   term.batched_hessian = batched_hessian;
   term.batched_gradient = batched_hessian;
@@ -247,6 +295,7 @@ void AccumulateWeightedReducedSystem(const std::vector<Frame>& frames,
                                      ReducedSystem* out) {
   CHECK_EQ(static_cast<int64_t>(weights.offset.size()), candidates.num_voxels() + 1)
       << "weights built for another candidate set";
+  CHECK_EQ(NumPhases(frames), 1) << "observation weights are one phase's: pass its frames";
   if (photometric.empty()) {
     DsrWeightedVoxelTerm<kJacobianSize> term;
     term.observers = candidates.observers.data();
@@ -281,6 +330,7 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
   CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
   CHECK_EQ(static_cast<int64_t>(weights->offset.size()), candidates.num_voxels() + 1)
       << "weights built for another candidate set";
+  CHECK_EQ(NumPhases(frames), 1) << "observation weights are one phase's: pass its frames";
   double gain[kMaxFrames], offset[kMaxFrames], unit[kMaxFrames];
   for (int i = 0; i < m; ++i) {
     gain[i] = photometric.empty() ? 1.0 : photometric[i].gain();
@@ -400,10 +450,10 @@ Vector6d MeanGaugeStiffnessAt(const std::vector<Frame>& frames,
                               const StreamContext& context) {
   ReducedSystem system;
   const int phases = NumPhases(frames);
-  if (phases == 1) {
+  if (phases == 1 || weights == nullptr) {  // unweighted passes sum the phases themselves
     AccumulateDsrCostSystem(frames, candidates, frame_from_world, photometric, weights, 0,
                             candidates.num_voxels(), true, context, &system);
-  } else {  // the sum of the phases' systems: every phase's cost shares the pose blocks
+  } else {  // the sum of the phases' systems, each with its phase's weights
     for (int phase = 0; phase < phases; ++phase) {
       ReducedSystem part;
       AccumulateDsrCostSystem(PhaseFrames(frames, phase), candidates, frame_from_world,

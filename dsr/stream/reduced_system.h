@@ -72,7 +72,10 @@ using ReducedSystem = NormalEquations;
 // for any `context.num_threads`. With `with_jacobian` false only the cost (and observation
 // count) is computed; hessian/gradient are left empty. `batched_hessian` false adds H and
 // g voxel by voxel instead of in batches (stream/hessian_batch.h): the slow twin tests
-// compare the fast path with.
+// compare the fast path with. Frames of T > 1 phases (image/frame.h): the sum over the phases
+// of each phase's system (docs/design.md section 12); so do the photometric form and
+// AccumulateDsrCostSystem without weights. Observation weights are one phase's: the weighted
+// form and UpdateObservationWeights take one phase's frames (PhaseFrames).
 void AccumulateReducedSystem(const std::vector<Frame>& frames,
                              const CandidateSet& candidates,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,

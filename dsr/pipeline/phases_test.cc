@@ -1,0 +1,147 @@
+// Views recorded over the heart cycle (docs/design.md section 12) through the whole
+// registration pipeline: sequences of a beating phantom (sim/simulate.h, num_phases), each
+// view's phases tied to its one pose, registered from identity by DSR and DBA; every phase
+// at once against phase 0 alone; bad phase sets refused with one line.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "dsr/eval/eval.h"
+#include "dsr/pipeline/registration.h"
+#include "dsr/sim/phantom.h"
+#include "dsr/sim/simulate.h"
+#include "dsr/tests/support/sanitizer.h"
+
+namespace dsr {
+namespace {
+
+// 5 views of 40x40x32 from the 96^3 phantom, `phases` phases each, the beat's ball (8 mm,
+// 2 mm at end-systole) in the middle of every view.
+SimulatedSequence Beating(int phases, double sigma, uint64_t seed) {
+  PhantomOptions phantom;
+  phantom.size = 96;
+  static const Image source = MakePhantom(phantom);
+  SimulationOptions options;
+  options.num_frames = 5;
+  options.frame_size = Eigen::Vector3i(40, 40, 32);
+  options.sigma = sigma;
+  options.max_translation_voxels = 5.0;
+  options.max_rotation_deg = 12.0;
+  options.min_depth_voxels = 2.0;
+  options.mask_erosion = 0;
+  options.seed = seed;
+  options.num_phases = phases;
+  options.beat_amplitude_mm = 2.0;
+  options.beat_radius_mm = 8.0;
+  SimulatedSequence sequence;
+  std::string error;
+  EXPECT_TRUE(Simulate(source, options, &sequence, &error)) << error;
+  return sequence;
+}
+
+RegistrationOptions Options(Mode mode) {
+  RegistrationOptions o;
+  o.mode = mode;
+  o.solve.progress = getenv("DSR_TEST_LOG") != nullptr;
+  o.solve.num_threads = 2;
+  o.pyramid_levels = 2;
+  o.pyramid_min_size = 8;
+  return o;
+}
+
+// Registers from identity with every phase (`all`) or phase 0 alone.
+PoseErrorSummary RegisterPhases(const SimulatedSequence& s, const RegistrationOptions& options,
+                                bool all, RegistrationResult* result) {
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  std::string error;
+  EXPECT_TRUE(Register(s.frames, all ? s.later_phases : std::vector<std::vector<Image>>(),
+                       s.masks, identity, options, result, &error))
+      << error;
+  EXPECT_TRUE(result->usable) << result->failure;
+  return ComparePoses(result->frame_from_world, s.frame_from_world, s.masks);
+}
+
+TEST(Phases, BothModesRegisterEveryPhaseWithOnePosePerView) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const SimulatedSequence s = Beating(4, 25.0, 3);
+  ASSERT_EQ(s.num_phases(), 4);
+  RegistrationResult dsr, dba;
+  const PoseErrorSummary dsr_errors = RegisterPhases(s, Options(Mode::kDsr), true, &dsr);
+  EXPECT_LT(dsr_errors.mae_translation_voxels, 0.2);
+  EXPECT_LT(dsr_errors.mae_rotation_rad, 1e-3);
+  EXPECT_EQ(dsr.frame_from_world.size(), 5u);
+  const PoseErrorSummary dba_errors = RegisterPhases(s, Options(Mode::kDba), true, &dba);
+  EXPECT_LT(dba_errors.mae_translation_voxels, 0.2);
+  // One function (the tied cost, in the mean gauge): DSR ends where DBA does.
+  EXPECT_LT(ComparePoses(dba.frame_from_world, dsr.frame_from_world, s.masks).tre_max_mm, 0.05);
+  // DBA's panorama has every phase's intensities, on one grid; the beat shows in them.
+  ASSERT_EQ(dba.dba_later_phases.size(), 3u);
+  double moved = 0.0;
+  for (size_t v = 0; v < dba.dba_intensities.voxels.size(); ++v) {
+    EXPECT_TRUE(dba.dba_later_phases[1].geometry.SameGrid(dba.dba_intensities.geometry));
+    moved = std::max<double>(moved, std::abs(dba.dba_later_phases[1].voxels[v] -
+                                             dba.dba_intensities.voxels[v]));
+    if (moved > 50.0) break;
+  }
+  EXPECT_GT(moved, 50.0);
+  // With the intensity transform (the echo preset's), the phases are transformed alike.
+  RegistrationOptions sqrt = Options(Mode::kDsr);
+  sqrt.intensity_transform = IntensityTransform::kSqrt;
+  RegistrationResult transformed;
+  EXPECT_LT(RegisterPhases(s, sqrt, true, &transformed).mae_translation_voxels, 0.2);
+}
+
+// Independent noise per phase: T phases average it down where the anatomy is still, so
+// the poses land closer to the truth than with one phase (about 1 / sqrt(T) of its error;
+// bench/phases.sh measures it over many sequences). Here over 3 sequences, the sum of the
+// mean TREs must at least drop by a quarter.
+TEST(Phases, EveryPhaseIsMoreAccurateThanOne) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  double one = 0.0, all = 0.0;
+  for (uint64_t seed : {11, 12, 13}) {
+    const SimulatedSequence s = Beating(4, 40.0, seed);
+    RegistrationResult a, b;
+    all += RegisterPhases(s, Options(Mode::kDsr), true, &a).tre_mean_mm;
+    one += RegisterPhases(s, Options(Mode::kDsr), false, &b).tre_mean_mm;
+    // The solves stream every phase: 4 times the observations per iteration (up to the
+    // few that the slightly different final poses move in or out of a field of view).
+    const double ratio = static_cast<double>(a.solves.back().report.observations_per_iteration) /
+                         b.solves.back().report.observations_per_iteration;
+    EXPECT_NEAR(ratio, 4.0, 0.04) << "seed " << seed;
+  }
+  if (getenv("DSR_TEST_LOG") != nullptr) {
+    std::printf("mean TRE sums: every phase %g mm, phase 0 %g mm\n", all, one);
+  }
+  EXPECT_LT(all, 0.75 * one) << "every phase " << all << " mm, phase 0 " << one << " mm";
+}
+
+TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {
+  const SimulatedSequence s = Beating(3, 0.0, 5);
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  RegistrationResult result;
+  std::string error;
+  std::vector<std::vector<Image>> later = s.later_phases;
+  later[2].pop_back();
+  EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
+  EXPECT_EQ(error, "view 2 has 2 phases, view 0 has 3: every view needs the same phases of the "
+                   "heart cycle (aligned by index)");
+  later = s.later_phases;
+  later.pop_back();
+  EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
+  EXPECT_EQ(error, "phases given for 4 views, but there are 5 views");
+  later = s.later_phases;
+  later[1][0].geometry.spacing_mm *= 1.5;
+  EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
+  EXPECT_EQ(error, "view 1: phase 1 lies on another grid than its phase 0");
+  EXPECT_FALSE(Register(s.frames, s.later_phases, s.masks, identity, Options(Mode::kApe), &result,
+                        &error));
+  EXPECT_EQ(error, "mode=ape registers 3D frames; views with several phases need mode dsr or dba "
+                   "(or one phase: --phases)");
+}
+
+}  // namespace
+}  // namespace dsr
