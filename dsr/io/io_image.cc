@@ -17,6 +17,7 @@
 
 #include <glog/logging.h>
 
+#include "dsr/io/io_image_internal.h"
 #include "dsr/io/io_itk.h"
 #include "dsr/util/atomic_file.h"
 
@@ -25,6 +26,10 @@ namespace {
 
 constexpr const char* kSupportedExtensions[] = {
     ".nii", ".nii.gz", ".mha", ".mhd", ".nrrd", ".nhdr"};
+
+}  // namespace
+
+namespace io_internal {
 
 std::string Lower(std::string text) {
   for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -65,6 +70,17 @@ itk_io::RawVolume ToRaw(const ImageGeometry& geometry) {
   }
   return raw;
 }
+
+}  // namespace io_internal
+
+namespace {
+
+using io_internal::EndsWith;
+using io_internal::IsNifti;
+using io_internal::Lower;
+using io_internal::ToGeometry;
+using io_internal::ToRaw;
+using io_internal::UnsupportedExtension;
 
 std::string Triple(const Eigen::Vector3d& v) {
   std::ostringstream s;
@@ -139,7 +155,7 @@ bool HasSupportedImageExtension(const std::string& path) {
                      [&](const char* ext) { return EndsWith(lower, ext); });
 }
 
-namespace {
+namespace io_internal {
 
 // A NIfTI header's pixdim[1..3] of 0, which ITK reads as a spacing of 1 mm (a negative one
 // it refuses): "" when the file is no NIfTI-1/2 file or its spacings are not 0. The header
@@ -208,7 +224,39 @@ std::string ZeroNiftiSpacing(const std::string& path) {
   return "";
 }
 
-}  // namespace
+bool MaskFromImage(const std::string& path,
+                   const Image& image,
+                   const ImageGeometry& expected,
+                   Mask* mask,
+                   std::string* error) {
+  if (image.geometry.size != expected.size) {
+    *error = path + ": mask grid " + image.geometry.DebugString() +
+             " does not match the image grid " + expected.DebugString();
+    return false;
+  }
+  if (!image.geometry.SameGrid(expected)) {
+    *error = path + ": mask grid does not match the image grid (" +
+             GridDifference(image.geometry, expected) + ")";
+    return false;
+  }
+  Mask out(expected, 0);
+  int64_t inside = 0;
+  for (size_t v = 0; v < image.voxels.size(); ++v) {
+    out.voxels[v] = image.voxels[v] != 0.0f ? 1 : 0;
+    inside += out.voxels[v];
+  }
+  if (inside == 0) {
+    *error = path + ": mask has no voxel inside (every voxel is 0)";
+    return false;
+  }
+  *mask = std::move(out);
+  return true;
+}
+
+}  // namespace io_internal
+
+using io_internal::CheckNiftiOriginPrecision;
+using io_internal::ZeroNiftiSpacing;
 
 bool ReadImage(const std::string& path, Image* image, std::string* error) {
   if (!HasSupportedImageExtension(path)) {
@@ -241,28 +289,7 @@ bool ReadMask(const std::string& path,
               std::string* error) {
   Image image;
   if (!ReadImage(path, &image, error)) return false;
-  if (image.geometry.size != expected.size) {
-    *error = path + ": mask grid " + image.geometry.DebugString() +
-             " does not match the image grid " + expected.DebugString();
-    return false;
-  }
-  if (!image.geometry.SameGrid(expected)) {
-    *error = path + ": mask grid does not match the image grid (" +
-             GridDifference(image.geometry, expected) + ")";
-    return false;
-  }
-  Mask out(expected, 0);
-  int64_t inside = 0;
-  for (size_t v = 0; v < image.voxels.size(); ++v) {
-    out.voxels[v] = image.voxels[v] != 0.0f ? 1 : 0;
-    inside += out.voxels[v];
-  }
-  if (inside == 0) {
-    *error = path + ": mask has no voxel inside (every voxel is 0)";
-    return false;
-  }
-  *mask = std::move(out);
-  return true;
+  return io_internal::MaskFromImage(path, image, expected, mask, error);
 }
 
 bool ImageDataFiles(const std::string& path, std::vector<std::string>* files, std::string* error) {
