@@ -1329,7 +1329,7 @@ bool InspectPhasesHeader(const std::string& path,
                "; expected a 3D image or a 4D image of phases (x, y, z, phase)";
       return false;
     }
-    if (dims == 4 && !FourthAxisApart(io)) {
+    if (dims == 4 && io.GetDimensions(3) > 1 && !FourthAxisApart(io)) {  // 1: as Read takes it
       *error = path + ": the header's directions mix the 4th axis with space; expected three "
                "spatial axes and a separate 4th (phase) axis";
       return false;

@@ -3,6 +3,7 @@
 // volume goes through ReadImage/WriteImage themselves, so 3D files behave exactly as there.
 #include "dsr/io/io_phases.h"
 
+#include <algorithm>
 #include <cstdint>
 #include <utility>
 
@@ -32,17 +33,11 @@ itk_io::PhasesLayout LayoutFor(const std::string& path) {
   return itk_io::PhasesLayout::kScalar4d;
 }
 
-// Phases T > 1 must share phase 0's grid and hold its number of voxels; phase 0's grid
-// must be valid.
+// Every phase must share phase 0's grid and hold its number of voxels.
 bool CheckPhasesToWrite(const std::vector<Image>& phases,
                         const std::string& path,
                         std::string* error) {
   const ImageGeometry& grid = phases[0].geometry;
-  std::string why;
-  if (!grid.Validate("grid", &why)) {
-    *error = path + ": cannot write an image with an invalid " + why;
-    return false;
-  }
   for (size_t t = 0; t < phases.size(); ++t) {
     const ImageGeometry& g = phases[t].geometry;
     if (g.size != grid.size || !g.SameGrid(grid)) {
@@ -120,32 +115,53 @@ bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string
   return true;
 }
 
-bool WritePhases(const std::vector<Image>& phases, const std::string& path, std::string* error) {
-  if (phases.empty()) {
+bool WritePhases(const ImageGeometry& grid,
+                 const std::vector<const float*>& voxels,
+                 const std::string& path,
+                 std::string* error) {
+  if (voxels.empty()) {
     *error = path + ": cannot write an image of no phases";
     return false;
   }
-  if (phases.size() == 1) return WriteImage(phases[0], path, error);
+  if (voxels.size() == 1) {
+    Image image(grid);
+    std::copy(voxels[0], voxels[0] + image.voxels.size(), image.voxels.begin());
+    return WriteImage(image, path, error);
+  }
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
     return false;
   }
-  if (!CheckPhasesToWrite(phases, path, error)) return false;
-  const itk_io::RawVolume grid = ToRaw(phases[0].geometry);
-  std::vector<const float*> voxels;
-  for (const Image& phase : phases) voxels.push_back(phase.voxels.data());
+  std::string why;
+  if (!grid.Validate("grid", &why)) {
+    *error = path + ": cannot write an image with an invalid " + why;
+    return false;
+  }
+  const itk_io::RawVolume raw = ToRaw(grid);
   const itk_io::PhasesLayout layout = LayoutFor(path);
   const std::string ext = Lower(path);
   // As WriteImage: .nii is never compressed, .mhd/.nhdr keep raw data files.
   const bool compress = EndsWith(ext, ".nii.gz") || EndsWith(ext, ".mha") || EndsWith(ext, ".nrrd");
   const auto write = [&](const std::string& temp, std::string* write_error) {
-    return itk_io::WritePhases(grid, voxels, temp, layout, compress, write_error);
+    return itk_io::WritePhases(raw, voxels, temp, layout, compress, write_error);
   };
   // A detached header names its data file after itself (see WriteImage).
   if (EndsWith(ext, ".mhd") || EndsWith(ext, ".nhdr")) {
     return WriteFilesViaTemporaryFolder(path, write, error);
   }
   return WriteViaTemporaryFile(path, write, error);
+}
+
+bool WritePhases(const std::vector<Image>& phases, const std::string& path, std::string* error) {
+  if (phases.empty()) {
+    *error = path + ": cannot write an image of no phases";
+    return false;
+  }
+  if (phases.size() == 1) return WriteImage(phases[0], path, error);
+  if (!CheckPhasesToWrite(phases, path, error)) return false;
+  std::vector<const float*> voxels;
+  for (const Image& phase : phases) voxels.push_back(phase.voxels.data());
+  return WritePhases(phases[0].geometry, voxels, path, error);
 }
 
 bool ReadMaskPhases(const std::string& path,

@@ -43,6 +43,12 @@ bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string
 // rename, or a temporary folder for .nhdr/.mhd), verified by reading the header and the
 // data size back. Memory: one extra copy of the voxels while writing.
 bool WritePhases(const std::vector<Image>& phases, const std::string& path, std::string* error);
+// The same for voxels held elsewhere (the Python module's arrays): phase t's
+// grid.NumVoxels() voxels, x fastest, start at voxels[t]. No copy beyond the writer's.
+bool WritePhases(const ImageGeometry& grid,
+                 const std::vector<const float*>& voxels,
+                 const std::string& path,
+                 std::string* error);
 
 // Reads a mask as ReadMask does (any scalar type, non-zero = inside, on `expected`'s grid,
 // at least one voxel inside). A 3D file behaves exactly as with ReadMask; a 4D mask is

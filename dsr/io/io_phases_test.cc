@@ -448,6 +448,11 @@ TEST(PhasesIo, WriteRefusesPhasesOnDifferentGridsAndWritesNothing) {
   EXPECT_THAT(error, HasSubstr("phase 2"));
   EXPECT_FALSE(WritePhases({}, path, &error));
   ExpectOneLineNaming(error, path);
+  phases = ObliquePhases();
+  for (Image& phase : phases) phase.geometry.spacing_mm[2] = 0.0;
+  EXPECT_FALSE(WritePhases(phases, path, &error));
+  ExpectOneLineNaming(error, path);
+  EXPECT_THAT(error, HasSubstr("invalid grid"));
   EXPECT_FALSE(WritePhases(ObliquePhases(), dir.File("x.png"), &error));
   EXPECT_FALSE(WritePhases(ObliquePhases(), dir.File("missing/x.nrrd"), &error));
   ExpectOneLineNaming(error, dir.File("missing/x.nrrd"));
