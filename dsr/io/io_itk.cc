@@ -552,11 +552,10 @@ DataProblem CheckNiftiData(const std::string& path, bool exact, std::string* rea
     const int64_t nxyz = nxy * layout.size[2];
     const int64_t v = first % nxyz;  // within its 3D volume (a 4D file's phase)
     const std::string phase = static_cast<int64_t>(layout.voxels) > nxyz
-                                  ? " of phase " + std::to_string(first / nxyz)
+                                  ? "phase " + std::to_string(first / nxyz) + ": "
                                   : "";
-    *reason = "voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) + "," +
-              std::to_string(v / nxy) + ")" + phase + " is " +
-              (scan.first_is_nan() ? "NaN" : "Inf");
+    *reason = phase + "voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) +
+              "," + std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
     return DataProblem::kVoxel;
   }
   return DataProblem::kNone;
