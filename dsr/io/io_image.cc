@@ -3,6 +3,7 @@
 // before any voxel is read; voxels must be finite; masks must lie on the image's grid and
 // contain at least one inside voxel; writes are verified by reading them back (io_itk.h,
 // VerifyWritten) and atomic (atomic_file.h), so a failed write never replaces a file.
+// The rules io_phases.cc shares are in io_internal (io_image_internal.h).
 #include "dsr/io/io_image.h"
 
 #include <zlib.h>
@@ -255,15 +256,12 @@ bool MaskFromImage(const std::string& path,
 
 }  // namespace io_internal
 
-using io_internal::CheckNiftiOriginPrecision;
-using io_internal::ZeroNiftiSpacing;
-
 bool ReadImage(const std::string& path, Image* image, std::string* error) {
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
     return false;
   }
-  const std::string zero_spacing = ZeroNiftiSpacing(path);
+  const std::string zero_spacing = io_internal::ZeroNiftiSpacing(path);
   if (!zero_spacing.empty()) {
     *error = path + ": " + zero_spacing;
     return false;
@@ -276,7 +274,7 @@ bool ReadImage(const std::string& path, Image* image, std::string* error) {
   if (!itk_io::Read(path, check_header, &raw, error)) return false;
   Image out;
   out.geometry = ToGeometry(raw);
-  if (nifti && !CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
+  if (nifti && !io_internal::CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
   out.voxels = std::move(raw.voxels);
   if (!CheckFiniteVoxels(out, path, error)) return false;
   *image = std::move(out);

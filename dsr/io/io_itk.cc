@@ -1434,7 +1434,11 @@ std::string TeemError() {
 // Sets the fields of a NRRD of 4 axes (phases on axis 0, kind list, label "phase"; then the
 // three spatial axes in LPS space) around `data`, and 3D Slicer's sequence keys if
 // `sequence`. False when teem refuses.
-bool DescribeNrrdList(const RawVolume& grid, size_t phases, bool sequence, float* data, Nrrd* nrrd) {
+bool DescribeNrrdList(const RawVolume& grid,
+                      size_t phases,
+                      bool sequence,
+                      float* data,
+                      Nrrd* nrrd) {
   size_t size[4] = {phases, static_cast<size_t>(grid.size[0]), static_cast<size_t>(grid.size[1]),
                     static_cast<size_t>(grid.size[2])};
   if (nrrdWrap_nva(nrrd, data, nrrdTypeFloat, 4, size) != 0 ||

@@ -316,7 +316,10 @@ TEST(PhasesIo, FourDimensionalFilesOfOtherToolsAreRead) {
 
 // A 2x2x2 NRRD of `phases` phases with voxel value 10 * phase + voxel (ascii), the phase
 // axis of kind `kind` at position `list_axis` (0 or 3), with `extra` header lines.
-std::string SmallNrrd(int phases, const std::string& kind, int list_axis, const std::string& extra) {
+std::string SmallNrrd(int phases,
+                      const std::string& kind,
+                      int list_axis,
+                      const std::string& extra) {
   std::ostringstream text;
   const std::string sizes = list_axis == 0 ? std::to_string(phases) + " 2 2 2"
                                            : "2 2 2 " + std::to_string(phases);

@@ -664,7 +664,9 @@ py::tuple ReadImageFile(const std::string& path) {
   std::vector<Image> phases;
   std::string error;
   if (!ReadPhases(path, &phases, &error)) BadInput(error);
-  if (phases.size() == 1) return py::make_tuple(ToArray(phases[0]), FromGeometry(phases[0].geometry));
+  if (phases.size() == 1) {
+    return py::make_tuple(ToArray(phases[0]), FromGeometry(phases[0].geometry));
+  }
   const Eigen::Vector3i& n = phases[0].geometry.size;
   py::array_t<float> out({static_cast<ssize_t>(phases.size()), static_cast<ssize_t>(n[2]),
                           static_cast<ssize_t>(n[1]), static_cast<ssize_t>(n[0])});
@@ -694,7 +696,8 @@ void WritePhasesFile(const py::array& input, const Geometry& geometry, const std
   std::vector<const float*> voxels;
   for (ssize_t t = 0; t < array.shape(0); ++t) {
     const float* phase = array.data() + static_cast<size_t>(t) * count;
-    const float* bad = std::find_if(phase, phase + count, [](float v) { return !std::isfinite(v); });
+    const float* bad =
+        std::find_if(phase, phase + count, [](float v) { return !std::isfinite(v); });
     if (bad != phase + count) {
       BadInput("image: phase " + std::to_string(t) + ": " +
                VoxelName(bad - phase, grid.size[0], grid.size[1]) + " is " +
