@@ -11,7 +11,7 @@ cd "$(dirname "$0")/.."
 build="$PWD/${DSR_BUILD_DIR:-build}"
 bash scripts/install_deps.sh chromium  # the cohort page is opened in headless Chromium
 python=$(bash scripts/python_env.sh)
-"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" SimpleITK tqdm \
+"$python" -m pip install -q --disable-pip-version-check "pytest>=7" "numpy>=1.21" "SimpleITK==2.5.7" tqdm \
   "dask[distributed]==2024.8.2"
 cmake --install "$build" --prefix "$build/python-prefix" >/dev/null
 "$python" -m pip install -q --disable-pip-version-check ./python \

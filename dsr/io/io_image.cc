@@ -3,6 +3,7 @@
 // before any voxel is read; voxels must be finite; masks must lie on the image's grid and
 // contain at least one inside voxel; writes are verified by reading them back (io_itk.h,
 // VerifyWritten) and atomic (atomic_file.h), so a failed write never replaces a file.
+// The rules io_phases.cc shares are in io_internal (io_image_internal.h).
 #include "dsr/io/io_image.h"
 
 #include <zlib.h>
@@ -17,6 +18,7 @@
 
 #include <glog/logging.h>
 
+#include "dsr/io/io_image_internal.h"
 #include "dsr/io/io_itk.h"
 #include "dsr/util/atomic_file.h"
 
@@ -25,6 +27,10 @@ namespace {
 
 constexpr const char* kSupportedExtensions[] = {
     ".nii", ".nii.gz", ".mha", ".mhd", ".nrrd", ".nhdr"};
+
+}  // namespace
+
+namespace io_internal {
 
 std::string Lower(std::string text) {
   for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
@@ -65,6 +71,17 @@ itk_io::RawVolume ToRaw(const ImageGeometry& geometry) {
   }
   return raw;
 }
+
+}  // namespace io_internal
+
+namespace {
+
+using io_internal::EndsWith;
+using io_internal::IsNifti;
+using io_internal::Lower;
+using io_internal::ToGeometry;
+using io_internal::ToRaw;
+using io_internal::UnsupportedExtension;
 
 std::string Triple(const Eigen::Vector3d& v) {
   std::ostringstream s;
@@ -139,7 +156,7 @@ bool HasSupportedImageExtension(const std::string& path) {
                      [&](const char* ext) { return EndsWith(lower, ext); });
 }
 
-namespace {
+namespace io_internal {
 
 // A NIfTI header's pixdim[1..3] of 0, which ITK reads as a spacing of 1 mm (a negative one
 // it refuses): "" when the file is no NIfTI-1/2 file or its spacings are not 0. The header
@@ -208,39 +225,11 @@ std::string ZeroNiftiSpacing(const std::string& path) {
   return "";
 }
 
-}  // namespace
-
-bool ReadImage(const std::string& path, Image* image, std::string* error) {
-  if (!HasSupportedImageExtension(path)) {
-    *error = UnsupportedExtension(path);
-    return false;
-  }
-  const std::string zero_spacing = ZeroNiftiSpacing(path);
-  if (!zero_spacing.empty()) {
-    *error = path + ": " + zero_spacing;
-    return false;
-  }
-  const bool nifti = IsNifti(path);
-  itk_io::RawVolume raw;
-  const auto check_header = [&](const itk_io::RawVolume& header, std::string* header_error) {
-    return ToGeometry(header).Validate(path, header_error);
-  };
-  if (!itk_io::Read(path, check_header, &raw, error)) return false;
-  Image out;
-  out.geometry = ToGeometry(raw);
-  if (nifti && !CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
-  out.voxels = std::move(raw.voxels);
-  if (!CheckFiniteVoxels(out, path, error)) return false;
-  *image = std::move(out);
-  return true;
-}
-
-bool ReadMask(const std::string& path,
-              const ImageGeometry& expected,
-              Mask* mask,
-              std::string* error) {
-  Image image;
-  if (!ReadImage(path, &image, error)) return false;
+bool MaskFromImage(const std::string& path,
+                   const Image& image,
+                   const ImageGeometry& expected,
+                   Mask* mask,
+                   std::string* error) {
   if (image.geometry.size != expected.size) {
     *error = path + ": mask grid " + image.geometry.DebugString() +
              " does not match the image grid " + expected.DebugString();
@@ -263,6 +252,42 @@ bool ReadMask(const std::string& path,
   }
   *mask = std::move(out);
   return true;
+}
+
+}  // namespace io_internal
+
+bool ReadImage(const std::string& path, Image* image, std::string* error) {
+  if (!HasSupportedImageExtension(path)) {
+    *error = UnsupportedExtension(path);
+    return false;
+  }
+  const std::string zero_spacing = io_internal::ZeroNiftiSpacing(path);
+  if (!zero_spacing.empty()) {
+    *error = path + ": " + zero_spacing;
+    return false;
+  }
+  const bool nifti = IsNifti(path);
+  itk_io::RawVolume raw;
+  const auto check_header = [&](const itk_io::RawVolume& header, std::string* header_error) {
+    return ToGeometry(header).Validate(path, header_error);
+  };
+  if (!itk_io::Read(path, check_header, &raw, error)) return false;
+  Image out;
+  out.geometry = ToGeometry(raw);
+  if (nifti && !io_internal::CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
+  out.voxels = std::move(raw.voxels);
+  if (!CheckFiniteVoxels(out, path, error)) return false;
+  *image = std::move(out);
+  return true;
+}
+
+bool ReadMask(const std::string& path,
+              const ImageGeometry& expected,
+              Mask* mask,
+              std::string* error) {
+  Image image;
+  if (!ReadImage(path, &image, error)) return false;
+  return io_internal::MaskFromImage(path, image, expected, mask, error);
 }
 
 bool ImageDataFiles(const std::string& path, std::vector<std::string>* files, std::string* error) {

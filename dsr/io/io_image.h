@@ -12,6 +12,7 @@
 // failed write (disk full, file-size limit) or an interrupted run never replaces a previous
 // file with a truncated one. .nii.gz, .mha and .nrrd are written compressed; .nii, .mhd and
 // .nhdr uncompressed (.mhd/.nhdr write a "<name>.raw" data file next to the header).
+// 4D images (one 3D volume per heart phase) are read and written by io_phases.h.
 #ifndef DSR_IO_IO_IMAGE_H_
 #define DSR_IO_IO_IMAGE_H_
 

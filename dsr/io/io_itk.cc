@@ -20,6 +20,12 @@
 // Writing: the NIfTI and MetaImage writers report success when the disk is full or a
 // file-size limit is hit, so every written file is read back (VerifyWritten) with the same
 // checks, demanding the exact size.
+//
+// Phases (4D images, io_phases.h): read through the same ImageIOBase path (a scalar 4D
+// image, or a NRRD whose one non-spatial axis is a list or vector, which ITK reads as
+// vector pixels); written by ITK's writer as a scalar 4D image, or for NRRD by ITK's teem
+// (NrrdIO) directly, since ITK's writer gives a non-spatial axis the kind "vector" and no
+// keys of its own, while 3D Slicer's .seq.nrrd wants kind "list" and its sequence keys.
 #include "dsr/io/io_itk.h"
 
 #include <algorithm>
@@ -35,6 +41,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <memory>
 #include <mutex>
 #include <new>
@@ -51,6 +58,7 @@
 #include <itkMetaImageIOFactory.h>
 #include <itkNiftiImageIOFactory.h>
 #include <itkNrrdImageIOFactory.h>
+#include <NrrdIO.h>
 #include <itk_zlib.h>
 
 namespace dsr {
@@ -186,6 +194,30 @@ bool ConvertBuffer(itk::IOComponentEnum type, const void* buffer, size_t count, 
   }
 }
 
+// The 3D grid of the first three axes of `io` (sizes that fit an int) into `header`.
+bool FillGrid(const std::string& path,
+              const itk::ImageIOBase& io,
+              RawVolume* header,
+              std::string* error) {
+  for (int a = 0; a < 3; ++a) {
+    const uint64_t n = io.GetDimensions(a);
+    if (n > static_cast<uint64_t>(INT_MAX)) {
+      *error = path + ": size " + std::to_string(n) + " along axis " + std::to_string(a) +
+               " is too large";
+      return false;
+    }
+    header->size[a] = static_cast<int>(n);
+    header->origin[a] = io.GetOrigin(a);
+    header->spacing[a] = io.GetSpacing(a);
+    // GetDirection(a) is the direction of index axis a, i.e. column a of D.
+    const std::vector<double> axis = io.GetDirection(a);
+    for (int r = 0; r < 3; ++r) {
+      header->direction[3 * r + a] = r < static_cast<int>(axis.size()) ? axis[r] : 0.0;
+    }
+  }
+  return true;
+}
+
 // Header checks that need only ITK: scalar pixels, a known component type, 3D (or 4D
 // with one volume), sizes that fit an int. Fills the geometry of `header`.
 bool InspectHeader(const std::string& path,
@@ -223,23 +255,7 @@ bool InspectHeader(const std::string& path,
       return false;
     }
   }
-  for (int a = 0; a < 3; ++a) {
-    const uint64_t n = io.GetDimensions(a);
-    if (n > static_cast<uint64_t>(INT_MAX)) {
-      *error = path + ": size " + std::to_string(n) + " along axis " + std::to_string(a) +
-               " is too large";
-      return false;
-    }
-    header->size[a] = static_cast<int>(n);
-    header->origin[a] = io.GetOrigin(a);
-    header->spacing[a] = io.GetSpacing(a);
-    // GetDirection(a) is the direction of index axis a, i.e. column a of D.
-    const std::vector<double> axis = io.GetDirection(a);
-    for (int r = 0; r < 3; ++r) {
-      header->direction[3 * r + a] = r < static_cast<int>(axis.size()) ? axis[r] : 0.0;
-    }
-  }
-  return true;
+  return FillGrid(path, io, header, error);
 }
 
 template <typename Pixel>
@@ -530,11 +546,16 @@ DataProblem CheckNiftiData(const std::string& path, bool exact, std::string* rea
   if (total < expected) return ends_early(total);
   if (exact && total != expected) return too_long(total);
   if (scan.found()) {
-    const int64_t v = scan.first_index();
+    const int64_t first = scan.first_index();
     const int64_t nx = layout.size[0];
     const int64_t nxy = nx * layout.size[1];
-    *reason = "voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) + "," +
-              std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
+    const int64_t nxyz = nxy * layout.size[2];
+    const int64_t v = first % nxyz;  // within its 3D volume (a 4D file's phase)
+    const std::string phase = static_cast<int64_t>(layout.voxels) > nxyz
+                                  ? "phase " + std::to_string(first / nxyz) + ": "
+                                  : "";
+    *reason = phase + "voxel (" + std::to_string(v % nx) + "," + std::to_string((v % nxy) / nx) +
+              "," + std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
     return DataProblem::kVoxel;
   }
   return DataProblem::kNone;
@@ -1086,12 +1107,8 @@ bool CheckHeaderBeforeItk(const std::string& io_name, const std::string& path, s
   return true;
 }
 
-}  // namespace
-
-bool Read(const std::string& path,
-          const HeaderCheck& check_header,
-          RawVolume* volume,
-          std::string* error) {
+// The checks Read makes before ITK sees `path`: it exists and is a regular file.
+bool CheckInputFile(const std::string& path, std::string* error) {
   namespace fs = std::filesystem;
   std::error_code ec;
   const fs::file_status status = fs::status(path, ec);
@@ -1107,84 +1124,400 @@ bool Read(const std::string& path,
     *error = path + ": not a regular file";
     return false;
   }
-  RegisterFactories();
-  const ScopedQuietStdErr quiet;
-  const char* stage = "cannot read the header";
-  try {
-    itk::ImageIOBase::Pointer io =
-        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
-    if (!io) {
-      *error = path + ": cannot read the header (not a valid NIfTI, MetaImage or NRRD file)";
-      return false;
-    }
-    io->SetFileName(path);
-    {
-      std::string reason;
-      if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) {
-        *error = path + ": " + reason;
-        return false;
-      }
-    }
-    io->ReadImageInformation();
-    RawVolume out;
-    if (!InspectHeader(path, *io, &out, error)) return false;
-    if (check_header && !check_header(out, error)) return false;
+  return true;
+}
 
-    stage = "cannot read the voxels";
-    std::string reason;
-    const DataProblem problem = CheckDataBlock(*io, path, /*exact=*/false, &reason);
-    if (problem != DataProblem::kNone) {
-      *error = problem == DataProblem::kVoxel ? path + ": " + reason
-                                              : path + ": " + stage + " (" + reason + ")";
-      return false;
-    }
-    const unsigned dims = io->GetNumberOfDimensions();
-    itk::ImageIORegion region(dims);
-    for (unsigned d = 0; d < dims; ++d) {
-      region.SetIndex(d, 0);
-      region.SetSize(d, io->GetDimensions(d));
-    }
-    io->SetIORegion(region);
-    const size_t count = static_cast<size_t>(out.size[0]) * static_cast<size_t>(out.size[1]) *
-                         static_cast<size_t>(out.size[2]);
-    const size_t bytes = static_cast<size_t>(io->GetImageSizeInBytes());
-    // A header that promises more voxel bytes than its file could hold, even at zlib's
-    // largest compression ratio (1032:1), is refused before anything is allocated (found by
-    // fuzzing: a 421-byte file asked for 12.7 GB). Detached headers (.mhd, .nhdr) point to
-    // another file and are left to the data check above.
-    const bool attached = EndsWith(path, ".nii") || EndsWith(path, ".nii.gz") ||
-                          EndsWith(path, ".mha") || EndsWith(path, ".nrrd");
-    const uint64_t file_bytes = fs::file_size(path, ec);
-    if (attached && !ec && bytes > 1100 * file_bytes + 4096) {
-      *error = path + ": " + stage + " (the header promises " + std::to_string(bytes) +
-               " bytes of voxels, more than a " + std::to_string(file_bytes) +
-               "-byte file can hold)";
-      return false;
-    }
-    if (io->GetComponentType() == itk::IOComponentEnum::FLOAT && bytes == count * sizeof(float)) {
-      // Already the voxels' type: read in place (no second copy of a large volume).
-      out.voxels.resize(count);
-      io->Read(out.voxels.data());
-    } else {
-      // 8-byte aligned storage for any component type.
-      std::unique_ptr<uint64_t[]> buffer(new uint64_t[bytes / sizeof(uint64_t) + 1]);
-      io->Read(buffer.get());
-      out.voxels.resize(count);
-      ConvertBuffer(io->GetComponentType(), buffer.get(), count, out.voxels.data());
-    }
-    *volume = std::move(out);
-    return true;
+// ITK's ImageIO for `path` with the header read, after the checks that must run before ITK
+// parses it; nullptr with `error` when no ImageIO takes the file or a check fails. Throws
+// what ITK throws.
+itk::ImageIOBase::Pointer OpenHeader(const std::string& path, std::string* error) {
+  itk::ImageIOBase::Pointer io =
+      itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+  if (!io) {
+    *error = path + ": cannot read the header (not a valid NIfTI, MetaImage or NRRD file)";
+    return nullptr;
+  }
+  io->SetFileName(path);
+  std::string reason;
+  if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) {
+    *error = path + ": " + reason;
+    return nullptr;
+  }
+  io->ReadImageInformation();
+  return io;
+}
+
+// Reads every voxel component of `io` (header read and checked) as float, x fastest
+// (components fastest of all): the data-block checks first, then a refusal of headers that
+// promise more data than their file can hold, then one read (in place for float files).
+bool ReadAllAsFloat(itk::ImageIOBase& io,
+                    const std::string& path,
+                    std::vector<float>* voxels,
+                    std::string* error) {
+  namespace fs = std::filesystem;
+  const char* stage = "cannot read the voxels";
+  std::string reason;
+  const DataProblem problem = CheckDataBlock(io, path, /*exact=*/false, &reason);
+  if (problem != DataProblem::kNone) {
+    *error = problem == DataProblem::kVoxel ? path + ": " + reason
+                                            : path + ": " + stage + " (" + reason + ")";
+    return false;
+  }
+  const unsigned dims = io.GetNumberOfDimensions();
+  itk::ImageIORegion region(dims);
+  size_t count = io.GetNumberOfComponents();
+  for (unsigned d = 0; d < dims; ++d) {
+    region.SetIndex(d, 0);
+    region.SetSize(d, io.GetDimensions(d));
+    count *= static_cast<size_t>(io.GetDimensions(d));
+  }
+  io.SetIORegion(region);
+  const size_t bytes = static_cast<size_t>(io.GetImageSizeInBytes());
+  // A header that promises more voxel bytes than its file could hold, even at zlib's
+  // largest compression ratio (1032:1), is refused before anything is allocated (found by
+  // fuzzing: a 421-byte file asked for 12.7 GB). Detached headers (.mhd, .nhdr) point to
+  // another file and are left to the data check above.
+  const bool attached = EndsWith(path, ".nii") || EndsWith(path, ".nii.gz") ||
+                        EndsWith(path, ".mha") || EndsWith(path, ".nrrd");
+  std::error_code ec;
+  const uint64_t file_bytes = fs::file_size(path, ec);
+  if (attached && !ec && bytes > 1100 * file_bytes + 4096) {
+    *error = path + ": " + stage + " (the header promises " + std::to_string(bytes) +
+             " bytes of voxels, more than a " + std::to_string(file_bytes) +
+             "-byte file can hold)";
+    return false;
+  }
+  if (io.GetComponentType() == itk::IOComponentEnum::FLOAT && bytes == count * sizeof(float)) {
+    // Already the voxels' type: read in place (no second copy of a large volume).
+    voxels->resize(count);
+    io.Read(voxels->data());
+  } else {
+    // 8-byte aligned storage for any component type.
+    std::unique_ptr<uint64_t[]> buffer(new uint64_t[bytes / sizeof(uint64_t) + 1]);
+    io.Read(buffer.get());
+    voxels->resize(count);
+    ConvertBuffer(io.GetComponentType(), buffer.get(), count, voxels->data());
+  }
+  return true;
+}
+
+// The one-line error for the exception being handled, thrown while a read was at `stage`.
+// Call only inside a catch block.
+std::string ReadFailure(const std::string& path, const char* stage) {
+  try {
+    throw;
   } catch (const itk::ExceptionObject& e) {
     std::string what = Describe(e);
     // MetaImageIO appends strerror(errno) to any header it cannot parse, even though the
     // file was opened: "Reason: No such file or directory" would mislead.
     const size_t reason = what.find(" for reading. Reason: ");
     if (reason != std::string::npos) what.erase(reason);
-    *error = path + ": " + stage + " (" + what + ")";
+    return path + ": " + stage + " (" + what + ")";
   } catch (const std::bad_alloc&) {
-    *error = path + ": " + stage + " (out of memory; is the header's size right?)";
+    return path + ": " + stage + " (out of memory; is the header's size right?)";
   } catch (const std::exception& e) {
-    *error = path + ": " + stage + " (" + OneLine(e.what()) + ")";
+    return path + ": " + stage + " (" + OneLine(e.what()) + ")";
+  }
+}
+
+// VerifyWritten for any shape: the written header has at least sizes.size() dimensions of
+// these sizes (any further ones of size 1), `components` components of `component`, and
+// the data block is complete (exact size).
+bool VerifyWrittenShape(const std::vector<uint64_t>& sizes,
+                        unsigned components,
+                        itk::IOComponentEnum component,
+                        const std::string& path,
+                        std::string* error) {
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  const auto fail = [&](const std::string& reason) {
+    *error = path + ": write failed (disk full or file-size limit?): " + reason;
+    return false;
+  };
+  try {
+    itk::ImageIOBase::Pointer io =
+        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
+    if (!io) return fail("the written header cannot be read back");
+    io->SetFileName(path);
+    std::string reason;
+    if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) return fail(reason);
+    io->ReadImageInformation();
+    bool same = io->GetNumberOfDimensions() >= sizes.size() &&
+                io->GetNumberOfComponents() == components && io->GetComponentType() == component;
+    for (unsigned d = 0; same && d < io->GetNumberOfDimensions(); ++d) {
+      same = io->GetDimensions(d) == (d < sizes.size() ? sizes[d] : 1);
+    }
+    if (!same) return fail("the written header does not describe the image");
+    if (CheckDataBlock(*io, path, /*exact=*/true, &reason) != DataProblem::kNone) {
+      return fail(reason);
+    }
+    return true;
+  } catch (const itk::ExceptionObject& e) {
+    return fail("the written header cannot be read back (" + Describe(e) + ")");
+  } catch (const std::bad_alloc&) {
+    return fail("out of memory while reading it back");
+  } catch (const std::exception& e) {
+    return fail(OneLine(e.what()));
+  }
+}
+
+// ---- Phases (io_phases.h) ----
+
+// "AxBxC..." for the sizes of every axis of `io`.
+std::string Extent(const itk::ImageIOBase& io) {
+  std::string extent;
+  for (unsigned d = 0; d < io.GetNumberOfDimensions(); ++d) {
+    extent += (d ? "x" : "") + std::to_string(io.GetDimensions(d));
+  }
+  return extent;
+}
+
+// The kind of the first non-spatial axis in a NRRD header's "kinds:" field (a kind other
+// than domain, space, time or unknown), "" when there is none.
+std::string NrrdRangeKind(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  size_t read = 0;
+  while (read < kMaxHeaderBytes && std::getline(in, line)) {
+    read += line.size() + 1;
+    if (Trim(line).empty()) break;  // the header ends at its first empty line
+    const size_t colon = line.find(':');
+    if (line[0] == '#' || colon == std::string::npos || Trim(line.substr(0, colon)) != "kinds") {
+      continue;
+    }
+    for (const std::string& kind : Words(line.substr(colon + 1))) {
+      if (kind != "domain" && kind != "space" && kind != "time" && kind != "???" &&
+          kind != "none") {
+        return kind;
+      }
+    }
+  }
+  return "";
+}
+
+// A scalar 4D image's 4th axis must be apart from space: no spatial component in its
+// direction, no 4th component in the directions of the first three.
+bool FourthAxisApart(const itk::ImageIOBase& io) {
+  for (unsigned a = 0; a < 4; ++a) {
+    const std::vector<double> axis = io.GetDirection(a);
+    for (size_t r = 0; r < axis.size(); ++r) {
+      if ((a < 3) != (r < 3) && std::abs(axis[r]) > 1e-6) return false;
+    }
+  }
+  return true;
+}
+
+// ReadPhasesHeader's classification of the header `io` has read (see io_itk.h).
+bool InspectPhasesHeader(const std::string& path,
+                         const itk::ImageIOBase& io,
+                         PhasesHeader* header,
+                         std::string* error) {
+  const itk::IOComponentEnum component = io.GetComponentType();
+  if (!ConvertBuffer(component, nullptr, 0, nullptr)) {  // a known type converts nothing
+    *error =
+        path + ": unsupported voxel type " + itk::ImageIOBase::GetComponentTypeAsString(component);
+    return false;
+  }
+  const unsigned dims = io.GetNumberOfDimensions();
+  const unsigned components = io.GetNumberOfComponents();
+  const itk::IOPixelEnum pixel = io.GetPixelType();
+  uint64_t phases = 1;
+  if (pixel == itk::IOPixelEnum::SCALAR && components == 1) {
+    if (dims < 3 || dims > 4) {
+      *error = path + ": " + std::to_string(dims) + "D image of size " + Extent(io) +
+               "; expected a 3D image or a 4D image of phases (x, y, z, phase)";
+      return false;
+    }
+    if (dims == 4 && io.GetDimensions(3) > 1 && !FourthAxisApart(io)) {  // 1: as Read takes it
+      *error = path + ": the header's directions mix the 4th axis with space; expected three "
+               "spatial axes and a separate 4th (phase) axis";
+      return false;
+    }
+    phases = dims == 4 ? io.GetDimensions(3) : 1;
+    header->single_volume = phases == 1;
+  } else if (std::string(io.GetNameOfClass()) == "NrrdImageIO" &&
+             pixel == itk::IOPixelEnum::VECTOR && dims == 3) {
+    const std::string kind = NrrdRangeKind(path);
+    if (kind != "list" && kind != "vector") {
+      *error = path + ": NRRD non-spatial axis of kind '" + kind +
+               "'; phases need an axis of kind list (3D Slicer's .seq.nrrd) or vector";
+      return false;
+    }
+    phases = components;
+    header->single_volume = false;
+  } else {
+    *error = path + ": " + itk::ImageIOBase::GetPixelTypeAsString(pixel) + " pixels (" +
+             std::to_string(components) + " components) in a " + std::to_string(dims) +
+             "D image; expected scalar voxels (phases on a 4th axis or a NRRD list axis)";
+    return false;
+  }
+  if (phases < 1 || phases > static_cast<uint64_t>(INT_MAX)) {
+    *error = path + ": " + std::to_string(phases) + " phases is not a usable number";
+    return false;
+  }
+  header->phases = static_cast<int>(phases);
+  return FillGrid(path, io, &header->grid, error);
+}
+
+// Splits `all` (the file's voxels as float: phase-major, or phase-fastest if `interleaved`)
+// into `phases` phases of `count` voxels each; `all` is released at the end.
+void SplitPhases(std::vector<float>* all,
+                 int phases,
+                 size_t count,
+                 bool interleaved,
+                 std::vector<std::vector<float>>* out) {
+  out->assign(static_cast<size_t>(phases), {});
+  const size_t stride = static_cast<size_t>(phases);
+  for (size_t t = 0; t < stride; ++t) {
+    std::vector<float>& phase = (*out)[t];
+    phase.resize(count);
+    if (interleaved) {
+      for (size_t v = 0; v < count; ++v) phase[v] = (*all)[v * stride + t];
+    } else {
+      std::copy(all->begin() + t * count, all->begin() + (t + 1) * count, phase.begin());
+    }
+  }
+  std::vector<float>().swap(*all);
+}
+
+size_t VoxelCount(const RawVolume& grid) {
+  return static_cast<size_t>(grid.size[0]) * static_cast<size_t>(grid.size[1]) *
+         static_cast<size_t>(grid.size[2]);
+}
+
+// A scalar 4D float image (x, y, z, phase) through ITK's writer: phase spacing 1, origin
+// 0, the 4th axis apart from space. Throws what ITK throws.
+void WriteScalar4d(const RawVolume& grid,
+                   const std::vector<const float*>& phases,
+                   const std::string& path,
+                   bool compress) {
+  using ItkImage = itk::Image<float, 4>;
+  auto image = ItkImage::New();
+  ItkImage::RegionType region;
+  ItkImage::SpacingType spacing;
+  ItkImage::PointType origin;
+  ItkImage::DirectionType direction;
+  direction.SetIdentity();
+  for (int a = 0; a < 3; ++a) {
+    region.SetSize(a, static_cast<itk::SizeValueType>(grid.size[a]));
+    spacing[a] = grid.spacing[a];
+    origin[a] = grid.origin[a];
+    for (int b = 0; b < 3; ++b) direction[a][b] = grid.direction[3 * a + b];
+  }
+  region.SetSize(3, static_cast<itk::SizeValueType>(phases.size()));
+  spacing[3] = 1.0;
+  origin[3] = 0.0;
+  image->SetRegions(region);
+  image->SetSpacing(spacing);
+  image->SetOrigin(origin);
+  image->SetDirection(direction);
+  image->Allocate();
+  const size_t count = VoxelCount(grid);
+  for (size_t t = 0; t < phases.size(); ++t) {
+    std::copy(phases[t], phases[t] + count, image->GetBufferPointer() + t * count);
+  }
+  auto writer = itk::ImageFileWriter<ItkImage>::New();
+  writer->SetFileName(path);
+  writer->SetInput(image);
+  writer->SetUseCompression(compress);
+  writer->Update();
+}
+
+// The error teem (NrrdIO) left in its "nrrd" biff, on one line.
+std::string TeemError() {
+  char* text = biffGetDone(NRRD);
+  const std::string message = text != nullptr ? OneLine(text) : "no details";
+  std::free(text);
+  return message;
+}
+
+// Sets the fields of a NRRD of 4 axes (phases on axis 0, kind list, label "phase"; then the
+// three spatial axes in LPS space) around `data`, and 3D Slicer's sequence keys if
+// `sequence`. False when teem refuses.
+bool DescribeNrrdList(const RawVolume& grid,
+                      size_t phases,
+                      bool sequence,
+                      float* data,
+                      Nrrd* nrrd) {
+  size_t size[4] = {phases, static_cast<size_t>(grid.size[0]), static_cast<size_t>(grid.size[1]),
+                    static_cast<size_t>(grid.size[2])};
+  if (nrrdWrap_nva(nrrd, data, nrrdTypeFloat, 4, size) != 0 ||
+      nrrdSpaceSet(nrrd, nrrdSpaceLeftPosteriorSuperior) != 0 ||
+      nrrdSpaceOriginSet(nrrd, grid.origin) != 0) {
+    return false;
+  }
+  int kinds[NRRD_DIM_MAX] = {nrrdKindList, nrrdKindDomain, nrrdKindDomain, nrrdKindDomain};
+  nrrdAxisInfoSet_nva(nrrd, nrrdAxisInfoKind, kinds);
+  double directions[NRRD_DIM_MAX][NRRD_SPACE_DIM_MAX];
+  for (int r = 0; r < 3; ++r) {
+    directions[0][r] = std::numeric_limits<double>::quiet_NaN();  // "none"
+    for (int a = 0; a < 3; ++a) directions[a + 1][r] = grid.spacing[a] * grid.direction[3 * r + a];
+  }
+  nrrdAxisInfoSet_nva(nrrd, nrrdAxisInfoSpaceDirection, directions);
+  const char* labels[NRRD_DIM_MAX] = {"phase", "", "", ""};
+  nrrdAxisInfoSet_nva(nrrd, nrrdAxisInfoLabel, labels);
+  if (!sequence) return true;
+  std::string values;
+  for (size_t t = 0; t < phases; ++t) values += (t ? " " : "") + std::to_string(t);
+  return nrrdKeyValueAdd(nrrd, "DataNodeClassName", "vtkMRMLScalarVolumeNode") == 0 &&
+         nrrdKeyValueAdd(nrrd, "axis 0 index type", "numeric") == 0 &&
+         nrrdKeyValueAdd(nrrd, "axis 0 index values", values.c_str()) == 0;
+}
+
+// A NRRD with the phases on a list axis (axis 0, phase-fastest voxels) through teem, which
+// ITK's writer cannot make (it writes kind "vector" and no per-axis keys for that axis).
+bool WriteNrrdList(const RawVolume& grid,
+                   const std::vector<const float*>& phases,
+                   const std::string& path,
+                   bool sequence,
+                   bool compress,
+                   std::string* error) {
+  const size_t count = VoxelCount(grid);
+  const size_t stride = phases.size();
+  std::vector<float> data(count * stride);  // the one copy: phase-fastest
+  for (size_t t = 0; t < stride; ++t) {
+    for (size_t v = 0; v < count; ++v) data[v * stride + t] = phases[t][v];
+  }
+  std::unique_ptr<Nrrd, Nrrd* (*)(Nrrd*)> nrrd(nrrdNew(), nrrdNix);  // nix: keeps `data`
+  std::unique_ptr<NrrdIoState, NrrdIoState* (*)(NrrdIoState*)> io(nrrdIoStateNew(),
+                                                                   nrrdIoStateNix);
+  const NrrdEncoding* encoding =
+      nrrdEncodingArray[compress ? nrrdEncodingTypeGzip : nrrdEncodingTypeRaw];
+  if (!encoding->available()) {
+    *error = path + ": cannot write (this build's NRRD library has no gzip encoding)";
+    return false;
+  }
+  io->encoding = encoding;
+  if (!DescribeNrrdList(grid, stride, sequence, data.data(), nrrd.get()) ||
+      nrrdSave(path.c_str(), nrrd.get(), io.get()) != 0) {
+    *error = path + ": cannot write (" + TeemError() + ")";
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool Read(const std::string& path,
+          const HeaderCheck& check_header,
+          RawVolume* volume,
+          std::string* error) {
+  if (!CheckInputFile(path, error)) return false;
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  const char* stage = "cannot read the header";
+  try {
+    itk::ImageIOBase::Pointer io = OpenHeader(path, error);
+    if (!io) return false;
+    RawVolume out;
+    if (!InspectHeader(path, *io, &out, error)) return false;
+    if (check_header && !check_header(out, error)) return false;
+    stage = "cannot read the voxels";
+    if (!ReadAllAsFloat(*io, path, &out.voxels, error)) return false;
+    *volume = std::move(out);
+    return true;
+  } catch (...) {
+    *error = ReadFailure(path, stage);
   }
   return false;
 }
@@ -1219,39 +1552,91 @@ bool VerifyWritten(const RawVolume& volume,
                    const std::string& path,
                    PixelType pixel_type,
                    std::string* error) {
+  const itk::IOComponentEnum component =
+      pixel_type == PixelType::kUint8 ? itk::IOComponentEnum::UCHAR : itk::IOComponentEnum::FLOAT;
+  const std::vector<uint64_t> sizes = {static_cast<uint64_t>(volume.size[0]),
+                                       static_cast<uint64_t>(volume.size[1]),
+                                       static_cast<uint64_t>(volume.size[2])};
+  return VerifyWrittenShape(sizes, 1, component, path, error);
+}
+
+bool ReadPhasesHeader(const std::string& path, PhasesHeader* header, std::string* error) {
+  if (!CheckInputFile(path, error)) return false;
   RegisterFactories();
   const ScopedQuietStdErr quiet;
-  const auto fail = [&](const std::string& reason) {
-    *error = path + ": write failed (disk full or file-size limit?): " + reason;
-    return false;
-  };
   try {
-    itk::ImageIOBase::Pointer io =
-        itk::ImageIOFactory::CreateImageIO(path.c_str(), itk::IOFileModeEnum::ReadMode);
-    if (!io) return fail("the written header cannot be read back");
-    io->SetFileName(path);
-    std::string reason;
-    if (!CheckHeaderBeforeItk(io->GetNameOfClass(), path, &reason)) return fail(reason);
-    io->ReadImageInformation();
-    const itk::IOComponentEnum component =
-        pixel_type == PixelType::kUint8 ? itk::IOComponentEnum::UCHAR : itk::IOComponentEnum::FLOAT;
-    bool same = io->GetNumberOfDimensions() >= 3 && io->GetNumberOfComponents() == 1 &&
-                io->GetComponentType() == component;
-    for (unsigned d = 0; same && d < io->GetNumberOfDimensions(); ++d) {
-      same = io->GetDimensions(d) == (d < 3 ? static_cast<itk::SizeValueType>(volume.size[d]) : 1);
-    }
-    if (!same) return fail("the written header does not describe the image");
-    if (CheckDataBlock(*io, path, /*exact=*/true, &reason) != DataProblem::kNone) {
-      return fail(reason);
-    }
+    itk::ImageIOBase::Pointer io = OpenHeader(path, error);
+    if (!io) return false;
+    PhasesHeader out;
+    if (!InspectPhasesHeader(path, *io, &out, error)) return false;
+    *header = out;
     return true;
-  } catch (const itk::ExceptionObject& e) {
-    return fail("the written header cannot be read back (" + Describe(e) + ")");
-  } catch (const std::bad_alloc&) {
-    return fail("out of memory while reading it back");
-  } catch (const std::exception& e) {
-    return fail(OneLine(e.what()));
+  } catch (...) {
+    *error = ReadFailure(path, "cannot read the header");
   }
+  return false;
+}
+
+bool ReadPhases(const std::string& path,
+                const HeaderCheck& check_header,
+                RawVolume* grid,
+                std::vector<std::vector<float>>* phases,
+                std::string* error) {
+  if (!CheckInputFile(path, error)) return false;
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  const char* stage = "cannot read the header";
+  try {
+    itk::ImageIOBase::Pointer io = OpenHeader(path, error);
+    if (!io) return false;
+    PhasesHeader header;
+    if (!InspectPhasesHeader(path, *io, &header, error)) return false;
+    if (check_header && !check_header(header.grid, error)) return false;
+    stage = "cannot read the voxels";
+    std::vector<float> all;
+    if (!ReadAllAsFloat(*io, path, &all, error)) return false;
+    const bool interleaved = io->GetPixelType() != itk::IOPixelEnum::SCALAR;
+    SplitPhases(&all, header.phases, VoxelCount(header.grid), interleaved, phases);
+    *grid = header.grid;
+    return true;
+  } catch (...) {
+    *error = ReadFailure(path, stage);
+  }
+  return false;
+}
+
+bool WritePhases(const RawVolume& grid,
+                 const std::vector<const float*>& phases,
+                 const std::string& path,
+                 PhasesLayout layout,
+                 bool compress,
+                 std::string* error) {
+  RegisterFactories();
+  const ScopedQuietStdErr quiet;
+  std::vector<uint64_t> sizes = {static_cast<uint64_t>(grid.size[0]),
+                                 static_cast<uint64_t>(grid.size[1]),
+                                 static_cast<uint64_t>(grid.size[2])};
+  unsigned components = static_cast<unsigned>(phases.size());
+  try {
+    if (layout == PhasesLayout::kScalar4d) {
+      WriteScalar4d(grid, phases, path, compress);
+      sizes.push_back(phases.size());
+      components = 1;
+    } else if (!WriteNrrdList(grid, phases, path, layout == PhasesLayout::kSlicerSequence,
+                              compress, error)) {
+      return false;
+    }
+  } catch (const itk::ExceptionObject& e) {
+    *error = path + ": cannot write (" + Describe(e) + ")";
+    return false;
+  } catch (const std::bad_alloc&) {
+    *error = path + ": cannot write (out of memory)";
+    return false;
+  } catch (const std::exception& e) {
+    *error = path + ": cannot write (" + OneLine(e.what()) + ")";
+    return false;
+  }
+  return VerifyWrittenShape(sizes, components, itk::IOComponentEnum::FLOAT, path, error);
 }
 
 bool DataFiles(const std::string& path, std::vector<std::string>* files, std::string* error) {

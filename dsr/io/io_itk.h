@@ -57,6 +57,53 @@ bool VerifyWritten(const RawVolume& volume,
                    PixelType pixel_type,
                    std::string* error);
 
+// ---- Phases: a 4D image read or written as T 3D volumes on one grid (io_phases.h) ----
+
+// What a header says about an image's phases: its 3D grid (voxels empty), the number of
+// phases and whether Read reads the file as it is (`single_volume`: a scalar 3D image, or
+// 4D with a 4th size of 1) or only ReadPhases does.
+struct PhasesHeader {
+  RawVolume grid;
+  int phases = 1;
+  bool single_volume = true;
+};
+
+// Reads the header only and classifies the file: a scalar 3D image (1 phase); a scalar 4D
+// image, one phase per index of the 4th axis (NIfTI's time axis, ITK's 4D NRRD/MetaImage);
+// a NRRD of 3 spatial axes and one non-spatial axis of kind "list" or "vector" (3D
+// Slicer's .seq.nrrd and ITK's vector images), one phase per item. Anything else (2D, 5D+,
+// other pixel kinds, a 4th axis mixed with space) is refused with one line naming `path`.
+bool ReadPhasesHeader(const std::string& path, PhasesHeader* header, std::string* error);
+
+// Reads every phase as float (the header checks of ReadPhasesHeader, then `check_header`
+// on the 3D grid, then the data-block checks of Read). `phases` gets one x-fastest vector
+// per phase. Peak memory: the file's voxels once plus the phases (a non-float file's
+// voxels are converted to float before the phases are split off).
+bool ReadPhases(const std::string& path,
+                const HeaderCheck& check_header,
+                RawVolume* grid,
+                std::vector<std::vector<float>>* phases,
+                std::string* error);
+
+// How WritePhases lays the phases out:
+// kScalar4d: a scalar 4D image (x, y, z, phase), phase spacing 1, origin 0 (NIfTI's time
+//   axis, ITK's 4D MetaImage).
+// kNrrdList: NRRD of dimension 4 with the phases on axis 0 of kind "list" (space direction
+//   "none", label "phase") followed by the three spatial axes (space left-posterior-superior).
+// kSlicerSequence: kNrrdList plus 3D Slicer's sequence keys (DataNodeClassName
+//   vtkMRMLScalarVolumeNode, "axis 0 index type" numeric, "axis 0 index values" 0..T-1).
+enum class PhasesLayout { kScalar4d, kNrrdList, kSlicerSequence };
+
+// Writes float phases (each grid.size[0] * size[1] * size[2] voxels, x fastest; grid's
+// voxels unused) to `path` and verifies the result as Write does. Holds one copy of the
+// voxels (the 4D buffer) while writing. Not atomic by itself. Errors name `path`.
+bool WritePhases(const RawVolume& grid,
+                 const std::vector<const float*>& phases,
+                 const std::string& path,
+                 PhasesLayout layout,
+                 bool compress,
+                 std::string* error);
+
 // `path` followed by the data files its header names (see io_image.h, ImageDataFiles).
 bool DataFiles(const std::string& path, std::vector<std::string>* files, std::string* error);
 

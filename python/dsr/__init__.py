@@ -57,6 +57,9 @@ class Image:
     """A 3D image: ``array`` indexed [k, j, i] and its physical grid (LPS millimetres).
 
     ``direction`` is the 3x3 matrix whose columns are the index axes in physical space.
+    ``read_image`` of a 4D file (one 3D volume per heart phase) gives an ``array`` indexed
+    [t, k, j, i] with the phases' 3D grid; ``write_image`` writes such an array as a 4D file.
+    Registration takes 3D images only.
     """
 
     array: np.ndarray
@@ -76,6 +79,10 @@ class Image:
         needs SimpleITK)."""
         import SimpleITK as sitk  # noqa: PLC0415 (only when asked for)
 
+        if np.ndim(self.array) == 4:  # phases: a 4D image, 4th spacing 1 (as dsr writes it)
+            return sitk.JoinSeries([Image(phase, self.spacing, self.origin,
+                                          self.direction).to_simpleitk()
+                                    for phase in self.array])
         image = sitk.GetImageFromArray(np.ascontiguousarray(self.array))
         image.SetSpacing([float(v) for v in self.spacing])
         image.SetOrigin([float(v) for v in self.origin])
@@ -383,13 +390,17 @@ def simulate(**options: Any) -> Sequence:
 
 
 def read_image(path: Union[str, "os.PathLike[str]"]) -> Image:
-    """Reads a 3D image (NIfTI, MetaImage, NRRD) as dsr reads it (ITK, LPS)."""
+    """Reads a 3D image (NIfTI, MetaImage, NRRD) as dsr reads it (ITK, LPS). A 4D file of
+    T > 1 phases (a NIfTI time axis, a NRRD list axis, 3D Slicer's .seq.nrrd; see
+    docs/usage.md) gives an array of shape (T, z, y, x) and the phases' 3D grid."""
     return Image._from_core(_core.read_image(os.fspath(path)))
 
 
 def write_image(image: ImageLike, path: Union[str, "os.PathLike[str]"]) -> None:
     """Writes a 3D image (float32; the format from the file name), atomically (OSError when
-    it cannot, leaving no file)."""
+    it cannot, leaving no file). An array of shape (T, z, y, x) is written as T phases of
+    one 3D grid: NIfTI with a time axis, NRRD with a list axis, and for ``.seq.nrrd`` the
+    sequence file 3D Slicer loads as a sequence of scalar volumes (docs/usage.md)."""
     im = _as_image(image, "image")
     _core.write_image(np.asarray(im.array), im.geometry(), os.fspath(path))
 

@@ -10,6 +10,7 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <exception>
@@ -34,6 +35,7 @@
 #include "dsr/app/simulation_run.h"
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/io/io_transform.h"
 #include "dsr/model/panorama.h"
@@ -667,15 +669,59 @@ void WriteTransformFile(const py::array& pose, const std::string& path) {
   if (!WriteItkTransform(ToPose(pose, "pose: "), path, &error)) WriteFailed(error);
 }
 
+// A 3D file as a 3D array [k][j][i]; a 4D file of T > 1 phases (io/io_phases.h) as a 4D
+// array [t][k][j][i], with the phases' 3D geometry.
 py::tuple ReadImageFile(const std::string& path) {
-  Image image;
+  std::vector<Image> phases;
   std::string error;
-  if (!ReadImage(path, &image, &error)) BadInput(error);
-  return py::make_tuple(ToArray(image), FromGeometry(image.geometry));
+  if (!ReadPhases(path, &phases, &error)) BadInput(error);
+  if (phases.size() == 1) {
+    return py::make_tuple(ToArray(phases[0]), FromGeometry(phases[0].geometry));
+  }
+  const Eigen::Vector3i& n = phases[0].geometry.size;
+  py::array_t<float> out({static_cast<ssize_t>(phases.size()), static_cast<ssize_t>(n[2]),
+                          static_cast<ssize_t>(n[1]), static_cast<ssize_t>(n[0])});
+  float* data = out.mutable_data();
+  for (Image& phase : phases) {
+    data = std::copy(phase.voxels.begin(), phase.voxels.end(), data);
+    std::vector<float>().swap(phase.voxels);  // one copy of the data at a time
+  }
+  return py::make_tuple(out, FromGeometry(phases[0].geometry));
+}
+
+// A 4D array [t][k][j][i] written as T phases (io/io_phases.h, WritePhases) straight from
+// the array (float32, C order: no copy unless numpy must convert), after the checks
+// ToVolume makes for a 3D one (a 3D grid, finite voxels, named by phase).
+void WritePhasesFile(const py::array& input, const Geometry& geometry, const std::string& path) {
+  if (input.dtype().kind() == 'c') {
+    BadInput("image: complex pixels (" + std::string(py::str(input.dtype())) +
+             "); dsr writes real intensities: pass the magnitude (numpy.abs) or the real part");
+  }
+  const auto array = py::array_t<float, py::array::c_style | py::array::forcecast>::ensure(input);
+  if (!array) BadInput("image: not an array of numbers");
+  const ImageGeometry grid =
+      ToGeometry({array.shape(1), array.shape(2), array.shape(3)}, geometry, "image");
+  std::string error;
+  if (!grid.Validate("image", &error)) BadInput(error);
+  const size_t count = static_cast<size_t>(grid.NumVoxels());
+  std::vector<const float*> voxels;
+  for (ssize_t t = 0; t < array.shape(0); ++t) {
+    const float* phase = array.data() + static_cast<size_t>(t) * count;
+    const float* bad =
+        std::find_if(phase, phase + count, [](float v) { return !std::isfinite(v); });
+    if (bad != phase + count) {
+      BadInput("image: phase " + std::to_string(t) + ": " +
+               VoxelName(bad - phase, grid.size[0], grid.size[1]) + " is " +
+               (std::isnan(*bad) ? "NaN" : "Inf"));
+    }
+    voxels.push_back(phase);
+  }
+  if (!WritePhases(grid, voxels, path, &error)) WriteFailed(error);
 }
 
 void WriteImageFile(const py::array& array, const Geometry& geometry, const std::string& path) {
   CheckWrite(path, /*image=*/true);
+  if (array.ndim() == 4) return WritePhasesFile(array, geometry, path);
   std::string error;
   if (!WriteImage(ToVolume<float>(array, geometry, "image"), path, &error)) WriteFailed(error);
 }

@@ -1,7 +1,7 @@
 // libFuzzer target: the image-loading wrapper (io/io_image.h ReadImage and ReadMask,
-// ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
+// io/io_phases.h ReadPhases, ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
 // .mha, .nrrd); the rest is the file. Any outcome but a crash, a sanitizer report or a leak
-// is fine; an accepted image must have a valid grid and finite voxels.
+// is fine; an accepted image (each accepted phase) must have a valid grid and finite voxels.
 #include <unistd.h>
 
 #include <cmath>
@@ -9,8 +9,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <string>
+#include <vector>
 
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size < 1) return 0;
@@ -34,6 +36,21 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
     dsr::Mask mask;
     if (!dsr::ReadMask(path, image.geometry, &mask, &error) && error.empty()) std::abort();
   } else if (error.empty()) {
+    std::abort();
+  }
+  std::vector<dsr::Image> phases;
+  std::string phases_error;
+  if (dsr::ReadPhases(path, &phases, &phases_error)) {
+    if (phases.empty()) std::abort();
+    for (const dsr::Image& phase : phases) {
+      if (!phase.geometry.SameGrid(phases[0].geometry)) std::abort();
+      if (!phase.geometry.Validate(path, &phases_error)) std::abort();
+      if (static_cast<int64_t>(phase.voxels.size()) != phase.geometry.NumVoxels()) std::abort();
+      for (float v : phase.voxels) {
+        if (!std::isfinite(v)) std::abort();
+      }
+    }
+  } else if (phases_error.empty()) {
     std::abort();
   }
   std::remove(path.c_str());

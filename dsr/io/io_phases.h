@@ -1,0 +1,68 @@
+// 4D images as phases: one 3D volume per heart phase (an ECG-gated sequence), all on the
+// same 3D grid. Read and written through ITK like io_image.h, with its rules (finite
+// voxels, valid geometry, one-line errors that start with the file's path, atomic writes
+// verified by reading them back).
+//
+// Files (docs/usage.md, "4D images: phases"):
+// - NIfTI (.nii, .nii.gz): a 4D image whose 4th axis (time) indexes the phases. Written
+//   with phase spacing 1 and origin 0 on that axis, its unit unknown (xyzt_units: mm, no
+//   time unit): the 4th index is a phase number, not a time.
+// - NRRD (.nrrd, .nhdr): a 4D scalar image (as ITK writes it: four domain axes), or three
+//   spatial axes and one non-spatial axis of kind "list" (3D Slicer) or "vector" (ITK's
+//   vector images). Written as dimension 4 with the phases on axis 0, kind "list", space
+//   direction "none", label "phase"; .nrrd compressed, .nhdr with an uncompressed
+//   "<stem>.raw".
+// - 3D Slicer's volume sequences (.seq.nrrd, .seq.nhdr): that NRRD plus the keys 3D
+//   Slicer's Sequences module reads, so that it loads the file as a sequence of scalar
+//   volumes (vtkMRMLScalarVolumeNode) indexed 0..T-1: "DataNodeClassName:=
+//   vtkMRMLScalarVolumeNode", "axis 0 index type:=numeric", "axis 0 index values:=0 1 ...".
+// - MetaImage (.mha, .mhd): a 4D image (NDims = 4).
+// A 3D file is one phase, read exactly as ReadImage reads it; one phase is written exactly
+// as WriteImage writes it.
+#ifndef DSR_IO_IO_PHASES_H_
+#define DSR_IO_IO_PHASES_H_
+
+#include <string>
+#include <vector>
+
+#include "dsr/geometry/volume.h"
+
+namespace dsr {
+
+// Reads every phase of a 3D or 4D image as float: each Image has the file's 3D grid (the
+// origin, spacing and direction of its three spatial axes). A 3D image (or a 4D one with
+// one phase on a 4th axis) gives what ReadImage gives. Refuses 2D and 5D+ images, pixels
+// other than scalars (or a NRRD list/vector axis of phases), a 4th axis mixed with space,
+// invalid geometry and non-finite voxels ("<path>: phase 2: voxel (i,j,k) is NaN").
+// Memory: the file's voxels once more than the phases, while reading.
+bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string* error);
+
+// Writes the phases (T >= 1; the format follows the extension, see above). Every phase
+// must lie on phase 0's grid (ImageGeometry::SameGrid) with a matching voxel count; phase
+// 0's grid is written. One phase is written as WriteImage writes it. Atomic (temp file +
+// rename, or a temporary folder for .nhdr/.mhd), verified by reading the header and the
+// data size back. Memory: one extra copy of the voxels while writing.
+bool WritePhases(const std::vector<Image>& phases, const std::string& path, std::string* error);
+// The same for voxels held elsewhere (the Python module's arrays): phase t's
+// grid.NumVoxels() voxels, x fastest, start at voxels[t]. No copy beyond the writer's.
+bool WritePhases(const ImageGeometry& grid,
+                 const std::vector<const float*>& voxels,
+                 const std::string& path,
+                 std::string* error);
+
+// Reads a mask as ReadMask does (any scalar type, non-zero = inside, on `expected`'s grid,
+// at least one voxel inside). A 3D file behaves exactly as with ReadMask; a 4D mask is
+// accepted only when every phase has the same inside as phase 0 (then it is that 3D mask),
+// otherwise "<path>: mask phase t differs from phase 0 at voxel (i,j,k) ...".
+bool ReadMaskPhases(const std::string& path,
+                    const ImageGeometry& expected,
+                    Mask* mask,
+                    std::string* error);
+
+// The number of phases of an image file, from its header alone (1 for a 3D image), with
+// ReadPhases's header checks.
+bool NumPhasesInFile(const std::string& path, int* phases, std::string* error);
+
+}  // namespace dsr
+
+#endif  // DSR_IO_IO_PHASES_H_

@@ -1,0 +1,526 @@
+// 4D images as phases (io/io_phases.h): exact round trips in NIfTI, NRRD and 3D Slicer's
+// .seq.nrrd, the written headers field by field, 4D files other tools write, 4D masks, and
+// one-line errors naming the file for every bad input.
+#include "dsr/io/io_phases.h"
+
+#include <zlib.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <iterator>
+#include <limits>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <gmock/gmock.h>
+#include <gtest/gtest.h>
+
+#include "dsr/io/io_image.h"
+#include "dsr/io/io_image_test_itk.h"
+#include "dsr/tests/support/scoped_temp_dir.h"
+
+namespace dsr {
+namespace {
+
+using ::testing::HasSubstr;
+using ::testing::Not;
+
+// As in io_image_test: NIfTI stores the affine as float32, fine to 1e-6 for these sizes.
+constexpr double kGeometryTolerance = 1e-6;
+constexpr int kPhases = 3;
+
+// Anisotropic spacing, a rotated direction and an origin away from 0.
+ImageGeometry ObliqueGeometry() {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(7, 6, 5);
+  g.spacing_mm = Eigen::Vector3d(0.7, 1.1, 2.3);
+  g.origin_mm = Eigen::Vector3d(-3.7, 2.9, 5.3);
+  g.direction = Eigen::AngleAxisd(0.5, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  return g;
+}
+
+// Phases whose voxels differ from phase to phase and are not in order.
+std::vector<Image> ObliquePhases(int count = kPhases) {
+  std::vector<Image> phases;
+  for (int t = 0; t < count; ++t) {
+    Image image(ObliqueGeometry());
+    for (size_t v = 0; v < image.voxels.size(); ++v) {
+      image.voxels[v] = 0.25f * static_cast<float>((v * 37 + 11 * t) % 211) - 3.1f + 100.0f * t;
+    }
+    phases.push_back(image);
+  }
+  return phases;
+}
+
+void ExpectSameGeometry(const ImageGeometry& actual, const ImageGeometry& expected) {
+  EXPECT_EQ(actual.size, expected.size);
+  EXPECT_LT((actual.origin_mm - expected.origin_mm).cwiseAbs().maxCoeff(), kGeometryTolerance)
+      << actual.origin_mm.transpose();
+  EXPECT_LT((actual.spacing_mm - expected.spacing_mm).cwiseAbs().maxCoeff(), kGeometryTolerance)
+      << actual.spacing_mm.transpose();
+  EXPECT_LT((actual.direction - expected.direction).cwiseAbs().maxCoeff(), kGeometryTolerance)
+      << actual.direction;
+}
+
+void ExpectSamePhases(const std::vector<Image>& actual, const std::vector<Image>& expected) {
+  ASSERT_EQ(actual.size(), expected.size());
+  for (size_t t = 0; t < actual.size(); ++t) {
+    SCOPED_TRACE("phase " + std::to_string(t));
+    ExpectSameGeometry(actual[t].geometry, expected[t].geometry);
+    EXPECT_EQ(actual[t].voxels, expected[t].voxels);
+  }
+}
+
+void ExpectOneLineNaming(const std::string& error, const std::string& path) {
+  EXPECT_EQ(error.find('\n'), std::string::npos) << error;
+  EXPECT_THAT(error, HasSubstr(path));
+}
+
+std::string ReadPhasesError(const std::string& path) {
+  std::vector<Image> phases;
+  std::string error;
+  EXPECT_FALSE(ReadPhases(path, &phases, &error)) << path;
+  ExpectOneLineNaming(error, path);
+  return error;
+}
+
+void WriteText(const std::string& path, const std::string& text) {
+  std::ofstream out(path, std::ios::binary);
+  out << text;
+}
+
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>());
+}
+
+// The header lines of a NRRD file (up to its first empty line): "field: value" lines by
+// field, "key:=value" lines by key, each with the rest of its line.
+struct NrrdHeader {
+  std::string magic;
+  std::map<std::string, std::string> fields;
+  std::map<std::string, std::string> keys;
+};
+
+NrrdHeader ReadNrrdHeader(const std::string& path) {
+  NrrdHeader header;
+  std::ifstream in(path, std::ios::binary);
+  std::getline(in, header.magic);
+  for (std::string line; std::getline(in, line) && !line.empty();) {
+    if (line[0] == '#') continue;
+    const size_t key = line.find(":=");
+    if (key != std::string::npos) {
+      header.keys[line.substr(0, key)] = line.substr(key + 2);
+      continue;
+    }
+    const size_t colon = line.find(": ");
+    if (colon != std::string::npos) header.fields[line.substr(0, colon)] = line.substr(colon + 2);
+  }
+  return header;
+}
+
+// "(a,b,c)" -> {a, b, c}.
+std::vector<double> ParseVector(const std::string& text) {
+  std::vector<double> values;
+  std::string inner = text.substr(1, text.size() - 2);
+  std::istringstream in(inner);
+  for (std::string item; std::getline(in, item, ',');) values.push_back(std::stod(item));
+  return values;
+}
+
+std::vector<std::string> Words(const std::string& text) {
+  std::vector<std::string> words;
+  std::istringstream in(text);
+  for (std::string word; in >> word;) words.push_back(word);
+  return words;
+}
+
+test_itk::Grid ToGrid(const ImageGeometry& g) {
+  test_itk::Grid grid;
+  grid.size = {g.size[0], g.size[1], g.size[2]};
+  for (int a = 0; a < 3; ++a) {
+    grid.origin[a] = g.origin_mm[a];
+    grid.spacing[a] = g.spacing_mm[a];
+    for (int b = 0; b < 3; ++b) grid.direction[3 * a + b] = g.direction(a, b);
+  }
+  return grid;
+}
+
+TEST(PhasesIo, RoundTripKeepsGeometryAndVoxelsInEveryFormat) {
+  const std::vector<Image> phases = ObliquePhases();
+  for (const std::string ext :
+       {".nii.gz", ".nii", ".seq.nrrd", ".nrrd", ".nhdr", ".seq.nhdr", ".mha", ".mhd"}) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("phases" + ext);
+    std::string error;
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    int count = 0;
+    ASSERT_TRUE(NumPhasesInFile(path, &count, &error)) << error;
+    EXPECT_EQ(count, kPhases);
+    std::vector<Image> back;
+    ASSERT_TRUE(ReadPhases(path, &back, &error)) << error;
+    ExpectSamePhases(back, phases);
+    // Overwriting works and leaves no temporary file or folder behind.
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    for (const std::string& name : dir.Entries()) {
+      EXPECT_EQ(name.rfind("phases", 0), 0u) << "left behind: " << name;
+    }
+    // A 4D image is no 3D image: ReadImage still refuses it.
+    Image image;
+    EXPECT_FALSE(ReadImage(path, &image, &error));
+  }
+}
+
+TEST(PhasesIo, DetachedNrrdKeepsItsDataFileName) {
+  ScopedTempDir dir;
+  std::string error;
+  ASSERT_TRUE(WritePhases(ObliquePhases(), dir.File("p.nhdr"), &error)) << error;
+  EXPECT_THAT(dir.Entries(), ::testing::UnorderedElementsAre("p.nhdr", "p.raw"));
+  EXPECT_EQ(ReadNrrdHeader(dir.File("p.nhdr")).fields["data file"], "p.raw");
+}
+
+TEST(PhasesIo, ThreeDimensionalFileIsOnePhaseAsReadImageReadsIt) {
+  ScopedTempDir dir;
+  const Image image = ObliquePhases(1)[0];
+  for (const std::string ext : {".nii.gz", ".nrrd", ".mha"}) {
+    SCOPED_TRACE(ext);
+    const std::string path = dir.File("three_d" + ext);
+    std::string error;
+    ASSERT_TRUE(WriteImage(image, path, &error)) << error;
+    Image expected;
+    ASSERT_TRUE(ReadImage(path, &expected, &error)) << error;
+    std::vector<Image> phases;
+    ASSERT_TRUE(ReadPhases(path, &phases, &error)) << error;
+    ASSERT_EQ(phases.size(), 1u);
+    EXPECT_EQ(phases[0].geometry.size, expected.geometry.size);
+    EXPECT_EQ(phases[0].geometry.origin_mm, expected.geometry.origin_mm);
+    EXPECT_EQ(phases[0].geometry.spacing_mm, expected.geometry.spacing_mm);
+    EXPECT_EQ(phases[0].geometry.direction, expected.geometry.direction);
+    EXPECT_EQ(phases[0].voxels, expected.voxels);
+    int count = 0;
+    ASSERT_TRUE(NumPhasesInFile(path, &count, &error)) << error;
+    EXPECT_EQ(count, 1);
+  }
+}
+
+TEST(PhasesIo, OnePhaseIsWrittenAsWriteImageWritesIt) {
+  ScopedTempDir dir;
+  const std::vector<Image> one = ObliquePhases(1);
+  for (const std::string ext : {".nii", ".nrrd", ".seq.nrrd"}) {
+    SCOPED_TRACE(ext);
+    std::string error;
+    ASSERT_TRUE(WriteImage(one[0], dir.File("image" + ext), &error)) << error;
+    ASSERT_TRUE(WritePhases(one, dir.File("phases" + ext), &error)) << error;
+    const std::string written = ReadBytes(dir.File("phases" + ext));
+    EXPECT_FALSE(written.empty());
+    EXPECT_EQ(written, ReadBytes(dir.File("image" + ext)));
+  }
+}
+
+TEST(PhasesIo, SlicerSequenceHeaderFollowsTheFormat) {
+  ScopedTempDir dir;
+  const std::vector<Image> phases = ObliquePhases();
+  const std::string path = dir.File("cine.seq.nrrd");
+  std::string error;
+  ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+  NrrdHeader header = ReadNrrdHeader(path);
+  EXPECT_EQ(header.magic.rfind("NRRD000", 0), 0u) << header.magic;
+  EXPECT_EQ(header.fields["type"], "float");
+  EXPECT_EQ(header.fields["dimension"], "4");
+  EXPECT_EQ(header.fields["space"], "left-posterior-superior");
+  EXPECT_EQ(header.fields["sizes"], "3 7 6 5");  // the list axis first, then I, J, K
+  EXPECT_EQ(header.fields["kinds"], "list domain domain domain");
+  EXPECT_EQ(header.fields["labels"], "\"phase\" \"\" \"\" \"\"");
+  EXPECT_EQ(header.fields["encoding"], "gzip");
+  // The list axis has no space direction; the others are the columns of D S.
+  const std::vector<std::string> directions = Words(header.fields["space directions"]);
+  ASSERT_EQ(directions.size(), 4u) << header.fields["space directions"];
+  EXPECT_EQ(directions[0], "none");
+  const ImageGeometry g = ObliqueGeometry();
+  const Eigen::Matrix3d ds = g.IndexToPhysicalMatrix();
+  for (int a = 0; a < 3; ++a) {
+    const std::vector<double> column = ParseVector(directions[a + 1]);
+    ASSERT_EQ(column.size(), 3u) << directions[a + 1];
+    for (int r = 0; r < 3; ++r) EXPECT_NEAR(column[r], ds(r, a), 1e-12) << a << "," << r;
+  }
+  const std::vector<double> origin = ParseVector(header.fields["space origin"]);
+  ASSERT_EQ(origin.size(), 3u);
+  for (int r = 0; r < 3; ++r) EXPECT_NEAR(origin[r], g.origin_mm[r], 1e-12);
+  // 3D Slicer's sequence keys: scalar volumes indexed 0..T-1.
+  EXPECT_EQ(header.keys["DataNodeClassName"], "vtkMRMLScalarVolumeNode");
+  EXPECT_EQ(header.keys["axis 0 index type"], "numeric");
+  EXPECT_EQ(header.keys["axis 0 index values"], "0 1 2");
+  EXPECT_EQ(header.keys.size(), 3u);
+  // A plain .nrrd has the same list axis and none of the sequence keys.
+  const std::string plain = dir.File("cine.nrrd");
+  ASSERT_TRUE(WritePhases(phases, plain, &error)) << error;
+  header = ReadNrrdHeader(plain);
+  EXPECT_EQ(header.fields["kinds"], "list domain domain domain");
+  EXPECT_EQ(header.fields["sizes"], "3 7 6 5");
+  EXPECT_TRUE(header.keys.empty());
+}
+
+// NIfTI-1 header fields of a written .nii (uncompressed, little-endian on this machine).
+template <typename T>
+T NiftiField(const std::string& bytes, size_t offset) {
+  T value;
+  std::memcpy(&value, bytes.data() + offset, sizeof(T));
+  return value;
+}
+
+TEST(PhasesIo, NiftiHasATimeAxisOfSpacingOne) {
+  ScopedTempDir dir;
+  const std::string path = dir.File("cine.nii");
+  std::string error;
+  ASSERT_TRUE(WritePhases(ObliquePhases(), path, &error)) << error;
+  const std::string bytes = ReadBytes(path);
+  ASSERT_GE(bytes.size(), 348u);
+  EXPECT_EQ(NiftiField<int16_t>(bytes, 40), 4);            // dim[0]
+  EXPECT_EQ(NiftiField<int16_t>(bytes, 40 + 2 * 4), kPhases);  // dim[4]
+  EXPECT_EQ(NiftiField<float>(bytes, 76 + 4 * 4), 1.0f);   // pixdim[4]
+  const int units = NiftiField<uint8_t>(bytes, 123);        // xyzt_units
+  EXPECT_EQ(units & 0x07, 2);  // NIFTI_UNITS_MM
+  EXPECT_EQ(units & 0x38, 0);  // the time unit is unknown: the 4th index is a phase
+  EXPECT_EQ(NiftiField<int16_t>(bytes, 70), 16);  // datatype float32
+}
+
+TEST(PhasesIo, FourDimensionalFilesOfOtherToolsAreRead) {
+  // ITK's own 4D writer (what SimpleITK writes for a 4D image): four domain axes.
+  const ImageGeometry g = ObliqueGeometry();
+  test_itk::Grid grid = ToGrid(g);
+  grid.size.push_back(kPhases);
+  std::vector<double> values(static_cast<size_t>(g.NumVoxels()) * kPhases);
+  for (size_t v = 0; v < values.size(); ++v) values[v] = static_cast<double>((v * 7) % 101);
+  for (const std::string ext : {".nii.gz", ".nrrd", ".mha"}) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("itk4d" + ext);
+    ASSERT_EQ(test_itk::WriteScalarImage(path, grid, test_itk::Pixel::kInt16, values), "");
+    std::vector<Image> phases;
+    std::string error;
+    ASSERT_TRUE(ReadPhases(path, &phases, &error)) << error;
+    ASSERT_EQ(phases.size(), static_cast<size_t>(kPhases));
+    for (int t = 0; t < kPhases; ++t) {
+      ExpectSameGeometry(phases[t].geometry, g);
+      const size_t n = static_cast<size_t>(g.NumVoxels());
+      EXPECT_EQ(std::vector<double>(phases[t].voxels.begin(), phases[t].voxels.end()),
+                std::vector<double>(values.begin() + t * n, values.begin() + (t + 1) * n));
+    }
+  }
+}
+
+// A 2x2x2 NRRD of `phases` phases with voxel value 10 * phase + voxel (ascii), the phase
+// axis of kind `kind` at position `list_axis` (0 or 3), with `extra` header lines.
+std::string SmallNrrd(int phases,
+                      const std::string& kind,
+                      int list_axis,
+                      const std::string& extra) {
+  std::ostringstream text;
+  const std::string sizes = list_axis == 0 ? std::to_string(phases) + " 2 2 2"
+                                           : "2 2 2 " + std::to_string(phases);
+  const std::string kinds = list_axis == 0 ? kind + " domain domain domain"
+                                           : "domain domain domain " + kind;
+  const std::string directions = list_axis == 0 ? "none (2,0,0) (0,3,0) (0,0,4)"
+                                                : "(2,0,0) (0,3,0) (0,0,4) none";
+  text << "NRRD0005\ntype: float\ndimension: 4\nspace: left-posterior-superior\nsizes: " << sizes
+       << "\nspace directions: " << directions << "\nkinds: " << kinds
+       << "\nencoding: ascii\nspace origin: (1,-2,3)\n" << extra << "\n";
+  for (int k = 0; k < 8 * phases; ++k) {
+    const int voxel = list_axis == 0 ? k / phases : k % 8;
+    const int phase = list_axis == 0 ? k % phases : k / 8;
+    text << 10 * phase + voxel << "\n";
+  }
+  return text.str();
+}
+
+TEST(PhasesIo, NrrdListAxisIsReadFirstOrLast) {
+  // 3D Slicer wrote the list axis first (axis 0) and now writes it last (axis 3); ITK
+  // writes vector images with a "vector" axis first.
+  struct Case {
+    std::string kind;
+    int list_axis;
+    std::string keys;
+  };
+  for (const Case& c : {Case{"list", 0, "axis 0 index values:=0 1 2\n"},
+                        Case{"list", 3, "axis 3 index values:=0 1 2\n"},
+                        Case{"vector", 0, ""}}) {
+    SCOPED_TRACE(c.kind + " axis " + std::to_string(c.list_axis));
+    ScopedTempDir dir;
+    const std::string path = dir.File("slicer.seq.nrrd");
+    WriteText(path, SmallNrrd(3, c.kind, c.list_axis, c.keys));
+    std::vector<Image> phases;
+    std::string error;
+    ASSERT_TRUE(ReadPhases(path, &phases, &error)) << error;
+    ASSERT_EQ(phases.size(), 3u);
+    for (int t = 0; t < 3; ++t) {
+      EXPECT_EQ(phases[t].geometry.size, Eigen::Vector3i(2, 2, 2));
+      EXPECT_EQ(phases[t].geometry.spacing_mm, Eigen::Vector3d(2, 3, 4));
+      EXPECT_EQ(phases[t].geometry.origin_mm, Eigen::Vector3d(1, -2, 3));
+      for (int v = 0; v < 8; ++v) EXPECT_EQ(phases[t].voxels[v], 10.0f * t + v) << t << "," << v;
+    }
+  }
+}
+
+TEST(PhasesIo, OtherNonSpatialAxesAreRefused) {
+  ScopedTempDir dir;
+  const std::string rgb = dir.File("rgb.nrrd");
+  WriteText(rgb, SmallNrrd(3, "RGB-color", 0, ""));
+  EXPECT_THAT(ReadPhasesError(rgb), HasSubstr("rgb pixels"));
+  const std::string vector3 = dir.File("vector3.nrrd");
+  WriteText(vector3, SmallNrrd(3, "3-vector", 0, ""));
+  EXPECT_THAT(ReadPhasesError(vector3), HasSubstr("'3-vector'"));
+  const std::string vector_pixels = dir.File("vector.nii.gz");  // NIfTI vector pixels
+  test_itk::Grid grid;
+  grid.size = {4, 3, 2};
+  ASSERT_EQ(test_itk::WriteVectorImage(vector_pixels, grid), "");
+  EXPECT_THAT(ReadPhasesError(vector_pixels), HasSubstr("components"));
+}
+
+TEST(PhasesIo, BadInputsAreOneLineErrors) {
+  ScopedTempDir dir;
+  // Five dimensions.
+  const std::string five = dir.File("five.nrrd");
+  std::string text = "NRRD0004\ntype: float\ndimension: 5\nsizes: 2 2 2 2 2\nencoding: ascii\n\n";
+  for (int v = 0; v < 32; ++v) text += std::to_string(v) + "\n";
+  WriteText(five, text);
+  EXPECT_THAT(ReadPhasesError(five), HasSubstr("5D image of size 2x2x2x2x2"));
+  // Empty files.
+  for (const std::string name : {"empty.nii.gz", "empty.nrrd", "empty.seq.nrrd"}) {
+    WriteText(dir.File(name), "");
+    ReadPhasesError(dir.File(name));
+    int count = 0;
+    std::string error;
+    EXPECT_FALSE(NumPhasesInFile(dir.File(name), &count, &error));
+    ExpectOneLineNaming(error, dir.File(name));
+  }
+  // A 4th axis mixed with space.
+  const std::string mixed = dir.File("mixed.nrrd");
+  text = "NRRD0004\ntype: float\ndimension: 4\nspace dimension: 4\nsizes: 2 2 2 2\n"
+         "space directions: (1,0,0,0) (0,1,0,0) (0,0,1,0.5) (0,0,0,1)\nencoding: ascii\n\n";
+  for (int v = 0; v < 16; ++v) text += std::to_string(v) + "\n";
+  WriteText(mixed, text);
+  EXPECT_THAT(ReadPhasesError(mixed), HasSubstr("4th axis"));
+  // A time axis beside a 3D space (ITK reads no such file).
+  const std::string time = dir.File("time.nrrd");
+  WriteText(time, SmallNrrd(3, "time", 3, ""));
+  ReadPhasesError(time);
+  // Missing file, unsupported extension, 2D image.
+  EXPECT_THAT(ReadPhasesError(dir.File("none.nii.gz")), HasSubstr("no such file"));
+  EXPECT_THAT(ReadPhasesError(dir.File("x.png")), HasSubstr("unsupported extension"));
+  test_itk::Grid flat;
+  flat.size = {4, 3};
+  ASSERT_EQ(test_itk::WriteScalarImage(dir.File("flat.nrrd"), flat, test_itk::Pixel::kFloat,
+                                       std::vector<double>(12, 1.0)), "");
+  EXPECT_THAT(ReadPhasesError(dir.File("flat.nrrd")), HasSubstr("2D image"));
+}
+
+TEST(PhasesIo, NonFiniteVoxelsNameThePhase) {
+  std::vector<Image> phases = ObliquePhases();
+  phases[2].at(1, 2, 3) = std::numeric_limits<float>::quiet_NaN();
+  for (const std::string ext : {".nii.gz", ".nrrd", ".mha"}) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("nan" + ext);
+    std::string error;
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    const std::string read_error = ReadPhasesError(path);
+    EXPECT_EQ(read_error, path + ": phase 2: voxel (1,2,3) is NaN");
+  }
+}
+
+TEST(PhasesIo, WriteRefusesPhasesOnDifferentGridsAndWritesNothing) {
+  ScopedTempDir dir;
+  std::vector<Image> phases = ObliquePhases();
+  phases[1].geometry.origin_mm[0] += 0.5;
+  const std::string path = dir.File("bad.nii.gz");
+  std::string error;
+  EXPECT_FALSE(WritePhases(phases, path, &error));
+  ExpectOneLineNaming(error, path);
+  EXPECT_THAT(error, HasSubstr("phase 1"));
+  phases = ObliquePhases();
+  phases[2].voxels.pop_back();
+  EXPECT_FALSE(WritePhases(phases, path, &error));
+  ExpectOneLineNaming(error, path);
+  EXPECT_THAT(error, HasSubstr("phase 2"));
+  EXPECT_FALSE(WritePhases({}, path, &error));
+  ExpectOneLineNaming(error, path);
+  phases = ObliquePhases();
+  for (Image& phase : phases) phase.geometry.spacing_mm[2] = 0.0;
+  EXPECT_FALSE(WritePhases(phases, path, &error));
+  ExpectOneLineNaming(error, path);
+  EXPECT_THAT(error, HasSubstr("invalid grid"));
+  EXPECT_FALSE(WritePhases(ObliquePhases(), dir.File("x.png"), &error));
+  EXPECT_FALSE(WritePhases(ObliquePhases(), dir.File("missing/x.nrrd"), &error));
+  ExpectOneLineNaming(error, dir.File("missing/x.nrrd"));
+  EXPECT_TRUE(dir.Entries().empty());
+}
+
+// A mask as phases: 1 in the box x < 4, z >= 1 of every phase (phase 1 stores 2 there, so
+// only the inside, not the value, is the same).
+std::vector<Image> MaskPhases() {
+  std::vector<Image> phases;
+  for (int t = 0; t < kPhases; ++t) {
+    Image image(ObliqueGeometry(), 0.0f);
+    for (int k = 1; k < 5; ++k) {
+      for (int j = 0; j < 6; ++j) {
+        for (int i = 0; i < 4; ++i) image.at(i, j, k) = t == 1 ? 2.0f : 1.0f;
+      }
+    }
+    phases.push_back(image);
+  }
+  return phases;
+}
+
+TEST(PhasesIo, FourDimensionalMaskWithEqualPhasesIsItsThreeDimensionalMask) {
+  ScopedTempDir dir;
+  const std::vector<Image> phases = MaskPhases();
+  std::string error;
+  ASSERT_TRUE(WriteImage(phases[0], dir.File("mask3d.nrrd"), &error)) << error;
+  Mask expected;
+  ASSERT_TRUE(ReadMask(dir.File("mask3d.nrrd"), ObliqueGeometry(), &expected, &error)) << error;
+  for (const std::string ext : {".nii.gz", ".seq.nrrd"}) {
+    SCOPED_TRACE(ext);
+    const std::string path = dir.File("mask4d" + ext);
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    Mask mask;
+    ASSERT_TRUE(ReadMaskPhases(path, ObliqueGeometry(), &mask, &error)) << error;
+    ExpectSameGeometry(mask.geometry, expected.geometry);
+    EXPECT_EQ(mask.voxels, expected.voxels);
+  }
+  // A 3D mask file: exactly ReadMask, errors included.
+  Mask mask;
+  ASSERT_TRUE(ReadMaskPhases(dir.File("mask3d.nrrd"), ObliqueGeometry(), &mask, &error));
+  EXPECT_EQ(mask.voxels, expected.voxels);
+  ImageGeometry other = ObliqueGeometry();
+  other.origin_mm[1] += 1.0;
+  std::string mask_error;
+  EXPECT_FALSE(ReadMask(dir.File("mask3d.nrrd"), other, &mask, &mask_error));
+  EXPECT_FALSE(ReadMaskPhases(dir.File("mask3d.nrrd"), other, &mask, &error));
+  EXPECT_EQ(error, mask_error);
+}
+
+TEST(PhasesIo, FourDimensionalMaskWithDifferentPhasesIsRefused) {
+  ScopedTempDir dir;
+  std::vector<Image> phases = MaskPhases();
+  phases[2].at(5, 4, 3) = 1.0f;
+  const std::string path = dir.File("moving_mask.nii.gz");
+  std::string error;
+  ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+  Mask mask;
+  EXPECT_FALSE(ReadMaskPhases(path, ObliqueGeometry(), &mask, &error));
+  ExpectOneLineNaming(error, path);
+  EXPECT_THAT(error, HasSubstr("mask phase 2 differs from phase 0 at voxel (5,4,3)"));
+  // The grid and inside rules of ReadMask still apply to a 4D mask.
+  ImageGeometry other = ObliqueGeometry();
+  other.size[0] = 8;
+  EXPECT_FALSE(ReadMaskPhases(path, other, &mask, &error));
+  EXPECT_THAT(error, HasSubstr("does not match the image grid"));
+}
+
+}  // namespace
+}  // namespace dsr

@@ -1,0 +1,108 @@
+"""4D images (one 3D volume per heart phase, io/io_phases.h): dsr.write_image of a (T, z, y,
+x) array writes NIfTI with a time axis and 3D Slicer's .seq.nrrd; SimpleITK reads what dsr
+writes and dsr reads what SimpleITK writes, with the same voxels and geometry."""
+import numpy as np
+import pytest
+import SimpleITK as sitk
+
+import dsr
+
+PHASES = 3
+SPACING = (0.7, 1.1, 2.3)
+ORIGIN = (-3.7, 2.9, 5.3)
+
+
+def rotation(angle, axis):
+    axis = np.asarray(axis, dtype=float) / np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+DIRECTION = rotation(0.5, (1, -2, 0.5))
+
+
+def phases_image():
+    """Phases on an anisotropic, rotated, shifted grid, with voxels that differ by phase."""
+    t, z, y, x = np.meshgrid(np.arange(PHASES), np.arange(5), np.arange(6), np.arange(7),
+                             indexing="ij")
+    array = (0.25 * ((x + 7 * y + 42 * z) * 37 % 211) - 3.1 + 100.0 * t).astype(np.float32)
+    return dsr.Image(array, SPACING, ORIGIN, DIRECTION)
+
+
+def expect_grid(image, dimension):
+    assert image.GetDimension() == dimension
+    assert image.GetSize()[:3] == (7, 6, 5)
+    np.testing.assert_allclose(image.GetSpacing()[:3], SPACING, atol=1e-6)
+    np.testing.assert_allclose(image.GetOrigin()[:3], ORIGIN, atol=1e-6)
+    direction = np.asarray(image.GetDirection()).reshape(dimension, dimension)
+    np.testing.assert_allclose(direction[:3, :3], DIRECTION, atol=1e-6)
+
+
+def expect_same(read, written):
+    assert read.array.shape == written.array.shape
+    np.testing.assert_array_equal(read.array, written.array)
+    np.testing.assert_allclose(read.spacing, SPACING, atol=1e-6)
+    np.testing.assert_allclose(read.origin, ORIGIN, atol=1e-6)
+    np.testing.assert_allclose(read.direction, DIRECTION, atol=1e-6)
+
+
+def test_simpleitk_reads_a_4d_nifti_written_by_dsr(tmp_path):
+    written = phases_image()
+    path = tmp_path / "cine.nii.gz"
+    dsr.write_image(written, path)
+    image = sitk.ReadImage(str(path))
+    expect_grid(image, 4)
+    assert image.GetSize() == (7, 6, 5, PHASES)
+    assert image.GetSpacing()[3] == 1.0  # one step per phase
+    assert image.GetNumberOfComponentsPerPixel() == 1
+    np.testing.assert_array_equal(sitk.GetArrayFromImage(image), written.array)  # [t, k, j, i]
+    expect_same(dsr.read_image(path), written)
+
+
+def test_simpleitk_reads_a_slicer_sequence_written_by_dsr(tmp_path):
+    # ITK (so SimpleITK) reads a NRRD's list axis as the components of a 3D image: T values
+    # per voxel, phase fastest; 3D Slicer reads the same file as a sequence of T volumes.
+    written = phases_image()
+    path = tmp_path / "cine.seq.nrrd"
+    dsr.write_image(written, path)
+    image = sitk.ReadImage(str(path))
+    expect_grid(image, 3)
+    assert image.GetNumberOfComponentsPerPixel() == PHASES
+    values = sitk.GetArrayFromImage(image)  # [k, j, i, t]
+    assert values.shape == (5, 6, 7, PHASES)
+    np.testing.assert_array_equal(np.moveaxis(values, -1, 0), written.array)
+    assert image.GetMetaData("DataNodeClassName") == "vtkMRMLScalarVolumeNode"
+    assert image.GetMetaData("axis 0 index type") == "numeric"
+    assert image.GetMetaData("axis 0 index values") == "0 1 2"
+    expect_same(dsr.read_image(path), written)
+
+
+def test_dsr_reads_4d_images_simpleitk_writes(tmp_path):
+    written = phases_image()
+    series = written.to_simpleitk()  # JoinSeries: a 4D image, 4th spacing 1
+    assert series.GetDimension() == 4
+    for name in ("itk.nii.gz", "itk.nrrd", "itk.mha"):
+        sitk.WriteImage(series, str(tmp_path / name))
+        expect_same(dsr.read_image(tmp_path / name), written)
+    vector = sitk.Compose([sitk.GetImageFromArray(p) for p in written.array])
+    vector.CopyInformation(dsr.Image(written.array[0], SPACING, ORIGIN, DIRECTION).to_simpleitk())
+    sitk.WriteImage(vector, str(tmp_path / "vector.nrrd"))  # kind "vector": phases too
+    expect_same(dsr.read_image(tmp_path / "vector.nrrd"), written)
+
+
+def test_3d_images_are_unchanged_and_bad_phases_are_named(tmp_path):
+    written = phases_image()
+    one = dsr.Image(written.array[1], SPACING, ORIGIN, DIRECTION)
+    dsr.write_image(one, tmp_path / "one.nrrd")
+    back = dsr.read_image(tmp_path / "one.nrrd")
+    assert back.array.ndim == 3
+    expect_same(back, one)
+    bad = written.array.copy()
+    bad[2, 1, 2, 3] = np.nan
+    with pytest.raises(ValueError, match=r"image: phase 2: voxel \(3,2,1\) is NaN"):
+        dsr.write_image(dsr.Image(bad, SPACING, ORIGIN, DIRECTION), tmp_path / "bad.nii.gz")
+    moved = dsr.Image(written.array, SPACING, ORIGIN, DIRECTION)
+    dsr.write_image(moved, tmp_path / "moved.nrrd")
+    with pytest.raises(ValueError, match=r"image 0: 4D array"):
+        dsr.register([dsr.read_image(tmp_path / "moved.nrrd"), one])
+    assert not (tmp_path / "bad.nii.gz").exists()
