@@ -9,6 +9,7 @@
 #include "dsr/app/run_options.h"
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 
 namespace dsr {
 
@@ -46,7 +47,9 @@ bool FusionRun::ReadFiles(std::string* error) {
     return false;
   }
   if (!ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
-                  &images_, &masks_, &mask_rules_, error)) {
+                  &images_, &masks_, &mask_rules_, error, &later_phases_) ||
+      !SelectPhases(config_.phases, image_paths_, &images_, &later_phases_, error) ||
+      !CheckSamePhases(image_paths_, &later_phases_, error)) {
     return false;
   }
   names_ = image_paths_;
@@ -77,7 +80,9 @@ bool FusionRun::Prepare(std::string* error) {
   }
   // The mean (float) and k_j (uint8); writing adds a float copy and ITK's image of each
   // output, one at a time, and --out_count a float image of k_j.
-  const double bytes_per_voxel = 5.0 + 8.0 + (out_count_.empty() ? 0.0 : 4.0);
+  // Every later phase's mean, float, and one more frame set while it is fused.
+  const double bytes_per_voxel = 5.0 + 8.0 + (out_count_.empty() ? 0.0 : 4.0) +
+                                 4.0 * (later_phases_.empty() ? 0 : later_phases_[0].size());
   std::ostringstream spacing;
   spacing << "--panorama_spacing=" << config_.panorama_spacing;
   // The file's gains and offsets (re-gauged to frame 0 by MatchPosesToImages), if any.
@@ -93,10 +98,24 @@ bool FusionRun::Prepare(std::string* error) {
 void FusionRun::Fuse() {
   fused_ = FusePanorama(frames_, frame_from_world_, grid_, config_.feather,
                         config_.feather_voxels, config_.num_threads, photometric_);
+  later_means_.clear();
+  const int later = later_phases_.empty() ? 0 : static_cast<int>(later_phases_[0].size());
+  for (int p = 0; p < later; ++p) {  // phase by phase: one more set of frames at a time
+    std::vector<Frame> frames(frames_.size());
+    ParallelFor(0, static_cast<int64_t>(frames.size()), config_.num_threads, [&](int64_t i) {
+      frames[i] = Frame(later_phases_[i][p], masks_[i]);
+    });
+    later_means_.push_back(FusePanorama(frames, frame_from_world_, grid_, config_.feather,
+                                        config_.feather_voxels, config_.num_threads,
+                                        photometric_).mean);
+  }
 }
 
 bool FusionRun::Write(std::string* error) const {
-  if (!out_.empty() && !WriteImage(fused_.mean, out_, error)) return false;
+  std::vector<const float*> phases(1, fused_.mean.voxels.data());
+  for (const Image& mean : later_means_) phases.push_back(mean.voxels.data());
+  // One phase: a 3D image as WriteImage writes it; more: 4D (io/io_phases.h).
+  if (!out_.empty() && !WritePhases(grid_, phases, out_, error)) return false;
   if (out_count_.empty()) return true;
   Image count(grid_, 0.0f);
   std::copy(fused_.count.voxels.begin(), fused_.count.voxels.end(), count.voxels.begin());
@@ -106,10 +125,14 @@ bool FusionRun::Write(std::string* error) const {
 std::vector<std::string> FusionRun::SummaryLines() const {
   char line[512];
   std::snprintf(line, sizeof(line),
-                "%zu frames, %s blend%s, panorama %dx%dx%d voxels of %.3gx%.3gx%.3g mm; "
+                "%zu frames%s, %s blend%s, panorama %dx%dx%d voxels of %.3gx%.3gx%.3g mm; "
                 "field-of-view enlargement %.3f (%lld voxels seen / %lld in frame 0's field of "
                 "view); wrote %s",
-                images_.size(), blend_.c_str(),
+                images_.size(),
+                later_means_.empty()
+                    ? ""
+                    : (" x " + std::to_string(1 + later_means_.size()) + " phases").c_str(),
+                blend_.c_str(),
                 photometric_.empty() ? "" : " of intensities corrected by --poses' gain and offset",
                 grid_.size[0], grid_.size[1], grid_.size[2], grid_.spacing_mm[0],
                 grid_.spacing_mm[1], grid_.spacing_mm[2], fused_.EnlargementRatio(),

@@ -40,7 +40,8 @@ class FusionRun {
   // The frames at their poses, the panorama's grid, and its memory (the mean, the count and
   // what writing them adds), before the panorama is allocated.
   bool Prepare(std::string* error);
-  // Fuses (with the poses file's gains and offsets when it has them).
+  // Fuses (with the poses file's gains and offsets when it has them); views of T > 1 phases
+  // phase by phase (fused() is phase 0's, later_means() the other phases' means).
   void Fuse();
   // Writes the planned outputs (atomically).
   bool Write(std::string* error) const;
@@ -48,6 +49,7 @@ class FusionRun {
   std::vector<std::string> SummaryLines() const;
 
   const PanoramaImages& fused() const { return fused_; }
+  const std::vector<Image>& later_means() const { return later_means_; }
   const ImageGeometry& grid() const { return grid_; }
 
  private:
@@ -56,6 +58,7 @@ class FusionRun {
   OutputPlan plan_;
   std::vector<std::string> image_paths_, mask_paths_, names_;
   std::vector<Image> images_;
+  std::vector<std::vector<Image>> later_phases_;  // views of T > 1 phases: phases 1..T-1
   std::vector<Mask> masks_;
   std::vector<MaskRule> mask_rules_;
   PosesFile poses_;
@@ -64,6 +67,7 @@ class FusionRun {
   ImageGeometry grid_;
   std::vector<Photometric> photometric_;
   PanoramaImages fused_;
+  std::vector<Image> later_means_;
 };
 
 }  // namespace dsr

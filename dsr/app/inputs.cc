@@ -11,6 +11,7 @@
 #include <system_error>
 
 #include "dsr/app/flagfile.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/solve/solve_options.h"
 
 namespace dsr {
@@ -258,16 +259,62 @@ bool ParseInputList(const std::string& flag,
   } else {
     items = SplitCommaList(text);
   }
-  for (const std::string& item : items) {
-    std::error_code ec;
-    if (std::filesystem::exists(item, ec) || ec) continue;  // other errors: the reader's
-    *error = from_list ? "--" + flag + "=" + text + ": " + item + ": no such file"
-                       : "--" + flag + ": " + item + ": no such file (--" + flag +
-                             " is split at commas; a name that contains a comma can be given "
-                             "in a list file, --" + flag + "=@LIST, one path per line)";
-    return false;
+  for (const std::string& view : items) {
+    for (const std::string& item : ViewFiles(view)) {  // a view's phases may be files joined by ';'
+      std::error_code ec;
+      if (std::filesystem::exists(item, ec) || ec) continue;  // other errors: the reader's
+      *error = from_list ? "--" + flag + "=" + text + ": " + item + ": no such file"
+                         : "--" + flag + ": " + item + ": no such file (--" + flag +
+                               " is split at commas; a name that contains a comma can be given "
+                               "in a list file, --" + flag + "=@LIST, one path per line)";
+      return false;
+    }
   }
   *paths = std::move(items);
+  return true;
+}
+
+bool SelectPhases(const std::vector<int>& selected,
+                  const std::vector<std::string>& names,
+                  std::vector<Image>* images,
+                  std::vector<std::vector<Image>>* later_phases,
+                  std::string* error) {
+  if (selected.empty()) return true;
+  for (size_t i = 0; i < images->size(); ++i) {
+    std::vector<Image> all;
+    all.push_back(std::move((*images)[i]));
+    for (Image& phase : (*later_phases)[i]) all.push_back(std::move(phase));
+    for (int p : selected) {
+      if (p >= static_cast<int>(all.size())) {
+        *error = "--phases: " + (i < names.size() ? names[i] : "view " + std::to_string(i)) +
+                 " has " + std::to_string(all.size()) + " phase" + (all.size() > 1 ? "s" : "") +
+                 " (0 to " + std::to_string(all.size() - 1) + "), no phase " + std::to_string(p);
+        return false;
+      }
+    }
+    (*images)[i] = std::move(all[selected[0]]);
+    (*later_phases)[i].clear();
+    for (size_t k = 1; k < selected.size(); ++k) {
+      (*later_phases)[i].push_back(std::move(all[selected[k]]));
+    }
+  }
+  return true;
+}
+
+bool CheckSamePhases(const std::vector<std::string>& names,
+                     std::vector<std::vector<Image>>* later_phases,
+                     std::string* error) {
+  const auto count = [&](size_t i) { return (*later_phases)[i].size() + 1; };
+  for (size_t i = 1; i < later_phases->size(); ++i) {
+    if (count(i) != count(0)) {
+      *error = names[i] + ": " + std::to_string(count(i)) + " phase" + (count(i) > 1 ? "s" : "") +
+               ", but " + names[0] + " has " + std::to_string(count(0)) +
+               ": every view needs the same phases of the heart cycle, aligned by index (pick "
+               "them with --phases)";
+      return false;
+    }
+  }
+  if (count(0) == 1) later_phases->clear();
   return true;
 }
 

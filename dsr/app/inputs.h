@@ -82,6 +82,21 @@ bool ParseInputList(const std::string& flag,
                     std::vector<std::string>* paths,
                     std::string* error);
 
+// --phases (RunConfig::phases; empty: all): each view's phases `selected`, in that order, the
+// first as its phase 0 (views of images[i] and later_phases[i], io/io_frames.h). False
+// naming the view (`names`) that lacks one of them.
+bool SelectPhases(const std::vector<int>& selected,
+                  const std::vector<std::string>& names,
+                  std::vector<Image>* images,
+                  std::vector<std::vector<Image>>* later_phases,
+                  std::string* error);
+
+// After reading (and SelectPhases): every view with as many phases as the first, else false
+// naming both files (`names`, one per view); 3D views (one phase each) keep no later phases.
+bool CheckSamePhases(const std::vector<std::string>& names,
+                     std::vector<std::vector<Image>>* later_phases,
+                     std::string* error);
+
 // "96,96,80" -> (96, 96, 80). False unless exactly three integers (no trailing junk) in
 // [min_value, max_value].
 bool ParseSize3(const std::string& text,

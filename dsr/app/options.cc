@@ -117,6 +117,16 @@ const OptionSpec kOptionTable[] = {
    " (default: the convex hull of its non-zero voxels) eroded by --mask_erosion voxels.",
    nullptr,
    nullptr},
+  {"phases", OptionType::kString, "all", "Inputs", kDsrRegister | kDsrFuse | kPyRegister | kPyFuse,
+   "Views recorded over the heart cycle: each image a 4D file (NIfTI with a time axis, NRRD "
+   "with a list axis, 3D Slicer's .seq.nrrd) or one 3D file per phase joined by ';' "
+   "(\"v0_p0.nii.gz;v0_p1.nii.gz\"). Every view needs the same phases, aligned by index; "
+   "each view keeps one pose and its mask stays 3D. The phases registered: all, or "
+   "0-based indices 'i,j,...' in that order (the first is the one the global search, "
+   "recovery and the report look at). 3D images have one phase.",
+   DSR_RULE(ParsePhaseList(S(v), nullptr),
+            "must be all or comma-separated phase indices >= 0 without a repeat"),
+   DSR_APPLY(ParsePhaseList(S(v), &c->phases))},
   {"mask_rule", OptionType::kString, "hull", "Inputs",
    kDsrRegister | kDsrFuse | kDsrCompare | kPyRegister | kPyFuse,
    "Without --masks (dsr_compare: with --sequence_masks=false), each frame's field of view"
@@ -469,6 +479,11 @@ const OptionSpec kOptionTable[] = {
    "The two frames the report compares before/after, 'a,b'.",
    nullptr,
    nullptr},
+  {"report_phase", OptionType::kInt32, "0", "Outputs", kDsrRegister,
+   "Views with phases: the phase the report's pictures show, as its position in --phases "
+   "(0: the first registered phase).",
+   DSR_RULE(I(v) >= 0, "must be >= 0"),
+   DSR_FIELD(report_phase)},
   // Fusion
   {"poses", OptionType::kString, "", "Fusion", kDsrFuse,
    "Poses JSON (dsr_register --out_poses), one entry per image. Its entries are matched to"
@@ -698,24 +713,25 @@ const OptionSpec kOptionTable[] = {
    "no interfaces.",
    DSR_RULE(InRange(D(v), 0.0, 1.0), "must be in [0, 1]"),
    DSR_FIELD(simulation.echo_edge_weight)},
-  {"phases", OptionType::kInt32, "1", "Simulation", kDsrSimulate | kPySimulate,
+  {"num_phases", OptionType::kInt32, "1", "Simulation", kDsrSimulate | kPySimulate,
    "Beating source (ECG-gated loops): the number T of phases of one heart cycle recorded "
    "per view, in [1, 64]; all phases of a view share its pose and mask. Phase p samples the "
    "source at x - d_p(x), a smooth radial contraction of a ball around the source's centre "
    "(--beat_radius_mm) by up to --beat_amplitude_mm at t = p/T = 1/2, zero at phase 0 and "
    "outside the ball; each phase draws its own noise and per-frame speckle. 1: a still "
-   "source (the former sequences). With T > 1 dsr_simulate writes frame_XX_phase_YY.nii.gz "
-   "(gt_poses.json names each view's phase 0) and dsr.simulate returns \"phases\".",
+   "source (the former sequences). With T > 1 dsr_simulate writes each view as a 4D NIfTI "
+   "frame_XX.nii.gz (its phases along the 4th axis; dsr_register reads it as one view) and "
+   "dsr.simulate returns \"phases\".",
    DSR_RULE(I(v) >= 1 && I(v) <= 64, "must be in [1, 64]"),
    DSR_FIELD(simulation.num_phases)},
   {"beat_amplitude_mm", OptionType::kDouble, "4.0", "Simulation", kDsrSimulate | kPySimulate,
-   "With --phases > 1: the largest displacement of the beat (end-systole), in mm, in [0, "
+   "With --num_phases > 1: the largest displacement of the beat (end-systole), in mm, in [0, "
    "50]; 0: still anatomy in every phase. At most 0.25 times the beat's radius, so that it "
    "folds no tissue.",
    DSR_RULE(InRange(D(v), 0.0, 50.0), "must be in [0, 50]"),
    DSR_FIELD(simulation.beat_amplitude_mm)},
   {"beat_radius_mm", OptionType::kDouble, "0.0", "Simulation", kDsrSimulate | kPySimulate,
-   "With --phases > 1: the radius of the moving ball around the source's centre, in mm, 0 "
+   "With --num_phases > 1: the radius of the moving ball around the source's centre, in mm, 0 "
    "or in [0.001, 1e6]; 0: a quarter of the frame depth (20 mm for the default frames). "
    "Anatomy outside it stays still.",
    DSR_RULE(D(v) == 0.0 || InRange(D(v), 1e-3, 1e6), "must be 0 or in [0.001, 1e+06]"),

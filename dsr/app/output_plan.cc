@@ -11,6 +11,7 @@
 
 #include "dsr/io/io_image.h"
 #include "dsr/app/inputs.h"
+#include "dsr/io/io_phases.h"
 
 namespace dsr {
 namespace {
@@ -51,7 +52,9 @@ void OutputPlan::AddFrameInputs(const std::vector<std::string>& image_paths,
                                 const std::vector<std::string>& mask_paths,
                                 const std::string& images_value,
                                 const std::string& masks_value) {
-  for (const std::string& p : image_paths) AddInputImage("images", p);
+  for (const std::string& view : image_paths) {
+    for (const std::string& p : ViewFiles(view)) AddInputImage("images", p);
+  }
   for (const std::string& p : mask_paths) AddInputImage("masks", p);
   for (const auto& [flag, value] :
        {std::pair<const char*, const std::string&>{"images", images_value},

@@ -14,6 +14,7 @@
 #include "dsr/app/run_options.h"
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/io/io_transform.h"
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/input_checks.h"
@@ -64,7 +65,9 @@ bool RegistrationRun::PlanFiles(const Settings& settings, const RegistrationOutp
   }
   outputs_ = outputs;
   names_.clear();
-  for (const std::string& p : image_paths_) names_.push_back(fs::path(p).filename().string());
+  for (const std::string& p : image_paths_) {
+    names_.push_back(fs::path(ViewFiles(p).front()).filename().string());
+  }
   if (!ParseReportFrames(error)) return false;
   plan_ = OutputPlan();
   plan_.AddFrameInputs(image_paths_, mask_paths_, settings.String("images"),
@@ -139,7 +142,9 @@ void RegistrationRun::PlanFolderOutputs(OutputPlan* plan) const {
 }
 
 void RegistrationRun::RememberInputs(InputRegistry* registry) const {
-  for (const std::string& path : image_paths_) registry->AddImage("images", path);
+  for (const std::string& view : image_paths_) {
+    for (const std::string& path : ViewFiles(view)) registry->AddImage("images", path);
+  }
   for (const std::string& path : mask_paths_) registry->AddImage("masks", path);
   registry->AddFile("init", init_file_);
   registry->AddFile("gt_poses", outputs_.gt_poses);
@@ -147,8 +152,28 @@ void RegistrationRun::RememberInputs(InputRegistry* registry) const {
 
 bool RegistrationRun::ReadFiles(std::string* error) {
   return ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
-                    &images_, &masks_, &mask_rules_, error) &&
-         ReadPoseFiles(error);
+                    &images_, &masks_, &mask_rules_, error, &later_phases_) &&
+         UsePhases(error) && ReadPoseFiles(error);
+}
+
+// --phases' selection of the views' phases, and --report_phase among them; 3D views (one
+// phase each) keep no later phases.
+bool RegistrationRun::UsePhases(std::string* error) {
+  if (!SelectPhases(config_.phases, image_paths_, &images_, &later_phases_, error) ||
+      !CheckSamePhases(image_paths_, &later_phases_, error)) {
+    return false;
+  }
+  if (config_.report_phase >= num_phases()) {
+    *error = "--report_phase=" + std::to_string(config_.report_phase) + ": only " +
+             std::to_string(num_phases()) + " phase" + (num_phases() > 1 ? "s are" : " is") +
+             " registered";
+    return false;
+  }
+  return true;
+}
+
+int RegistrationRun::num_phases() const {
+  return later_phases_.empty() ? 1 : 1 + static_cast<int>(later_phases_[0].size());
 }
 
 // --init's poses file and --gt_poses, matched to the frames by name.
@@ -230,7 +255,7 @@ bool RegistrationRun::CheckPanoramaMemory(std::string* error) const {
 }
 
 bool RegistrationRun::Run(std::string* error) {
-  if (Register(images_, masks_, start_, options_, &result_, error)) return true;
+  if (Register(images_, later_phases_, masks_, start_, options_, &result_, error)) return true;
   *error = WithFrameFile(*error, image_paths_);
   return false;
 }
@@ -241,30 +266,53 @@ bool RegistrationRun::Write(std::string* error) {
   fused_ = !outputs_.panorama.empty() || !outputs_.resampled_dir.empty() ||
            !outputs_.report_dir.empty();
   std::vector<Frame> frames;
-  Image panorama;
+  std::vector<Image> panorama;  // one per phase
   if (fused_) {
     frames.resize(m);
-    ParallelFor(0, m, options_.solve.num_threads,
-                [&](int64_t i) { frames[i] = Frame(images_[i], masks_[i]); });
-    // With photometric parameters, of the corrected intensities (result.photometric;
-    // empty otherwise).
-    const PanoramaImages fused =
-        FusePanorama(frames, result_.frame_from_world, result_.grid, config_.feather,
-                     config_.feather_voxels, options_.solve.num_threads, result_.photometric);
-    enlargement_ = fused.EnlargementRatio();
-    panorama =
-        options_.mode == Mode::kDba && !config_.feather ? result_.dba_intensities : fused.mean;
+    ParallelFor(0, m, options_.solve.num_threads, [&](int64_t i) {
+      std::vector<const Image*> phases(1, &images_[i]);
+      for (size_t p = 0; !later_phases_.empty() && p < later_phases_[i].size(); ++p) {
+        phases.push_back(&later_phases_[i][p]);
+      }
+      frames[i] = Frame(phases, masks_[i]);
+    });
+    panorama = FusedPanorama(frames);
   }
-  if (!outputs_.panorama.empty() && !WriteImage(panorama, outputs_.panorama, error)) return false;
+  // One phase: a 3D image, as WriteImage writes it; more: a 4D image (io/io_phases.h).
+  if (!outputs_.panorama.empty() && !WritePhases(panorama, outputs_.panorama, error)) {
+    return false;
+  }
   if (!WriteFrameFiles(frames, error)) return false;
   if (!outputs_.gt_poses.empty()) {
     gt_errors_ = ComparePoses(result_.frame_from_world, ground_truth_.frame_from_world, masks_);
   }
-  if (!outputs_.report_dir.empty() && !WriteReport(frames, panorama, error)) return false;
+  if (!outputs_.report_dir.empty() &&
+      !WriteReport(PhaseFrames(frames, config_.report_phase), panorama[config_.report_phase],
+                   error)) {
+    return false;
+  }
   return outputs_.poses.empty() || WritePoses(ResultPoses(result_, names_), outputs_.poses, error);
 }
 
-// Each frame's transform and resampled image.
+// Every phase's panorama of the views `frames` at the result's poses (with photometric
+// parameters, of the corrected intensities): the fused mean, or with mode dba DBA's own
+// intensities (unless feathered).
+std::vector<Image> RegistrationRun::FusedPanorama(const std::vector<Frame>& frames) {
+  std::vector<Image> panorama;
+  for (int p = 0; p < NumPhases(frames); ++p) {
+    const PanoramaImages fused = FusePanorama(
+        PhaseFrames(frames, p), result_.frame_from_world, result_.grid, config_.feather,
+        config_.feather_voxels, options_.solve.num_threads, result_.photometric);
+    if (p == 0) enlargement_ = fused.EnlargementRatio();
+    const bool dba = options_.mode == Mode::kDba && !config_.feather;
+    panorama.push_back(!dba ? fused.mean
+                       : p == 0 ? result_.dba_intensities
+                                : result_.dba_later_phases.at(p - 1));
+  }
+  return panorama;
+}
+
+// Each frame's transform and resampled image (every phase).
 bool RegistrationRun::WriteFrameFiles(const std::vector<Frame>& frames, std::string* error) const {
   for (size_t i = 0; i < images_.size(); ++i) {
     const int f = static_cast<int>(i);
@@ -274,12 +322,13 @@ bool RegistrationRun::WriteFrameFiles(const std::vector<Frame>& frames, std::str
       return false;
     }
     if (!outputs_.resampled_dir.empty()) {
-      const Image resampled = ResampleOntoGrid(frames[i], result_.frame_from_world[i],
-                                               result_.grid, options_.solve.num_threads);
-      const fs::path path = fs::path(outputs_.resampled_dir) / ResampledFrameName(f);
-      if (!WriteImage(resampled, path.string(), error)) {
-        return false;
+      std::vector<Image> resampled;
+      for (int p = 0; p < frames[i].num_phases(); ++p) {
+        resampled.push_back(ResampleOntoGrid(frames[i].Phase(p), result_.frame_from_world[i],
+                                             result_.grid, options_.solve.num_threads));
       }
+      const fs::path path = fs::path(outputs_.resampled_dir) / ResampledFrameName(f);
+      if (!WritePhases(resampled, path.string(), error)) return false;
     }
   }
   return true;
@@ -386,9 +435,11 @@ std::vector<std::string> RegistrationRun::SummaryLines(double seconds, double lo
   const RegistrationResult& r = result_;
   const LevelSolve& last = r.solves.back();
   std::vector<std::string> lines = {
-      Format("%s, %zu frames, %zu solves over %d pyramid levels, %d iterations, final cost "
+      Format("%s, %zu frames%s, %zu solves over %d pyramid levels, %d iterations, final cost "
              "%.6e (%" PRId64 " voxels, %" PRId64 " observations), %s",
-             ModeToString(options_.mode), r.frame_from_world.size(), r.solves.size(),
+             ModeToString(options_.mode), r.frame_from_world.size(),
+             num_phases() > 1 ? Format(" x %d phases", num_phases()).c_str() : "",
+             r.solves.size(),
              r.solves.front().level + 1, r.total_iterations, last.report.final_cost,
              last.candidate_voxels, last.candidate_observations, last.report.termination.c_str()),
       FieldOfViewLine(),

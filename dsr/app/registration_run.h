@@ -99,6 +99,8 @@ class RegistrationRun {
   const RegistrationResult& result() const { return result_; }
   const std::vector<std::string>& names() const { return names_; }
   const std::vector<std::string>& image_paths() const { return image_paths_; }
+  // The phases each view registers (1: 3D views).
+  int num_phases() const;
   // "field of view: ..." (FieldOfViewSummary of the masks), and "preset echo: ..." (Settings::
   // PresetSummary, "" without a preset).
   std::string FieldOfViewLine() const;
@@ -113,6 +115,8 @@ class RegistrationRun {
   void PlanFolderOutputs(OutputPlan* plan) const;
   bool ReadPoseFiles(std::string* error);
   bool CheckPanoramaMemory(std::string* error) const;
+  bool UsePhases(std::string* error);
+  std::vector<Image> FusedPanorama(const std::vector<Frame>& frames);
   bool WriteFrameFiles(const std::vector<Frame>& frames, std::string* error) const;
   bool WriteReport(const std::vector<Frame>& frames, const Image& panorama, std::string* error);
   std::string PhotometricLine() const;
@@ -126,6 +130,8 @@ class RegistrationRun {
   std::vector<std::string> image_paths_, mask_paths_, names_;
   std::vector<int> outlined_, pair_;  // --report_frames, --report_pair
   std::vector<Image> images_;
+  // Views recorded over T > 1 phases: each view's phases 1..T-1 (empty: 3D views).
+  std::vector<std::vector<Image>> later_phases_;
   std::vector<Mask> masks_;
   std::vector<MaskRule> mask_rules_;
   std::vector<Eigen::Isometry3d> start_;

@@ -1,13 +1,40 @@
 // From Settings to the libraries' options (dsr/app/run_options.h).
 #include "dsr/app/run_options.h"
 
+#include <algorithm>
 #include <set>
+#include <sstream>
 
 #include "dsr/app/inputs.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/util/option_fields.h"
 
 namespace dsr {
+
+bool ParsePhaseList(const std::string& text, std::vector<int>* phases) {
+  std::vector<int> list;
+  if (text != "all") {
+    std::stringstream items(text);
+    std::string item;
+    while (std::getline(items, item, ',')) {
+      size_t used = 0;
+      int phase = -1;
+      try {
+        phase = std::stoi(item, &used);
+      } catch (const std::exception&) {
+        return false;
+      }
+      if (used != item.size() || phase < 0 || phase > 4096 ||
+          std::find(list.begin(), list.end(), phase) != list.end()) {
+        return false;
+      }
+      list.push_back(phase);
+    }
+    if (list.empty()) return false;
+  }
+  if (phases != nullptr) *phases = std::move(list);
+  return true;
+}
 
 RunConfig ConfigFrom(const Settings& settings) {
   RunConfig config;

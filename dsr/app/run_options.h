@@ -24,9 +24,16 @@ struct RunConfig {
   int num_threads = 0;               // 0: every hardware thread
   bool feather = false;              // the fused panorama's blend
   double feather_voxels = 8.0;
+  // --phases: the phases of 4D views that are registered, in this order (empty: all).
+  std::vector<int> phases;
+  int report_phase = 0;  // --report_phase: a position in the registered phases
   SimulationOptions simulation;
   PhantomOptions phantom;
 };
+
+// --phases' value: "all" (empty `phases`) or comma-separated phase indices >= 0 without a
+// repeat, in the order given. False for anything else (`phases` may be null: a check).
+bool ParsePhaseList(const std::string& text, std::vector<int>* phases);
 
 // Every field of the table from `settings`.
 RunConfig ConfigFrom(const Settings& settings);

@@ -7,6 +7,7 @@
 
 #include "dsr/app/inputs.h"
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/io/io_poses.h"
 
 namespace dsr {
@@ -20,12 +21,6 @@ std::string SimulatedFrameName(int f) {
 std::string SimulatedMaskName(int f) {
   char name[32];
   std::snprintf(name, sizeof(name), "mask_%02d.nii.gz", f);
-  return name;
-}
-
-std::string SimulatedPhaseName(int f, int p) {
-  char name[48];
-  std::snprintf(name, sizeof(name), "frame_%02d_phase_%02d.nii.gz", f, p);
   return name;
 }
 
@@ -75,7 +70,7 @@ bool CheckSimulationMemory(const SimulationOptions& options, const ImageGeometry
                                  "," + std::to_string(n[2]) +
                                  " --num_frames=" + std::to_string(options.num_frames) +
                                  (options.num_phases > 1
-                                      ? " --phases=" + std::to_string(options.num_phases)
+                                      ? " --num_phases=" + std::to_string(options.num_phases)
                                       : ""),
                              bytes,
                              std::to_string(options.num_frames) +
@@ -105,13 +100,7 @@ void PlanSequenceFiles(const std::string& folder, int num_frames, int num_phases
                        bool write_source, OutputPlan* plan) {
   plan->AddOutputFolder("out_dir", folder, folder);
   for (int f = 0; f < num_frames; ++f) {
-    if (num_phases > 1) {
-      for (int p = 0; p < num_phases; ++p) {
-        plan->AddDerivedImage("out_dir", folder, SimulatedPhaseName(f, p));
-      }
-    } else {
-      plan->AddDerivedImage("out_dir", folder, SimulatedFrameName(f));
-    }
+    plan->AddDerivedImage("out_dir", folder, SimulatedFrameName(f));  // 4D with phases
     plan->AddDerivedImage("out_dir", folder, SimulatedMaskName(f));
   }
   if (write_source) plan->AddDerivedImage("out_dir", folder, "source.nii.gz");
@@ -129,16 +118,13 @@ bool WriteSequence(const std::string& folder, const SimulationOptions& options,
   const int num_phases = sequence.num_phases();
   for (size_t f = 0; f < sequence.frames.size(); ++f) {
     const int view = static_cast<int>(f);
-    // A beating sequence: every phase, the poses naming phase 0.
-    for (int p = 1; p < num_phases; ++p) {
-      if (!WriteImage(sequence.Phase(view, p), (dir / SimulatedPhaseName(view, p)).string(),
-                      error)) {
-        return false;
-      }
-    }
-    const std::string frame_name =
-        num_phases > 1 ? SimulatedPhaseName(view, 0) : SimulatedFrameName(view);
-    if (!WriteImage(sequence.frames[f], (dir / frame_name).string(), error) ||
+    const std::string frame_name = SimulatedFrameName(view);
+    const std::string path = (dir / frame_name).string();
+    // A beating sequence: the view's phases as one 4D image (io/io_phases.h).
+    std::vector<const float*> phases;
+    for (int p = 0; p < num_phases; ++p) phases.push_back(sequence.Phase(view, p).voxels.data());
+    if (!(num_phases > 1 ? WritePhases(sequence.frames[f].geometry, phases, path, error)
+                         : WriteImage(sequence.frames[f], path, error)) ||
         !WriteMask(sequence.masks[f], (dir / SimulatedMaskName(view)).string(), error)) {
       return false;
     }

@@ -18,7 +18,6 @@ std::string SimulatedFrameName(int f);
 std::string SimulatedMaskName(int f);
 // The name of view f's phase p in a beating sequence (num_phases > 1; until 4D files exist
 // each phase is a 3D file): "frame_03_phase_01.nii.gz".
-std::string SimulatedPhaseName(int f, int p);
 
 // For clear cases, before any work: true when the simulation of `options` from a source on
 // the grid `source` fits in the memory this process can allocate (CheckMemoryEstimate):
@@ -41,17 +40,15 @@ bool LoadSimulationSource(const SimulationOptions& options, const PhantomOptions
                           const std::string& source_path, Image* source, std::string* error);
 
 // The files a sequence of `num_frames` views of `num_phases` phases writes into `folder`
-// (--out_dir): frames (one per view, or with num_phases > 1 one per view and phase,
-// SimulatedPhaseName), masks (one per view), gt_poses.json and, with `write_source`,
-// source.nii.gz.
+// (--out_dir): frames (one per view; with num_phases > 1 a 4D image of its phases), masks
+// (one per view), gt_poses.json and, with `write_source`, source.nii.gz.
 void PlanSequenceFiles(const std::string& folder, int num_frames, int num_phases,
                        bool write_source, OutputPlan* plan);
 
 // Writes the sequence into `folder` (PlanSequenceFiles' names; each file atomically, the
 // ground truth last) with, when the options have brightness changes, each frame's "gain"
-// and "offset" in gt_poses.json. A beating sequence (num_phases() > 1) writes every phase
-// of view i as SimulatedPhaseName(i, p), and gt_poses.json names each view's phase 0 with
-// the view's pose (all its phases share it). False with `error` naming the file.
+// and "offset" in gt_poses.json. A beating sequence (num_phases() > 1) writes view i as one
+// 4D NIfTI of its phases (io/io_phases.h), with the view's pose (all its phases share it). False with `error` naming the file.
 bool WriteSequence(const std::string& folder, const SimulationOptions& options,
                    const SimulatedSequence& sequence, const Image* source, std::string* error);
 

@@ -1,9 +1,11 @@
 // Reading a registration's frames (io/io_frames.h).
 #include "dsr/io/io_frames.h"
 
+#include <iterator>
 #include <utility>
 
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -31,17 +33,31 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
                 std::vector<Image>* images,
                 std::vector<Mask>* masks,
                 std::vector<MaskRule>* mask_rules,
-                std::string* error) {
+                std::string* error,
+                std::vector<std::vector<Image>>* later_phases) {
   const int m = static_cast<int>(image_paths.size());
   images->assign(m, Image());
   masks->assign(m, Mask());
+  if (later_phases != nullptr) later_phases->assign(m, {});
   std::vector<MaskRule> rules(mask_paths.empty() ? m : 0, field_of_view.mask_rule);
   std::vector<std::string> read_errors(m);
   ParallelFor(0, m, num_threads, [&](int64_t i) {
     std::string& e = read_errors[i];
-    if (!ReadImage(image_paths[i], &(*images)[i], &e)) return;
+    if (later_phases == nullptr) {
+      if (!ReadImage(image_paths[i], &(*images)[i], &e)) return;
+    } else {
+      std::vector<Image> phases;
+      if (!ReadView(image_paths[i], &phases, &e)) return;
+      (*images)[i] = std::move(phases[0]);
+      (*later_phases)[i].assign(std::make_move_iterator(phases.begin() + 1),
+                                std::make_move_iterator(phases.end()));
+    }
     if (!mask_paths.empty()) {
-      ReadMask(mask_paths[i], (*images)[i].geometry, &(*masks)[i], &e);
+      if (later_phases == nullptr) {
+        ReadMask(mask_paths[i], (*images)[i].geometry, &(*masks)[i], &e);
+      } else {
+        ReadMaskPhases(mask_paths[i], (*images)[i].geometry, &(*masks)[i], &e);
+      }
       return;
     }
     MaskFromImage((*images)[i], field_of_view, image_paths[i], &(*masks)[i], &rules[i], &e);

@@ -24,6 +24,11 @@ bool MaskFromImage(const Image& image,
 // image, or empty for each image's mask by `field_of_view` (MaskFromImage). `mask_rules`
 // (optional): without mask files, the rule that built each frame's mask; with them, empty.
 // The first failing frame in input order is reported (one line naming the file).
+// With `later_phases` (views recorded over the heart cycle, docs/design.md section 12), each
+// image is a view (ReadView: a 3D or 4D file, or 3D files joined by ';'): images[i] its
+// phase 0, (*later_phases)[i] its phases 1..T-1; a mask may then be 4D with equal phases
+// (ReadMaskPhases), and a mask built from the image is phase 0's. Without it a 4D image is
+// refused as ReadImage refuses it.
 bool ReadFrames(const std::vector<std::string>& image_paths,
                 const std::vector<std::string>& mask_paths,
                 const FieldOfViewOptions& field_of_view,
@@ -31,7 +36,8 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
                 std::vector<Image>* images,
                 std::vector<Mask>* masks,
                 std::vector<MaskRule>* mask_rules,
-                std::string* error);
+                std::string* error,
+                std::vector<std::vector<Image>>* later_phases = nullptr);
 
 }  // namespace dsr
 

@@ -5,6 +5,8 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <filesystem>
+#include <sstream>
 #include <utility>
 
 #include "dsr/io/io_image.h"
@@ -181,6 +183,35 @@ bool ReadMaskPhases(const std::string& path,
     return false;
   }
   *mask = std::move(out);
+  return true;
+}
+
+std::vector<std::string> ViewFiles(const std::string& spec) {
+  std::error_code ec;
+  if (spec.find(';') == std::string::npos || std::filesystem::exists(spec, ec)) return {spec};
+  std::vector<std::string> files;
+  std::stringstream items(spec);
+  std::string item;
+  while (std::getline(items, item, ';')) {
+    const size_t first = item.find_first_not_of(" \t");
+    if (first == std::string::npos) continue;
+    files.push_back(item.substr(first, item.find_last_not_of(" \t") - first + 1));
+  }
+  return files;
+}
+
+bool ReadView(const std::string& spec, std::vector<Image>* phases, std::string* error) {
+  const std::vector<std::string> files = ViewFiles(spec);
+  if (files.size() == 1) return ReadPhases(files[0], phases, error);
+  phases->assign(files.size(), Image());
+  for (size_t p = 0; p < files.size(); ++p) {
+    if (!ReadImage(files[p], &(*phases)[p], error)) return false;
+    if (p > 0 && !(*phases)[p].geometry.SameGrid((*phases)[0].geometry)) {
+      *error = files[p] + ": phase " + std::to_string(p) + " lies on another grid than phase 0 (" +
+               files[0] + ")";
+      return false;
+    }
+  }
   return true;
 }
 

@@ -50,6 +50,16 @@ bool WritePhases(const ImageGeometry& grid,
                  const std::string& path,
                  std::string* error);
 
+// The files of one view given as `spec`: the file itself when one has that name, else the
+// 3D files of its phases joined by ';' ("v0_p0.nii.gz;v0_p1.nii.gz"), in phase order
+// (items trimmed of spaces, empty items dropped).
+std::vector<std::string> ViewFiles(const std::string& spec);
+
+// A view's phases (docs/design.md section 12): ReadPhases of its one file (3D: one phase),
+// or one 3D image per file of ViewFiles(spec), each on the first file's grid ("<file>: phase
+// 1 lies on another grid than phase 0 (<first>)").
+bool ReadView(const std::string& spec, std::vector<Image>* phases, std::string* error);
+
 // Reads a mask as ReadMask does (any scalar type, non-zero = inside, on `expected`'s grid,
 // at least one voxel inside). A 3D file behaves exactly as with ReadMask; a 4D mask is
 // accepted only when every phase has the same inside as phase 0 (then it is that 3D mask),

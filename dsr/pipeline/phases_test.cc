@@ -127,8 +127,8 @@ TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {
   std::vector<std::vector<Image>> later = s.later_phases;
   later[2].pop_back();
   EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
-  EXPECT_EQ(error, "view 2 has 2 phases, view 0 has 3: every view needs the same phases of the "
-                   "heart cycle (aligned by index)");
+  EXPECT_EQ(error, "frame 2 has 2 phases, frame 0 has 3: every frame needs the same phases of "
+                   "the heart cycle (aligned by index)");
   later = s.later_phases;
   later.pop_back();
   EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
@@ -136,7 +136,7 @@ TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {
   later = s.later_phases;
   later[1][0].geometry.spacing_mm *= 1.5;
   EXPECT_FALSE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error));
-  EXPECT_EQ(error, "view 1: phase 1 lies on another grid than its phase 0");
+  EXPECT_EQ(error, "frame 1: phase 1 lies on another grid than its phase 0");
   EXPECT_FALSE(Register(s.frames, s.later_phases, s.masks, identity, Options(Mode::kApe), &result,
                         &error));
   EXPECT_EQ(error, "mode=ape registers 3D frames; views with several phases need mode dsr or dba "

@@ -525,15 +525,16 @@ bool CheckLaterPhases(const std::vector<Image>& images,
   const size_t later = later_phases[0].size();
   for (size_t i = 0; i < images.size(); ++i) {
     if (later_phases[i].size() != later) {
-      *error = "view " + std::to_string(i) + " has " + std::to_string(later_phases[i].size() + 1) +
-               " phases, view 0 has " + std::to_string(later + 1) +
-               ": every view needs the same phases of the heart cycle (aligned by index)";
+      *error = "frame " + std::to_string(i) + " has " +
+               std::to_string(later_phases[i].size() + 1) + " phases, frame 0 has " +
+               std::to_string(later + 1) +
+               ": every frame needs the same phases of the heart cycle (aligned by index)";
       return false;
     }
     for (size_t p = 0; p < later; ++p) {
       if (!later_phases[i][p].geometry.SameGrid(images[i].geometry) ||
           later_phases[i][p].voxels.size() != images[i].voxels.size()) {
-        *error = "view " + std::to_string(i) + ": phase " + std::to_string(p + 1) +
+        *error = "frame " + std::to_string(i) + ": phase " + std::to_string(p + 1) +
                  " lies on another grid than its phase 0";
         return false;
       }

@@ -5,8 +5,8 @@
 // re-express them relative to frame 0). With --gain_range or --offset_range, each frame of
 // gt_poses.json also has "gain" and "offset": the correction gain_i * I_i + offset_i that
 // puts frame i on frame 0's intensity scale (dsr::Frame0IntensityCorrections). With
-// --phases=T > 1 (a beating source) each view's phases are DIR/frame_XX_phase_YY.nii.gz and
-// gt_poses.json names phase 0 of each view (its phases share its pose).
+// --num_phases=T > 1 (a beating source) each DIR/frame_XX.nii.gz is a 4D image of the view's
+// T phases (its phases share its pose).
 #include <chrono>
 #include <cinttypes>
 #include <cmath>
@@ -40,9 +40,9 @@ int Main(int argc, char** argv) {
       "  dsr_simulate --out_dir=DIR [--source=FILE] [--seed=N] [--num_frames=11] [--sigma=25] "
       "[--pose_model=random|walk] [--interpolation=linear|cubic] [--gain_range=0] "
       "[--offset_range=0] [--speckle_looks=0] [--speckle_world_fraction=0] "
-      "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] [--phases=1] "
+      "[--attenuation_db_per_cm=0] [--intensity_mapping=none|echo] [--num_phases=1] "
       "[--beat_amplitude_mm=4] ...\n"
-      "Writes DIR/frame_XX.nii.gz (with --phases=T > 1: DIR/frame_XX_phase_YY.nii.gz, YY < T), "
+      "Writes DIR/frame_XX.nii.gz (with --num_phases=T > 1: 4D, T phases), "
       "DIR/mask_XX.nii.gz, DIR/gt_poses.json. Exit status: 0 ok, "
       "2 bad input, 1 failure. --helpshort lists this tool's flags only.",
       dsr::kDsrSimulate, {"out_dir"}, &argc, &argv);

@@ -14,6 +14,7 @@
 
 #include "dsr/tests/support/cli_run.h"
 #include "dsr/io/io_image.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/sim/simulate.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
@@ -289,11 +290,11 @@ TEST_F(DsrSimulateCli, EffectsReachTheSimulatorAndGainsAndOffsetsGoToTheGroundTr
   EXPECT_TRUE(poses.offset.empty());
 }
 
-TEST_F(DsrSimulateCli, PhasesWriteEveryPhaseOfEveryViewAndThePosesNamePhaseZero) {
+TEST_F(DsrSimulateCli, PhasesWriteEachViewAsA4DImage) {
   // Tiny()'s 16-voxel depth: the default beat radius is 4 mm, so 1 mm at most.
   const fs::path out = dir_ / "beating";
   const ToolRun run = Simulate("--out_dir=" + out.string() + " " + Tiny() +
-                               " --sigma=5 --write_source --seed=3 --phases=3 "
+                               " --sigma=5 --write_source --seed=3 --num_phases=3 "
                                "--beat_amplitude_mm=1");
   ASSERT_EQ(run.exit_code, 0) << run.err;
   EXPECT_NE(run.out.find("wrote 3 frames x 3 phases of 20x20x16"), std::string::npos) << run.out;
@@ -310,23 +311,22 @@ TEST_F(DsrSimulateCli, PhasesWriteEveryPhaseOfEveryViewAndThePosesNamePhaseZero)
   PosesFile poses;
   ASSERT_TRUE(ReadPoses((out / "gt_poses.json").string(), 3, &poses, &error)) << error;
   for (int f = 0; f < 3; ++f) {
-    EXPECT_EQ(poses.images[f], "frame_0" + std::to_string(f) + "_phase_00.nii.gz");
+    const std::string name = "frame_0" + std::to_string(f) + ".nii.gz";
+    EXPECT_EQ(poses.images[f], name);
     EXPECT_TRUE(poses.frame_from_world[f].isApprox(expected.frame_from_world[f], 1e-12));
-    EXPECT_FALSE(fs::exists(out / ("frame_0" + std::to_string(f) + ".nii.gz")));
     EXPECT_TRUE(fs::exists(out / ("mask_0" + std::to_string(f) + ".nii.gz")));
+    std::vector<Image> phases;
+    ASSERT_TRUE(ReadPhases((out / name).string(), &phases, &error)) << error;
+    ASSERT_EQ(phases.size(), 3u) << name;
     for (int p = 0; p < 3; ++p) {
-      const std::string name =
-          "frame_0" + std::to_string(f) + "_phase_0" + std::to_string(p) + ".nii.gz";
-      Image frame;
-      ASSERT_TRUE(ReadImage((out / name).string(), &frame, &error)) << error;
-      EXPECT_EQ(frame.voxels, expected.Phase(f, p).voxels) << name;
+      EXPECT_EQ(phases[p].voxels, expected.Phase(f, p).voxels) << name << " phase " << p;
+      EXPECT_TRUE(phases[p].geometry.SameGrid(expected.frames[f].geometry));
     }
     EXPECT_NE(expected.Phase(f, 1).voxels, expected.Phase(f, 0).voxels);
   }
-  EXPECT_FALSE(fs::exists(out / "frame_00_phase_03.nii.gz"));
   // The default 4 mm beat folds a 4 mm ball: refused before anything is written.
   const ToolRun folds = Simulate("--out_dir=" + (dir_ / "folds").string() + " " + Tiny() +
-                                 " --phases=2");
+                                 " --num_phases=2");
   EXPECT_EQ(folds.exit_code, 2) << folds.err;
   EXPECT_NE(folds.err.find("error: --beat_amplitude_mm=4: must be at most 0.25 times the beat's "
                            "radius, 4 mm (--beat_radius_mm=0: a quarter of the frame depth)"),
@@ -382,12 +382,12 @@ TEST_F(DsrSimulateCli, BadFlagsExitWithOneLineNamingTheFlag) {
       {"--echo_edge_sigma_mm=nan" + out, "--echo_edge_sigma_mm=nan: must be in [0, 20]"},
       {"--echo_edge_weight=1.5" + out, "--echo_edge_weight=1.5: must be in [0, 1]"},
       {"--echo_edge_weight=-0.1" + out, "--echo_edge_weight=-0.1: must be in [0, 1]"},
-      {"--phases=0" + out, "--phases=0: must be in [1, 64]"},
-      {"--phases=65" + out, "--phases=65: must be in [1, 64]"},
+      {"--num_phases=0" + out, "--num_phases=0: must be in [1, 64]"},
+      {"--num_phases=65" + out, "--num_phases=65: must be in [1, 64]"},
       {"--beat_amplitude_mm=51" + out, "--beat_amplitude_mm=51: must be in [0, 50]"},
       {"--beat_amplitude_mm=nan" + out, "--beat_amplitude_mm=nan: must be in [0, 50]"},
       {"--beat_radius_mm=-1" + out, "--beat_radius_mm=-1: must be 0 or in [0.001, 1e+06]"},
-      {"--phases=2 --beat_radius_mm=10 --beat_amplitude_mm=3" + out,
+      {"--num_phases=2 --beat_radius_mm=10 --beat_amplitude_mm=3" + out,
        "--beat_amplitude_mm=3: must be at most 0.25 --beat_radius_mm=10 (a larger beat would "
        "fold the tissue)"},
       {"--num_frames=abc" + out, "num_frames"},

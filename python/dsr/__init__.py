@@ -360,7 +360,7 @@ def write_tfm(pose: np.ndarray, path: Union[str, "os.PathLike[str]"]) -> None:
 class Sequence:
     """A simulated sequence: frames and masks (dsr.Image) and the true poses (4x4, the
     source volume's physical space -> frame i), with the true gains and offsets when
-    simulated (frame 0's scale, as Result.gain and Result.offset). With ``phases=T > 1`` (a
+    simulated (frame 0's scale, as Result.gain and Result.offset). With ``num_phases=T > 1`` (a
     beating source) ``phases[i][p]`` is view i at phase p of the heart cycle (``phases[i][0]``
     is ``frames[i]``; all phases of a view share its mask and pose); empty otherwise."""
 

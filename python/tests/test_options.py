@@ -238,11 +238,11 @@ def test_simulate_phases_are_a_beating_source_whose_phase_0_is_the_still_sequenc
     still = dsr.simulate(**small)
     assert still.phases == []
     # A 28-voxel depth: the default beat radius is 7 mm, so at most 1.75 mm.
-    beating = dsr.simulate(phases=3, beat_amplitude_mm=1.5, **small)
+    beating = dsr.simulate(num_phases=3, beat_amplitude_mm=1.5, **small)
     assert len(beating.phases) == 3 and all(len(view) == 3 for view in beating.phases)
     for i, view in enumerate(beating.phases):
         assert view[0] is beating.frames[i]
         assert np.array_equal(view[0].array, still.frames[i].array)
         assert not np.array_equal(view[1].array, view[0].array)
-    with pytest.raises(ValueError, match=r"--phases=65: must be in \[1, 64\]"):
-        dsr.simulate(phases=65, **small)
+    with pytest.raises(ValueError, match=r"--num_phases=65: must be in \[1, 64\]"):
+        dsr.simulate(num_phases=65, **small)
