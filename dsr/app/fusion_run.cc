@@ -59,8 +59,15 @@ bool FusionRun::ReadFiles(std::string* error) {
 
 bool FusionRun::SetFrames(std::vector<Image> images, std::vector<Mask> masks,
                           std::vector<MaskRule> mask_rules, std::vector<std::string> names,
-                          PosesFile poses, const std::string& poses_name, std::string* error) {
+                          PosesFile poses, const std::string& poses_name, std::string* error,
+                          std::vector<std::vector<Image>> later_phases) {
   images_ = std::move(images);
+  later_phases_ = std::move(later_phases);
+  if (later_phases_.empty()) later_phases_.assign(images_.size(), {});
+  if (!SelectPhases(config_.phases, names, &images_, &later_phases_, error) ||
+      !CheckSamePhases(names, &later_phases_, error)) {
+    return false;
+  }
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);

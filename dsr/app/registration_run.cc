@@ -159,8 +159,9 @@ bool RegistrationRun::ReadFiles(std::string* error) {
 // --phases' selection of the views' phases, and --report_phase among them; 3D views (one
 // phase each) keep no later phases.
 bool RegistrationRun::UsePhases(std::string* error) {
-  if (!SelectPhases(config_.phases, image_paths_, &images_, &later_phases_, error) ||
-      !CheckSamePhases(image_paths_, &later_phases_, error)) {
+  const std::vector<std::string>& files = image_paths_.empty() ? names_ : image_paths_;
+  if (!SelectPhases(config_.phases, files, &images_, &later_phases_, error) ||
+      !CheckSamePhases(files, &later_phases_, error)) {
     return false;
   }
   if (config_.report_phase >= num_phases()) {
@@ -202,13 +203,17 @@ bool RegistrationRun::ReadPoseFiles(std::string* error) {
 bool RegistrationRun::SetFrames(const Settings& settings, std::vector<Image> images,
                                 std::vector<Mask> masks, std::vector<MaskRule> mask_rules,
                                 std::vector<std::string> names,
-                                std::vector<Eigen::Isometry3d> start, std::string* error) {
+                                std::vector<Eigen::Isometry3d> start, std::string* error,
+                                std::vector<std::vector<Image>> later_phases) {
   if (!SetOptions(settings, error)) return false;
   images_ = std::move(images);
+  later_phases_ = std::move(later_phases);
+  if (later_phases_.empty()) later_phases_.assign(images_.size(), {});
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);
   image_paths_.clear();
+  if (!UsePhases(error)) return false;
   if (!start.empty()) {
     start_ = std::move(start);
     return true;

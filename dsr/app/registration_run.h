@@ -65,9 +65,11 @@ class RegistrationRun {
   // mask (`mask_rules` says which rule made each, empty when they were given), their names
   // in the poses file, and the start (empty: --init's: identity, or a poses file matched to
   // `names`).
+  // `later_phases`: views of T > 1 phases, each view's phases 1..T-1 (--phases selects).
   bool SetFrames(const Settings& settings, std::vector<Image> images, std::vector<Mask> masks,
                  std::vector<MaskRule> mask_rules, std::vector<std::string> names,
-                 std::vector<Eigen::Isometry3d> start, std::string* error);
+                 std::vector<Eigen::Isometry3d> start, std::string* error,
+                 std::vector<std::vector<Image>> later_phases = {});
 
   // Before any work: the pipeline's checks of the frames and poses (a message about frame
   // N names its file), and the memory of the finest level's panorama (and --out_panorama's).

@@ -58,8 +58,8 @@ class Image:
 
     ``direction`` is the 3x3 matrix whose columns are the index axes in physical space.
     ``read_image`` of a 4D file (one 3D volume per heart phase) gives an ``array`` indexed
-    [t, k, j, i] with the phases' 3D grid; ``write_image`` writes such an array as a 4D file.
-    Registration takes 3D images only.
+    [t, k, j, i] with the phases' 3D grid; ``write_image`` writes such an array as a 4D file,
+    and ``register`` and ``fuse`` take it as a view recorded over the heart cycle.
     """
 
     array: np.ndarray
@@ -240,7 +240,9 @@ def register(images: SequenceOf[ImageLike],
     """Registers several 3D images simultaneously, as ``dsr_register`` does.
 
     images: file paths (read as dsr_register reads them) or images (dsr.Image, SimpleITK,
-        nibabel); frame 0 is the reference.
+        nibabel); frame 0 is the reference. A view recorded over the heart cycle is a 4D
+        file or a dsr.Image whose array is (T, z, y, x): its phases share one pose and its
+        mask (3D), every view with the same T phases; ``phases="0,2"`` picks some.
     masks: one field-of-view mask per image, the same kind as the images; default: each
         image's field of view by ``mask_rule`` ("hull": the convex hull of its non-zero
         voxels; "nonzero") eroded by ``mask_erosion`` voxels.
@@ -370,6 +372,14 @@ class Sequence:
     gain: List[float]
     offset: List[float]
     phases: List[List[Image]] = field(default_factory=list)
+
+    def views(self) -> List[Image]:
+        """The images ``register`` and ``fuse`` take: each view's phases as one (T, z, y, x)
+        image (its phases stacked, the view's grid); without phases, the frames."""
+        if not self.phases:
+            return list(self.frames)
+        return [Image(np.stack([p.array for p in view]), view[0].spacing, view[0].origin,
+                      view[0].direction) for view in self.phases]
 
 
 def simulate(**options: Any) -> Sequence:

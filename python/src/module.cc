@@ -345,9 +345,12 @@ std::string JoinPaths(const py::list& paths) {
 // Images given as (array, geometry) pairs and their masks (the same, or empty for each
 // image's field of view by `fov`), with the rules FrameFilesFrom has for --images and
 // --masks, named by argument. `mask_rules`: which rule made each mask (empty when given).
+// With `later_phases`, an image array of 4 axes [t][k][j][i] is a view of T phases: its
+// phase 0 in `frames`, the others in (*later_phases)[i] (a 3D array: none).
 void ReadArrays(int min_frames, const py::list& images, const py::list& masks,
                 const FieldOfViewOptions& fov, std::vector<Image>* frames,
-                std::vector<Mask>* frame_masks, std::vector<MaskRule>* mask_rules) {
+                std::vector<Mask>* frame_masks, std::vector<MaskRule>* mask_rules,
+                std::vector<std::vector<Image>>* later_phases = nullptr) {
   std::string error;
   const int m = static_cast<int>(images.size());
   if (m < min_frames) {
@@ -359,9 +362,30 @@ void ReadArrays(int min_frames, const py::list& images, const py::list& masks,
              " images");
   }
   mask_rules->assign(masks.empty() ? m : 0, MaskRule::kHull);
+  if (later_phases != nullptr) later_phases->assign(m, {});
   for (int i = 0; i < m; ++i) {
     const auto [array, geometry] = images[i].cast<std::pair<py::array, Geometry>>();
-    frames->push_back(ToVolume<float>(array, geometry, "image " + std::to_string(i)));
+    const std::string what = "image " + std::to_string(i);
+    if (later_phases != nullptr && array.ndim() == 4) {  // a view's phases, leading axis
+      if (array.shape(3) == 1) {
+        BadInput(what + ": 4D array of shape (" + std::to_string(array.shape(0)) + ", " +
+                 std::to_string(array.shape(1)) + ", " + std::to_string(array.shape(2)) +
+                 ", 1): a view's phases go along the first axis, (T, z, y, x); a last axis of "
+                 "1 looks like a channel axis (squeeze it)");
+      }
+      for (ssize_t t = 0; t < array.shape(0); ++t) {
+        const py::array phase = array.attr("__getitem__")(t);
+        Image volume = ToVolume<float>(phase, geometry, what + " phase " + std::to_string(t));
+        if (t == 0) {
+          frames->push_back(std::move(volume));
+        } else {
+          (*later_phases)[i].push_back(std::move(volume));
+        }
+      }
+      if (array.shape(0) == 0) BadInput(what + ": an array of 0 phases");
+    } else {
+      frames->push_back(ToVolume<float>(array, geometry, what));
+    }
     if (masks.empty()) {
       frame_masks->emplace_back();
       if (!MaskFromImage(frames->back(), fov, "image " + std::to_string(i), &frame_masks->back(),
@@ -392,14 +416,16 @@ InputRegistry& ReadInputs() {
 void ReadFusionInputs(const py::list& images, const py::list& masks,
                       const std::vector<std::string>& names, Settings settings,
                       std::vector<Image>* frames, std::vector<Mask>* frame_masks,
-                      std::vector<std::string>* match_names) {
+                      std::vector<std::string>* match_names,
+                      std::vector<std::vector<Image>>* later_phases) {
   std::string error;
   if (names.size() != images.size()) BadInput("names: need one name per image");
   *match_names = names;
   const RunConfig config = ConfigFrom(settings);
   std::vector<MaskRule> mask_rules;
   if (images.empty() || !py::isinstance<py::str>(images[0])) {
-    ReadArrays(1, images, masks, config.field_of_view, frames, frame_masks, &mask_rules);
+    ReadArrays(1, images, masks, config.field_of_view, frames, frame_masks, &mask_rules,
+               later_phases);
     return;
   }
   // As --images and --masks, so that the paths get dsr_fuse's checks and messages.
@@ -408,7 +434,7 @@ void ReadFusionInputs(const py::list& images, const py::list& masks,
       !settings.Set("masks", JoinPaths(masks), &error) ||
       !FrameFilesFrom(settings, 1, &image_paths, &mask_paths, &error) ||
       !ReadFrames(image_paths, mask_paths, config.field_of_view, config.num_threads, frames,
-                  frame_masks, &mask_rules, &error)) {
+                  frame_masks, &mask_rules, &error, later_phases)) {
     BadInput(error);
   }
   for (const std::string& path : image_paths) ReadInputs().AddImage("images", path);
@@ -454,10 +480,11 @@ void PrepareRun(const py::list& images, const py::list& masks,
   std::vector<Image> frames;
   std::vector<Mask> frame_masks;
   std::vector<MaskRule> mask_rules;
+  std::vector<std::vector<Image>> later_phases;
   ReadArrays(2, images, masks, ConfigFrom(settings).field_of_view, &frames, &frame_masks,
-             &mask_rules);
+             &mask_rules, &later_phases);
   if (!run->SetFrames(settings, std::move(frames), std::move(frame_masks), std::move(mask_rules),
-                      names, std::move(start), &error)) {
+                      names, std::move(start), &error, std::move(later_phases))) {
     BadInput(error);
   }
 }
@@ -608,6 +635,23 @@ py::dict SimulateSequence(const Options& options_in) {
   return out;
 }
 
+// One phase as a 3D array [k][j][i], T > 1 phases (one grid) as a 4D array [t][k][j][i],
+// with the phases' 3D geometry; each phase's voxels freed once copied (one copy at a time).
+py::tuple PhasesToArray(std::vector<Image> phases) {
+  if (phases.size() == 1) {
+    return py::make_tuple(ToArray(phases[0]), FromGeometry(phases[0].geometry));
+  }
+  const Eigen::Vector3i& n = phases[0].geometry.size;
+  py::array_t<float> out({static_cast<ssize_t>(phases.size()), static_cast<ssize_t>(n[2]),
+                          static_cast<ssize_t>(n[1]), static_cast<ssize_t>(n[0])});
+  float* data = out.mutable_data();
+  for (Image& phase : phases) {
+    data = std::copy(phase.voxels.begin(), phase.voxels.end(), data);
+    std::vector<float>().swap(phase.voxels);
+  }
+  return py::make_tuple(out, FromGeometry(phases[0].geometry));
+}
+
 // fuse(images, masks, names, poses, options): dsr_fuse's panorama (mean, count and the
 // field-of-view enlargement) of the images at the poses: a poses file's path (read and
 // checked as dsr_fuse reads --poses) or the poses dict of read_poses or a registration;
@@ -630,11 +674,13 @@ py::tuple FuseImages(const py::list& images,
   std::vector<Image> frames_in;
   std::vector<Mask> masks_in;
   std::vector<std::string> match_names;
+  std::vector<std::vector<Image>> later_phases;
   const Settings settings = MakeSettings(options_in, kPyFuse);
-  ReadFusionInputs(images, masks, names, settings, &frames_in, &masks_in, &match_names);
+  ReadFusionInputs(images, masks, names, settings, &frames_in, &masks_in, &match_names,
+                   &later_phases);
   FusionRun run(settings);
   if (!run.SetFrames(std::move(frames_in), std::move(masks_in), {}, match_names, std::move(poses),
-                     poses_name, &error) ||
+                     poses_name, &error, std::move(later_phases)) ||
       !run.Prepare(&error)) {
     BadInput(error);
   }
@@ -643,7 +689,9 @@ py::tuple FuseImages(const py::list& images,
     run.Fuse();
   }
   const PanoramaImages& fused = run.fused();
-  return py::make_tuple(py::make_tuple(ToArray(fused.mean), FromGeometry(run.grid())),
+  std::vector<Image> means(1, fused.mean);  // every phase's mean: (T, z, y, x) when T > 1
+  means.insert(means.end(), run.later_means().begin(), run.later_means().end());
+  return py::make_tuple(PhasesToArray(std::move(means)),
                         py::make_tuple(ToArray(fused.count), FromGeometry(run.grid())),
                         fused.EnlargementRatio());
 }
@@ -669,24 +717,12 @@ void WriteTransformFile(const py::array& pose, const std::string& path) {
   if (!WriteItkTransform(ToPose(pose, "pose: "), path, &error)) WriteFailed(error);
 }
 
-// A 3D file as a 3D array [k][j][i]; a 4D file of T > 1 phases (io/io_phases.h) as a 4D
-// array [t][k][j][i], with the phases' 3D geometry.
+// A 3D file as a 3D array; a 4D file of T > 1 phases (io/io_phases.h) as a 4D array.
 py::tuple ReadImageFile(const std::string& path) {
   std::vector<Image> phases;
   std::string error;
   if (!ReadPhases(path, &phases, &error)) BadInput(error);
-  if (phases.size() == 1) {
-    return py::make_tuple(ToArray(phases[0]), FromGeometry(phases[0].geometry));
-  }
-  const Eigen::Vector3i& n = phases[0].geometry.size;
-  py::array_t<float> out({static_cast<ssize_t>(phases.size()), static_cast<ssize_t>(n[2]),
-                          static_cast<ssize_t>(n[1]), static_cast<ssize_t>(n[0])});
-  float* data = out.mutable_data();
-  for (Image& phase : phases) {
-    data = std::copy(phase.voxels.begin(), phase.voxels.end(), data);
-    std::vector<float>().swap(phase.voxels);  // one copy of the data at a time
-  }
-  return py::make_tuple(out, FromGeometry(phases[0].geometry));
+  return PhasesToArray(std::move(phases));
 }
 
 // A 4D array [t][k][j][i] written as T phases (io/io_phases.h, WritePhases) straight from

@@ -103,6 +103,61 @@ def test_3d_images_are_unchanged_and_bad_phases_are_named(tmp_path):
         dsr.write_image(dsr.Image(bad, SPACING, ORIGIN, DIRECTION), tmp_path / "bad.nii.gz")
     moved = dsr.Image(written.array, SPACING, ORIGIN, DIRECTION)
     dsr.write_image(moved, tmp_path / "moved.nrrd")
-    with pytest.raises(ValueError, match=r"image 0: 4D array"):
+    # A 4D image is a view over the heart cycle: every view needs the same phases.
+    with pytest.raises(ValueError, match=r"frame_01: 1 phase, but frame_00 has 3"):
         dsr.register([dsr.read_image(tmp_path / "moved.nrrd"), one])
     assert not (tmp_path / "bad.nii.gz").exists()
+
+
+# Registering and fusing views recorded over the heart cycle (docs/design.md section 12).
+
+def beating(**extra):
+    return dsr.simulate(num_frames=3, phantom_size=64, frame_size="32,32,28",
+                        max_rotation_deg=6, max_translation_voxels=3, min_depth_voxels=2,
+                        sigma=10, num_phases=3, beat_amplitude_mm=1.5, beat_radius_mm=7,
+                        **extra)
+
+
+SMALL = {"pyramid_levels": 2, "pyramid_min_size": 8, "num_threads": 1}
+
+
+def test_views_register_with_one_pose_each_in_memory_and_from_files(tmp_path):
+    sequence = beating(seed=4)
+    views = sequence.views()
+    assert views[1].array.shape == (3, 28, 32, 32)
+    result = dsr.register(views, sequence.masks, **SMALL)
+    assert len(result.poses) == 3
+    world_from_frame0 = np.linalg.inv(sequence.frame_from_world[0])
+    for pose, true_pose in zip(result.poses, sequence.frame_from_world):
+        np.testing.assert_allclose(pose, true_pose @ world_from_frame0, atol=0.05)
+    # The same views as 4D files: the same poses, bit for bit.
+    paths, masks = [], []
+    for i, (view, mask) in enumerate(zip(views, sequence.masks)):
+        paths.append(str(tmp_path / f"view_{i}.nii.gz"))
+        masks.append(str(tmp_path / f"mask_{i}.nii.gz"))
+        dsr.write_image(view, paths[-1])
+        dsr.write_image(mask, masks[-1])
+    from_files = dsr.register(paths, masks, **SMALL)
+    for a, b in zip(result.poses, from_files.poses):
+        np.testing.assert_array_equal(a, b)
+    # One phase alone is another registration (its own noise only).
+    one = dsr.register(views, sequence.masks, phases="1", **SMALL)
+    assert any(not np.array_equal(a, b) for a, b in zip(result.poses, one.poses))
+    # The panorama of every phase: (T, z, y, x); the count is the views' (3D).
+    mean, count = dsr.fuse(views, result, sequence.masks, blend="mean")
+    assert mean.array.ndim == 4 and mean.array.shape[0] == 3
+    assert count.array.ndim == 3 and count.array.shape == mean.array.shape[1:]
+    assert not np.array_equal(mean.array[0], mean.array[1])
+    picked, _ = dsr.fuse(views, result, sequence.masks, blend="mean", phases="1")
+    np.testing.assert_array_equal(picked.array, mean.array[1])
+
+
+def test_uneven_phases_are_refused_naming_the_view():
+    sequence = beating(seed=5)
+    views = sequence.views()
+    views[2] = dsr.Image(views[2].array[:2], views[2].spacing, views[2].origin,
+                         views[2].direction)
+    with pytest.raises(ValueError, match="frame_02: 2 phases, but frame_00 has 3"):
+        dsr.register(views, sequence.masks, **SMALL)
+    with pytest.raises(ValueError, match="frame_00 has 3 phases .0 to 2., no phase 5"):
+        dsr.register(sequence.views(), sequence.masks, phases="0,5", **SMALL)
