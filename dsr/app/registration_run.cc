@@ -234,7 +234,7 @@ bool RegistrationRun::Check(std::string* error) {
 // Memory, before any work (the finest level's panorama voxels at --panorama_spacing): the
 // candidate set holds about 12 bytes for each panorama voxel of frame 0's field of view
 // (an index and the observer bits, for the voxels other frames overlap), and
-// --out_panorama a mean and a count for each voxel of the frames' bounding box.
+// --out_panorama a mean per phase and a count for each voxel of the frames' bounding box.
 bool RegistrationRun::CheckPanoramaMemory(std::string* error) const {
   const ImageGeometry& g0 = images_[0].geometry;
   const double voxel_mm3 = g0.spacing_mm.prod() * std::pow(config_.panorama_spacing, 3);
@@ -252,7 +252,8 @@ bool RegistrationRun::CheckPanoramaMemory(std::string* error) const {
         box.extend(world_from_frame * g.IndexToPhysical(corner));
       }
     }
-    bytes += 8.0 * box.volume() / voxel_mm3;
+    // Each phase's mean kept for writing, and the fusion's own count and weights.
+    bytes += (4.0 * num_phases() + 4.0) * box.volume() / voxel_mm3;
   }
   char spacing[48];
   std::snprintf(spacing, sizeof(spacing), "--panorama_spacing=%g", config_.panorama_spacing);

@@ -140,7 +140,7 @@ TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {
   EXPECT_FALSE(Register(s.frames, s.later_phases, s.masks, identity, Options(Mode::kApe), &result,
                         &error));
   EXPECT_EQ(error, "mode=ape registers 3D frames; views with several phases need mode dsr or dba "
-                   "(or one phase: --phases)");
+                   "(or register one phase)");
 }
 
 }  // namespace

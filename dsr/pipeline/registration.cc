@@ -542,8 +542,8 @@ bool CheckLaterPhases(const std::vector<Image>& images,
   }
   if (later > 0 && options.mode != Mode::kDsr && options.mode != Mode::kDba) {
     *error = std::string("mode=") + ModeToString(options.mode) +
-             " registers 3D frames; views with several phases need mode dsr or dba (or one "
-             "phase: --phases)";
+             " registers 3D frames; views with several phases need mode dsr or dba (or "
+             "register one phase)";
     return false;
   }
   return true;
