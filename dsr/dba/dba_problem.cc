@@ -230,19 +230,13 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
 
   // Each phase's one-phase frames (a 3D sequence's are the caller's frames): one intensity
   // block per (voxel, phase), every phase's residuals on the view's one pose block.
-  const int phases = NumPhases(frames);
-  std::vector<const std::vector<Frame>*> phase_frames(1, &frames);
-  if (phases > 1) {
-    phase_frames.clear();
-    for (int p = 0; p < phases; ++p) {
-      phase_frames_.push_back(std::make_unique<std::vector<Frame>>(PhaseFrames(frames, p)));
-      phase_frames.push_back(phase_frames_.back().get());
-    }
-  }
+  phase_frames_ = std::make_unique<FramesByPhase>(frames);
+  const FramesByPhase& phase_frames = *phase_frames_;
+  const int phases = phase_frames.size();
   const int64_t n = candidates.num_voxels();
   intensities_.assign(n * phases, 0.0);
   for (int p = 0; p < phases; ++p) {
-    InitialIntensities(*phase_frames[p], candidates, frame_from_world, correction,
+    InitialIntensities(phase_frames[p], candidates, frame_from_world, correction,
                        &intensities_[p * n]);
   }
   for (int64_t v = 0; v < n; ++v) {
@@ -250,7 +244,7 @@ DbaProblem::DbaProblem(const std::vector<Frame>& frames,
     for (int p = 0; p < phases; ++p) {
       for (int i = 0; i < m; ++i) {
         if (!(candidates.observers[v] >> i & 1u)) continue;
-        const Frame* frame = &(*phase_frames[p])[i];
+        const Frame* frame = &phase_frames[p][i];
         if (photometric_.empty()) {
           problem_->AddResidualBlock(new DbaResidual(frame, centre), loss_.get(),
                                      poses_[i].data(), &intensities_[p * n + v]);

@@ -167,8 +167,8 @@ class DbaProblem {
                                  double* intensities);
   // One per (voxel, phase), phase by phase: voxel v of phase p at p n + v.
   std::vector<double> intensities_;
-  // With T > 1 phases, each phase's one-phase frames (the residuals point to them).
-  std::vector<std::unique_ptr<std::vector<Frame>>> phase_frames_;
+  // Each phase's one-phase frames (the residuals point to them).
+  std::unique_ptr<FramesByPhase> phase_frames_;
   int64_t num_residual_blocks_ = 0;
 };
 

@@ -52,14 +52,8 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   }
   // Each phase's one-phase frames (the theorem eliminates every (voxel, phase) intensity);
   // a 3D sequence's are the caller's frames.
-  std::vector<const std::vector<Frame>*> phase_frames(1, &frames);
-  if (phases > 1) {
-    phase_frames.clear();
-    for (int p = 0; p < phases; ++p) {
-      phase_frames_.push_back(std::make_unique<std::vector<Frame>>(PhaseFrames(frames, p)));
-      phase_frames.push_back(phase_frames_.back().get());
-    }
-  }
+  phase_frames_ = std::make_unique<FramesByPhase>(frames);
+  const FramesByPhase& phase_frames = *phase_frames_;
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_ = std::make_unique<ceres::Problem>(problem_options);
@@ -106,7 +100,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
       problem_->SetParameterBlockConstant(photometric_[0].data());
     }
     for (int p = 0; p < phases; ++p) {
-      AddReferenceCosts(*phase_frames[p], candidates, weights != nullptr ? weights + p : nullptr,
+      AddReferenceCosts(phase_frames[p], candidates, weights != nullptr ? weights + p : nullptr,
                         options.photometric);
     }
     return;
@@ -129,7 +123,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   for (int p = 0; p < phases; ++p) {
     for (int64_t c = 0; c < chunks; ++c) {
       const int64_t begin = n * c / chunks, end = n * (c + 1) / chunks;
-      auto* chunk = new ReducedChunkCost(phase_frames[p], &candidates, frame_from_world[0], begin,
+      auto* chunk = new ReducedChunkCost(&phase_frames[p], &candidates, frame_from_world[0], begin,
                                          end, StreamContextFor(options.solve),
                                          options.photometric,
                                          weights != nullptr ? weights + p : nullptr,

@@ -100,8 +100,8 @@ class DsrProblem {
   std::vector<std::array<double, kPoseAmbientSize>> poses_;
   std::vector<std::array<double, 2>> photometric_;  // [log_gain, offset] per frame
   std::vector<ReducedChunkCost*> chunks_;  // owned by problem_ (phase by phase)
-  // With T > 1 phases, each phase's one-phase frames (the chunks point to them).
-  std::vector<std::unique_ptr<std::vector<Frame>>> phase_frames_;
+  // Each phase's one-phase frames (the chunks point to them).
+  std::unique_ptr<FramesByPhase> phase_frames_;
   Vector6d gauge_stiffness_ = Vector6d::Zero();  // the mean gauge's prior
 };
 

@@ -52,6 +52,25 @@ Frame::Frame(const std::vector<Image>& phases, const Mask& mask)
           }(),
           mask) {}
 
+// Values everywhere (resampling reads them without the mask rule); central differences at
+// stencil voxels only, 0 elsewhere (no valid cell reads those).
+std::shared_ptr<const std::vector<float>> Frame::Interleave(const float* v,
+                                                            const std::vector<uint8_t>& stencil)
+    const {
+  const Eigen::Vector3i n = geometry_.size;
+  const int64_t num = geometry_.NumVoxels();
+  const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
+  std::vector<float> interleaved;
+  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
+  for (int64_t l = 0; l < num; ++l) {
+    float* out = &interleaved[4 * l];
+    out[0] = v[l];
+    if (!stencil[l]) continue;
+    for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
+  }
+  return std::make_shared<const std::vector<float>>(std::move(interleaved));
+}
+
 Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
     : geometry_(phases.front()->geometry) {
   CHECK(geometry_.SameGrid(mask.geometry)) << "mask and image grids differ";
@@ -82,20 +101,9 @@ Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
     }
   }
 
-  // Values everywhere (resampling reads them without the mask rule); central differences
-  // at stencil voxels only, 0 elsewhere (no valid cell reads those). One such volume per
-  // phase, all with the one mask's stencil.
+  // One interleaved volume per phase, all with the one mask's stencil.
   for (const Image* image : phases) {
-    const float* v = image->voxels.data();
-    std::vector<float> interleaved;
-    AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
-    for (int64_t l = 0; l < num; ++l) {
-      float* out = &interleaved[4 * l];
-      out[0] = v[l];
-      if (!stencil[l]) continue;
-      for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
-    }
-    auto shared = std::make_shared<const std::vector<float>>(std::move(interleaved));
+    auto shared = Interleave(image->voxels.data(), stencil);
     if (interleaved_ == nullptr) {
       interleaved_ = std::move(shared);
     } else {
@@ -158,6 +166,18 @@ std::vector<Frame> PhaseFrames(const std::vector<Frame>& frames, int phase) {
   out.reserve(frames.size());
   for (const Frame& frame : frames) out.push_back(frame.Phase(phase));
   return out;
+}
+
+FramesByPhase::FramesByPhase(const std::vector<Frame>& frames) {
+  const int phases = NumPhases(frames);
+  if (phases == 1) {
+    phases_.push_back(&frames);
+    return;
+  }
+  for (int p = 0; p < phases; ++p) {
+    owned_.push_back(std::make_unique<const std::vector<Frame>>(PhaseFrames(frames, p)));
+    phases_.push_back(owned_.back().get());
+  }
 }
 
 bool Frame::IsValidIndex(const Eigen::Vector3d& ijk) const {

@@ -119,6 +119,9 @@ class Frame {
   const uint8_t* valid_bits() const { return valid_bits_ ? valid_bits_->data() : nullptr; }
 
  private:
+  // One phase's interleaved data (the layout above) from its voxels `v` on this grid.
+  std::shared_ptr<const std::vector<float>> Interleave(const float* v,
+                                                       const std::vector<uint8_t>& stencil) const;
   ImageGeometry geometry_;
   Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
@@ -138,6 +141,20 @@ int NumPhases(const std::vector<Frame>& frames);
 // Every frame's phase `phase` (Frame::Phase): the one-phase frames of that phase, the
 // problem the theorem eliminates phase by phase.
 std::vector<Frame> PhaseFrames(const std::vector<Frame>& frames, int phase);
+
+// Every phase's one-phase frames, kept where problems that point to them can find them for
+// their lifetime: for a 3D sequence (one phase) the given vector itself, nothing copied.
+// `frames` must outlive this object.
+class FramesByPhase {
+ public:
+  explicit FramesByPhase(const std::vector<Frame>& frames);
+  int size() const { return static_cast<int>(phases_.size()); }
+  const std::vector<Frame>& operator[](int phase) const { return *phases_[phase]; }
+
+ private:
+  std::vector<std::unique_ptr<const std::vector<Frame>>> owned_;
+  std::vector<const std::vector<Frame>*> phases_;
+};
 
 }  // namespace dsr
 
