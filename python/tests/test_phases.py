@@ -161,3 +161,37 @@ def test_uneven_phases_are_refused_naming_the_view():
         dsr.register(views, sequence.masks, **SMALL)
     with pytest.raises(ValueError, match="frame_00 has 3 phases .0 to 2., no phase 5"):
         dsr.register(sequence.views(), sequence.masks, phases="0,5", **SMALL)
+
+
+def test_dsr_fuse_writes_a_4d_panorama_simpleitk_and_slicer_read(tmp_path):
+    """dsr_simulate's 4D views, registered and fused by the tools: SimpleITK reads the
+    NIfTI panorama as 4D, and the .seq.nrrd carries 3D Slicer's sequence keys."""
+    from cli import run_tool  # noqa: PLC0415
+
+    folder = tmp_path / "seq"
+    sim = run_tool("dsr_simulate", f"--out_dir={folder}", "--phantom_size=64",
+                   "--frame_size=32,32,28", "--num_frames=3", "--max_rotation_deg=6",
+                   "--max_translation_voxels=3", "--min_depth_voxels=2", "--sigma=10",
+                   "--num_phases=3", "--beat_amplitude_mm=1.5", "--beat_radius_mm=7")
+    assert sim.returncode == 0, sim.stderr
+    images = ",".join(str(folder / f"frame_0{i}.nii.gz") for i in range(3))
+    masks = ",".join(str(folder / f"mask_0{i}.nii.gz") for i in range(3))
+    poses = tmp_path / "poses.json"
+    reg = run_tool("dsr_register", f"--images={images}", f"--masks={masks}",
+                   f"--out_poses={poses}", "--pyramid_levels=2", "--pyramid_min_size=8")
+    assert reg.returncode == 0, reg.stderr
+    for name in ("panorama.nii.gz", "panorama.seq.nrrd"):
+        fuse = run_tool("dsr_fuse", f"--images={images}", f"--masks={masks}",
+                        f"--poses={poses}", f"--out={tmp_path / name}")
+        assert fuse.returncode == 0, fuse.stderr
+    image = sitk.ReadImage(str(tmp_path / "panorama.nii.gz"))
+    assert image.GetDimension() == 4 and image.GetSize()[3] == 3
+    array = sitk.GetArrayFromImage(image)  # [t, k, j, i]
+    ours = dsr.read_image(tmp_path / "panorama.nii.gz").array
+    np.testing.assert_array_equal(array, ours)
+    header = (tmp_path / "panorama.seq.nrrd").read_bytes().split(b"\n\n", 1)[0].decode()
+    for line in ("dimension: 4", "kinds: list domain domain domain",
+                 "DataNodeClassName:=vtkMRMLScalarVolumeNode", "axis 0 index type:=numeric",
+                 "axis 0 index values:=0 1 2"):
+        assert line in header.splitlines(), header
+    np.testing.assert_array_equal(dsr.read_image(tmp_path / "panorama.seq.nrrd").array, ours)
