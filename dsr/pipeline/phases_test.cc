@@ -99,14 +99,27 @@ TEST(Phases, BothModesRegisterEveryPhaseWithOnePosePerView) {
 // the poses land closer to the truth than with one phase (about 1 / sqrt(T) of its error;
 // bench/phases.sh measures it over many sequences). Here over 3 sequences, the sum of the
 // mean TREs must at least drop by a quarter.
+// The pose uncertainty (and the determination check, which shares it) measures every
+// phase too: the predicted TRE drops with them (each phase's curvature and gradient summed).
+double MeanPredictedTre(const RegistrationResult& result) {
+  const std::vector<double>& tre = result.uncertainty.predicted_tre_mm;
+  double sum = 0.0;
+  for (size_t i = 1; i < tre.size(); ++i) sum += tre[i];
+  return tre.size() > 1 ? sum / (tre.size() - 1) : 0.0;
+}
+
 TEST(Phases, EveryPhaseIsMoreAccurateThanOne) {
   DSR_SKIP_HEAVY_UNDER_SANITIZER();
-  double one = 0.0, all = 0.0;
+  double one = 0.0, all = 0.0, predicted_one = 0.0, predicted_all = 0.0;
+  RegistrationOptions options = Options(Mode::kDsr);
+  options.uncertainty = true;
   for (uint64_t seed : {11, 12, 13}) {
     const SimulatedSequence s = Beating(4, 40.0, seed);
     RegistrationResult a, b;
-    all += RegisterPhases(s, Options(Mode::kDsr), true, &a).tre_mean_mm;
-    one += RegisterPhases(s, Options(Mode::kDsr), false, &b).tre_mean_mm;
+    all += RegisterPhases(s, options, true, &a).tre_mean_mm;
+    one += RegisterPhases(s, options, false, &b).tre_mean_mm;
+    predicted_all += MeanPredictedTre(a);
+    predicted_one += MeanPredictedTre(b);
     // The solves stream every phase: 4 times the observations per iteration (up to the
     // few that the slightly different final poses move in or out of a field of view).
     const double ratio = static_cast<double>(a.solves.back().report.observations_per_iteration) /
@@ -114,9 +127,13 @@ TEST(Phases, EveryPhaseIsMoreAccurateThanOne) {
     EXPECT_NEAR(ratio, 4.0, 0.04) << "seed " << seed;
   }
   if (getenv("DSR_TEST_LOG") != nullptr) {
-    std::printf("mean TRE sums: every phase %g mm, phase 0 %g mm\n", all, one);
+    std::printf("mean TRE sums: every phase %g mm, phase 0 %g mm; predicted %g, %g mm\n", all,
+                one, predicted_all, predicted_one);
   }
   EXPECT_LT(all, 0.75 * one) << "every phase " << all << " mm, phase 0 " << one << " mm";
+  ASSERT_GT(predicted_one, 0.0);
+  EXPECT_LT(predicted_all, 0.75 * predicted_one)
+      << "predicted: every phase " << predicted_all << " mm, phase 0 " << predicted_one << " mm";
 }
 
 TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {

@@ -80,7 +80,8 @@ int ObserveVoxel(const std::vector<Frame>& frames,
 // This holds when residuals in different cubes are independent, whatever their
 // correlation inside one cube (trilinear resampling spreads one frame voxel's noise over
 // the 8 panorama voxels around it) and whatever their variance (which resampling lowers
-// below the frames' own noise, so that s^2 from the cost would be too small).
+// below the frames' own noise, so that s^2 from the cost would be too small). Frames of T
+// phases: a cube's share sums its phases' (the tied cost's gradient; docs/design.md 12).
 Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
                                             const CandidateSet& candidates,
                                             const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -102,21 +103,25 @@ Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Frame>& frames,
   for (int64_t s = slabs - 1; s >= 0; --s) slab_begin[s] = std::min(slab_begin[s], slab_begin[s + 1]);
   std::vector<Eigen::MatrixXd> slab_covariance(slabs);
   std::vector<int64_t> slab_clusters(slabs, 0);
+  const FramesByPhase phases(frames);
   ParallelFor(0, slabs, num_threads, [&](int64_t s) {
     Eigen::MatrixXd shares = Eigen::MatrixXd::Zero(n, cx * cy);
     std::vector<double> value(kMaxFrames);
     std::vector<RowVector6d> jacobian(kMaxFrames);
     std::vector<int> frame(kMaxFrames);
     for (int64_t v = slab_begin[s]; v < slab_begin[s + 1]; ++v) {
-      double mean = 0.0;
-      const int k = ObserveVoxel(frames, candidates, frame_from_world, v, value.data(),
-                                 jacobian.data(), frame.data(), &mean);
-      if (k < 2) continue;
       const int64_t l = candidates.voxel[v];
       const int64_t j = (l % nxy) / nx, i = l % nx;
       const int64_t cluster = (j / kClusterVoxels) * cx + i / kClusterVoxels;
-      for (int a = 0; a < k; ++a) {
-        shares.block<6, 1>(6 * frame[a], cluster) += jacobian[a].transpose() * (value[a] - mean);
+      for (int p = 0; p < phases.size(); ++p) {
+        double mean = 0.0;
+        const int k = ObserveVoxel(phases[p], candidates, frame_from_world, v, value.data(),
+                                   jacobian.data(), frame.data(), &mean);
+        if (k < 2) continue;
+        for (int a = 0; a < k; ++a) {
+          shares.block<6, 1>(6 * frame[a], cluster) +=
+              jacobian[a].transpose() * (value[a] - mean);
+        }
       }
     }
     for (int64_t c = 0; c < shares.cols(); ++c) {
@@ -141,12 +146,15 @@ constexpr int64_t kCurvatureBlocks = 64;
 
 }  // namespace
 
-Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
-                                 const CandidateSet& candidates,
-                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                 const std::vector<double>& step_mm,
-                                 const std::vector<double>& step_rad,
-                                 int num_threads) {
+namespace {
+
+// GradientJacobian of one phase's frames.
+Eigen::MatrixXd OnePhaseGradientJacobian(const std::vector<Frame>& frames,
+                                         const CandidateSet& candidates,
+                                         const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                         const std::vector<double>& step_mm,
+                                         const std::vector<double>& step_rad,
+                                         int num_threads) {
   const int m = static_cast<int>(frames.size());
   const int n = 6 * m;
   CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
@@ -212,6 +220,25 @@ Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
   });
   Eigen::MatrixXd jacobian = Eigen::MatrixXd::Zero(n, n);
   for (const Eigen::MatrixXd& block : block_jacobians) jacobian += block;  // fixed order
+  return jacobian;
+}
+
+}  // namespace
+
+Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const std::vector<double>& step_mm,
+                                 const std::vector<double>& step_rad,
+                                 int num_threads) {
+  // Frames of T phases: the tied cost's gradient is the sum of the phases' (design.md 12).
+  const FramesByPhase phases(frames);
+  Eigen::MatrixXd jacobian = OnePhaseGradientJacobian(phases[0], candidates, frame_from_world,
+                                                      step_mm, step_rad, num_threads);
+  for (int p = 1; p < phases.size(); ++p) {
+    jacobian += OnePhaseGradientJacobian(phases[p], candidates, frame_from_world, step_mm,
+                                         step_rad, num_threads);
+  }
   return jacobian;
 }
 
