@@ -48,8 +48,7 @@ bool FusionRun::ReadFiles(std::string* error) {
   }
   if (!ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
                   &images_, &masks_, &mask_rules_, error, &later_phases_) ||
-      !SelectPhases(config_.phases, image_paths_, &images_, &later_phases_, error) ||
-      !CheckSamePhases(image_paths_, &later_phases_, error)) {
+      !UseViewPhases(config_.phases, image_paths_, &images_, &later_phases_, error)) {
     return false;
   }
   names_ = image_paths_;
@@ -63,11 +62,7 @@ bool FusionRun::SetFrames(std::vector<Image> images, std::vector<Mask> masks,
                           std::vector<std::vector<Image>> later_phases) {
   images_ = std::move(images);
   later_phases_ = std::move(later_phases);
-  if (later_phases_.empty()) later_phases_.assign(images_.size(), {});
-  if (!SelectPhases(config_.phases, names, &images_, &later_phases_, error) ||
-      !CheckSamePhases(names, &later_phases_, error)) {
-    return false;
-  }
+  if (!UseViewPhases(config_.phases, names, &images_, &later_phases_, error)) return false;
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);

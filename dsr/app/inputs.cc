@@ -318,6 +318,16 @@ bool CheckSamePhases(const std::vector<std::string>& names,
   return true;
 }
 
+bool UseViewPhases(const std::vector<int>& selected,
+                   const std::vector<std::string>& names,
+                   std::vector<Image>* images,
+                   std::vector<std::vector<Image>>* later_phases,
+                   std::string* error) {
+  if (later_phases->empty()) later_phases->assign(images->size(), {});
+  return SelectPhases(selected, names, images, later_phases, error) &&
+         CheckSamePhases(names, later_phases, error);
+}
+
 bool ParseSize3(const std::string& text, Eigen::Vector3i* size, int min_value, int max_value) {
   const std::vector<std::string> items = SplitCommaList(text);
   if (items.size() != 3) return false;

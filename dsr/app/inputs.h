@@ -91,6 +91,15 @@ bool SelectPhases(const std::vector<int>& selected,
                   std::vector<std::vector<Image>>* later_phases,
                   std::string* error);
 
+// The views' phases as a run takes them: `later_phases` sized to the views when empty
+// (views given without), --phases' selection (SelectPhases) and the same phases in every
+// view (CheckSamePhases).
+bool UseViewPhases(const std::vector<int>& selected,
+                   const std::vector<std::string>& names,
+                   std::vector<Image>* images,
+                   std::vector<std::vector<Image>>* later_phases,
+                   std::string* error);
+
 // After reading (and SelectPhases): every view with as many phases as the first, else false
 // naming both files (`names`, one per view); 3D views (one phase each) keep no later phases.
 bool CheckSamePhases(const std::vector<std::string>& names,

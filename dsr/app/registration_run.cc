@@ -160,10 +160,7 @@ bool RegistrationRun::ReadFiles(std::string* error) {
 // phase each) keep no later phases.
 bool RegistrationRun::UsePhases(std::string* error) {
   const std::vector<std::string>& files = image_paths_.empty() ? names_ : image_paths_;
-  if (!SelectPhases(config_.phases, files, &images_, &later_phases_, error) ||
-      !CheckSamePhases(files, &later_phases_, error)) {
-    return false;
-  }
+  if (!UseViewPhases(config_.phases, files, &images_, &later_phases_, error)) return false;
   if (config_.report_phase >= num_phases()) {
     *error = "--report_phase=" + std::to_string(config_.report_phase) + ": only " +
              std::to_string(num_phases()) + " phase" + (num_phases() > 1 ? "s are" : " is") +
@@ -208,7 +205,6 @@ bool RegistrationRun::SetFrames(const Settings& settings, std::vector<Image> ima
   if (!SetOptions(settings, error)) return false;
   images_ = std::move(images);
   later_phases_ = std::move(later_phases);
-  if (later_phases_.empty()) later_phases_.assign(images_.size(), {});
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);
@@ -276,11 +272,7 @@ bool RegistrationRun::Write(std::string* error) {
   if (fused_) {
     frames.resize(m);
     ParallelFor(0, m, options_.solve.num_threads, [&](int64_t i) {
-      std::vector<const Image*> phases(1, &images_[i]);
-      for (size_t p = 0; !later_phases_.empty() && p < later_phases_[i].size(); ++p) {
-        phases.push_back(&later_phases_[i][p]);
-      }
-      frames[i] = Frame(phases, masks_[i]);
+      frames[i] = Frame(images_[i], LaterPhasesOf(&later_phases_, i), masks_[i]);
     });
     panorama = FusedPanorama(frames);
   }

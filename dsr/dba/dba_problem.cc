@@ -80,13 +80,10 @@ Vector6d GaugeStiffness(const std::vector<Frame>& frames,
                                 context);
   }
   // One set of weights per phase (each phase's observations have their own voxel locations).
-  const int phases = NumPhases(frames);
-  std::vector<ObservationWeights> weights(phases, ObservationWeights(candidates));
-  for (int p = 0; p < phases; ++p) {
-    ReweightStats stats;
-    UpdateObservationWeights(phases == 1 ? frames : PhaseFrames(frames, p), candidates,
-                             frame_from_world, photometric, loss, context, &weights[p], &stats);
-  }
+  std::vector<ObservationWeights> weights(NumPhases(frames), ObservationWeights(candidates));
+  ReweightStats stats;
+  UpdateObservationWeightsByPhase(frames, candidates, frame_from_world, photometric, loss,
+                                  context, &weights, &stats);
   return MeanGaugeStiffnessAt(frames, candidates, frame_from_world, photometric, weights.data(),
                               context);
 }

@@ -45,15 +45,15 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   const int m = static_cast<int>(frames.size());
   CHECK_GE(m, 2);
   CHECK_EQ(candidates.num_frames, m);
-  const int phases = NumPhases(frames);
-  for (int p = 0; weights != nullptr && p < phases; ++p) {
-    CHECK(static_cast<int64_t>(weights[p].offset.size()) == candidates.num_voxels() + 1)
-        << "weights built for another candidate set";
-  }
   // Each phase's one-phase frames (the theorem eliminates every (voxel, phase) intensity);
   // a 3D sequence's are the caller's frames.
   phase_frames_ = std::make_unique<FramesByPhase>(frames);
   const FramesByPhase& phase_frames = *phase_frames_;
+  const int phases = phase_frames.size();
+  for (int p = 0; weights != nullptr && p < phases; ++p) {
+    CHECK(static_cast<int64_t>(weights[p].offset.size()) == candidates.num_voxels() + 1)
+        << "weights built for another candidate set";
+  }
   ceres::Problem::Options problem_options;
   problem_options.manifold_ownership = ceres::DO_NOT_TAKE_OWNERSHIP;
   problem_ = std::make_unique<ceres::Problem>(problem_options);
@@ -296,33 +296,6 @@ bool SolveOnce(const std::vector<Frame>& frames,
   return true;
 }
 
-// UpdateObservationWeights phase by phase (`weights`: one per phase); the stats summed
-// (robust cost, observations) or the largest (weight change) over the phases.
-void UpdatePhaseWeights(const std::vector<Frame>& frames,
-                        const CandidateSet& candidates,
-                        const std::vector<Eigen::Isometry3d>& frame_from_world,
-                        const std::vector<Photometric>& photometric,
-                        const RobustLoss& loss,
-                        const StreamContext& context,
-                        std::vector<ObservationWeights>* weights,
-                        ReweightStats* stats) {
-  const int phases = NumPhases(frames);
-  if (phases == 1) {
-    UpdateObservationWeights(frames, candidates, frame_from_world, photometric, loss, context,
-                             &weights->front(), stats);
-    return;
-  }
-  *stats = ReweightStats();
-  for (int p = 0; p < phases; ++p) {
-    ReweightStats part;
-    UpdateObservationWeights(PhaseFrames(frames, p), candidates, frame_from_world, photometric,
-                             loss, context, &(*weights)[p], &part);
-    stats->robust_cost += part.robust_cost;
-    stats->max_weight_change = std::max(stats->max_weight_change, part.max_weight_change);
-    stats->observations += part.observations;
-  }
-}
-
 // IRLS for a robust loss (SolveDsr's comment in dsr_solver.h).
 bool SolveReweighted(const std::vector<Frame>& frames,
                      const CandidateSet& candidates,
@@ -340,7 +313,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   }
   std::vector<ObservationWeights> weights(NumPhases(frames), ObservationWeights(candidates));
   ReweightStats stats;
-  UpdatePhaseWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
+  UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context, &weights,
                      &stats);
   *report = SolveReport();
   report->initial_cost = 0.5 * stats.robust_cost;
@@ -376,7 +349,7 @@ bool SolveReweighted(const std::vector<Frame>& frames,
     const double motion = LargestMotionVoxels(frames, poses, part.frame_from_world);
     poses = part.frame_from_world;
     if (options.photometric) photometric = part.photometric;
-    UpdatePhaseWeights(frames, candidates, poses, photometric, options.loss, context, &weights,
+    UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context, &weights,
                        &stats);
     if (tolerance > 0.0 ? motion < tolerance
                         : (stats.max_weight_change <= kWeightChangeTolerance || motion == 0.0)) {

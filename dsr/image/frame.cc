@@ -71,6 +71,21 @@ std::shared_ptr<const std::vector<float>> Frame::Interleave(const float* v,
   return std::make_shared<const std::vector<float>>(std::move(interleaved));
 }
 
+Frame::Frame(const Image& phase0, const std::vector<Image>& later_phases, const Mask& mask)
+    : Frame(
+          [&] {
+            std::vector<const Image*> pointers(1, &phase0);
+            for (const Image& phase : later_phases) pointers.push_back(&phase);
+            return pointers;
+          }(),
+          mask) {}
+
+const std::vector<Image>& LaterPhasesOf(const std::vector<std::vector<Image>>* later_phases,
+                                        size_t view) {
+  static const std::vector<Image> kNone;
+  return later_phases == nullptr || later_phases->empty() ? kNone : later_phases->at(view);
+}
+
 Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
     : geometry_(phases.front()->geometry) {
   CHECK(geometry_.SameGrid(mask.geometry)) << "mask and image grids differ";

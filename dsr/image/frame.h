@@ -55,6 +55,9 @@ class Frame {
   Frame(const std::vector<Image>& phases, const Mask& mask);
   // The same from the phases' images held elsewhere (non-null, in phase order).
   Frame(const std::vector<const Image*>& phases, const Mask& mask);
+  // A view given as its phase 0 and its later phases (empty: a 3D frame), as the pipeline
+  // and the front ends hold them.
+  Frame(const Image& phase0, const std::vector<Image>& later_phases, const Mask& mask);
   // Number of phases (1 for a 3D frame). interleaved() and the sampling functions read
   // phase 0; Phase(p) gives phase p as a one-phase frame.
   int num_phases() const { return 1 + static_cast<int>(more_phases_.size()); }
@@ -133,6 +136,11 @@ class Frame {
   int64_t num_valid_cells_ = 0;
   Eigen::AlignedBox3d valid_index_box_;
 };
+
+// View `view`'s later phases in a [view][phase - 1] set (docs/design.md section 12); none
+// (an empty vector) when the set is null or empty: 3D views.
+const std::vector<Image>& LaterPhasesOf(const std::vector<std::vector<Image>>* later_phases,
+                                        size_t view);
 
 // The frames' common number of phases (CHECKed equal; 1 for none): a registration's views
 // all have the same phases, aligned by index.

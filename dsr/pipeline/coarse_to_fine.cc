@@ -35,14 +35,9 @@ std::vector<Frame> LevelFrames(const std::vector<Image>& images,
   ParallelFor(0, m, num_threads, [&](int64_t i) {
     ImageLevel& stored = pyramids->levels[i][level];
     const bool input_is_level = level == 0 && stored.image.empty();
-    std::vector<const Image*> phases(1, input_is_level ? &images[i] : &stored.image);
-    const std::vector<Image>* later =
-        input_is_level ? (later_phases != nullptr && !later_phases->empty() ? &(*later_phases)[i]
-                                                                            : nullptr)
-                       : &stored.later_phases;
-    for (size_t p = 0; later != nullptr && p < later->size(); ++p) phases.push_back(&(*later)[p]);
-    frames[i] = input_is_level ? Frame(phases, masks[i]).Translated(-pyramids->centre[i])
-                               : Frame(phases, stored.mask);
+    frames[i] = input_is_level ? Frame(images[i], LaterPhasesOf(later_phases, i), masks[i])
+                                     .Translated(-pyramids->centre[i])
+                               : Frame(stored.image, stored.later_phases, stored.mask);
     if (release) stored = ImageLevel();
   });
   return frames;
@@ -128,10 +123,8 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
   for (int i = 0; i < m; ++i) {
     pyramids.levels[i] = pyramid(images[i], i);
     // Every later phase's pyramid on the same grids (same mask, same sizes).
-    for (int p = 0; later_phases != nullptr && !later_phases->empty() &&
-                    p < static_cast<int>((*later_phases)[i].size());
-         ++p) {
-      std::vector<ImageLevel> phase = pyramid((*later_phases)[i][p], i);
+    for (const Image& later : LaterPhasesOf(later_phases, i)) {
+      std::vector<ImageLevel> phase = pyramid(later, i);
       CHECK_EQ(phase.size(), pyramids.levels[i].size());
       for (size_t l = 0; l < phase.size(); ++l) {
         pyramids.levels[i][l].later_phases.push_back(std::move(phase[l].image));

@@ -464,18 +464,17 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   std::vector<Frame> frames(m);
   // The finest pyramid level of the input (image/pyramid.h: smoothed by options.smoothing).
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
-    std::vector<const Image*> phases(1, &input_images[i]);
-    for (size_t p = 0; !later_phases.empty() && p < later_phases[i].size(); ++p) {
-      phases.push_back(&later_phases[i][p]);
+    const std::vector<Image>& later = LaterPhasesOf(&later_phases, i);
+    if (options.smoothing <= 0.0) {
+      frames[i] = Frame(input_images[i], later, masks[i]);
+      return;
     }
     std::vector<Image> smoothed;
-    if (options.smoothing > 0.0) {
-      for (const Image* phase : phases) {
-        smoothed.push_back(SmoothInsideMask(*phase, masks[i], options.smoothing, 1));
-      }
-      for (size_t p = 0; p < phases.size(); ++p) phases[p] = &smoothed[p];
+    for (const Image& phase : later) {
+      smoothed.push_back(SmoothInsideMask(phase, masks[i], options.smoothing, 1));
     }
-    frames[i] = Frame(phases, masks[i]);
+    frames[i] = Frame(SmoothInsideMask(input_images[i], masks[i], options.smoothing, 1),
+                      smoothed, masks[i]);
   });
   const std::vector<Eigen::Isometry3d>& poses = result->frame_from_world;
   ImageGeometry grid;

@@ -442,6 +442,32 @@ void AccumulateDsrCostSystem(const std::vector<Frame>& frames,
   }
 }
 
+void UpdateObservationWeightsByPhase(const std::vector<Frame>& frames,
+                                     const CandidateSet& candidates,
+                                     const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                     const std::vector<Photometric>& photometric,
+                                     const RobustLoss& loss,
+                                     const StreamContext& context,
+                                     std::vector<ObservationWeights>* weights,
+                                     ReweightStats* stats) {
+  const int phases = NumPhases(frames);
+  CHECK_EQ(static_cast<int>(weights->size()), phases);
+  if (phases == 1) {
+    UpdateObservationWeights(frames, candidates, frame_from_world, photometric, loss, context,
+                             &weights->front(), stats);
+    return;
+  }
+  *stats = ReweightStats();
+  for (int p = 0; p < phases; ++p) {
+    ReweightStats part;
+    UpdateObservationWeights(PhaseFrames(frames, p), candidates, frame_from_world, photometric,
+                             loss, context, &(*weights)[p], &part);
+    stats->robust_cost += part.robust_cost;
+    stats->max_weight_change = std::max(stats->max_weight_change, part.max_weight_change);
+    stats->observations += part.observations;
+  }
+}
+
 Vector6d MeanGaugeStiffnessAt(const std::vector<Frame>& frames,
                               const CandidateSet& candidates,
                               const std::vector<Eigen::Isometry3d>& frame_from_world,

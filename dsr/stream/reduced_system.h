@@ -161,6 +161,18 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
                               ObservationWeights* weights,
                               ReweightStats* stats);
 
+// UpdateObservationWeights phase by phase for frames of T phases (`weights`: T of them, in
+// phase order; one phase: the call itself); the stats summed over the phases (robust cost,
+// observations) or their largest (weight change).
+void UpdateObservationWeightsByPhase(const std::vector<Frame>& frames,
+                                     const CandidateSet& candidates,
+                                     const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                     const std::vector<Photometric>& photometric,
+                                     const RobustLoss& loss,
+                                     const StreamContext& context,
+                                     std::vector<ObservationWeights>* weights,
+                                     ReweightStats* stats);
+
 // The stiffness of the mean gauge's prior (MeanPosePrior, solve/gauge.h) at
 // `frame_from_world`: MeanGaugeStiffness of the system of the cost a solve minimises there
 // (AccumulateDsrCostSystem over every candidate voxel, with `photometric` and `weights` as
