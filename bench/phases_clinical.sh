@@ -40,9 +40,9 @@ for run in $(seq 1 "$runs"); do
     "$tools/dsr_register" --images="$images" --masks="$masks" --phases="$which" \
       --out_poses="$out/poses_$which.json" --gt_poses="$seq/gt_poses.json" --progress=false \
       >"$log" 2>&1
-    line=$(grep -o "time [0-9.]* s (load [0-9.]* s, pyramid [0-9.]* s, solves [0-9.]* s), peak memory [0-9]* MiB" "$log")
+    line=$(grep -o "time [0-9.]* s (load [0-9.]* s, pyramid [0-9.]* s, solves [0-9.]* s, checks [0-9.]* s), peak memory [0-9]* MiB" "$log")
     tre=$(grep -o "TRE mean [0-9.e+-]* mm" "$log" | awk '{print $3}')
-    read -r t l p s m <<<"$(echo "$line" | sed -E 's/time ([0-9.]*) s \(load ([0-9.]*) s, pyramid ([0-9.]*) s, solves ([0-9.]*) s\), peak memory ([0-9]*) MiB/\1 \2 \3 \4 \5/')"
+    read -r t l p s m <<<"$(echo "$line" | sed -E 's/time ([0-9.]*) s \(load ([0-9.]*) s, pyramid ([0-9.]*) s, solves ([0-9.]*) s, checks [0-9.]* s\), peak memory ([0-9]*) MiB/\1 \2 \3 \4 \5/')"
     n=$([ "$which" = all ] && echo "$phases" || echo 1)
     echo "| $n | $run | $t | $l | $p | $s | $m | $tre |" >> "$table"
     echo "phases $n run $run: $line, TRE mean $tre mm"

@@ -15,7 +15,7 @@ for run in dba:DENSE_SCHUR dba:SPARSE_SCHUR dba:ITERATIVE_SCHUR dba:SPARSE_NORMA
   if output=$("$build_dir/tools/dsr_register" --flagfile=configs/dba_small.flags --mode="$mode" \
       --linear_solver="$solver" --out_poses="out/dba_small/poses_${mode}_${solver}.json" \
       --out_panorama= --progress=false 2>&1); then
-    time_s=$(sed -n 's/.*: time \([0-9.]*\) s (load [0-9.]* s, pyramid [0-9.]* s, solves \([0-9.]*\) s).*/\2/p' <<<"$output")
+    time_s=$(sed -n 's/.*: time \([0-9.]*\) s (load [0-9.]* s, pyramid [0-9.]* s, solves \([0-9.]*\) s, checks [0-9.]* s).*/\2/p' <<<"$output")
     iterations=$(sed -n 's/.*, \([0-9]*\) iterations,.*/\1/p' <<<"$output")
     memory=$(sed -n 's/.*peak memory \([0-9]*\) MiB.*/\1/p' <<<"$output")
     mae_t=$(sed -n 's/^MAE: translation \([0-9.e+-]*\) voxels.*/\1/p' <<<"$output")

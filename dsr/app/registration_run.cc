@@ -441,9 +441,14 @@ std::vector<std::string> RegistrationRun::SummaryLines(double seconds, double lo
              r.solves.front().level + 1, r.total_iterations, last.report.final_cost,
              last.candidate_voxels, last.candidate_observations, last.report.termination.c_str()),
       FieldOfViewLine(),
-      Format("time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s), peak memory %.0f MiB; "
-             "wrote %s", seconds, load_seconds, r.pyramid_seconds, r.seconds - r.pyramid_seconds,
+      Format("time %.2f s (load %.2f s, pyramid %.2f s, solves %.2f s, checks %.2f s), peak "
+             "memory %.0f MiB; wrote %s", seconds, load_seconds, r.pyramid_seconds,
+             r.seconds - r.pyramid_seconds - r.check_seconds.total(), r.check_seconds.total(),
              static_cast<double>(PeakResidentBytes()) / 1048576.0, outputs_.poses.c_str())};
+  const CheckSeconds& c = r.check_seconds;
+  lines.push_back(Format("checks %.2f s: structure %.2f s, determination %.2f s, brightness %.2f "
+                         "s, uncertainty %.2f s, other %.2f s", c.total(), c.structure,
+                         c.determination, c.brightness, c.uncertainty, c.other));
   if (r.intensity_transform != IntensityTransform::kNone) {
     lines.push_back(Format("registered %s(c I), c = %g (--intensity_transform): the cost above "
                            "is on that scale; gains, offsets and images are on the input's grey "

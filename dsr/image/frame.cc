@@ -230,6 +230,43 @@ bool Frame::SampleAtIndex(const Eigen::Vector3d& ijk,
   return true;
 }
 
+bool Frame::SampleSlopesAtIndex(const Eigen::Vector3d& ijk,
+                                double* value,
+                                Eigen::Vector3d* gradient_ijk,
+                                Eigen::Vector3d* value_slope,
+                                Eigen::Matrix3d* gradient_slope) const {
+  if (!IsValidIndex(ijk)) return false;
+  const int i = static_cast<int>(std::floor(ijk[0]));
+  const int j = static_cast<int>(std::floor(ijk[1]));
+  const int k = static_cast<int>(std::floor(ijk[2]));
+  const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
+  const int64_t sx = 4, sy = 4 * int64_t{geometry_.size[0]},
+                sz = sy * int64_t{geometry_.size[1]};
+  const float* base = &(*interleaved_)[4 * geometry_.LinearIndex(i, j, k)];
+  double acc[4] = {0.0, 0.0, 0.0, 0.0};
+  double slope[4][3] = {};
+  for (int c = 0; c < 8; ++c) {
+    const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
+    const double wx = dx ? fx : 1.0 - fx, wy = dy ? fy : 1.0 - fy, wz = dz ? fz : 1.0 - fz;
+    const double w = wx * wy * wz;  // as SampleAtIndex: the same value and gradient
+    // d w / d u_a: the corner's weight along a is f or 1 - f, of slope +1 or -1.
+    const double dw[3] = {(dx ? 1.0 : -1.0) * wy * wz, wx * (dy ? 1.0 : -1.0) * wz,
+                          wx * wy * (dz ? 1.0 : -1.0)};
+    const float* p = base + dx * sx + dy * sy + dz * sz;
+    for (int q = 0; q < 4; ++q) {
+      acc[q] += w * p[q];
+      for (int a = 0; a < 3; ++a) slope[q][a] += dw[a] * p[q];
+    }
+  }
+  *value = acc[0];
+  *gradient_ijk = Eigen::Vector3d(acc[1], acc[2], acc[3]);
+  *value_slope = Eigen::Vector3d(slope[0][0], slope[0][1], slope[0][2]);
+  for (int q = 0; q < 3; ++q) {
+    for (int a = 0; a < 3; ++a) (*gradient_slope)(q, a) = slope[1 + q][a];
+  }
+  return true;
+}
+
 bool Frame::Sample(const Eigen::Vector3d& x_in_frame_mm,
                    double* value,
                    Eigen::Vector3d* gradient_mm) const {

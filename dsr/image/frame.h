@@ -98,6 +98,17 @@ class Frame {
                      double* value,
                      Eigen::Vector3d* gradient_ijk) const;
 
+  // SampleAtIndex's value and gradient (bit for bit), and the slopes of both interpolants
+  // inside the sample's cell, in index units: value_slope[a] = d value / d u_a (the exact
+  // derivative of the trilinear value, not the interpolated central differences) and
+  // gradient_slope(q, a) = d gradient_q / d u_a. For the pose uncertainty's curvature
+  // (pipeline/uncertainty.h), which differentiates the gradient of the cost.
+  bool SampleSlopesAtIndex(const Eigen::Vector3d& ijk,
+                           double* value,
+                           Eigen::Vector3d* gradient_ijk,
+                           Eigen::Vector3d* value_slope,
+                           Eigen::Matrix3d* gradient_slope) const;
+
   // Trilinear value without the mask rule, 0 outside the grid: for resampling and display.
   double InterpolateValue(const Eigen::Vector3d& ijk) const;
 

@@ -181,6 +181,51 @@ TEST(Frame, GradientsNeverReadOutsideTheMask) {
   }
 }
 
+// The slopes of a sample's interpolants (the pose uncertainty's curvature): the value and
+// gradient are SampleAtIndex's bit for bit, and inside a cell each slope is the derivative of
+// its trilinear interpolant, which a central difference along the axis gives exactly (the
+// interpolant is linear along each axis inside a cell) up to rounding.
+TEST(Frame, SlopesAreTheInterpolantsDerivativesInsideTheCell) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(9, 8, 7);
+  Image image(g);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> noise(0.0f, 200.0f);
+  for (float& v : image.voxels) v = noise(rng);
+  const Frame frame(image, Mask(g, 1));
+  std::uniform_real_distribution<double> fraction(0.1, 0.9);
+  constexpr double kStep = 0.05;  // stays inside the cell: fractions in [0.1, 0.9]
+  for (int trial = 0; trial < 50; ++trial) {
+    const Eigen::Vector3d u(2 + trial % 4 + fraction(rng), 2 + trial % 3 + fraction(rng),
+                            2 + trial % 2 + fraction(rng));
+    double value = 0.0, reference = 0.0;
+    Eigen::Vector3d gradient, reference_gradient, value_slope;
+    Eigen::Matrix3d gradient_slope;
+    ASSERT_TRUE(frame.SampleSlopesAtIndex(u, &value, &gradient, &value_slope, &gradient_slope));
+    ASSERT_TRUE(frame.SampleAtIndex(u, &reference, &reference_gradient));
+    EXPECT_EQ(value, reference);
+    EXPECT_TRUE(gradient == reference_gradient);
+    for (int a = 0; a < 3; ++a) {
+      const Eigen::Vector3d step = kStep * Eigen::Vector3d::Unit(a);
+      double plus = 0.0, minus = 0.0;
+      Eigen::Vector3d gradient_plus, gradient_minus;
+      ASSERT_TRUE(frame.SampleAtIndex(u + step, &plus, &gradient_plus));
+      ASSERT_TRUE(frame.SampleAtIndex(u - step, &minus, &gradient_minus));
+      EXPECT_NEAR(value_slope[a], (plus - minus) / (2 * kStep), 1e-9) << "axis " << a;
+      const Eigen::Vector3d difference = (gradient_plus - gradient_minus) / (2 * kStep);
+      for (int q = 0; q < 3; ++q) {
+        EXPECT_NEAR(gradient_slope(q, a), difference[q], 1e-9) << "gradient " << q << " axis " << a;
+      }
+    }
+  }
+  // Invalid cells: false, like SampleAtIndex.
+  double value = 0.0;
+  Eigen::Vector3d gradient, value_slope;
+  Eigen::Matrix3d gradient_slope;
+  EXPECT_FALSE(frame.SampleSlopesAtIndex(Eigen::Vector3d(0.5, 3.5, 3.5), &value, &gradient,
+                                         &value_slope, &gradient_slope));
+}
+
 TEST(Frame, DilatedValidCellsGrowByTheMargin) {
   ImageGeometry g;
   g.size = Eigen::Vector3i(10, 10, 10);

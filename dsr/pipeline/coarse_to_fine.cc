@@ -4,6 +4,7 @@
 #include <cmath>
 #include <iomanip>
 #include <limits>
+#include <memory>
 #include <sstream>
 
 #include <glog/logging.h>
@@ -15,6 +16,7 @@
 #include "dsr/solve/gauge.h"
 #include "dsr/stream/reduced_system.h"
 #include "dsr/stream/streamed_cost.h"
+#include "dsr/util/clock.h"
 #include "dsr/util/parallel.h"
 
 namespace dsr {
@@ -423,6 +425,7 @@ CoarseToFine::Next CoarseToFine::CheckLevelDetermined(
   // Checked once, on the coarsest level that has a usable overlap (cheap there); finer
   // levels see the same overlap with more detail.
   if (determined_checked_) return Next::kGoOn;
+  ScopedSeconds timer(&result_->check_seconds.determination);
   double conditioning = 0.0;
   std::string why;
   if (!PosesDetermined(frames, candidates, poses, stream_, &conditioning, &why)) {
@@ -449,8 +452,11 @@ CoarseToFine::Next CoarseToFine::JudgeLevelStart(int level,
   // frames judge the poses it reached before its solve is paid for, so that a frame in a
   // wrong minimum is re-placed after the coarser level, where that is cheap.
   unjudged_ = false;
-  const std::vector<FrameStructure> structure =
-      FrameStructures(frames, candidates, poses, stream_, photometric_);
+  std::vector<FrameStructure> structure;
+  {
+    ScopedSeconds timer(&result_->check_seconds.structure);
+    structure = FrameStructures(frames, candidates, poses, stream_, photometric_);
+  }
   std::string why;
   if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
       !StructureExplainedByBrightness(level, frames, candidates)) {
@@ -549,6 +555,7 @@ bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
                                       std::vector<Photometric>* photometric,
                                       double* largest_change,
                                       int* worst) {
+  ScopedSeconds timer(&result_->check_seconds.brightness);
   // The gains and offsets that best explain the frames at the poses reached, on a grid that
   // samples every frame at every sub-voxel phase (model/panorama.h): on frame 0's lattice,
   // half a voxel off it, frame 0's samples are the smoothest (trilinear interpolation at the
@@ -648,8 +655,11 @@ bool CoarseToFine::StructureExplainedByBrightness(int level,
   double largest = 0.0;
   int worst = 0;
   if (!EstimateBrightness(frames, &estimate, &largest, &worst)) return false;
-  const std::vector<FrameStructure> corrected =
-      FrameStructures(frames, candidates, SolvePoses(), stream_, estimate);
+  std::vector<FrameStructure> corrected;
+  {
+    ScopedSeconds timer(&result_->check_seconds.structure);
+    corrected = FrameStructures(frames, candidates, SolvePoses(), stream_, estimate);
+  }
   if (VLOG_IS_ON(1)) {
     for (size_t f = 0; f < corrected.size(); ++f) {
       VLOG(1) << "level " << level << " structure with the estimated gains and offsets: frame "
@@ -689,8 +699,11 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
     }
   }
   if (options_.max_structure_fraction > 0.0) {
-    const std::vector<FrameStructure> structure =
-        FrameStructures(frames, last_candidates_, SolvePoses(), stream_, photometric_);
+    std::vector<FrameStructure> structure;
+    {
+      ScopedSeconds timer(&result_->check_seconds.structure);
+      structure = FrameStructures(frames, last_candidates_, SolvePoses(), stream_, photometric_);
+    }
     unjudged_ = std::any_of(structure.begin(), structure.end(),
                             [](const FrameStructure& f) { return !f.judged; });
     if (VLOG_IS_ON(1)) {
@@ -765,7 +778,11 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   // frame 0 are the same in any).
   const std::vector<Eigen::Isometry3d> poses = SolvePoses();
   CandidateSet final_candidates;
-  Next next = FinalCandidates(frames, poses, &final_candidates);
+  Next next;
+  {
+    ScopedSeconds timer(&result_->check_seconds.other);
+    next = FinalCandidates(frames, poses, &final_candidates);
+  }
   if (next != Next::kGoOn) return next;
   std::string why;
   std::vector<int> slid;
@@ -783,6 +800,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
     result_->frame_misfits =
         MisfitsFromFrameCosts(last.final_frame_cost, last.final_frame_observations);
   } else {
+    ScopedSeconds timer(&result_->check_seconds.other);
     result_->frame_misfits =
         FrameMisfits(frames, final_candidates, poses, stream_, photometric_);
   }
@@ -793,7 +811,11 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
   }
   // The structure statistics are measured on every run (the summary reports them), the
   // check only where it is on.
-  result_->frame_structure = FrameStructures(frames, final_candidates, poses, stream_, photometric_);
+  {
+    ScopedSeconds timer(&result_->check_seconds.structure);
+    result_->frame_structure =
+        FrameStructures(frames, final_candidates, poses, stream_, photometric_);
+  }
   if (StructureOutlier(result_->frame_structure, options_.max_structure_fraction, &why,
                        &misfit_exempt_) &&
       !StructureExplainedByBrightness(0, frames, final_candidates)) {
@@ -807,26 +829,36 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
                        options_.max_pair_mismatch_ratio, &flagged, &why)) {
     return Diverged(0, why, flagged);
   }
-  next = CheckFinalDetermination(frames, final_candidates, poses);
+  // --uncertainty's sums over all the final candidates serve the determination check too:
+  // one pass, one covariance.
+  std::unique_ptr<UncertaintySums> all_sums;
+  if (EstimatesUncertainty()) {
+    ScopedSeconds timer(&result_->check_seconds.uncertainty);
+    all_sums = std::make_unique<UncertaintySums>(
+        SumForUncertainty(frames, final_candidates, poses, stream_.num_threads));
+  }
+  next = CheckFinalDetermination(frames, final_candidates, poses, all_sums.get());
   if (next != Next::kGoOn) return next;
   DetectBrightness(frames);
-  EstimateUncertainty(frames, final_candidates, poses);
+  EstimateUncertainty(frames, all_sums.get());
   return Next::kGoOn;
 }
 
 CoarseToFine::Next CoarseToFine::CheckFinalDetermination(
     const std::vector<Frame>& frames,
     const CandidateSet& candidates,
-    const std::vector<Eigen::Isometry3d>& poses) {
+    const std::vector<Eigen::Isometry3d>& poses,
+    const UncertaintySums* all_sums) {
   // Poses the data do not fix (a symmetric object): refused without naming frames to
   // re-place, since no start would fix them either.
   if (options_.max_pose_error_voxels > 0.0 && ModeEstimatesPhotometric(options_.mode) &&
       (!affine_ || determination_with_gains_) && options_.loss.IsSquared()) {
+    ScopedSeconds timer(&result_->check_seconds.determination);
     std::vector<UndeterminedPose> undetermined;
     std::string not_judged;
     if (UndeterminedPoses(frames, candidates, poses, masks_, stream_,
                           options_.max_pose_error_voxels, &undetermined, &not_judged,
-                          &result_->pose_error_voxels) &&
+                          &result_->pose_error_voxels, all_sums) &&
         !undetermined.empty()) {
       std::ostringstream why;
       why << UndeterminedPhrase(undetermined)
@@ -838,10 +870,15 @@ CoarseToFine::Next CoarseToFine::CheckFinalDetermination(
   return Next::kGoOn;
 }
 
+bool CoarseToFine::EstimatesUncertainty() const {
+  return options_.uncertainty && !affine_ && options_.loss.IsSquared() &&
+         (options_.mode == Mode::kDsr || options_.mode == Mode::kDba);
+}
+
 void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
-                                       const CandidateSet& candidates,
-                                       const std::vector<Eigen::Isometry3d>& poses) {
+                                       const UncertaintySums* sums) {
   if (!options_.uncertainty) return;
+  ScopedSeconds timer(&result_->check_seconds.uncertainty);
   if (affine_) {
     // The estimate linearises the poses' stopping rule alone (pipeline/uncertainty.h); the
     // gains and offsets solved with them would change both its gradient and its derivative.
@@ -852,11 +889,10 @@ void CoarseToFine::EstimateUncertainty(const std::vector<Frame>& frames,
     // Its noise model is the squared differences' (pipeline/uncertainty.h).
     result_->uncertainty_note = "the pose uncertainty does not model the robust loss (loss=" +
                                 std::string(RobustLossKindName(options_.loss.kind)) + ")";
-  } else if (options_.mode == Mode::kDsr || options_.mode == Mode::kDba) {
-    if (!EstimatePoseUncertainty(frames, candidates, poses, masks_, stream_,
-                                 &result_->uncertainty, &result_->uncertainty_note)) {
-      result_->uncertainty = PoseUncertainty();
-    }
+  } else if (sums != nullptr &&
+             !EstimatePoseUncertainty(*sums, frames, masks_, &result_->uncertainty,
+                                      &result_->uncertainty_note)) {
+    result_->uncertainty = PoseUncertainty();
   }
 }
 

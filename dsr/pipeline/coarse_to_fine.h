@@ -36,6 +36,7 @@
 #include "dsr/pipeline/modes.h"
 #include "dsr/pipeline/registration_options.h"
 #include "dsr/pipeline/registration_result.h"
+#include "dsr/pipeline/uncertainty.h"
 #include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
@@ -175,14 +176,18 @@ class CoarseToFine {
   Next FinalCandidates(const std::vector<Frame>& frames,
                        const std::vector<Eigen::Isometry3d>& poses,
                        CandidateSet* candidates);
-  // CheckFinalPoses's determination check (modes dsr and dba with the squared loss).
+  // CheckFinalPoses's determination check (modes dsr and dba with the squared loss), on
+  // `all_sums` when given (the pose uncertainty's sums over all the candidates).
   Next CheckFinalDetermination(const std::vector<Frame>& frames,
                                const CandidateSet& candidates,
-                               const std::vector<Eigen::Isometry3d>& poses);
-  // At `poses` in the candidates' world.
-  void EstimateUncertainty(const std::vector<Frame>& frames,
-                           const CandidateSet& candidates,
-                           const std::vector<Eigen::Isometry3d>& poses);
+                               const std::vector<Eigen::Isometry3d>& poses,
+                               const UncertaintySums* all_sums);
+  // Whether the pose uncertainty is estimated at the final poses (--uncertainty, modes dsr
+  // and dba, without photometric parameters or a robust loss: its noise model has neither).
+  bool EstimatesUncertainty() const;
+  // The pose uncertainty from the sums over the final candidates (null when not
+  // estimated: the note says why).
+  void EstimateUncertainty(const std::vector<Frame>& frames, const UncertaintySums* sums);
   // Ends the round as not usable after the solves of `level`, naming `flagged`.
   Next Diverged(int level, const std::string& why, std::vector<int> flagged);
   // The result's grid, in frame 0's world, from the finest level's last solve grid: that

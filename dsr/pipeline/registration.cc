@@ -319,6 +319,11 @@ bool RegisterAgainWithGains(const RegistrationRun& run) {
   second.seconds = SecondsSince(run.start);  // both attempts (its pyramid time: its own)
   second.init_seconds += result->init_seconds;
   second.total_iterations += result->total_iterations;
+  second.check_seconds.structure += result->check_seconds.structure;
+  second.check_seconds.determination += result->check_seconds.determination;
+  second.check_seconds.brightness += result->check_seconds.brightness;
+  second.check_seconds.uncertainty += result->check_seconds.uncertainty;
+  second.check_seconds.other += result->check_seconds.other;
   second.photometric_detected = second.usable;
   second.photometric_choice =
       std::string(second.usable ? "affine" : "none") +

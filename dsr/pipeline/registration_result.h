@@ -34,6 +34,17 @@ struct LevelSolve {
   SolveReport report;
 };
 
+// Wall time of the checks of a registration (docs/design.md section 8), summed over its
+// levels and rounds; part of RegistrationResult::seconds.
+struct CheckSeconds {
+  double structure = 0.0;      // the structure check (FrameStructures), every time it ran
+  double determination = 0.0;  // the Gauss-Newton conditioning and the final poses' check
+  double brightness = 0.0;     // photometric auto's estimates of gains and offsets
+  double uncertainty = 0.0;    // the pose uncertainty (--uncertainty)
+  double other = 0.0;          // the overlap guard, misfits, final candidates
+  double total() const { return structure + determination + brightness + uncertainty + other; }
+};
+
 struct RegistrationResult {
   std::vector<Eigen::Isometry3d> frame_from_world;  // final poses, frame 0 = identity
   // With RegistrationOptions::photometric kAffine, the final gain and offset of every frame
@@ -65,6 +76,7 @@ struct RegistrationResult {
   std::string photometric_choice;
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
+  CheckSeconds check_seconds;
   int total_iterations = 0;
   // Frames the checks named when not usable (a wrong minimum, or slid out of the overlap),
   // and whether the misfit check named them.

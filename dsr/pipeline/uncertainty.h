@@ -1,6 +1,6 @@
 // Pose uncertainty of a registration (docs/design.md section 8.6), off by default
-// (RegistrationOptions::uncertainty, dsr_register --uncertainty): it costs a pass
-// of 6 extra samples per observation.
+// (RegistrationOptions::uncertainty, dsr_register --uncertainty): it costs one pass of one
+// sample per observation, with the slopes of the sample's interpolants.
 //
 // DSR stops where its gradient g = sum_j sum_a J_aj^T r_aj vanishes (r_aj = I_a(p_aj) -
 // mu_j, the panorama intensities eliminated). Linearised about the true poses, the pose
@@ -12,7 +12,8 @@
 // Gauss-Newton matrix H = sum J^T J, which is the Schur complement of DBA's information
 // matrix (the theorem) and would give s^2 H^-1: with noisy frames the gradient volumes
 // are noisy, J^T J overstates the curvature (1.5-2x on the paper's frames at sigma 25) and
-// the covariance came out 2-4x too small in TRE. A is measured by GradientJacobian below.
+// the covariance came out 2-4x too small in TRE. A is measured from the slopes of each
+// sample's interpolants (SumForUncertainty; GradientJacobian below is its slow twin).
 // delta is the tangent [rho; phi] of a left perturbation T_est = Exp(delta) T_true (mm, rad).
 //
 // A frame's predicted TRE is the expected mean, over the centres x of its field-of-view
@@ -45,6 +46,41 @@ struct PoseUncertainty {
   int64_t degrees_of_freedom = 0;
 };
 
+// What the estimate sums over candidate voxels, in one pass of one sample per observation
+// (SumForUncertainty): the cost and its observations, the gradient's clustered covariance
+// (cubes of 8 panorama voxels) and its derivative A, each kept per group of whole cubes
+// (cubes assigned to kUncertaintyGroups groups by a hash of their index), so that the
+// spread of an estimate from a subset of the cubes can be measured by a jackknife over the
+// groups (UndeterminedPoses).
+constexpr int kUncertaintyGroups = 8;
+struct UncertaintySums {
+  int64_t observations = 0;  // in (voxel, phase) pairs with at least 2 valid observations
+  int64_t voxels = 0;        // such (voxel, phase) pairs
+  int64_t clusters = 0;      // cubes with a non-zero share of the gradient
+  double cost = 0.0;         // sum of squared residuals
+  // Per group (kUncertaintyGroups): A over its voxels and sum_B g_B g_B^T over its cubes
+  // (6m x 6m, all frames), its voxels.
+  std::vector<Eigen::MatrixXd> curvature;
+  std::vector<Eigen::MatrixXd> gradient_covariance;
+  std::vector<int64_t> group_voxels;
+  // The sums over every group, or over every group but `left_out` (>= 0).
+  Eigen::MatrixXd Curvature(int left_out = -1) const;
+  Eigen::MatrixXd GradientCovariance(int left_out = -1) const;
+};
+
+// The sums above at `frame_from_world` over `candidates` (views of T phases: the phases'
+// sums, as the tied cost's gradient). A comes from the slopes of each sample's interpolants
+// (Frame::SampleSlopesAtIndex): the derivative of the gradient at the sample itself, where
+// GradientJacobian below, its slow twin, moves each sample by a step and samples again.
+// Deterministic for any thread count.
+// With keep_one_in > 1, over 1 in keep_one_in of the cubes only (chosen by a fixed hash of
+// their indices): about 1 / keep_one_in of the candidates, spread evenly, in whole cubes.
+UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
+                                  const CandidateSet& candidates,
+                                  const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                  int num_threads,
+                                  int keep_one_in = 1);
+
 // The estimate above at `frame_from_world` (frame 0 first, the gauge) over `candidates`, on
 // the frames of the finest level; `masks` (the frames' input masks) give the field-of-view
 // points of the predicted TRE. noise_sigma is the residuals' RMS over the degrees of
@@ -61,6 +97,13 @@ bool EstimatePoseUncertainty(const std::vector<Frame>& frames,
                              PoseUncertainty* uncertainty,
                              std::string* why,
                              Eigen::MatrixXd* curvature = nullptr);
+// The same from sums already taken over all of `candidates` (SumForUncertainty).
+bool EstimatePoseUncertainty(const UncertaintySums& sums,
+                             const std::vector<Frame>& frames,
+                             const std::vector<Mask>& masks,
+                             PoseUncertainty* uncertainty,
+                             std::string* why,
+                             Eigen::MatrixXd* curvature = nullptr);
 
 // A frame whose pose the data do not fix (symmetric anatomy, a featureless overlap): its
 // predicted error (one standard deviation, RMS over its field of view) in its own voxels,
@@ -72,13 +115,19 @@ struct UndeterminedPose {
   double error_voxels = 0.0;
 };
 
-// The determination check of the final poses (docs/design.md 8.7): the estimate above on
-// a quarter of the candidate voxels, in whole cubes of the gradient's clusters (its
-// covariance scaled to all of them; on all of them where the quarter finds a frame
-// undetermined or cannot judge), and every frame whose predicted error exceeds
-// max_error_voxels, or whose curvature is not positive, worst first. True when it could judge (false, with `why`, when
-// too few observations are left for a noise estimate). `error_voxels` (may be null): every
-// frame's predicted error in its voxels where the curvature is positive (frame 0: 0).
+// The determination check of the final poses (docs/design.md 8.7): every frame whose
+// predicted error (the RMS over its field of view of the displacement one standard
+// deviation of the estimate above puts on it) exceeds max_error_voxels of its voxels, or
+// along whose motion the curvature is not positive, worst first. Judged first on a subset
+// of the candidates in whole cubes of the gradient's clusters (about 4 cubes per free pose
+// parameter, where that is at most half of them; its covariance scaled to all of them),
+// whose verdict stands only where every pose's error, less the subset's bias, stays under
+// the limit by 5 standard errors of the subset's own spread (a jackknife over the groups of
+// cubes, which estimates both); otherwise on all of them. With
+// `all_sums` (the sums over all of `candidates`, already taken for --uncertainty) on those
+// alone. True when it could judge (false, with `why`, when too few observations are left
+// for a noise estimate). `error_voxels` (may be null): every frame's predicted error in its
+// voxels where the curvature is positive (frame 0: 0).
 bool UndeterminedPoses(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -87,7 +136,8 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
                        double max_error_voxels,
                        std::vector<UndeterminedPose>* undetermined,
                        std::string* why,
-                       std::vector<double>* error_voxels = nullptr);
+                       std::vector<double>* error_voxels = nullptr,
+                       const UncertaintySums* all_sums = nullptr);
 
 // "the data do not determine frame 2's rotation (...)" for the frames found, naming each
 // frame, what is undetermined and its predicted error.
@@ -100,7 +150,8 @@ std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::st
 
 // A = dg/d delta (6m x 6m, all frames), the derivative of the reduced gradient
 // g_f = sum_j J_fj^T (I_f(p_fj) - mu_j) with respect to the poses, by forward differences
-// of the samples: frame f's samples are moved by step_mm[f] along each translation axis and
+// of the samples (the slow twin of SumForUncertainty's A, which takes the same derivative
+// from the interpolants' slopes at each sample, in one pass): frame f's samples are moved by step_mm[f] along each translation axis and
 // step_rad[f] about each rotation axis, mu_j follows, the other frames' samples stay (the
 // samples are trilinear, linear along each axis inside a cell, so a small forward step is
 // as good as a central one and costs half).

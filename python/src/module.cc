@@ -300,6 +300,15 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   }
   s["seconds"] = result.seconds;
   s["pyramid_seconds"] = result.pyramid_seconds;
+  // The checks' share of `seconds` (docs/design.md section 8), per check.
+  const CheckSeconds& checks = result.check_seconds;
+  py::dict check_seconds;
+  check_seconds["structure"] = checks.structure;
+  check_seconds["determination"] = checks.determination;
+  check_seconds["brightness"] = checks.brightness;
+  check_seconds["uncertainty"] = checks.uncertainty;
+  check_seconds["other"] = checks.other;
+  s["check_seconds"] = check_seconds;
   s["recoveries"] = result.recoveries.size();
   py::list recoveries;
   for (const RegistrationResult::Recovery& r : result.recoveries) {
