@@ -20,6 +20,7 @@
 
 #include "dsr/dba/dba_problem.h"
 #include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/dsr_reduced/photometric_at_poses.h"
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/solve/gauge.h"
 #include "dsr/tests/support/fixed_point_options.h"
@@ -579,6 +580,81 @@ TEST(ReducedCost, PhotometricAtFixedPosesMinimisesTheCostInGainsAndOffsets) {
     EXPECT_NEAR(reports[0].photometric[i].log_gain, reports[1].photometric[i].log_gain, 1e-9) << i;
     EXPECT_NEAR(reports[0].photometric[i].offset, reports[1].photometric[i].offset, 1e-7) << i;
   }
+}
+
+// The gains and offsets at fixed poses by variable projection on the samples in memory
+// (EstimatePhotometricAtPoses, the brightness detection's estimate) against its slow twin,
+// one Ceres solve of the same cost (SolvePhotometricAtPoses): the simulated gains and offsets
+// at the truth, and the same minimiser at other poses on noisy frames; with phases, the
+// tied views' one gain and offset. Deterministic for any thread count.
+TEST(ReducedCost, PhotometricByVariableProjectionIsTheCeresSolvesMinimiser) {
+  const Case c{4, 16, 0.0, 1};
+  auto s = MakeSequence(LatticeOptionsFor(c, 131));
+  const double g[] = {1.0, 1.2, 0.85, 1.1}, o[] = {0.0, -7.0, 9.0, 4.0};
+  SeeThroughGains(g, o, &s);
+  std::string error;
+  PhotometricEstimate at_truth;
+  ASSERT_TRUE(EstimatePhotometricAtPoses(s.frames, InteriorCandidates(s, s.ground_truth, 1.5),
+                                         s.ground_truth, StreamContext{2}, &at_truth, &error))
+      << error;
+  EXPECT_TRUE(at_truth.converged);
+  for (int i = 1; i < c.num_frames; ++i) {
+    EXPECT_NEAR(at_truth.photometric[i].gain(), 1.0 / g[i], 1e-6) << i;
+    EXPECT_NEAR(at_truth.photometric[i].offset, -o[i] / g[i], 1e-4) << i;
+  }
+  auto noisy = MakeSequence(OptionsFor({4, 16, 5.0, 1}, 133));
+  SeeThroughGains(g, o, &noisy);
+  const auto poses = Perturbed(noisy.ground_truth, 0.01, 0.3, 134);
+  const CandidateSet cand = InteriorCandidates(noisy, poses, 1.5);
+  DsrOptions dsr;
+  dsr.solve = FixedPointOptions(100);
+  SolveReport report;
+  ASSERT_TRUE(SolvePhotometricAtPoses(noisy.frames, cand, poses, dsr, &report, &error)) << error;
+  PhotometricEstimate estimate, one_thread;
+  ASSERT_TRUE(EstimatePhotometricAtPoses(noisy.frames, cand, poses, StreamContext{2}, &estimate,
+                                         &error))
+      << error;
+  ASSERT_TRUE(EstimatePhotometricAtPoses(noisy.frames, cand, poses, StreamContext{1}, &one_thread,
+                                         &error))
+      << error;
+  EXPECT_TRUE(estimate.converged);
+  EXPECT_LE(estimate.iterations, 10);
+  EXPECT_NEAR(estimate.cost, 2.0 * report.final_cost, 1e-9 * estimate.cost);
+  for (int i = 1; i < c.num_frames; ++i) {
+    EXPECT_NEAR(estimate.photometric[i].log_gain, report.photometric[i].log_gain, 1e-8) << i;
+    EXPECT_NEAR(estimate.photometric[i].offset, report.photometric[i].offset, 1e-6) << i;
+    EXPECT_EQ(estimate.photometric[i].log_gain, one_thread.photometric[i].log_gain) << i;
+  }
+  // The standard error states the spread of the estimate over the noise: over 24 noise
+  // draws of one sequence seen through the gains and offsets, at its true poses, the
+  // standard deviation of frame 1's change at a grey level of 100 against the draws' mean
+  // stated error.
+  const auto clean = MakeSequence(OptionsFor({4, 24, 0.0, 1}, 135));
+  std::vector<double> changes;
+  double stated = 0.0;
+  for (int seed = 0; seed < 24; ++seed) {
+    auto draw = clean;
+    std::mt19937_64 rng(700 + seed);
+    std::normal_distribution<double> noise(0.0, 5.0);
+    for (size_t i = 0; i < draw.frames.size(); ++i) {
+      for (float& v : draw.images[i].voxels) v += static_cast<float>(noise(rng));
+      draw.frames[i] = Frame(draw.images[i], draw.masks[i]);
+    }
+    SeeThroughGains(g, o, &draw);
+    PhotometricEstimate e;
+    ASSERT_TRUE(EstimatePhotometricAtPoses(draw.frames,
+                                           InteriorCandidates(draw, draw.ground_truth, 1.5),
+                                           draw.ground_truth, StreamContext{2}, &e, &error))
+        << error;
+    changes.push_back(e.Change(1, 100.0));
+    stated += e.ChangeStandardError(1, 100.0) / 24.0;
+  }
+  double mean = 0.0, variance = 0.0;
+  for (double x : changes) mean += x / changes.size();
+  for (double x : changes) variance += (x - mean) * (x - mean) / (changes.size() - 1);
+  const double measured = std::sqrt(variance);
+  EXPECT_GT(stated, 0.5 * measured) << "stated " << stated << ", measured " << measured;
+  EXPECT_LT(stated, 2.0 * measured) << "stated " << stated << ", measured " << measured;
 }
 
 // The photometric reference cost's Jacobians against Ceres's numeric differentiation, on

@@ -29,7 +29,8 @@ Eigen::Vector3d CandidateSet::VoxelCenter(int64_t v) const {
 CandidateSet BuildCandidates(const std::vector<Frame>& frames,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
                              const ImageGeometry& grid,
-                             int margin_cells) {
+                             int margin_cells,
+                             int keep_one_row_in) {
   const int m = static_cast<int>(frames.size());
   CHECK_LE(m, kMaxFrames);
   CHECK_EQ(frame_from_world.size(), frames.size());
@@ -59,6 +60,7 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
   ParallelFor(0, n[2], 0, [&](int64_t k) {
     std::vector<uint32_t> row(n[0]);
     for (int j = 0; j < n[1]; ++j) {
+      if (keep_one_row_in > 1 && (j + 7 * k) % keep_one_row_in != 0) continue;
       std::fill(row.begin(), row.end(), 0u);
       const Eigen::Vector3d p0 = grid.origin_mm + to_world * Eigen::Vector3d(0, j, k);
       for (int f = 0; f < m; ++f) {

@@ -67,10 +67,14 @@ struct CandidateSet {
   Eigen::Vector3d VoxelCenter(int64_t v) const;
 };
 
+// With keep_one_row_in > 1, only the voxels of 1 in keep_one_row_in of the grid's rows (along
+// its x axis): rows (j, k) with j + 7 k a multiple of it, spread evenly over every slice, for
+// estimates that need far fewer observations than the solves (the brightness detection).
 CandidateSet BuildCandidates(const std::vector<Frame>& frames,
                              const std::vector<Eigen::Isometry3d>& frame_from_world,
                              const ImageGeometry& grid,
-                             int margin_cells);
+                             int margin_cells,
+                             int keep_one_row_in = 1);
 
 // The candidates in every `keep_one_in`-th cube of `cube` voxels on a side: those whose cube
 // indices (along x, y and z) sum to a multiple of keep_one_in, spread evenly over the grid.

@@ -1,0 +1,304 @@
+#include "dsr/dsr_reduced/photometric_at_poses.h"
+
+#include <algorithm>
+#include <cmath>
+#include <memory>
+
+#include <Eigen/Cholesky>
+#include <glog/logging.h>
+
+#include "dsr/util/parallel.h"
+
+namespace dsr {
+namespace {
+
+// Fixed blocks of the samples (a multiple of any thread count used here): the sums do not
+// depend on the thread count.
+constexpr int64_t kBlocks = 64;
+// Edge of the cubes the sandwich's gradient shares are clustered in (panorama voxels).
+constexpr int kClusterVoxels = 8;
+// Gauss-Newton stops when no step moves a frame's mapping alpha x + beta by more than this
+// many of its grey levels over its samples' range, or after kMaxIterations.
+constexpr double kStepTolerance = 1e-6;
+constexpr int kMaxIterations = 25;
+
+// The samples of a set of (voxel, phase) pairs with at least two observers, in memory.
+struct Samples {
+  std::vector<int64_t> begin{0};  // pair p's observations: [begin[p], begin[p + 1])
+  std::vector<int64_t> cube;      // pair p's cube (its cluster)
+  std::vector<uint8_t> frame;
+  std::vector<double> value;
+  int64_t size() const { return static_cast<int64_t>(begin.size()) - 1; }
+};
+
+// Every phase's samples of the candidates, in candidate order, phase by phase within a block.
+std::vector<Samples> TakeSamples(const std::vector<Frame>& frames,
+                                 const CandidateSet& candidates,
+                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                 const StreamContext& context) {
+  const KernelPath path = StreamKernelPath(context);
+  const FramesByPhase phases(frames);
+  std::vector<std::vector<PosedFrame>> posed;
+  for (int p = 0; p < phases.size(); ++p) posed.push_back(PoseFrames(phases[p], frame_from_world));
+  const ImageGeometry& grid = candidates.grid;
+  const int64_t nx = grid.size[0], nxy = nx * grid.size[1];
+  const int64_t cx = (grid.size[0] + kClusterVoxels - 1) / kClusterVoxels;
+  const int64_t cy = (grid.size[1] + kClusterVoxels - 1) / kClusterVoxels;
+  const int64_t n = candidates.num_voxels();
+  std::vector<Samples> blocks(kBlocks);
+  ParallelFor(0, kBlocks, context.num_threads, [&](int64_t b) {
+    Samples& out = blocks[b];
+    auto batch = std::make_unique<VoxelBatch>();
+    const int64_t begin = n * b / kBlocks, end = n * (b + 1) / kBlocks;
+    for (int p = 0; p < phases.size(); ++p) {
+      for (int64_t v = begin; v < end;) {
+        v = SampleVoxelBatch(path, posed[p], candidates, v, end, /*with_jacobian=*/false,
+                             batch.get());
+        for (int t = 0; t < batch->num_voxels; ++t) {
+          const int64_t l = candidates.voxel[batch->voxel[t]];
+          const int64_t i = l % nx, j = (l % nxy) / nx, k = l / nxy;
+          out.cube.push_back(((k / kClusterVoxels) * cy + j / kClusterVoxels) * cx +
+                             i / kClusterVoxels);
+          for (int a = batch->begin[t]; a < batch->begin[t + 1]; ++a) {
+            out.frame.push_back(static_cast<uint8_t>(batch->frame[a]));
+            out.value.push_back(batch->value[a]);
+          }
+          out.begin.push_back(static_cast<int64_t>(out.value.size()));
+        }
+      }
+    }
+  });
+  return blocks;
+}
+
+// One pass over a block's samples at (alpha, beta): the cost and, with `system`, the
+// projected Gauss-Newton matrix (2m square, all frames) and gradient (2m).
+struct Pass {
+  double cost = 0.0;
+  Eigen::MatrixXd hessian;
+  Eigen::VectorXd gradient;
+};
+
+void AddPass(const Samples& s,
+             const std::vector<double>& alpha,
+             const std::vector<double>& beta,
+             bool system,
+             Pass* out) {
+  const int m = static_cast<int>(alpha.size());
+  // Per frame the sums of z z^T (P^2, P, 1), per pair of frames those over S, per frame -r z.
+  std::vector<double> own(3 * m, 0.0), pair(3 * m * m, 0.0);
+  out->gradient = Eigen::VectorXd::Zero(2 * m);
+  for (int64_t p = 0; p < s.size(); ++p) {
+    const int64_t first = s.begin[p], last = s.begin[p + 1];
+    double weight = 0.0, sum = 0.0;
+    for (int64_t o = first; o < last; ++o) {
+      const int f = s.frame[o];
+      weight += alpha[f] * alpha[f];
+      sum += alpha[f] * (s.value[o] - beta[f]);
+    }
+    const double panorama = sum / weight;
+    const double over[3] = {panorama * panorama / weight, panorama / weight, 1.0 / weight};
+    for (int64_t o = first; o < last; ++o) {
+      const int f = s.frame[o];
+      const double r = s.value[o] - alpha[f] * panorama - beta[f];
+      out->cost += r * r;
+      if (!system) continue;
+      out->gradient[2 * f] -= r * panorama;
+      out->gradient[2 * f + 1] -= r;
+      own[3 * f] += panorama * panorama;
+      own[3 * f + 1] += panorama;
+      own[3 * f + 2] += 1.0;
+      for (int64_t q = o; q < last; ++q) {
+        double* sums = &pair[3 * (f * m + s.frame[q])];
+        sums[0] += over[0];
+        sums[1] += over[1];
+        sums[2] += over[2];
+      }
+    }
+  }
+  if (!system) return;
+  out->hessian = Eigen::MatrixXd::Zero(2 * m, 2 * m);
+  for (int a = 0; a < m; ++a) {
+    for (int b = 0; b < m; ++b) {
+      // The frames come in increasing order within a voxel: the pair (a, b) is summed
+      // under min, max.
+      const double* sums = &pair[3 * (std::min(a, b) * m + std::max(a, b))];
+      const double scale = alpha[a] * alpha[b];
+      Eigen::Matrix2d block;
+      block << -scale * sums[0], -scale * sums[1], -scale * sums[1], -scale * sums[2];
+      if (a == b) block += (Eigen::Matrix2d() << own[3 * a], own[3 * a + 1], own[3 * a + 1],
+                            own[3 * a + 2]).finished();
+      out->hessian.block<2, 2>(2 * a, 2 * b) = block;
+    }
+  }
+}
+
+// The pass over every block (in fixed order: deterministic).
+Pass FullPass(const std::vector<Samples>& blocks,
+              const std::vector<double>& alpha,
+              const std::vector<double>& beta,
+              bool system,
+              int num_threads) {
+  std::vector<Pass> parts(blocks.size());
+  ParallelFor(0, static_cast<int64_t>(blocks.size()), num_threads,
+              [&](int64_t b) { AddPass(blocks[b], alpha, beta, system, &parts[b]); });
+  Pass total = parts[0];
+  for (size_t b = 1; b < parts.size(); ++b) {
+    total.cost += parts[b].cost;
+    if (system) {
+      total.hessian += parts[b].hessian;
+      total.gradient += parts[b].gradient;
+    }
+  }
+  return total;
+}
+
+// The sandwich's middle: sum over cubes of g_B g_B^T (2m square, all frames).
+Eigen::MatrixXd ClusteredGradientCovariance(const std::vector<Samples>& blocks,
+                                            const std::vector<double>& alpha,
+                                            const std::vector<double>& beta) {
+  const int m = static_cast<int>(alpha.size());
+  Eigen::MatrixXd covariance = Eigen::MatrixXd::Zero(2 * m, 2 * m);
+  Eigen::VectorXd share = Eigen::VectorXd::Zero(2 * m);
+  int64_t cube = -1;
+  // A cube's (voxel, phase) pairs are not contiguous (its rows are interleaved with other
+  // cubes'): gather the shares by cube first.
+  std::vector<std::pair<int64_t, Eigen::VectorXd>> shares;
+  for (const Samples& s : blocks) {
+    for (int64_t p = 0; p < s.size(); ++p) {
+      const int64_t first = s.begin[p], last = s.begin[p + 1];
+      double weight = 0.0, sum = 0.0;
+      for (int64_t o = first; o < last; ++o) {
+        weight += alpha[s.frame[o]] * alpha[s.frame[o]];
+        sum += alpha[s.frame[o]] * (s.value[o] - beta[s.frame[o]]);
+      }
+      const double panorama = sum / weight;
+      if (s.cube[p] != cube) {
+        if (cube >= 0) shares.emplace_back(cube, share);
+        cube = s.cube[p];
+        share.setZero();
+      }
+      for (int64_t o = first; o < last; ++o) {
+        const int f = s.frame[o];
+        const double r = s.value[o] - alpha[f] * panorama - beta[f];
+        share[2 * f] -= r * panorama;
+        share[2 * f + 1] -= r;
+      }
+    }
+  }
+  if (cube >= 0) shares.emplace_back(cube, share);
+  std::stable_sort(shares.begin(), shares.end(),
+                   [](const auto& x, const auto& y) { return x.first < y.first; });
+  for (size_t i = 0; i < shares.size();) {
+    Eigen::VectorXd g = Eigen::VectorXd::Zero(2 * m);
+    size_t j = i;
+    for (; j < shares.size() && shares[j].first == shares[i].first; ++j) g += shares[j].second;
+    covariance.noalias() += g * g.transpose();
+    i = j;
+  }
+  return covariance;
+}
+
+}  // namespace
+
+double PhotometricEstimate::Change(int frame, double x) const {
+  return photometric[frame].Correct(x) - x;
+}
+
+double PhotometricEstimate::ChangeStandardError(int frame, double x) const {
+  if (frame == 0 || covariance.size() == 0) return 0.0;
+  // gain x + offset = (x - beta) / alpha: d/d alpha = -(x - beta) / alpha^2, d/d beta =
+  // -1 / alpha.
+  const double alpha = photometric[frame].unit();
+  const double beta = -alpha * photometric[frame].offset;
+  const Eigen::Vector2d d(-(x - beta) / (alpha * alpha), -1.0 / alpha);
+  const int at = 2 * (frame - 1);
+  return std::sqrt(std::max(0.0, d.dot(covariance.block<2, 2>(at, at) * d)));
+}
+
+bool EstimatePhotometricAtPoses(const std::vector<Frame>& frames,
+                                const CandidateSet& candidates,
+                                const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                const StreamContext& context,
+                                PhotometricEstimate* estimate,
+                                std::string* error) {
+  const int m = static_cast<int>(frames.size());
+  const int n = 2 * (m - 1);
+  CHECK_GE(m, 2);
+  const std::vector<Samples> blocks = TakeSamples(frames, candidates, frame_from_world, context);
+  *estimate = PhotometricEstimate();
+  // Each frame's observations and the range of its samples (for the step rule).
+  std::vector<int64_t> count(m, 0);
+  std::vector<double> low(m, 1e300), high(m, -1e300);
+  for (const Samples& s : blocks) {
+    estimate->voxels += s.size();
+    estimate->observations += static_cast<int64_t>(s.value.size());
+    for (size_t o = 0; o < s.value.size(); ++o) {
+      ++count[s.frame[o]];
+      low[s.frame[o]] = std::min(low[s.frame[o]], s.value[o]);
+      high[s.frame[o]] = std::max(high[s.frame[o]], s.value[o]);
+    }
+  }
+  for (int f = 0; f < m; ++f) {
+    if (count[f] < 3) {
+      *error = "frame " + std::to_string(f) + " has " + std::to_string(count[f]) +
+               " samples where others see it too: too few for a gain and an offset";
+      return false;
+    }
+  }
+  std::vector<double> alpha(m, 1.0), beta(m, 0.0);
+  Pass pass = FullPass(blocks, alpha, beta, true, context.num_threads);
+  Eigen::LDLT<Eigen::MatrixXd> ldlt;
+  for (int it = 0; it < kMaxIterations; ++it) {
+    ldlt.compute(pass.hessian.bottomRightCorner(n, n));
+    if (ldlt.info() != Eigen::Success || !(ldlt.vectorD().minCoeff() > 0.0)) {
+      *error = "the samples do not determine the gains and offsets (singular system)";
+      return false;
+    }
+    const Eigen::VectorXd step = ldlt.solve(-pass.gradient.tail(n));
+    // Backtrack while the cost rises (the projected problem is not quadratic).
+    double scale = 1.0, moved = 0.0;
+    Pass next;
+    std::vector<double> next_alpha = alpha, next_beta = beta;
+    for (int halving = 0; halving < 30; ++halving, scale *= 0.5) {
+      moved = 0.0;
+      for (int f = 1; f < m; ++f) {
+        next_alpha[f] = alpha[f] + scale * step[2 * (f - 1)];
+        next_beta[f] = beta[f] + scale * step[2 * (f - 1) + 1];
+        const double range = std::max(std::abs(high[f]), std::abs(low[f]));
+        moved = std::max(moved, std::abs(scale * step[2 * (f - 1)]) * range +
+                                    std::abs(scale * step[2 * (f - 1) + 1]));
+      }
+      next = FullPass(blocks, next_alpha, next_beta, true, context.num_threads);
+      if (next.cost <= pass.cost) break;
+    }
+    ++estimate->iterations;
+    if (!(next.cost <= pass.cost)) break;  // no descent left: at the minimiser
+    alpha = next_alpha;
+    beta = next_beta;
+    pass = std::move(next);
+    if (moved < kStepTolerance) {
+      estimate->converged = true;
+      break;
+    }
+  }
+  for (int f = 1; f < m; ++f) {
+    if (!(alpha[f] > 0.0)) {
+      *error = "frame " + std::to_string(f) + "'s estimated gain is not positive";
+      return false;
+    }
+  }
+  estimate->cost = pass.cost;
+  estimate->photometric.assign(m, Photometric());
+  for (int f = 1; f < m; ++f) {
+    estimate->photometric[f].log_gain = -std::log(alpha[f]);
+    estimate->photometric[f].offset = -beta[f] / alpha[f];
+  }
+  ldlt.compute(pass.hessian.bottomRightCorner(n, n));
+  const Eigen::MatrixXd inverse = ldlt.solve(Eigen::MatrixXd::Identity(n, n));
+  estimate->covariance =
+      inverse * ClusteredGradientCovariance(blocks, alpha, beta).bottomRightCorner(n, n) * inverse;
+  return true;
+}
+
+}  // namespace dsr
