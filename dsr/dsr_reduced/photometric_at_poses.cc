@@ -48,12 +48,12 @@ std::vector<Samples> TakeSamples(const std::vector<Frame>& frames,
   std::vector<Samples> blocks(kBlocks);
   ParallelFor(0, kBlocks, context.num_threads, [&](int64_t b) {
     Samples& out = blocks[b];
-    auto batch = std::make_unique<VoxelBatch>();
+    VoxelBatch* const batch = ThreadVoxelBatch();
     const int64_t begin = n * b / kBlocks, end = n * (b + 1) / kBlocks;
     for (int p = 0; p < phases.size(); ++p) {
       for (int64_t v = begin; v < end;) {
         v = SampleVoxelBatch(path, posed[p], candidates, v, end, /*with_jacobian=*/false,
-                             batch.get());
+                             batch);
         for (int t = 0; t < batch->num_voxels; ++t) {
           const int64_t l = candidates.voxel[batch->voxel[t]];
           const int64_t i = l % nx, j = (l % nxy) / nx, k = l / nxy;

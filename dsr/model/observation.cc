@@ -155,6 +155,29 @@ CandidateSet CandidatesInCubes(const CandidateSet& candidates, int cube, int kee
   return out;
 }
 
+CandidateSet CandidatesInRows(const CandidateSet& candidates, int keep_one_row_in) {
+  CHECK_GE(keep_one_row_in, 1);
+  CandidateSet out;
+  out.grid = candidates.grid;
+  out.num_frames = candidates.num_frames;
+  const int64_t nx = candidates.grid.size[0], ny = candidates.grid.size[1];
+  int64_t row_end = -1;  // the end of the current row's linear indices
+  bool kept = false;
+  for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
+    const int64_t l = candidates.voxel[v];
+    if (l >= row_end) {  // a new row: one division per row, not per voxel
+      const int64_t row = l / nx;
+      row_end = (row + 1) * nx;
+      kept = (row % ny + 7 * (row / ny)) % keep_one_row_in == 0;
+    }
+    if (kept) {
+      out.voxel.push_back(l);
+      out.observers.push_back(candidates.observers[v]);
+    }
+  }
+  return out;
+}
+
 Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
   const int m = candidates.num_frames;
   Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);

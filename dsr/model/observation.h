@@ -83,6 +83,11 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
 // observations than the solves.
 CandidateSet CandidatesInCubes(const CandidateSet& candidates, int cube, int keep_one_in);
 
+// The candidates in 1 row in keep_one_row_in of the grid's rows (along its x axis), the rows
+// BuildCandidates keeps with that argument (j + 7 k a multiple of it): whole rows, for
+// statistics over neighbours along a row (the structure check's lag pairs).
+CandidateSet CandidatesInRows(const CandidateSet& candidates, int keep_one_row_in);
+
 // Number of candidate voxels shared by each pair of frames (m x m, symmetric; diagonal =
 // voxels each frame is a candidate for). Used to report disconnected frames.
 Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates);

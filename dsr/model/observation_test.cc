@@ -221,6 +221,50 @@ TEST(CandidatesInCubes, KeepsWholeCubesSpreadEvenly) {
   EXPECT_EQ(CandidatesInCubes(all, 4, 1).num_voxels(), all.num_voxels());
 }
 
+TEST(CandidatesInRows, KeepsWholeRowsAsBuildCandidatesDoes) {
+  // Every voxel of a 16 x 8 x 8 grid but a few; rows (j, k) with j + 7 k a multiple of 3
+  // kept whole, with their observers, in order.
+  CandidateSet all;
+  all.grid.size = Eigen::Vector3i(16, 8, 8);
+  all.num_frames = 2;
+  for (int64_t l = 0; l < 16 * 8 * 8; ++l) {
+    if (l % 13 == 5) continue;  // rows need not be full
+    all.voxel.push_back(l);
+    all.observers.push_back(static_cast<uint32_t>(1 + l % 3));
+  }
+  const CandidateSet kept = CandidatesInRows(all, 3);
+  int64_t expected = 0;
+  for (int64_t v = 0; v < all.num_voxels(); ++v) {
+    const int64_t l = all.voxel[v];
+    if ((l / 16 % 8 + 7 * (l / 128)) % 3 == 0) ++expected;
+  }
+  EXPECT_EQ(kept.num_voxels(), expected);
+  EXPECT_EQ(kept.num_frames, 2);
+  EXPECT_EQ(kept.grid.size, all.grid.size);
+  for (int64_t v = 0; v < kept.num_voxels(); ++v) {
+    const int64_t l = kept.voxel[v];
+    EXPECT_EQ((l / 16 % 8 + 7 * (l / 128)) % 3, 0) << l;
+    EXPECT_EQ(kept.observers[v], static_cast<uint32_t>(1 + l % 3));
+    if (v > 0) {
+      EXPECT_GT(l, kept.voxel[v - 1]);
+    }
+  }
+  EXPECT_EQ(CandidatesInRows(all, 1).voxel, all.voxel);
+  // The rows BuildCandidates keeps with the same argument.
+  const TwoFrames t = MakeTwoFrames(1, 2);
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(t.frames, t.poses, 1.0, &grid, &error)) << error;
+  const CandidateSet every = BuildCandidates(t.frames, t.poses, grid, 0);
+  for (int keep : {2, 3, 5}) {
+    const CandidateSet built = BuildCandidates(t.frames, t.poses, grid, 0, keep);
+    const CandidateSet rows = CandidatesInRows(every, keep);
+    EXPECT_GT(rows.num_voxels(), 0) << keep;
+    EXPECT_EQ(rows.voxel, built.voxel) << keep;
+    EXPECT_EQ(rows.observers, built.observers) << keep;
+  }
+}
+
 TEST(CheckConnected, NamesFramesWithoutOverlap) {
   TwoFrames t = MakeTwoFrames(1, 2);
   t.frames.push_back(UniformFrame(3.0f));

@@ -145,15 +145,16 @@ int StructureLagVoxels(const std::vector<Frame>& frames, const ImageGeometry& gr
   return std::max(2, lag);
 }
 
-std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
-                                            const CandidateSet& candidates,
-                                            const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                            const StreamContext& context,
-                                            const std::vector<Photometric>& photometric) {
+namespace {
+
+// FrameStructures over every row of `candidates`.
+std::vector<FrameStructure> FrameStructuresOfRows(
+    const std::vector<Frame>& frames,
+    const CandidateSet& candidates,
+    const std::vector<Eigen::Isometry3d>& frame_from_world,
+    const StreamContext& context,
+    const std::vector<Photometric>& photometric) {
   const int m = static_cast<int>(frames.size());
-  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
-  CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
-  CHECK_LE(m, kMaxFrames);
   const int lag = StructureLagVoxels(frames, candidates.grid);
   const int64_t nx = candidates.grid.size[0];
   const std::vector<PosedFrame> posed = PoseFrames(frames, frame_from_world);
@@ -177,10 +178,10 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
   ParallelFor(0, kBlocks, context.num_threads, [&](int64_t b) {
     StructureSums& sums = blocks[b];
     std::vector<LagSlot> ring(lag + 1);
-    auto batch = std::make_unique<VoxelBatch>();
+    VoxelBatch* const batch = ThreadVoxelBatch();
     const int64_t end = n * (b + 1) / kBlocks;
     for (int64_t v = n * b / kBlocks; v < end;) {
-      v = SampleVoxelBatch(path, posed, candidates, v, end, /*with_jacobian=*/false, batch.get());
+      v = SampleVoxelBatch(path, posed, candidates, v, end, /*with_jacobian=*/false, batch);
       for (int t = 0; t < batch->num_voxels; ++t) {
         const int64_t linear = candidates.voxel[batch->voxel[t]];
         const int64_t x = linear % nx;
@@ -215,6 +216,32 @@ std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
   std::vector<FrameStructure> out(m);
   for (int f = 0; f < m; ++f) out[f] = StructureFromSums(total, f);
   return out;
+}
+
+}  // namespace
+
+std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
+                                            const CandidateSet& candidates,
+                                            const std::vector<Eigen::Isometry3d>& frame_from_world,
+                                            const StreamContext& context,
+                                            const std::vector<Photometric>& photometric,
+                                            double pairs_per_frame) {
+  const int m = static_cast<int>(frames.size());
+  CHECK_EQ(static_cast<int>(frame_from_world.size()), m);
+  CHECK(photometric.empty() || static_cast<int>(photometric.size()) == m);
+  CHECK_LE(m, kMaxFrames);
+  // Every frame's pairs are about its observations: beyond pairs_per_frame of them, rows
+  // spread evenly suffice (whole rows: the lag pairs lie along them).
+  const double keep_rows =
+      pairs_per_frame > 0.0
+          ? static_cast<double>(candidates.NumObservations()) / m / pairs_per_frame
+          : 0.0;
+  if (keep_rows >= 2.0) {
+    return FrameStructuresOfRows(frames,
+                                 CandidatesInRows(candidates, static_cast<int>(keep_rows)),
+                                 frame_from_world, context, photometric);
+  }
+  return FrameStructuresOfRows(frames, candidates, frame_from_world, context, photometric);
 }
 
 std::vector<int> StructureOutliers(const std::vector<FrameStructure>& structure,

@@ -71,14 +71,24 @@ struct FrameStructure {
 // panorama spacing at least 2 sqrt 3 times the largest frame spacing, and at least 2.
 int StructureLagVoxels(const std::vector<Frame>& frames, const ImageGeometry& grid);
 
+// About this many lag pairs per frame are all the check needs: a frame whose structure
+// fraction sits at the limit (5 %) stands out by 5 standard errors with n pairs when its
+// signal structure is at least 100 / sqrt(n) of its residual variance, 0.2 at 250,000. The
+// paper's frames have 300,000-500,000 at the finest level, clinical frames 3.4 million.
+constexpr double kStructurePairsPerFrame = 250000.0;
+
 // Every frame's structure statistics at `frame_from_world` over `candidates` (see above),
-// with `photometric` corrections (one per frame; empty: none). Deterministic for any
-// thread count (fixed blocks; pairs that straddle a block boundary are not counted).
+// with `photometric` corrections (one per frame; empty: none); over 1 row in keep of the
+// candidates' grid (CandidatesInRows) where they hold keep >= 2 times `pairs_per_frame`
+// observations per frame (the significance counts the pairs it used; 0: every row).
+// Deterministic for any thread count (fixed blocks; pairs that straddle a block boundary are
+// not counted).
 std::vector<FrameStructure> FrameStructures(const std::vector<Frame>& frames,
                                             const CandidateSet& candidates,
                                             const std::vector<Eigen::Isometry3d>& frame_from_world,
                                             const StreamContext& context,
-                                            const std::vector<Photometric>& photometric = {});
+                                            const std::vector<Photometric>& photometric = {},
+                                            double pairs_per_frame = kStructurePairsPerFrame);
 
 // The frames whose structure fraction exceeds max_fraction and stands out of its spread,
 // worst first, except those marked in `exempt` (when given). max_fraction 0: none.

@@ -148,6 +148,41 @@ TEST(FrameStructures, DoNotDependOnTheThreadCount) {
   }
 }
 
+TEST(FrameStructures, OnEvenlySpreadRowsAgreeWithEveryRow) {
+  // Where the candidates hold more than twice pairs_per_frame observations per frame, the
+  // check reads 1 row in keep: about 1/keep of the pairs, the same verdicts, and each
+  // figure within the sampling spread the significance counts.
+  const TestSequence s = Sequence(2.0);
+  std::vector<Eigen::Isometry3d> poses = s.ground_truth;
+  poses[2] = poses[2] * Eigen::Translation3d(5.0, -3.0, 2.0);
+  for (const std::vector<Eigen::Isometry3d>& at : {s.ground_truth, poses}) {
+    const CandidateSet candidates = CandidatesAt(s.frames, at);
+    const double per_frame = static_cast<double>(candidates.NumObservations()) / 4.0;
+    const std::vector<FrameStructure> all =
+        FrameStructures(s.frames, candidates, at, Threads(2), {}, /*pairs_per_frame=*/0.0);
+    EXPECT_EQ(all[0].pairs, FrameStructures(s.frames, candidates, at, Threads(2))[0].pairs)
+        << "a small sequence reads every row by default";
+    const std::vector<FrameStructure> rows =
+        FrameStructures(s.frames, candidates, at, Threads(2), {}, per_frame / 4.0);
+    for (int i = 0; i < 4; ++i) {
+      EXPECT_GT(rows[i].pairs, all[i].pairs / 6) << i;
+      EXPECT_LT(rows[i].pairs, all[i].pairs / 3) << i;
+      ASSERT_TRUE(rows[i].judged) << i;
+      // The fraction's standard error on the rows: v / sqrt(n) of the residual over b.
+      const double error = rows[i].residual_variance / std::sqrt(rows[i].pairs) /
+                           rows[i].signal_lag;
+      EXPECT_LT(std::abs(rows[i].fraction - all[i].fraction), 5.0 * error)
+          << "frame " << i << ": " << rows[i].fraction << " against " << all[i].fraction;
+    }
+    EXPECT_EQ(StructureOutliers(rows, kLimit), StructureOutliers(all, kLimit));
+  }
+  const std::vector<FrameStructure> off = FrameStructures(
+      s.frames, CandidatesAt(s.frames, poses), poses, Threads(2), {},
+      static_cast<double>(CandidatesAt(s.frames, poses).NumObservations()) / 16.0);
+  ASSERT_FALSE(StructureOutliers(off, kLimit).empty());
+  EXPECT_EQ(StructureOutliers(off, kLimit).front(), 2);
+}
+
 TEST(StructureLagVoxels, ReadsDisjointCellsOfEveryFrame) {
   const TestSequence s = Sequence(0.0);
   ImageGeometry grid;

@@ -356,11 +356,10 @@ void UpdateObservationWeights(const std::vector<Frame>& frames,
         w_all[l] = 1.0f;
       }
     };
-    thread_local std::unique_ptr<VoxelBatch> batch;
-    if (batch == nullptr) batch.reset(new VoxelBatch);
+    VoxelBatch* const batch = ThreadVoxelBatch();
     const int64_t b0 = std::min(n, block * block_size), b1 = std::min(n, b0 + block_size);
     for (int64_t v = b0; v < b1;) {
-      const int64_t next = SampleVoxelBatch(path, posed, candidates, v, b1, false, batch.get());
+      const int64_t next = SampleVoxelBatch(path, posed, candidates, v, b1, false, batch);
       int64_t done = v;
       for (int t = 0; t < batch->num_voxels; ++t) {
         const int64_t voxel = batch->voxel[t];

@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <memory>
 
 #include "dsr/stream/kernels/kernels_avx2.h"
 #include "dsr/stream/kernels/kernels_avx512.h"
@@ -161,6 +162,11 @@ int64_t SampleVoxelBatch(KernelPath path,
   }
 #endif
   return SampleVoxelBatchLoop(posed, candidates, v, end, with_jacobian, batch);
+}
+
+VoxelBatch* ThreadVoxelBatch() {
+  thread_local const std::unique_ptr<VoxelBatch> batch(new VoxelBatch);
+  return batch.get();
 }
 
 }  // namespace dsr
