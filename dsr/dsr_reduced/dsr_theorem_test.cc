@@ -625,6 +625,21 @@ TEST(ReducedCost, PhotometricByVariableProjectionIsTheCeresSolvesMinimiser) {
     EXPECT_NEAR(estimate.photometric[i].offset, report.photometric[i].offset, 1e-6) << i;
     EXPECT_EQ(estimate.photometric[i].log_gain, one_thread.photometric[i].log_gain) << i;
   }
+  // From a start near the minimiser (an estimate on 1 row in 3): the same minimiser, in
+  // fewer passes.
+  PhotometricEstimate rows, warm;
+  ASSERT_TRUE(EstimatePhotometricAtPoses(noisy.frames, CandidatesInRows(cand, 3), poses,
+                                         StreamContext{2}, &rows, &error))
+      << error;
+  ASSERT_TRUE(EstimatePhotometricAtPoses(noisy.frames, cand, poses, StreamContext{2}, &warm,
+                                         &error, &rows.photometric))
+      << error;
+  EXPECT_TRUE(warm.converged);
+  EXPECT_LT(warm.iterations, estimate.iterations);
+  for (int i = 1; i < c.num_frames; ++i) {
+    EXPECT_NEAR(warm.photometric[i].log_gain, report.photometric[i].log_gain, 1e-8) << i;
+    EXPECT_NEAR(warm.photometric[i].offset, report.photometric[i].offset, 1e-6) << i;
+  }
   // The standard error states the spread of the estimate over the noise: over 24 noise
   // draws of one sequence seen through the gains and offsets, at its true poses, the
   // standard deviation of frame 1's change at a grey level of 100 against the draws' mean

@@ -88,16 +88,34 @@ void AddPass(const Samples& s,
   // Per frame the sums of z z^T (P^2, P, 1), per pair of frames those over S, per frame -r z.
   std::vector<double> own(3 * m, 0.0), pair(3 * m * m, 0.0);
   out->gradient = Eigen::VectorXd::Zero(2 * m);
+  // The pairs' sums are the same for every voxel of a run with the same observers (voxels
+  // along a row share them but at fields of view's borders): summed per run, then added to
+  // each of the run's pairs (a, b), a <= b, once.
+  uint32_t run_observers = 0;
+  double run[3] = {0.0, 0.0, 0.0};
+  const auto flush = [&] {
+    for (uint32_t left = run_observers; left != 0; left &= left - 1) {
+      const int a = __builtin_ctz(left);
+      for (uint32_t right = left; right != 0; right &= right - 1) {
+        double* sums = &pair[3 * (a * m + __builtin_ctz(right))];
+        sums[0] += run[0];
+        sums[1] += run[1];
+        sums[2] += run[2];
+      }
+    }
+    run[0] = run[1] = run[2] = 0.0;
+  };
   for (int64_t p = 0; p < s.size(); ++p) {
     const int64_t first = s.begin[p], last = s.begin[p + 1];
     double weight = 0.0, sum = 0.0;
+    uint32_t observers = 0;
     for (int64_t o = first; o < last; ++o) {
       const int f = s.frame[o];
       weight += alpha[f] * alpha[f];
       sum += alpha[f] * (s.value[o] - beta[f]);
+      observers |= uint32_t{1} << f;
     }
     const double panorama = sum / weight;
-    const double over[3] = {panorama * panorama / weight, panorama / weight, 1.0 / weight};
     for (int64_t o = first; o < last; ++o) {
       const int f = s.frame[o];
       const double r = s.value[o] - alpha[f] * panorama - beta[f];
@@ -108,15 +126,18 @@ void AddPass(const Samples& s,
       own[3 * f] += panorama * panorama;
       own[3 * f + 1] += panorama;
       own[3 * f + 2] += 1.0;
-      for (int64_t q = o; q < last; ++q) {
-        double* sums = &pair[3 * (f * m + s.frame[q])];
-        sums[0] += over[0];
-        sums[1] += over[1];
-        sums[2] += over[2];
-      }
     }
+    if (!system) continue;
+    if (observers != run_observers) {
+      flush();
+      run_observers = observers;
+    }
+    run[0] += panorama * panorama / weight;
+    run[1] += panorama / weight;
+    run[2] += 1.0 / weight;
   }
   if (!system) return;
+  flush();
   out->hessian = Eigen::MatrixXd::Zero(2 * m, 2 * m);
   for (int a = 0; a < m; ++a) {
     for (int b = 0; b < m; ++b) {
@@ -221,10 +242,12 @@ bool EstimatePhotometricAtPoses(const std::vector<Frame>& frames,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const StreamContext& context,
                                 PhotometricEstimate* estimate,
-                                std::string* error) {
+                                std::string* error,
+                                const std::vector<Photometric>* start) {
   const int m = static_cast<int>(frames.size());
   const int n = 2 * (m - 1);
   CHECK_GE(m, 2);
+  CHECK_LE(m, kMaxFrames);  // a voxel's observers as the bits of a uint32_t (AddPass)
   const std::vector<Samples> blocks = TakeSamples(frames, candidates, frame_from_world, context);
   *estimate = PhotometricEstimate();
   // Each frame's observations and the range of its samples (for the step rule).
@@ -247,6 +270,11 @@ bool EstimatePhotometricAtPoses(const std::vector<Frame>& frames,
     }
   }
   std::vector<double> alpha(m, 1.0), beta(m, 0.0);
+  CHECK(start == nullptr || static_cast<int>(start->size()) == m);
+  for (int f = 1; f < m && start != nullptr; ++f) {
+    alpha[f] = (*start)[f].unit();
+    beta[f] = -alpha[f] * (*start)[f].offset;
+  }
   Pass pass = FullPass(blocks, alpha, beta, true, context.num_threads);
   Eigen::LDLT<Eigen::MatrixXd> ldlt;
   for (int it = 0; it < kMaxIterations; ++it) {

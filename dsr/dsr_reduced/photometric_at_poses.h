@@ -56,13 +56,15 @@ struct PhotometricEstimate {
 // The estimate above at `frame_from_world` over `candidates` (frames of T phases: every
 // phase's samples, one pose and one gain and offset per view). False, with `error`, when
 // the samples do not determine it (a frame with fewer than 3 observations, or a singular
-// Gauss-Newton matrix).
+// Gauss-Newton matrix). Gauss-Newton starts from `start` when given (one per frame: an
+// estimate on fewer rows, which leaves fewer passes to go), else from gain 1 and offset 0.
 bool EstimatePhotometricAtPoses(const std::vector<Frame>& frames,
                                 const CandidateSet& candidates,
                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
                                 const StreamContext& context,
                                 PhotometricEstimate* estimate,
-                                std::string* error);
+                                std::string* error,
+                                const std::vector<Photometric>* start = nullptr);
 
 }  // namespace dsr
 

@@ -160,13 +160,27 @@ class CoarseToFine {
   bool StructureExplainedByBrightness(int level,
                                       const std::vector<Frame>& frames,
                                       const CandidateSet& candidates);
+  // With photometric kAuto, undecided, at the last coarse level (1) once its checks pass
+  // (where recovery is on; else after its solves):
+  // where the gains and offsets estimated at its poses change some frame's intensities by
+  // more than kBrightnessTolerance plus kBrightnessPrecision standard errors, the finest
+  // level estimates them (recorded in the result, and the determination check still judges
+  // its poses); otherwise the final poses decide (DetectBrightness).
+  void DetectBrightnessEarly(int level, const std::vector<Frame>& frames);
+  // After DetectBrightnessEarly's choice, at the final poses: DetectBrightness's estimate
+  // there confirms it, or finds no change over kBrightnessTolerance; then the result says
+  // none, and the pipeline registers again without them from there (RunRounds).
+  void ConfirmBrightness(const std::vector<Frame>& frames);
   // The gains and offsets that best explain `frames` at SolvePoses() (an every-phase grid),
-  // and the largest change they make to a frame's intensities (over its spread) and its
-  // frame. False when no estimate could be made.
+  // and the largest change they make to a frame's intensities (over its spread), its frame
+  // and its standard error. With `refine`, more rows of the grid where the change is not
+  // clearly on one side of kBrightnessTolerance. False when no estimate could be made.
   bool EstimateBrightness(const std::vector<Frame>& frames,
                           std::vector<Photometric>* photometric,
                           double* largest_change,
-                          int* worst);
+                          int* worst,
+                          double* standard_error = nullptr,
+                          bool refine = true);
   bool AutoPhotometricUndecided() const;
   void UseAffine();
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);

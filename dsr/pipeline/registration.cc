@@ -270,6 +270,7 @@ bool RunRounds(const RegistrationRun& run,
   const RegistrationOptions& options = *run.options;
   RegistrationResult* result = run.result;
   bool affine_round = false;  // photometric kAuto: the round after brightness was detected
+  bool plain_round = false;   // and after the final poses found none where a level had
   for (int round = 0;; ++round) {
     CoarseToFine levels(*run.images, run.later_phases, *run.masks, options,
                         options.max_recoveries > 0,
@@ -283,6 +284,16 @@ bool RunRounds(const RegistrationRun& run,
       // recovery: nothing was wrong with them). A round that switched to them at a level
       // (the structure check's second chance) needs none.
       affine_round = true;
+      *poses = result->frame_from_world;
+      --round;
+      continue;
+    }
+    if (result->usable && !result->photometric_detected && !result->photometric.empty() &&
+        options.photometric == PhotometricModel::kAuto && !plain_round) {
+      // The last coarse level took its poses' error for brightness, which the final poses
+      // do not confirm (CoarseToFine::ConfirmBrightness): once more without gains and
+      // offsets, from the poses reached.
+      plain_round = true;
       *poses = result->frame_from_world;
       --round;
       continue;

@@ -34,7 +34,9 @@ enum class InitialPoses {
 // kAuto: none, unless brightness differs between the frames; then affine (docs/design.md
 // 2.8). Detected three ways: at the final poses of the first round that passes every check
 // (the gains and offsets estimated there change some frame's intensities by more than
-// kBrightnessTolerance; one more round with them follows from those poses); at a level where
+// kBrightnessTolerance; one more round with them follows from those poses, unless the last
+// coarse level found them clearly over it and the finest level estimated them, which the
+// final poses confirm or, finding none, undo by one more round without); at a level where
 // the structure check flags frames that the estimated gains and offsets line up (affine from
 // that level on); and, when the registration fails without them, once more with them from
 // the same start. RegistrationResult::photometric_choice says which model, and why.

@@ -74,6 +74,10 @@ struct RegistrationResult {
   // solves used and why (empty when no detection ran).
   bool photometric_detected = false;
   std::string photometric_choice;
+  // Detected at the last coarse level, for the final poses to confirm (photometric_change
+  // there: the largest change it measured); false once they have.
+  bool photometric_unconfirmed = false;
+  double photometric_early_change = 0.0;
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
   CheckSeconds check_seconds;
