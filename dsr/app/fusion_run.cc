@@ -46,9 +46,10 @@ bool FusionRun::ReadFiles(std::string* error) {
     *error = "--poses: " + *error;
     return false;
   }
-  if (!ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
-                  &images_, &masks_, &mask_rules_, error, &later_phases_) ||
-      !UseViewPhases(config_.phases, image_paths_, &images_, &later_phases_, error)) {
+  // Only the phases --phases selects are read.
+  if (!ReadViewPhases(config_.phases, image_paths_, mask_paths_, config_.field_of_view,
+                      config_.num_threads, &images_, &masks_, &mask_rules_, &later_phases_,
+                      error)) {
     return false;
   }
   names_ = image_paths_;
@@ -59,10 +60,11 @@ bool FusionRun::ReadFiles(std::string* error) {
 bool FusionRun::SetFrames(std::vector<Image> images, std::vector<Mask> masks,
                           std::vector<MaskRule> mask_rules, std::vector<std::string> names,
                           PosesFile poses, const std::string& poses_name, std::string* error,
-                          std::vector<std::vector<Image>> later_phases) {
+                          std::vector<std::vector<Image>> later_phases, bool phases_selected) {
   images_ = std::move(images);
   later_phases_ = std::move(later_phases);
-  if (!UseViewPhases(config_.phases, names, &images_, &later_phases_, error)) return false;
+  const std::vector<int> selected = phases_selected ? std::vector<int>() : config_.phases;
+  if (!UseViewPhases(selected, names, &images_, &later_phases_, error)) return false;
   masks_ = std::move(masks);
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);

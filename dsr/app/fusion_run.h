@@ -33,11 +33,13 @@ class FusionRun {
 
   // Instead: frames in memory, each with a mask (`mask_rules`: which rule made each, empty
   // when given), and their poses (`poses_name` names them in messages), matched to `names`.
-  // `later_phases`: views of T > 1 phases, each view's phases 1..T-1 (--phases selects).
+  // `later_phases`: views of T > 1 phases, each view's phases 1..T-1 (--phases selects,
+  // unless `phases_selected`: views read by ReadViewPhases hold its selection already).
   bool SetFrames(std::vector<Image> images, std::vector<Mask> masks,
                  std::vector<MaskRule> mask_rules, std::vector<std::string> names,
                  PosesFile poses, const std::string& poses_name, std::string* error,
-                 std::vector<std::vector<Image>> later_phases = {});
+                 std::vector<std::vector<Image>> later_phases = {},
+                 bool phases_selected = false);
 
   // The frames at their poses, the panorama's grid, and its memory (the mean, the count and
   // what writing them adds), before the panorama is allocated.

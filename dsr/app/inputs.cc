@@ -11,6 +11,7 @@
 #include <system_error>
 
 #include "dsr/app/flagfile.h"
+#include "dsr/io/io_frames.h"
 #include "dsr/io/io_phases.h"
 #include "dsr/solve/solve_options.h"
 
@@ -274,6 +275,50 @@ bool ParseInputList(const std::string& flag,
   return true;
 }
 
+namespace {
+
+// --phases' error for a view of `count` phases that lacks phase `p`.
+std::string NoSuchPhase(const std::string& name, size_t count, int p) {
+  return "--phases: " + name + " has " + std::to_string(count) + " phase" +
+         (count > 1 ? "s" : "") + " (0 to " + std::to_string(count - 1) + "), no phase " +
+         std::to_string(p);
+}
+
+}  // namespace
+
+bool CheckSelectedPhases(const std::vector<int>& selected,
+                         const std::vector<std::string>& views,
+                         std::string* error) {
+  if (selected.empty()) return true;
+  for (const std::string& view : views) {
+    int count = 0;
+    if (!NumPhasesInView(view, &count, error)) return false;
+    for (int p : selected) {
+      if (p >= count) {
+        *error = NoSuchPhase(view, static_cast<size_t>(count), p);
+        return false;
+      }
+    }
+  }
+  return true;
+}
+
+bool ReadViewPhases(const std::vector<int>& selected,
+                    const std::vector<std::string>& image_paths,
+                    const std::vector<std::string>& mask_paths,
+                    const FieldOfViewOptions& field_of_view,
+                    int num_threads,
+                    std::vector<Image>* images,
+                    std::vector<Mask>* masks,
+                    std::vector<MaskRule>* mask_rules,
+                    std::vector<std::vector<Image>>* later_phases,
+                    std::string* error) {
+  return CheckSelectedPhases(selected, image_paths, error) &&
+         ReadFrames(image_paths, mask_paths, field_of_view, num_threads, images, masks,
+                    mask_rules, error, later_phases, selected) &&
+         CheckSamePhases(image_paths, later_phases, error);
+}
+
 bool SelectPhases(const std::vector<int>& selected,
                   const std::vector<std::string>& names,
                   std::vector<Image>* images,
@@ -286,9 +331,8 @@ bool SelectPhases(const std::vector<int>& selected,
     for (Image& phase : (*later_phases)[i]) all.push_back(std::move(phase));
     for (int p : selected) {
       if (p >= static_cast<int>(all.size())) {
-        *error = "--phases: " + (i < names.size() ? names[i] : "view " + std::to_string(i)) +
-                 " has " + std::to_string(all.size()) + " phase" + (all.size() > 1 ? "s" : "") +
-                 " (0 to " + std::to_string(all.size() - 1) + "), no phase " + std::to_string(p);
+        *error = NoSuchPhase(i < names.size() ? names[i] : "view " + std::to_string(i),
+                             all.size(), p);
         return false;
       }
     }

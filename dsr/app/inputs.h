@@ -11,6 +11,7 @@
 #include <Eigen/Core>
 
 #include "dsr/geometry/field_of_view.h"
+#include "dsr/geometry/volume.h"
 #include "dsr/io/io_poses.h"
 #include "dsr/model/photometric.h"
 
@@ -91,9 +92,31 @@ bool SelectPhases(const std::vector<int>& selected,
                   std::vector<std::vector<Image>>* later_phases,
                   std::string* error);
 
-// The views' phases as a run takes them: `later_phases` sized to the views when empty
-// (views given without), --phases' selection (SelectPhases) and the same phases in every
-// view (CheckSamePhases).
+// Before any voxel is read: every view of `views` (files, io/io_phases.h ViewFiles) has
+// each phase of --phases' selection `selected` (empty: all), by its header
+// (NumPhasesInView); false with SelectPhases' error naming the view, or the header's error.
+bool CheckSelectedPhases(const std::vector<int>& selected,
+                         const std::vector<std::string>& views,
+                         std::string* error);
+
+// The views of `image_paths` with their masks as a run reads them (io/io_frames.h
+// ReadFrames): --phases' selection `selected` checked first (CheckSelectedPhases), then only
+// those phases of each view read, in that order (the others never held in memory), and
+// the same phases in every view (CheckSamePhases).
+bool ReadViewPhases(const std::vector<int>& selected,
+                    const std::vector<std::string>& image_paths,
+                    const std::vector<std::string>& mask_paths,
+                    const FieldOfViewOptions& field_of_view,
+                    int num_threads,
+                    std::vector<Image>* images,
+                    std::vector<Mask>* masks,
+                    std::vector<MaskRule>* mask_rules,
+                    std::vector<std::vector<Image>>* later_phases,
+                    std::string* error);
+
+// The views' phases in memory as a run takes them: `later_phases` sized to the views when
+// empty (views given without), --phases' selection (SelectPhases) and the same phases in
+// every view (CheckSamePhases).
 bool UseViewPhases(const std::vector<int>& selected,
                    const std::vector<std::string>& names,
                    std::vector<Image>* images,

@@ -150,17 +150,20 @@ void RegistrationRun::RememberInputs(InputRegistry* registry) const {
   registry->AddFile("gt_poses", outputs_.gt_poses);
 }
 
+// Only the phases --phases selects are read (ReadViewPhases), so UsePhases has none left to
+// drop.
 bool RegistrationRun::ReadFiles(std::string* error) {
-  return ReadFrames(image_paths_, mask_paths_, config_.field_of_view, config_.num_threads,
-                    &images_, &masks_, &mask_rules_, error, &later_phases_) &&
-         UsePhases(error) && ReadPoseFiles(error);
+  return ReadViewPhases(config_.phases, image_paths_, mask_paths_, config_.field_of_view,
+                        config_.num_threads, &images_, &masks_, &mask_rules_, &later_phases_,
+                        error) &&
+         UsePhases({}, error) && ReadPoseFiles(error);
 }
 
-// --phases' selection of the views' phases, and --report_phase among them; 3D views (one
-// phase each) keep no later phases.
-bool RegistrationRun::UsePhases(std::string* error) {
+// The selection `selected` (--phases; empty: the views' phases as they are) of the views'
+// phases, and --report_phase among them; 3D views (one phase each) keep no later phases.
+bool RegistrationRun::UsePhases(const std::vector<int>& selected, std::string* error) {
   const std::vector<std::string>& files = image_paths_.empty() ? names_ : image_paths_;
-  if (!UseViewPhases(config_.phases, files, &images_, &later_phases_, error)) return false;
+  if (!UseViewPhases(selected, files, &images_, &later_phases_, error)) return false;
   if (config_.report_phase >= num_phases()) {
     *error = "--report_phase=" + std::to_string(config_.report_phase) + ": only " +
              std::to_string(num_phases()) + " phase" + (num_phases() > 1 ? "s are" : " is") +
@@ -209,7 +212,7 @@ bool RegistrationRun::SetFrames(const Settings& settings, std::vector<Image> ima
   mask_rules_ = std::move(mask_rules);
   names_ = std::move(names);
   image_paths_.clear();
-  if (!UsePhases(error)) return false;
+  if (!UsePhases(config_.phases, error)) return false;
   if (!start.empty()) {
     start_ = std::move(start);
     return true;

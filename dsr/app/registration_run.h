@@ -117,7 +117,7 @@ class RegistrationRun {
   void PlanFolderOutputs(OutputPlan* plan) const;
   bool ReadPoseFiles(std::string* error);
   bool CheckPanoramaMemory(std::string* error) const;
-  bool UsePhases(std::string* error);
+  bool UsePhases(const std::vector<int>& selected, std::string* error);
   std::vector<Image> FusedPanorama(const std::vector<Frame>& frames);
   bool WriteFrameFiles(const std::vector<Frame>& frames, std::string* error) const;
   bool WriteReport(const std::vector<Frame>& frames, const Image& panorama, std::string* error);

@@ -34,7 +34,8 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
                 std::vector<Mask>* masks,
                 std::vector<MaskRule>* mask_rules,
                 std::string* error,
-                std::vector<std::vector<Image>>* later_phases) {
+                std::vector<std::vector<Image>>* later_phases,
+                const std::vector<int>& phases) {
   const int m = static_cast<int>(image_paths.size());
   images->assign(m, Image());
   masks->assign(m, Mask());
@@ -46,11 +47,11 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
     if (later_phases == nullptr) {
       if (!ReadImage(image_paths[i], &(*images)[i], &e)) return;
     } else {
-      std::vector<Image> phases;
-      if (!ReadView(image_paths[i], &phases, &e)) return;
-      (*images)[i] = std::move(phases[0]);
-      (*later_phases)[i].assign(std::make_move_iterator(phases.begin() + 1),
-                                std::make_move_iterator(phases.end()));
+      std::vector<Image> view;
+      if (!ReadView(image_paths[i], phases, &view, &e)) return;
+      (*images)[i] = std::move(view[0]);
+      (*later_phases)[i].assign(std::make_move_iterator(view.begin() + 1),
+                                std::make_move_iterator(view.end()));
     }
     if (!mask_paths.empty()) {
       if (later_phases == nullptr) {

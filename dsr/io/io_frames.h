@@ -28,7 +28,9 @@ bool MaskFromImage(const Image& image,
 // image is a view (ReadView: a 3D or 4D file, or 3D files joined by ';'): images[i] its
 // phase 0, (*later_phases)[i] its phases 1..T-1; a mask may then be 4D with equal phases
 // (ReadMaskPhases), and a mask built from the image is phase 0's. Without it a 4D image is
-// refused as ReadImage refuses it.
+// refused as ReadImage refuses it. `phases` (views only; empty: all) are the phases each
+// view reads, in that order (ReadView): phase phases[0] becomes images[i], the others its
+// later phases, and no other phase is read.
 bool ReadFrames(const std::vector<std::string>& image_paths,
                 const std::vector<std::string>& mask_paths,
                 const FieldOfViewOptions& field_of_view,
@@ -37,7 +39,8 @@ bool ReadFrames(const std::vector<std::string>& image_paths,
                 std::vector<Mask>* masks,
                 std::vector<MaskRule>* mask_rules,
                 std::string* error,
-                std::vector<std::vector<Image>>* later_phases = nullptr);
+                std::vector<std::vector<Image>>* later_phases = nullptr,
+                const std::vector<int>& phases = {});
 
 }  // namespace dsr
 

@@ -18,6 +18,7 @@
 #include <itkNiftiImageIO.h>
 #include <itkNrrdImageIO.h>
 #include <itkVector.h>
+#include <itkVectorImage.h>
 
 namespace dsr {
 namespace test_itk {
@@ -126,6 +127,44 @@ std::string WriteVectorImage(const std::string& path, const Grid& grid) {
   fill[1] = 2.0f;
   fill[2] = 3.0f;
   return WriteImage<itk::Vector<float, 3>, 3>(path, grid, nullptr, fill);
+}
+
+std::string ReadPhasesWithItk(const std::string& path, std::vector<std::vector<float>>* phases) {
+  try {
+    itk::ImageIOBase::Pointer io = IoFor(path);
+    io->SetFileName(path);
+    io->ReadImageInformation();
+    if (io->GetNumberOfComponents() > 1) {
+      using ImageType = itk::VectorImage<float, 3>;
+      auto reader = itk::ImageFileReader<ImageType>::New();
+      reader->SetImageIO(IoFor(path));
+      reader->SetFileName(path);
+      reader->Update();
+      const ImageType* image = reader->GetOutput();
+      const size_t n = image->GetLargestPossibleRegion().GetNumberOfPixels();
+      const size_t count = image->GetNumberOfComponentsPerPixel();
+      phases->assign(count, std::vector<float>(n));
+      const float* buffer = image->GetBufferPointer();
+      for (size_t v = 0; v < n; ++v) {
+        for (size_t t = 0; t < count; ++t) (*phases)[t][v] = buffer[v * count + t];
+      }
+      return "";
+    }
+    using ImageType = itk::Image<float, 4>;
+    auto reader = itk::ImageFileReader<ImageType>::New();
+    reader->SetImageIO(IoFor(path));
+    reader->SetFileName(path);
+    reader->Update();
+    const ImageType* image = reader->GetOutput();
+    const ImageType::SizeType size = image->GetLargestPossibleRegion().GetSize();
+    const size_t n = static_cast<size_t>(size[0]) * size[1] * size[2];
+    const float* buffer = image->GetBufferPointer();
+    phases->clear();
+    for (size_t t = 0; t < size[3]; ++t) phases->emplace_back(buffer + t * n, buffer + (t + 1) * n);
+    return "";
+  } catch (const std::exception& e) {
+    return e.what();
+  }
 }
 
 std::string ResampleWithTransformFile(const std::string& image_path,

@@ -30,6 +30,12 @@ std::string WriteScalarImage(const std::string& path,
 // Writes a 3D image of itk::Vector<float, 3> pixels (all equal to (1, 2, 3)).
 std::string WriteVectorImage(const std::string& path, const Grid& grid);
 
+// Reads every phase of a 4D image through ITK's own reader (itk::ImageFileReader, float
+// pixels), independently of dsr's reader: a scalar 4D image volume by volume along its 4th
+// axis, a 3D image of vector pixels (a NRRD list axis) component by component. Voxels x
+// fastest. Returns "" on success, else ITK's message.
+std::string ReadPhasesWithItk(const std::string& path, std::vector<std::vector<float>>* phases);
+
 // Resamples the 3D image in `image_path` onto `grid` (3 sizes) with the transform in
 // `transform_path` (read by itk::TransformFileReader, fixed -> moving), linear
 // interpolation, 0 outside: what Slicer/ANTs/SimpleITK do with that pair. Voxels x fastest.

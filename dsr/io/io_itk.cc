@@ -21,11 +21,16 @@
 // file-size limit is hit, so every written file is read back (VerifyWritten) with the same
 // checks, demanding the exact size.
 //
-// Phases (4D images, io_phases.h): read through the same ImageIOBase path (a scalar 4D
-// image, or a NRRD whose one non-spatial axis is a list or vector, which ITK reads as
-// vector pixels); written by ITK's writer as a scalar 4D image, or for NRRD by ITK's teem
-// (NrrdIO) directly, since ITK's writer gives a non-spatial axis the kind "vector" and no
-// keys of its own, while 3D Slicer's .seq.nrrd wants kind "list" and its sequence keys.
+// Phases (4D images, io_phases.h): the header through the same ImageIOBase path (a scalar
+// 4D image, or a NRRD whose one non-spatial axis is a list or vector, which ITK reads as
+// vector pixels) and the same data-block checks; the voxels of the phases asked for are
+// then decoded by io_phase_stream.h in one pass over the data block, from where each
+// format keeps them (ITK 5.2 can read a region of NIfTI and MetaImage files, but reopens
+// and re-inflates a compressed file from its start for each region, and reads NRRD
+// whole); layouts that reader does not follow are read whole by ITK. Written by ITK's
+// writer as a scalar 4D image, or for NRRD by ITK's teem (NrrdIO) directly, since ITK's
+// writer gives a non-spatial axis the kind "vector" and no keys of its own, while 3D
+// Slicer's .seq.nrrd wants kind "list" and its sequence keys.
 #include "dsr/io/io_itk.h"
 
 #include <algorithm>
@@ -60,6 +65,8 @@
 #include <itkNrrdImageIOFactory.h>
 #include <NrrdIO.h>
 #include <itk_zlib.h>
+
+#include "dsr/io/io_phase_stream.h"
 
 namespace dsr {
 namespace itk_io {
@@ -353,6 +360,11 @@ struct NiftiLayout {
   int64_t size[3] = {1, 1, 1};  // dim[1..3], for voxel indices in messages
   uint64_t voxels = 1;          // product of dim[1..dim[0]]
   uint64_t data_start = 0;      // vox_offset
+  // NIfTI-1 only: a single file ("n+1" magic) and scl_slope/scl_inter as niftilib keeps
+  // them (a non-finite field becomes 0).
+  bool single_file = false;
+  double slope = 0.0;
+  double intercept = 0.0;
 };
 
 // Reads the header at the start of `file` (gzopen'ed, so compressed or not). False when it
@@ -376,6 +388,12 @@ bool ReadNiftiLayout(gzFile file, NiftiLayout* layout) {
     const float vox_offset = LoadAt<float>(header, 108, swap);  // NaN or huge: ITK's problem
     layout->data_start =
         vox_offset > 348.0f && vox_offset < 1e15f ? static_cast<uint64_t>(vox_offset) : 348;
+    // niftilib tells the byte order by dim[0], this header by sizeof_hdr: both must agree.
+    const int16_t dim0 = LoadAt<int16_t>(header, 40, swap);
+    layout->single_file = std::memcmp(header + 344, "n+1", 4) == 0 && dim0 >= 1 && dim0 <= 7;
+    const auto fixed = [](float v) { return std::isfinite(v) ? static_cast<double>(v) : 0.0; };
+    layout->slope = fixed(LoadAt<float>(header, 112, swap));
+    layout->intercept = fixed(LoadAt<float>(header, 116, swap));
     return true;
   }
   if (layout->header_size == 540) {
@@ -416,9 +434,20 @@ bool CheckNiftiBitpix(const std::string& path, std::string* reason) {
 // in chunks of any size (and alignment) at increasing offsets.
 class NonFiniteScan {
  public:
-  // `element_bytes` 4 or 8; 0 scans nothing (integer voxels cannot be NaN).
-  NonFiniteScan(uint64_t data_start, uint64_t data_bytes, int element_bytes, bool swap)
-      : begin_(data_start), end_(data_start + data_bytes), element_(element_bytes), swap_(swap) {}
+  // `element_bytes` 4 or 8; 0 scans nothing (integer voxels cannot be NaN). With `checked`
+  // (one entry per phase of `phase_voxels` voxels), only the phases it marks count.
+  NonFiniteScan(uint64_t data_start,
+                uint64_t data_bytes,
+                int element_bytes,
+                bool swap,
+                const std::vector<bool>* checked = nullptr,
+                uint64_t phase_voxels = 1)
+      : begin_(data_start),
+        end_(data_start + data_bytes),
+        element_(element_bytes),
+        swap_(swap),
+        checked_(checked),
+        phase_voxels_(std::max<uint64_t>(phase_voxels, 1)) {}
 
   bool active() const { return element_ != 0; }
   bool found() const { return first_ >= 0; }
@@ -459,17 +488,23 @@ class NonFiniteScan {
       bad = (bits & 0x7ff0000000000000ull) == 0x7ff0000000000000ull;
       nan = (bits & 0x000fffffffffffffull) != 0;
     }
-    if (bad) {
+    if (bad && Counts(static_cast<uint64_t>(index_) / phase_voxels_)) {
       first_ = index_;
       first_is_nan_ = nan;
     }
     ++index_;
   }
 
+  bool Counts(uint64_t phase) const {
+    return checked_ == nullptr || (phase < checked_->size() && (*checked_)[phase]);
+  }
+
   uint64_t begin_;
   uint64_t end_;
   int element_;
   bool swap_;
+  const std::vector<bool>* checked_;
+  uint64_t phase_voxels_;
   unsigned char carry_[8] = {};
   int pending_ = 0;
   int64_t index_ = 0;
@@ -486,8 +521,12 @@ enum class DataProblem { kNone, kData, kVoxel };
 // written) else at least. Float voxels are scanned for NaN/Inf because niftilib's
 // nifti_read_buffer silently replaces them by 0 ("fixes bad floats"), so ITK never shows
 // them. The scan rides along the decompression for .nii.gz and costs one read of the file
-// for .nii.
-DataProblem CheckNiftiData(const std::string& path, bool exact, std::string* reason) {
+// for .nii. With `checked` (one entry per phase of a 4D file), only the phases it marks are
+// scanned: the others are not read.
+DataProblem CheckNiftiData(const std::string& path,
+                           bool exact,
+                           std::string* reason,
+                           const std::vector<bool>* checked = nullptr) {
   gzFile file = gzopen(path.c_str(), "rb");  // also reads uncompressed files
   if (file == nullptr) {
     *reason = std::strerror(errno);
@@ -505,7 +544,10 @@ DataProblem CheckNiftiData(const std::string& path, bool exact, std::string* rea
   const uint64_t data_bytes = layout.voxels * static_cast<uint64_t>(type->bits / 8);
   const uint64_t expected = layout.data_start + data_bytes;
   const int float_bytes = layout.datatype == 16 ? 4 : layout.datatype == 64 ? 8 : 0;
-  NonFiniteScan scan(layout.data_start, data_bytes, exact ? 0 : float_bytes, layout.swap);
+  const uint64_t phase_voxels = static_cast<uint64_t>(layout.size[0] * layout.size[1] *
+                                                      layout.size[2]);
+  NonFiniteScan scan(layout.data_start, data_bytes, exact ? 0 : float_bytes, layout.swap, checked,
+                     phase_voxels);
   const auto ends_early = [&](uint64_t total) {
     *reason = DataEndsEarly("data",
                             total > layout.data_start ? total - layout.data_start : 0,
@@ -752,6 +794,8 @@ struct MetaImageLayout {
   Kind kind = Kind::kLocal;
   bool compressed = false;
   int64_t header_size = 0;      // HeaderSize: bytes skipped in each data file, -1 = data at the end
+  bool msb = false;             // BinaryDataByteOrderMSB (or ElementByteOrderMSB): big-endian
+  bool binary = false;          // BinaryData (MetaIO reads text voxels without it)
   std::vector<int64_t> dims;    // DimSize
   uint64_t local_offset = 0;    // kLocal: where the data starts in the header file
   std::vector<std::string> files;  // kFile: the data file; kList: one per slice, in order
@@ -780,6 +824,8 @@ bool ParseMetaImageLayout(const std::string& path,
     const std::string text = Trim(line.substr(equals + 1));
     if (key == "CompressedData") layout->compressed = IsTrue(text);
     if (key == "HeaderSize") layout->header_size = std::atoll(text.c_str());
+    if (key == "BinaryDataByteOrderMSB" || key == "ElementByteOrderMSB") layout->msb = IsTrue(text);
+    if (key == "BinaryData") layout->binary = IsTrue(text);
     if (key == "DimSize") {
       layout->dims.clear();
       for (const std::string& word : Words(text)) layout->dims.push_back(std::atoll(word.c_str()));
@@ -919,6 +965,12 @@ struct NrrdLayout {
   std::string encoding = "raw";
   uint64_t data_offset = 0;        // attached data: where it starts in the header file
   std::vector<std::string> files;  // detached data files, in order
+  // The fields the phase reader follows (ReadPhases): as written, "" or empty when absent.
+  std::vector<std::string> sizes;
+  std::vector<std::string> kinds;
+  std::string endian;
+  std::string line_skip;
+  std::string byte_skip;
 };
 
 // Expands a teem file pattern: `format` must hold exactly one integer conversion
@@ -980,6 +1032,11 @@ bool ParseNrrdLayout(const std::string& path, NrrdLayout* layout, std::string* r
     const std::string field = Trim(line.substr(0, colon));
     const std::string value = Trim(line.substr(colon + 1));
     if (field == "encoding") layout->encoding = value;
+    if (field == "sizes") layout->sizes = Words(value);
+    if (field == "kinds") layout->kinds = Words(value);
+    if (field == "endian") layout->endian = value;
+    if (field == "line skip" || field == "lineskip") layout->line_skip = value;
+    if (field == "byte skip" || field == "byteskip") layout->byte_skip = value;
     if (field == "data file" || field == "datafile") {
       const std::vector<std::string> words = Words(value);
       if (!words.empty() && words[0] == "LIST") {
@@ -1019,15 +1076,16 @@ bool CheckWrittenNrrdData(const std::string& path, uint64_t bytes, std::string* 
 }
 
 // Checks the data block of the formats whose ITK readers do not (see the file comment);
-// with `exact`, of a file just written, for every format.
+// with `exact`, of a file just written, for every format. `checked`: see CheckNiftiData.
 DataProblem CheckDataBlock(const itk::ImageIOBase& io,
                            const std::string& path,
                            bool exact,
-                           std::string* reason) {
+                           std::string* reason,
+                           const std::vector<bool>* checked = nullptr) {
   const std::string name = io.GetNameOfClass();
   const uint64_t bytes = static_cast<uint64_t>(io.GetImageSizeInBytes());
   bool ok = true;
-  if (name == "NiftiImageIO") return CheckNiftiData(path, exact, reason);
+  if (name == "NiftiImageIO") return CheckNiftiData(path, exact, reason, checked);
   if (name == "MetaImageIO") ok = CheckMetaImageData(path, bytes, exact, reason);
   if (name == "NrrdImageIO" && exact) ok = CheckWrittenNrrdData(path, bytes, reason);
   return ok ? DataProblem::kNone : DataProblem::kData;
@@ -1147,31 +1205,22 @@ itk::ImageIOBase::Pointer OpenHeader(const std::string& path, std::string* error
   return io;
 }
 
-// Reads every voxel component of `io` (header read and checked) as float, x fastest
-// (components fastest of all): the data-block checks first, then a refusal of headers that
-// promise more data than their file can hold, then one read (in place for float files).
-bool ReadAllAsFloat(itk::ImageIOBase& io,
-                    const std::string& path,
-                    std::vector<float>* voxels,
-                    std::string* error) {
+// The checks before any voxel of `io` (header read and checked) is read: the data-block
+// checks (`checked`: see CheckNiftiData), then a refusal of headers that promise more data
+// than their file can hold.
+bool CheckBeforeReading(const itk::ImageIOBase& io,
+                        const std::string& path,
+                        const std::vector<bool>* checked,
+                        std::string* error) {
   namespace fs = std::filesystem;
   const char* stage = "cannot read the voxels";
   std::string reason;
-  const DataProblem problem = CheckDataBlock(io, path, /*exact=*/false, &reason);
+  const DataProblem problem = CheckDataBlock(io, path, /*exact=*/false, &reason, checked);
   if (problem != DataProblem::kNone) {
     *error = problem == DataProblem::kVoxel ? path + ": " + reason
                                             : path + ": " + stage + " (" + reason + ")";
     return false;
   }
-  const unsigned dims = io.GetNumberOfDimensions();
-  itk::ImageIORegion region(dims);
-  size_t count = io.GetNumberOfComponents();
-  for (unsigned d = 0; d < dims; ++d) {
-    region.SetIndex(d, 0);
-    region.SetSize(d, io.GetDimensions(d));
-    count *= static_cast<size_t>(io.GetDimensions(d));
-  }
-  io.SetIORegion(region);
   const size_t bytes = static_cast<size_t>(io.GetImageSizeInBytes());
   // A header that promises more voxel bytes than its file could hold, even at zlib's
   // largest compression ratio (1032:1), is refused before anything is allocated (found by
@@ -1187,6 +1236,22 @@ bool ReadAllAsFloat(itk::ImageIOBase& io,
              "-byte file can hold)";
     return false;
   }
+  return true;
+}
+
+// Reads every voxel component of `io` (header read and checked, CheckBeforeReading passed)
+// as float, x fastest (components fastest of all), in one read (in place for float files).
+void ReadWholeAsFloat(itk::ImageIOBase& io, std::vector<float>* voxels) {
+  const unsigned dims = io.GetNumberOfDimensions();
+  itk::ImageIORegion region(dims);
+  size_t count = io.GetNumberOfComponents();
+  for (unsigned d = 0; d < dims; ++d) {
+    region.SetIndex(d, 0);
+    region.SetSize(d, io.GetDimensions(d));
+    count *= static_cast<size_t>(io.GetDimensions(d));
+  }
+  io.SetIORegion(region);
+  const size_t bytes = static_cast<size_t>(io.GetImageSizeInBytes());
   if (io.GetComponentType() == itk::IOComponentEnum::FLOAT && bytes == count * sizeof(float)) {
     // Already the voxels' type: read in place (no second copy of a large volume).
     voxels->resize(count);
@@ -1198,6 +1263,15 @@ bool ReadAllAsFloat(itk::ImageIOBase& io,
     voxels->resize(count);
     ConvertBuffer(io.GetComponentType(), buffer.get(), count, voxels->data());
   }
+}
+
+// CheckBeforeReading, then ReadWholeAsFloat.
+bool ReadAllAsFloat(itk::ImageIOBase& io,
+                    const std::string& path,
+                    std::vector<float>* voxels,
+                    std::string* error) {
+  if (!CheckBeforeReading(io, path, nullptr, error)) return false;
+  ReadWholeAsFloat(io, voxels);
   return true;
 }
 
@@ -1359,17 +1433,20 @@ bool InspectPhasesHeader(const std::string& path,
   return FillGrid(path, io, &header->grid, error);
 }
 
-// Splits `all` (the file's voxels as float: phase-major, or phase-fastest if `interleaved`)
-// into `phases` phases of `count` voxels each; `all` is released at the end.
+// Phases `which` of `all` (the file's voxels as float: phase-major, or phase-fastest if
+// `interleaved`; `phases` phases of `count` voxels each), in that order; `all` is released
+// at the end.
 void SplitPhases(std::vector<float>* all,
                  int phases,
                  size_t count,
                  bool interleaved,
+                 const std::vector<int>& which,
                  std::vector<std::vector<float>>* out) {
-  out->assign(static_cast<size_t>(phases), {});
+  out->assign(which.size(), {});
   const size_t stride = static_cast<size_t>(phases);
-  for (size_t t = 0; t < stride; ++t) {
-    std::vector<float>& phase = (*out)[t];
+  for (size_t k = 0; k < which.size(); ++k) {
+    const size_t t = static_cast<size_t>(which[k]);
+    std::vector<float>& phase = (*out)[k];
     phase.resize(count);
     if (interleaved) {
       for (size_t v = 0; v < count; ++v) phase[v] = (*all)[v * stride + t];
@@ -1378,6 +1455,264 @@ void SplitPhases(std::vector<float>* all,
     }
   }
   std::vector<float>().swap(*all);
+}
+
+// ---- Phase by phase (io_phase_stream.h): where each format keeps its voxels ----
+
+bool HostIsBigEndian() {
+  const uint16_t one = 1;
+  unsigned char first = 0;
+  std::memcpy(&first, &one, 1);
+  return first == 0;
+}
+
+// The storage of ITK's component type `type` of `bytes` bytes (a long has 4 or 8).
+bool StorageOf(itk::IOComponentEnum type, size_t bytes, phase_stream::Storage* storage) {
+  using C = itk::IOComponentEnum;
+  using S = phase_stream::Storage;
+  const bool wide = bytes == 8;
+  switch (type) {
+    case C::UCHAR:
+      *storage = S::kUint8;
+      break;
+    case C::CHAR:
+      *storage = S::kInt8;
+      break;
+    case C::USHORT:
+      *storage = S::kUint16;
+      break;
+    case C::SHORT:
+      *storage = S::kInt16;
+      break;
+    case C::UINT:
+    case C::ULONG:
+    case C::ULONGLONG:
+      *storage = wide ? S::kUint64 : S::kUint32;
+      break;
+    case C::INT:
+    case C::LONG:
+    case C::LONGLONG:
+      *storage = wide ? S::kInt64 : S::kInt32;
+      break;
+    case C::FLOAT:
+      *storage = S::kFloat32;
+      break;
+    case C::DOUBLE:
+      *storage = S::kFloat64;
+      break;
+    default:
+      return false;
+  }
+  return static_cast<size_t>(phase_stream::StorageBytes(*storage)) == bytes;
+}
+
+// The storage of the NIfTI datatypes ITK reads as scalars (nifti1.h codes).
+bool NiftiStorage(int datatype, phase_stream::Storage* storage) {
+  using S = phase_stream::Storage;
+  struct Code {
+    int datatype;
+    S storage;
+  };
+  static constexpr Code kCodes[] = {{2, S::kUint8},    {4, S::kInt16},   {8, S::kInt32},
+                                    {16, S::kFloat32}, {64, S::kFloat64}, {256, S::kInt8},
+                                    {512, S::kUint16}, {768, S::kUint32}, {1024, S::kInt64},
+                                    {1280, S::kUint64}};
+  for (const Code& code : kCodes) {
+    if (code.datatype != datatype) continue;
+    *storage = code.storage;
+    return true;
+  }
+  return false;
+}
+
+// NIfTI-1 in one file (.nii, .nii.gz: gzip over the whole file): `values` voxels from
+// vox_offset, phase after phase, with niftilib's byte order and ITK's rescaling.
+bool NiftiSource(const std::string& path, uint64_t values, phase_stream::Source* source) {
+  gzFile file = gzopen(path.c_str(), "rb");
+  if (file == nullptr) return false;
+  std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
+  NiftiLayout layout;
+  if (!ReadNiftiLayout(file, &layout) || layout.header_size != 348 || !layout.single_file ||
+      layout.voxels != values || !NiftiStorage(layout.datatype, &source->storage)) {
+    return false;
+  }
+  source->compressed = gzdirect(file) == 0;  // known after the header's read
+  source->swap = layout.swap;
+  // As ITK 5.2's NiftiImageIO: a slope of 0 counts as 1, and values are rescaled unless
+  // the slope is 1 and the intercept 0 (MustRescale).
+  const double eps = std::numeric_limits<double>::epsilon();
+  source->slope = std::abs(layout.slope) < eps ? 1.0 : layout.slope;
+  source->intercept = layout.intercept;
+  source->rescale = std::abs(source->slope - 1.0) > eps || std::abs(source->intercept) > eps;
+  const uint64_t bytes = values * phase_stream::StorageBytes(source->storage);
+  if (source->compressed) {
+    source->parts = {{path, 0, 0}};
+    source->skip = layout.data_start;
+  } else {
+    source->parts = {{path, layout.data_start, bytes}};
+  }
+  return true;
+}
+
+// Where `file` keeps `share` bytes of uncompressed data after `skip` (-1: at its end).
+bool PlainPart(const std::string& file, int64_t skip, uint64_t share, phase_stream::Part* part) {
+  uint64_t offset = skip > 0 ? static_cast<uint64_t>(skip) : 0;
+  if (skip < 0) {
+    std::error_code ec;
+    const uint64_t size = std::filesystem::file_size(file, ec);
+    if (ec || size < share) return false;
+    offset = size - share;
+  }
+  *part = {file, offset, share};
+  return true;
+}
+
+// MetaImage: binary data after the header (LOCAL), in one data file or in LIST slice
+// files, zlib-compressed or not, phase after phase.
+bool MetaImageSource(const std::string& path,
+                     const itk::ImageIOBase& io,
+                     uint64_t values,
+                     phase_stream::Source* source) {
+  MetaImageLayout layout;
+  bool found_data_file = false;
+  std::string reason;
+  if (!ParseMetaImageLayout(path, &layout, &found_data_file, &reason) || !layout.binary ||
+      !StorageOf(io.GetComponentType(), io.GetComponentSize(), &source->storage)) {
+    return false;
+  }
+  source->swap = layout.msb != HostIsBigEndian();
+  source->compressed = layout.compressed;
+  const uint64_t bytes = values * phase_stream::StorageBytes(source->storage);
+  if (layout.kind == MetaImageLayout::Kind::kLocal) {
+    if (layout.header_size != 0) return false;
+    source->parts = {{path, layout.local_offset, bytes}};
+    return true;
+  }
+  if (layout.files.empty() || bytes % layout.files.size() != 0 ||
+      (layout.compressed && (layout.kind == MetaImageLayout::Kind::kList ||
+                             layout.header_size < 0))) {
+    return false;
+  }
+  for (const std::string& file : layout.files) {
+    phase_stream::Part part;
+    if (!PlainPart(file, layout.header_size, bytes / layout.files.size(), &part)) return false;
+    source->parts.push_back(part);
+  }
+  return true;
+}
+
+// A NRRD field's non-negative integer, false for anything else.
+bool NrrdCount(const std::string& text, uint64_t* value) {
+  if (text.empty() || text.size() > 18 ||
+      text.find_first_not_of("0123456789") != std::string::npos) {
+    return false;
+  }
+  *value = std::stoull(text);
+  return true;
+}
+
+// Which NRRD axis holds the phases: the 4th of a scalar 4D image, else the one axis of a
+// kind that is not spatial (as NrrdRangeKind tells them), which ITK reads as components.
+// The other axes must be ITK's three, in order. -1 when the header is not so.
+int NrrdPhaseAxis(const itk::ImageIOBase& io,
+                  const NrrdLayout& layout,
+                  const std::vector<uint64_t>& sizes) {
+  int axis = -1;
+  if (io.GetPixelType() == itk::IOPixelEnum::SCALAR) {
+    axis = sizes.size() == 4 ? 3 : -1;
+  } else if (layout.kinds.size() == sizes.size()) {
+    for (size_t a = 0; a < sizes.size(); ++a) {
+      const std::string& kind = layout.kinds[a];
+      if (kind == "domain" || kind == "space" || kind == "time" || kind == "???" ||
+          kind == "none") {
+        continue;
+      }
+      if (axis >= 0) return -1;
+      axis = static_cast<int>(a);
+    }
+  }
+  if (axis < 0 || sizes.size() != 4) return -1;
+  for (unsigned a = 0, d = 0; a < 4; ++a) {
+    if (static_cast<int>(a) != axis && sizes[a] != io.GetDimensions(d++)) return -1;
+  }
+  return axis;
+}
+
+// NRRD, raw or gzip encoding, attached or in data files (line skip 0; byte skip for raw
+// data), its phases on any one axis.
+bool NrrdSource(const std::string& path,
+                const itk::ImageIOBase& io,
+                int phases,
+                phase_stream::Source* source) {
+  NrrdLayout layout;
+  std::string reason;
+  if (!ParseNrrdLayout(path, &layout, &reason) ||
+      !StorageOf(io.GetComponentType(), io.GetComponentSize(), &source->storage)) {
+    return false;
+  }
+  source->compressed = layout.encoding == "gzip" || layout.encoding == "gz";
+  uint64_t line_skip = 0;
+  int64_t byte_skip = 0;
+  if ((!layout.line_skip.empty() && (!NrrdCount(layout.line_skip, &line_skip) || line_skip)) ||
+      (!source->compressed && layout.encoding != "raw")) {
+    return false;
+  }
+  if (layout.byte_skip == "-1") {
+    byte_skip = -1;  // raw data at the end of its file
+  } else if (!layout.byte_skip.empty()) {
+    uint64_t skip = 0;
+    if (!NrrdCount(layout.byte_skip, &skip)) return false;
+    byte_skip = static_cast<int64_t>(skip);
+  }
+  const int size = phase_stream::StorageBytes(source->storage);
+  if ((source->compressed && byte_skip != 0) ||
+      (size > 1 && layout.endian != "little" && layout.endian != "big")) {
+    return false;
+  }
+  source->swap = size > 1 && (layout.endian == "big") != HostIsBigEndian();
+  std::vector<uint64_t> sizes(layout.sizes.size());
+  for (size_t a = 0; a < sizes.size(); ++a) {
+    if (!NrrdCount(layout.sizes[a], &sizes[a])) return false;
+  }
+  const int axis = NrrdPhaseAxis(io, layout, sizes);
+  if (axis < 0 || sizes[axis] != static_cast<uint64_t>(phases)) return false;
+  source->block = 1;
+  for (int a = 0; a < axis; ++a) source->block *= sizes[a];
+  const uint64_t bytes = source->voxels * static_cast<uint64_t>(phases) * size;
+  if (layout.files.empty()) {
+    if (byte_skip < 0) return PlainPart(path, -1, bytes, &source->parts.emplace_back());
+    source->parts = {{path, layout.data_offset + static_cast<uint64_t>(byte_skip), bytes}};
+    return true;
+  }
+  if (bytes % layout.files.size() != 0) return false;
+  for (const std::string& file : layout.files) {
+    phase_stream::Part part;
+    if (!PlainPart(file, byte_skip, bytes / layout.files.size(), &part)) return false;
+    source->parts.push_back(part);
+  }
+  return true;
+}
+
+// Where the phases of the 4D image `io` read are kept, for phase_stream::ReadPhases; false
+// when the file keeps them in a way that reader does not follow (ReadPhases then reads the
+// file whole).
+bool PhaseSource(const std::string& path,
+                 const itk::ImageIOBase& io,
+                 const PhasesHeader& header,
+                 phase_stream::Source* source) {
+  const std::string name = io.GetNameOfClass();
+  source->phases = header.phases;
+  source->voxels = static_cast<uint64_t>(header.grid.size[0]) * header.grid.size[1] *
+                   header.grid.size[2];
+  source->block = source->voxels;
+  // Sizes whose products could overflow are left to the whole-file read (and its limits).
+  constexpr uint64_t kMostValues = uint64_t{1} << 40;
+  if (source->voxels > kMostValues / static_cast<uint64_t>(header.phases)) return false;
+  const uint64_t values = source->voxels * static_cast<uint64_t>(header.phases);
+  if (name == "NiftiImageIO") return NiftiSource(path, values, source);
+  if (name == "MetaImageIO") return MetaImageSource(path, io, values, source);
+  if (name == "NrrdImageIO") return NrrdSource(path, io, header.phases, source);
+  return false;
 }
 
 size_t VoxelCount(const RawVolume& grid) {
@@ -1579,6 +1914,7 @@ bool ReadPhasesHeader(const std::string& path, PhasesHeader* header, std::string
 
 bool ReadPhases(const std::string& path,
                 const HeaderCheck& check_header,
+                const std::vector<int>& which,
                 RawVolume* grid,
                 std::vector<std::vector<float>>* phases,
                 std::string* error) {
@@ -1592,11 +1928,34 @@ bool ReadPhases(const std::string& path,
     PhasesHeader header;
     if (!InspectPhasesHeader(path, *io, &header, error)) return false;
     if (check_header && !check_header(header.grid, error)) return false;
+    std::vector<int> order = which;
+    if (order.empty()) {
+      for (int t = 0; t < header.phases; ++t) order.push_back(t);
+    }
+    std::vector<bool> chosen(static_cast<size_t>(header.phases), false);
+    for (const int t : order) {
+      if (t < 0 || t >= header.phases || chosen[t]) {
+        *error = path + ": no phase " + std::to_string(t) + " to read (the file has " +
+                 std::to_string(header.phases) + ", each read once)";
+        return false;
+      }
+      chosen[t] = true;
+    }
     stage = "cannot read the voxels";
-    std::vector<float> all;
-    if (!ReadAllAsFloat(*io, path, &all, error)) return false;
-    const bool interleaved = io->GetPixelType() != itk::IOPixelEnum::SCALAR;
-    SplitPhases(&all, header.phases, VoxelCount(header.grid), interleaved, phases);
+    if (!CheckBeforeReading(*io, path, &chosen, error)) return false;
+    phase_stream::Source source;
+    if (PhaseSource(path, *io, header, &source)) {
+      std::string reason;
+      if (!phase_stream::ReadPhases(source, order, phases, &reason)) {
+        *error = path + ": " + stage + " (" + reason + ")";
+        return false;
+      }
+    } else {
+      std::vector<float> all;
+      ReadWholeAsFloat(*io, &all);
+      const bool interleaved = io->GetPixelType() != itk::IOPixelEnum::SCALAR;
+      SplitPhases(&all, header.phases, VoxelCount(header.grid), interleaved, order, phases);
+    }
     *grid = header.grid;
     return true;
   } catch (...) {

@@ -75,12 +75,18 @@ struct PhasesHeader {
 // other pixel kinds, a 4th axis mixed with space) is refused with one line naming `path`.
 bool ReadPhasesHeader(const std::string& path, PhasesHeader* header, std::string* error);
 
-// Reads every phase as float (the header checks of ReadPhasesHeader, then `check_header`
-// on the 3D grid, then the data-block checks of Read). `phases` gets one x-fastest vector
-// per phase. Peak memory: the file's voxels once plus the phases (a non-float file's
-// voxels are converted to float before the phases are split off).
+// Reads the phases `which` (distinct indices in [0, phases), in that order; empty: every
+// phase) as float: the header checks of ReadPhasesHeader, then `check_header` on the 3D
+// grid, then the data-block checks of Read (a NIfTI's non-finite voxels only in the phases
+// read). `phases` gets one x-fastest vector per phase of `which`. The voxel data is decoded
+// in one pass, chunk by chunk, keeping only those phases (io_phase_stream.h): peak memory
+// is theirs plus a few MiB, whatever the file's number of phases. NIfTI-1 files, MetaImage
+// binary data and NRRD of raw or gzip encoding are read so; other layouts (NRRD text
+// encodings, NIfTI-2, ...) are read whole and the phases copied out (peak: the file's
+// voxels once plus the phases).
 bool ReadPhases(const std::string& path,
                 const HeaderCheck& check_header,
+                const std::vector<int>& which,
                 RawVolume* grid,
                 std::vector<std::vector<float>>* phases,
                 std::string* error);

@@ -66,6 +66,30 @@ int64_t FirstInsideDifference(const Image& a, const Image& b) {
   return -1;
 }
 
+// A `which` of ReadPhases for `name` of `count` phases ("file" or "view"): each index a
+// phase it has, none twice.
+bool CheckWhich(const std::string& name,
+                const std::vector<int>& which,
+                int count,
+                const std::string& what,
+                std::string* error) {
+  for (size_t k = 0; k < which.size(); ++k) {
+    const int t = which[k];
+    if (t < 0 || t >= count) {
+      *error = name + ": no phase " + std::to_string(t) + " (the " + what +
+               (count > 1 ? " has " + std::to_string(count) + " phases, 0 to " +
+                                std::to_string(count - 1) + ")"
+                          : " has only phase 0)");
+      return false;
+    }
+    if (std::find(which.begin(), which.begin() + k, t) != which.begin() + k) {
+      *error = name + ": phase " + std::to_string(t) + " is asked for twice";
+      return false;
+    }
+  }
+  return true;
+}
+
 }  // namespace
 
 bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
@@ -79,13 +103,19 @@ bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
   return true;
 }
 
-bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string* error) {
+bool ReadPhases(const std::string& path,
+                const std::vector<int>& which,
+                std::vector<Image>* phases,
+                std::string* error) {
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
     return false;
   }
   itk_io::PhasesHeader header;
-  if (!itk_io::ReadPhasesHeader(path, &header, error)) return false;
+  if (!itk_io::ReadPhasesHeader(path, &header, error) ||
+      !CheckWhich(path, which, header.phases, "file", error)) {
+    return false;
+  }
   if (header.single_volume) {
     std::vector<Image> out(1);
     if (!ReadImage(path, &out[0], error)) return false;
@@ -102,19 +132,25 @@ bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string
   };
   itk_io::RawVolume grid;
   std::vector<std::vector<float>> voxels;
-  if (!itk_io::ReadPhases(path, check_header, &grid, &voxels, error)) return false;
+  if (!itk_io::ReadPhases(path, check_header, which, &grid, &voxels, error)) return false;
   const ImageGeometry geometry = ToGeometry(grid);
   if (IsNifti(path) && !io_internal::CheckNiftiOriginPrecision(path, geometry, error)) {
     return false;
   }
   std::vector<Image> out(voxels.size());
-  for (size_t t = 0; t < out.size(); ++t) {
-    out[t].geometry = geometry;
-    out[t].voxels = std::move(voxels[t]);
-    if (!CheckFiniteVoxels(out[t], path + ": phase " + std::to_string(t), error)) return false;
+  for (size_t k = 0; k < out.size(); ++k) {
+    out[k].geometry = geometry;
+    out[k].voxels = std::move(voxels[k]);
+    // Named by its index in the file, whatever its place in `which`.
+    const int t = which.empty() ? static_cast<int>(k) : which[k];
+    if (!CheckFiniteVoxels(out[k], path + ": phase " + std::to_string(t), error)) return false;
   }
   *phases = std::move(out);
   return true;
+}
+
+bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string* error) {
+  return ReadPhases(path, {}, phases, error);
 }
 
 bool WritePhases(const ImageGeometry& grid,
@@ -200,18 +236,40 @@ std::vector<std::string> ViewFiles(const std::string& spec) {
   return files;
 }
 
-bool ReadView(const std::string& spec, std::vector<Image>* phases, std::string* error) {
+bool ReadView(const std::string& spec,
+              const std::vector<int>& which,
+              std::vector<Image>* phases,
+              std::string* error) {
   const std::vector<std::string> files = ViewFiles(spec);
-  if (files.size() == 1) return ReadPhases(files[0], phases, error);
-  phases->assign(files.size(), Image());
-  for (size_t p = 0; p < files.size(); ++p) {
-    if (!ReadImage(files[p], &(*phases)[p], error)) return false;
-    if (p > 0 && !(*phases)[p].geometry.SameGrid((*phases)[0].geometry)) {
-      *error = files[p] + ": phase " + std::to_string(p) + " lies on another grid than phase 0 (" +
-               files[0] + ")";
+  if (files.size() == 1) return ReadPhases(files[0], which, phases, error);
+  const int count = static_cast<int>(files.size());
+  if (!CheckWhich(spec, which, count, "view", error)) return false;
+  std::vector<int> order = which;
+  if (order.empty()) {
+    for (int p = 0; p < count; ++p) order.push_back(p);
+  }
+  std::vector<Image> out(order.size());
+  for (size_t k = 0; k < order.size(); ++k) {
+    const std::string& file = files[order[k]];
+    if (!ReadImage(file, &out[k], error)) return false;
+    if (k > 0 && !out[k].geometry.SameGrid(out[0].geometry)) {
+      *error = file + ": phase " + std::to_string(order[k]) + " lies on another grid than phase " +
+               std::to_string(order[0]) + " (" + files[order[0]] + ")";
       return false;
     }
   }
+  *phases = std::move(out);
+  return true;
+}
+
+bool ReadView(const std::string& spec, std::vector<Image>* phases, std::string* error) {
+  return ReadView(spec, {}, phases, error);
+}
+
+bool NumPhasesInView(const std::string& spec, int* phases, std::string* error) {
+  const std::vector<std::string> files = ViewFiles(spec);
+  if (files.size() == 1) return NumPhasesInFile(files[0], phases, error);
+  *phases = static_cast<int>(files.size());
   return true;
 }
 

@@ -29,12 +29,23 @@
 
 namespace dsr {
 
-// Reads every phase of a 3D or 4D image as float: each Image has the file's 3D grid (the
+// Reads the phases `which` of a 3D or 4D image (indices in the file, each at most once, in
+// the order given; empty: every phase) as float: each Image has the file's 3D grid (the
 // origin, spacing and direction of its three spatial axes). A 3D image (or a 4D one with
-// one phase on a 4th axis) gives what ReadImage gives. Refuses 2D and 5D+ images, pixels
-// other than scalars (or a NRRD list/vector axis of phases), a 4th axis mixed with space,
-// invalid geometry and non-finite voxels ("<path>: phase 2: voxel (i,j,k) is NaN").
-// Memory: the file's voxels once more than the phases, while reading.
+// one phase on a 4th axis) is phase 0 and gives what ReadImage gives. Refuses 2D and 5D+
+// images, pixels other than scalars (or a NRRD list/vector axis of phases), a 4th axis
+// mixed with space, invalid geometry, a phase the file does not have ("<path>: no phase 5
+// (the file has 4 phases, 0 to 3)") and non-finite voxels in a phase read ("<path>: phase
+// 2: voxel (i,j,k) is NaN", the phase's index in the file); phases not read are not
+// looked at. Memory: the phases read plus a few MiB, decoded phase by phase (NIfTI-1,
+// binary MetaImage, raw or gzip NRRD; files in other layouts are held whole while
+// reading, see itk_io::ReadPhases). Compressed data is decompressed up to the last phase
+// read.
+bool ReadPhases(const std::string& path,
+                const std::vector<int>& which,
+                std::vector<Image>* phases,
+                std::string* error);
+// Every phase.
 bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string* error);
 
 // Writes the phases (T >= 1; the format follows the extension, see above). Every phase
@@ -55,10 +66,20 @@ bool WritePhases(const ImageGeometry& grid,
 // (items trimmed of spaces, empty items dropped).
 std::vector<std::string> ViewFiles(const std::string& spec);
 
-// A view's phases (docs/design.md section 12): ReadPhases of its one file (3D: one phase),
-// or one 3D image per file of ViewFiles(spec), each on the first file's grid ("<file>: phase
-// 1 lies on another grid than phase 0 (<first>)").
+// A view's phases `which` (as ReadPhases; empty: all) (docs/design.md section 12): ReadPhases
+// of its one file (3D: one phase), or for files joined by ';' (ViewFiles) the 3D images of
+// the files `which` names, only those read, each on the grid of the first one read
+// ("<file>: phase 2 lies on another grid than phase 0 (<first>)").
+bool ReadView(const std::string& spec,
+              const std::vector<int>& which,
+              std::vector<Image>* phases,
+              std::string* error);
+// Every phase.
 bool ReadView(const std::string& spec, std::vector<Image>* phases, std::string* error);
+
+// The number of phases of a view from headers alone: NumPhasesInFile of its one file, or
+// the number of files joined by ';' (1 for a 3D file).
+bool NumPhasesInView(const std::string& spec, int* phases, std::string* error);
 
 // Reads a mask as ReadMask does (any scalar type, non-zero = inside, on `expected`'s grid,
 // at least one voxel inside). A 3D file behaves exactly as with ReadMask; a 4D mask is

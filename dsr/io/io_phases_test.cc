@@ -3,12 +3,15 @@
 // one-line errors naming the file for every bad input.
 #include "dsr/io/io_phases.h"
 
+#include <malloc.h>
 #include <zlib.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <iostream>
 #include <iterator>
 #include <limits>
 #include <map>
@@ -520,6 +523,316 @@ TEST(PhasesIo, FourDimensionalMaskWithDifferentPhasesIsRefused) {
   other.size[0] = 8;
   EXPECT_FALSE(ReadMaskPhases(path, other, &mask, &error));
   EXPECT_THAT(error, HasSubstr("does not match the image grid"));
+}
+
+
+// ---- Reading chosen phases: only those decoded and held (io_phase_stream.h) ----
+
+// Every 4D format dsr writes (phase-major NIfTI and MetaImage, NRRD's list axis with the
+// phases side by side), compressed or not, attached or with a data file.
+const char* const kPhaseFormats[] = {".nii", ".nii.gz", ".nrrd", ".seq.nrrd", ".nhdr", ".mha",
+                                     ".mhd"};
+
+std::vector<Image> ReadChosen(const std::string& path, const std::vector<int>& which) {
+  std::vector<Image> phases;
+  std::string error;
+  EXPECT_TRUE(ReadPhases(path, which, &phases, &error)) << error;
+  return phases;
+}
+
+std::string ReadChosenError(const std::string& path, const std::vector<int>& which) {
+  std::vector<Image> phases;
+  std::string error;
+  EXPECT_FALSE(ReadPhases(path, which, &phases, &error)) << path;
+  ExpectOneLineNaming(error, path);
+  return error;
+}
+
+// Phases `which` of `path` are exactly those of a full read, which is exactly what ITK's
+// own reader reads.
+void ExpectChosenAsFullRead(const std::string& path, const std::vector<int>& which) {
+  const std::vector<Image> full = ReadChosen(path, {});
+  std::vector<std::vector<float>> itk;
+  ASSERT_EQ(test_itk::ReadPhasesWithItk(path, &itk), "");
+  ASSERT_EQ(full.size(), itk.size());
+  for (size_t t = 0; t < full.size(); ++t) EXPECT_EQ(full[t].voxels, itk[t]) << "phase " << t;
+  const std::vector<Image> chosen = ReadChosen(path, which);
+  ASSERT_EQ(chosen.size(), which.size());
+  for (size_t k = 0; k < which.size(); ++k) {
+    SCOPED_TRACE("phase " + std::to_string(which[k]));
+    ExpectSameGeometry(chosen[k].geometry, full[which[k]].geometry);
+    EXPECT_EQ(chosen[k].voxels, full[which[k]].voxels);
+  }
+}
+
+TEST(PhasesIo, ChosenPhasesAreThoseOfAFullReadBitForBit) {
+  const std::vector<Image> written = ObliquePhases(4);
+  for (const std::string ext : kPhaseFormats) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("phases" + ext);
+    std::string error;
+    ASSERT_TRUE(WritePhases(written, path, &error)) << error;
+    ExpectChosenAsFullRead(path, {2, 0});
+    ExpectChosenAsFullRead(path, {3});
+    ExpectSamePhases(ReadChosen(path, {1, 3}), {written[1], written[3]});
+  }
+}
+
+TEST(PhasesIo, ChosenPhasesOfOtherToolsFilesAreThoseOfAFullRead) {
+  // ITK's own writer: int16, four domain axes, uncompressed NRRD and MetaImage.
+  const ImageGeometry g = ObliqueGeometry();
+  test_itk::Grid grid = ToGrid(g);
+  grid.size.push_back(4);
+  std::vector<double> values(static_cast<size_t>(g.NumVoxels()) * 4);
+  for (size_t v = 0; v < values.size(); ++v) values[v] = static_cast<double>((v * 7) % 101) - 50;
+  for (const std::string ext : {".nii.gz", ".nii", ".nrrd", ".mha", ".mhd"}) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("itk4d" + ext);
+    ASSERT_EQ(test_itk::WriteScalarImage(path, grid, test_itk::Pixel::kInt16, values), "");
+    ExpectChosenAsFullRead(path, {2, 0});
+  }
+}
+
+// Writes `value` at `offset` of `bytes` in big- or little-endian order.
+template <typename T>
+void Put(std::string* bytes, size_t offset, T value, bool big_endian) {
+  unsigned char raw[sizeof(T)];
+  std::memcpy(raw, &value, sizeof(T));
+  if (big_endian) std::reverse(raw, raw + sizeof(T));
+  bytes->replace(offset, sizeof(T), reinterpret_cast<const char*>(raw), sizeof(T));
+}
+
+// A NIfTI-1 file of 4x3x2 int16 voxels and 3 phases with scl_slope 0.37 and scl_inter
+// -12.5, written field by field in either byte order.
+std::string ScaledNifti(bool big_endian) {
+  std::string bytes(352, '\0');
+  Put<int32_t>(&bytes, 0, 348, big_endian);
+  const int16_t dims[8] = {4, 4, 3, 2, 3, 1, 1, 1};
+  for (int d = 0; d < 8; ++d) Put<int16_t>(&bytes, 40 + 2 * d, dims[d], big_endian);
+  Put<int16_t>(&bytes, 70, 4, big_endian);   // datatype int16
+  Put<int16_t>(&bytes, 72, 16, big_endian);  // bitpix
+  const float pixdim[8] = {1, 0.5f, 0.75f, 2, 1, 1, 1, 1};
+  for (int d = 0; d < 8; ++d) Put<float>(&bytes, 76 + 4 * d, pixdim[d], big_endian);
+  Put<float>(&bytes, 108, 352.0f, big_endian);  // vox_offset
+  Put<float>(&bytes, 112, 0.37f, big_endian);   // scl_slope
+  Put<float>(&bytes, 116, -12.5f, big_endian);  // scl_inter
+  bytes[123] = 2;                               // xyzt_units: mm
+  bytes.replace(344, 4, std::string("n+1\0", 4));
+  for (int v = 0; v < 4 * 3 * 2 * 3; ++v) {
+    bytes.append(2, '\0');
+    Put<int16_t>(&bytes, bytes.size() - 2, static_cast<int16_t>(v * 311 - 9000), big_endian);
+  }
+  return bytes;
+}
+
+void WriteGzip(const std::string& path, const std::string& bytes) {
+  gzFile file = gzopen(path.c_str(), "wb");
+  ASSERT_NE(file, nullptr);
+  ASSERT_EQ(gzwrite(file, bytes.data(), static_cast<unsigned>(bytes.size())),
+            static_cast<int>(bytes.size()));
+  gzclose(file);
+}
+
+TEST(PhasesIo, ChosenPhasesOfScaledNiftiAreRescaledAsItkRescales) {
+  for (const bool big_endian : {false, true}) {
+    SCOPED_TRACE(big_endian ? "big-endian" : "little-endian");
+    ScopedTempDir dir;
+    WriteText(dir.File("scaled.nii"), ScaledNifti(big_endian));
+    WriteGzip(dir.File("scaled.nii.gz"), ScaledNifti(big_endian));
+    for (const std::string name : {"scaled.nii", "scaled.nii.gz"}) {
+      SCOPED_TRACE(name);
+      ExpectChosenAsFullRead(dir.File(name), {2, 0});
+      const std::vector<Image> phase = ReadChosen(dir.File(name), {1});
+      ASSERT_EQ(phase.size(), 1u);
+      const float raw = static_cast<float>(24 * 311 - 9000);  // phase 1's first voxel
+      EXPECT_EQ(phase[0].voxels[0], static_cast<float>(static_cast<double>(raw) * 0.37f - 12.5));
+    }
+  }
+}
+
+// A 2x2x2 NRRD of 3 phases of int16 voxels 10 * phase + voxel, raw and big-endian, the
+// list axis at `list_axis` (0 or 3), with `extra` header lines and `before` bytes between
+// the header and the data.
+std::string BinaryNrrd(int list_axis, const std::string& extra, const std::string& before) {
+  std::string text = std::string("NRRD0004\ntype: short\ndimension: 4\n") +
+                     (list_axis == 0 ? "sizes: 3 2 2 2\nkinds: list domain domain domain\n"
+                                     : "sizes: 2 2 2 3\nkinds: domain domain domain list\n") +
+                     "endian: big\nencoding: raw\n" + extra + "\n" + before;
+  for (int k = 0; k < 24; ++k) {
+    const int voxel = list_axis == 0 ? k / 3 : k % 8;
+    const int phase = list_axis == 0 ? k % 3 : k / 8;
+    text.append(2, '\0');
+    Put<int16_t>(&text, text.size() - 2, static_cast<int16_t>(10 * phase + voxel), true);
+  }
+  return text;
+}
+
+TEST(PhasesIo, ChosenPhasesOfBinaryNrrdOnEitherAxis) {
+  for (const int list_axis : {0, 3}) {
+    for (const bool at_end : {false, true}) {
+      SCOPED_TRACE("list axis " + std::to_string(list_axis) + (at_end ? ", byte skip -1" : ""));
+      ScopedTempDir dir;
+      const std::string path = dir.File("binary.nrrd");
+      WriteText(path, at_end ? BinaryNrrd(list_axis, "byte skip: -1\n", "junk")
+                             : BinaryNrrd(list_axis, "", ""));
+      const std::vector<Image> phases = ReadChosen(path, {2, 0});
+      ASSERT_EQ(phases.size(), 2u);
+      for (int v = 0; v < 8; ++v) {
+        EXPECT_EQ(phases[0].voxels[v], 20.0f + v) << v;
+        EXPECT_EQ(phases[1].voxels[v], 0.0f + v) << v;
+      }
+    }
+  }
+}
+
+TEST(PhasesIo, NonFiniteVoxelsCountOnlyInThePhasesRead) {
+  std::vector<Image> phases = ObliquePhases(4);
+  phases[1].at(1, 2, 3) = std::numeric_limits<float>::quiet_NaN();
+  phases[3].at(4, 0, 2) = std::numeric_limits<float>::infinity();
+  for (const std::string ext : kPhaseFormats) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("nan" + ext);
+    std::string error;
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    ExpectSamePhases(ReadChosen(path, {2, 0}), {phases[2], phases[0]});
+    // Named by the phase's index in the file, not its place among those read.
+    EXPECT_EQ(ReadChosenError(path, {2, 1}), path + ": phase 1: voxel (1,2,3) is NaN");
+    EXPECT_EQ(ReadChosenError(path, {3}), path + ": phase 3: voxel (4,0,2) is Inf");
+  }
+}
+
+TEST(PhasesIo, PhasesAFileLacksOrAskedTwiceAreRefused) {
+  ScopedTempDir dir;
+  const std::string path = dir.File("four.nii.gz");
+  std::string error;
+  ASSERT_TRUE(WritePhases(ObliquePhases(4), path, &error)) << error;
+  EXPECT_EQ(ReadChosenError(path, {0, 4}), path + ": no phase 4 (the file has 4 phases, 0 to 3)");
+  EXPECT_EQ(ReadChosenError(path, {1, 1}), path + ": phase 1 is asked for twice");
+  const std::string three_d = dir.File("three_d.nrrd");
+  ASSERT_TRUE(WriteImage(ObliquePhases(1)[0], three_d, &error)) << error;
+  EXPECT_EQ(ReadChosenError(three_d, {1}), three_d + ": no phase 1 (the file has only phase 0)");
+  ExpectSamePhases(ReadChosen(three_d, {0}), ObliquePhases(1));
+}
+
+TEST(PhasesIo, TruncatedDataIsRefusedWhicheverPhasesAreRead) {
+  for (const std::string ext : kPhaseFormats) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("cut" + ext);
+    std::string error;
+    ASSERT_TRUE(WritePhases(ObliquePhases(4), path, &error)) << error;
+    // The file holding the voxels loses its last quarter: phase 0 is still whole.
+    const std::string data = ext == ".nhdr" || ext == ".mhd" ? dir.File("cut.raw") : path;
+    const std::string bytes = ReadBytes(data);
+    WriteText(data, bytes.substr(0, bytes.size() * 3 / 4));
+    EXPECT_THAT(ReadChosenError(path, {0}), HasSubstr("cannot read the voxels"));
+  }
+}
+
+TEST(PhasesIo, ViewOfJoinedFilesReadsOnlyTheChosenFiles) {
+  ScopedTempDir dir;
+  const std::vector<Image> phases = ObliquePhases(3);
+  std::string error;
+  ASSERT_TRUE(WriteImage(phases[0], dir.File("p0.nii.gz"), &error)) << error;
+  WriteText(dir.File("p1.nii.gz"), "not an image");
+  ASSERT_TRUE(WriteImage(phases[2], dir.File("p2.nii.gz"), &error)) << error;
+  const std::string spec = dir.File("p0.nii.gz") + ";" + dir.File("p1.nii.gz") + ";" +
+                           dir.File("p2.nii.gz");
+  int count = 0;
+  ASSERT_TRUE(NumPhasesInView(spec, &count, &error)) << error;
+  EXPECT_EQ(count, 3);
+  std::vector<Image> view;
+  ASSERT_TRUE(ReadView(spec, {2, 0}, &view, &error)) << error;
+  ExpectSamePhases(view, {phases[2], phases[0]});
+  EXPECT_FALSE(ReadView(spec, {0, 1}, &view, &error));
+  ExpectOneLineNaming(error, dir.File("p1.nii.gz"));
+  EXPECT_FALSE(ReadView(spec, {3}, &view, &error));
+  EXPECT_EQ(error, spec + ": no phase 3 (the view has 3 phases, 0 to 2)");
+  // The grids are compared with the first file read.
+  Image moved = phases[0];
+  moved.geometry.origin_mm[0] += 1.0;
+  ASSERT_TRUE(WriteImage(moved, dir.File("p0.nii.gz"), &error)) << error;
+  EXPECT_FALSE(ReadView(spec, {2, 0}, &view, &error));
+  EXPECT_EQ(error, dir.File("p0.nii.gz") + ": phase 0 lies on another grid than phase 2 (" +
+                       dir.File("p2.nii.gz") + ")");
+}
+
+// The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.
+struct Resident {
+  double now = 0.0;
+  double peak = 0.0;
+};
+
+Resident ReadResident() {
+  std::ifstream in("/proc/self/status");
+  Resident r;
+  for (std::string line; std::getline(in, line);) {
+    std::istringstream fields(line);
+    std::string key;
+    double kib = 0.0;
+    fields >> key >> kib;
+    if (key == "VmRSS:") r.now = kib * 1024.0;
+    if (key == "VmHWM:") r.peak = kib * 1024.0;
+  }
+  return r;
+}
+
+// How much the peak resident memory grows while `read` runs: freed heap memory is first
+// given back (so that reusing it counts) and the peak brought down to the current size
+// (writing 5 to /proc/self/clear_refs); -1 where it cannot be.
+template <typename Read>
+double PeakGrowth(const Read& read) {
+  malloc_trim(0);
+  {
+    std::ofstream clear("/proc/self/clear_refs");
+    if (!(clear << "5" << std::flush)) return -1.0;
+  }
+  const Resident before = ReadResident();
+  if (before.now <= 0.0 || before.peak > before.now * 1.01 + (1 << 20)) return -1.0;
+  read();
+  return ReadResident().peak - before.now;
+}
+
+TEST(PhasesIo, ReadingOnePhaseHoldsOnlyThatPhase) {
+  // 8 phases of 112 x 112 x 80 float voxels (4 MiB a phase, 32 MiB in all).
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(112, 112, 80);
+  const double phase_bytes = 4.0 * g.NumVoxels();
+  for (const std::string ext : {".nii.gz", ".seq.nrrd", ".nii"}) {
+    SCOPED_TRACE(ext);
+    ScopedTempDir dir;
+    const std::string path = dir.File("large" + ext);
+    {
+      std::vector<Image> phases;
+      for (int t = 0; t < 8; ++t) {
+        Image image(g);
+        for (size_t v = 0; v < image.voxels.size(); ++v) {
+          image.voxels[v] = static_cast<float>((v * 13 + 7 * t) % 97);
+        }
+        phases.push_back(std::move(image));
+      }
+      std::string error;
+      ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    }
+    std::vector<Image> read;
+    const double one = PeakGrowth([&] { read = ReadChosen(path, {5}); });
+    if (one < 0.0) GTEST_SKIP() << "the peak resident memory cannot be reset here";
+    ASSERT_EQ(read.size(), 1u);
+    read.clear();
+    read.shrink_to_fit();
+    const double all = PeakGrowth([&] { read = ReadChosen(path, {}); });
+    ASSERT_EQ(read.size(), 8u);
+    std::cout << ext << ": peak resident memory grows by " << one / (1 << 20)
+              << " MiB reading 1 phase, " << all / (1 << 20) << " MiB reading all 8 (a phase: "
+              << phase_bytes / (1 << 20) << " MiB)\n";
+    // One phase and a few MiB of buffers, against all eight phases.
+    EXPECT_LT(one, phase_bytes + 8.0 * (1 << 20));
+    EXPECT_GT(all, 7.0 * phase_bytes);
+    EXPECT_LT(one, 0.4 * all);
+  }
 }
 
 }  // namespace

@@ -143,6 +143,39 @@ TEST_F(PhasesCli, FuseWritesEveryPhase) {
   EXPECT_EQ(fused[0].voxels, phase2.voxels);
 }
 
+TEST_F(PhasesCli, OnePhaseOfFourDimensionalFilesIsRegisteredAndFusedAsItsThreeDimensionalFiles) {
+  // --phases=1 reads phase 1 alone from each 4D file: the same poses and the same fusion as
+  // the files holding phase 1 only (read as 3D images, as before).
+  const std::string phase1 = Phase3D(0, 1) + "," + Phase3D(1, 1) + "," + Phase3D(2, 1);
+  const ToolRun four = Register("--images=" + Images() + " --phases=1 --out_poses=" +
+                                Out("p1_4d.json"));
+  ASSERT_EQ(four.exit_code, 0) << four.err;
+  const ToolRun three = Register("--images=" + phase1 + " --out_poses=" + Out("p1_3d.json"));
+  ASSERT_EQ(three.exit_code, 0) << three.err;
+  std::string error;
+  PosesFile from_4d, from_3d;
+  ASSERT_TRUE(ReadPoses(Out("p1_4d.json"), 3, &from_4d, &error)) << error;
+  ASSERT_TRUE(ReadPoses(Out("p1_3d.json"), 3, &from_3d, &error)) << error;
+  for (int f = 0; f < 3; ++f) {
+    EXPECT_TRUE(from_4d.frame_from_world[f].isApprox(from_3d.frame_from_world[f], 1e-12)) << f;
+  }
+  // Each fusion with its own run's poses (matched to its images by name).
+  const auto fuse = [&](const std::string& images, const std::string& name) {
+    return RunTool(DSR_FUSE_BIN, "--images=" + images + " --masks=" + Masks() + " --poses=" +
+                                     Out(name + ".json") + " --out=" + Out(name + ".nii.gz") +
+                                     (images == Images() ? " --phases=1" : ""),
+                   Dir());
+  };
+  const ToolRun fused_4d = fuse(Images(), "p1_4d");
+  ASSERT_EQ(fused_4d.exit_code, 0) << fused_4d.err;
+  const ToolRun fused_3d = fuse(phase1, "p1_3d");
+  ASSERT_EQ(fused_3d.exit_code, 0) << fused_3d.err;
+  Image image_4d, image_3d;
+  ASSERT_TRUE(ReadImage(Out("p1_4d.nii.gz"), &image_4d, &error)) << error;
+  ASSERT_TRUE(ReadImage(Out("p1_3d.nii.gz"), &image_3d, &error)) << error;
+  EXPECT_EQ(image_4d.voxels, image_3d.voxels);
+}
+
 TEST_F(PhasesCli, BadPhaseSetsGiveOneLineNamingTheFileOrFlag) {
   const auto expect_bad = [&](const std::string& args, const std::string& needle) {
     const ToolRun run = Register(args + " --out_poses=" + Out("bad.json"));

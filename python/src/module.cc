@@ -421,8 +421,9 @@ InputRegistry& ReadInputs() {
 // The fusion's images and masks (at least one): file paths, read as dsr_fuse reads them
 // (masks too), or (array, geometry) pairs, with `settings`' --mask_rule, --mask_erosion and
 // --num_threads. `match_names`: what a poses file's entries are matched to (the paths, or
-// `names`).
-void ReadFusionInputs(const py::list& images, const py::list& masks,
+// `names`). True when the views hold --phases' selection already: files are read with it
+// (ReadViewPhases, only those phases read), arrays are selected from by FusionRun.
+bool ReadFusionInputs(const py::list& images, const py::list& masks,
                       const std::vector<std::string>& names, Settings settings,
                       std::vector<Image>* frames, std::vector<Mask>* frame_masks,
                       std::vector<std::string>* match_names,
@@ -435,20 +436,22 @@ void ReadFusionInputs(const py::list& images, const py::list& masks,
   if (images.empty() || !py::isinstance<py::str>(images[0])) {
     ReadArrays(1, images, masks, config.field_of_view, frames, frame_masks, &mask_rules,
                later_phases);
-    return;
+    return false;
   }
   // As --images and --masks, so that the paths get dsr_fuse's checks and messages.
   std::vector<std::string> image_paths, mask_paths;
   if (!settings.Set("images", JoinPaths(images), &error) ||
       !settings.Set("masks", JoinPaths(masks), &error) ||
       !FrameFilesFrom(settings, 1, &image_paths, &mask_paths, &error) ||
-      !ReadFrames(image_paths, mask_paths, config.field_of_view, config.num_threads, frames,
-                  frame_masks, &mask_rules, &error, later_phases)) {
+      !ReadViewPhases(config.phases, image_paths, mask_paths, config.field_of_view,
+                      config.num_threads, frames, frame_masks, &mask_rules, later_phases,
+                      &error)) {
     BadInput(error);
   }
   for (const std::string& path : image_paths) ReadInputs().AddImage("images", path);
   for (const std::string& path : mask_paths) ReadInputs().AddImage("masks", path);
   *match_names = image_paths;
+  return true;
 }
 
 // The run dsr_register makes of `images` (file paths, read as dsr_register reads them,
@@ -685,11 +688,11 @@ py::tuple FuseImages(const py::list& images,
   std::vector<std::string> match_names;
   std::vector<std::vector<Image>> later_phases;
   const Settings settings = MakeSettings(options_in, kPyFuse);
-  ReadFusionInputs(images, masks, names, settings, &frames_in, &masks_in, &match_names,
-                   &later_phases);
+  const bool phases_selected = ReadFusionInputs(images, masks, names, settings, &frames_in,
+                                                &masks_in, &match_names, &later_phases);
   FusionRun run(settings);
   if (!run.SetFrames(std::move(frames_in), std::move(masks_in), {}, match_names, std::move(poses),
-                     poses_name, &error, std::move(later_phases)) ||
+                     poses_name, &error, std::move(later_phases), phases_selected) ||
       !run.Prepare(&error)) {
     BadInput(error);
   }

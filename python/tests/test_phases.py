@@ -156,6 +156,26 @@ def test_views_register_with_one_pose_each_in_memory_and_from_files(tmp_path):
     np.testing.assert_array_equal(picked.array, mean.array[1])
 
 
+def test_phases_picked_from_files_are_those_picked_in_memory(tmp_path):
+    """From 4D files, --phases reads only the phases picked: the same poses and fusion as
+    the views in memory with the same phases picked."""
+    sequence = beating(seed=4)
+    views = sequence.views()
+    paths, masks = [], []
+    for i, (view, mask) in enumerate(zip(views, sequence.masks)):
+        paths.append(str(tmp_path / f"view_{i}.nii.gz"))
+        masks.append(str(tmp_path / f"mask_{i}.nii.gz"))
+        dsr.write_image(view, paths[-1])
+        dsr.write_image(mask, masks[-1])
+    in_memory = dsr.register(views, sequence.masks, phases="2,0", **SMALL)
+    from_files = dsr.register(paths, masks, phases="2,0", **SMALL)
+    for a, b in zip(in_memory.poses, from_files.poses):
+        np.testing.assert_array_equal(a, b)
+    fused, _ = dsr.fuse(views, in_memory, sequence.masks, blend="mean", phases="1")
+    fused_from_files, _ = dsr.fuse(paths, from_files, masks, blend="mean", phases="1")
+    np.testing.assert_array_equal(fused_from_files.array, fused.array)
+
+
 def test_uneven_phases_are_refused_naming_the_view():
     sequence = beating(seed=5)
     views = sequence.views()
