@@ -62,7 +62,9 @@ def spread(values, digits=2):
     if not values:
         return "-"
     f = f"{{:.{digits}f}}"
-    return f"{f.format(statistics.median(values))} ({f.format(min(values))}-{f.format(max(values))})"
+    low, middle, high = (f.format(v) for v in (min(values), statistics.median(values),
+                                                max(values)))
+    return f"{middle} ({low}-{high})"
 
 
 def main():

@@ -31,12 +31,13 @@ for arg in "$@"; do
     *) echo "speed_ab.sh: error: unknown argument $arg" >&2; exit 2 ;;
   esac
 done
-[[ "$runs" =~ ^[1-9][0-9]*$ ]] || { echo "speed_ab.sh: error: --runs=$runs: not a count" >&2; exit 2; }
+fail() { echo "speed_ab.sh: error: $*" >&2; exit 2; }
+[[ "$runs" =~ ^[1-9][0-9]*$ ]] || fail "--runs=$runs: not a count"
 sha=$(git rev-parse --short=12 "$baseline^{commit}" 2>/dev/null) ||
   { echo "speed_ab.sh: error: --baseline=$baseline: not a commit of this repository" >&2; exit 2; }
 tools=${DSR_TOOLS:-build/tools}
 for t in dsr_register dsr_simulate; do
-  [ -x "$tools/$t" ] || { echo "speed_ab.sh: error: $tools/$t missing (bash scripts/build.sh)" >&2; exit 2; }
+  [ -x "$tools/$t" ] || fail "$tools/$t missing (bash scripts/build.sh)"
 done
 mkdir -p "$out"
 src="$out/src-$sha"
