@@ -711,7 +711,8 @@ void CoarseToFine::ConfirmBrightness(const std::vector<Frame>& frames) {
     // limit is 3%)".
     std::string& choice = result_->photometric_choice;
     why << "; at the final poses by up to " << 100.0 * largest << "%, frame " << worst;
-    choice.insert(choice.rfind("; the limit is"), why.str());
+    const size_t limit = choice.rfind("; the limit is");
+    choice.insert(limit == std::string::npos ? choice.size() : limit, why.str());
     return;
   }
   // Not brightness: what the coarse level measured was its poses' error. The pipeline
