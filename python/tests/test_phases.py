@@ -118,6 +118,16 @@ def beating(**extra):
                         **extra)
 
 
+def write_views(folder, views, masks):
+    """The views as 4D files and their masks, in folder: (view paths, mask paths)."""
+    paths = [str(folder / f"view_{i}.nii.gz") for i in range(len(views))]
+    mask_paths = [str(folder / f"mask_{i}.nii.gz") for i in range(len(views))]
+    for view, mask, path, mask_path in zip(views, masks, paths, mask_paths):
+        dsr.write_image(view, path)
+        dsr.write_image(mask, mask_path)
+    return paths, mask_paths
+
+
 SMALL = {"pyramid_levels": 2, "pyramid_min_size": 8, "num_threads": 1}
 
 
@@ -135,12 +145,7 @@ def test_views_register_with_one_pose_each_in_memory_and_from_files(tmp_path):
     for pose, true_pose in zip(result.poses, sequence.frame_from_world):
         np.testing.assert_allclose(pose, true_pose @ world_from_frame0, atol=0.1)
     # The same views as 4D files: the same poses, bit for bit.
-    paths, masks = [], []
-    for i, (view, mask) in enumerate(zip(views, sequence.masks)):
-        paths.append(str(tmp_path / f"view_{i}.nii.gz"))
-        masks.append(str(tmp_path / f"mask_{i}.nii.gz"))
-        dsr.write_image(view, paths[-1])
-        dsr.write_image(mask, masks[-1])
+    paths, masks = write_views(tmp_path, views, sequence.masks)
     from_files = dsr.register(paths, masks, **SMALL)
     for a, b in zip(result.poses, from_files.poses):
         np.testing.assert_array_equal(a, b)
@@ -161,12 +166,7 @@ def test_phases_picked_from_files_are_those_picked_in_memory(tmp_path):
     the views in memory with the same phases picked."""
     sequence = beating(seed=4)
     views = sequence.views()
-    paths, masks = [], []
-    for i, (view, mask) in enumerate(zip(views, sequence.masks)):
-        paths.append(str(tmp_path / f"view_{i}.nii.gz"))
-        masks.append(str(tmp_path / f"mask_{i}.nii.gz"))
-        dsr.write_image(view, paths[-1])
-        dsr.write_image(mask, masks[-1])
+    paths, masks = write_views(tmp_path, views, sequence.masks)
     in_memory = dsr.register(views, sequence.masks, phases="2,0", **SMALL)
     from_files = dsr.register(paths, masks, phases="2,0", **SMALL)
     for a, b in zip(in_memory.poses, from_files.poses):
