@@ -986,7 +986,7 @@ TEST(RobustTheorem, PhotometricCauchySolvesOfBothModesAgree) {
   for (int i = 1; i < 3; ++i) {
     Image image(p.s.frames[i].geometry());
     for (int64_t l = 0; l < static_cast<int64_t>(image.voxels.size()); ++l) {
-      image.voxels[l] = static_cast<float>(g[i] * p.s.frames[i].interleaved()[4 * l] + o[i]);
+      image.voxels[l] = static_cast<float>(g[i] * p.s.frames[i].values()[l] + o[i]);
     }
     p.s.frames[i] = Frame(image, p.s.masks[i]);
   }

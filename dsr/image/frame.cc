@@ -1,4 +1,4 @@
-// Trilinear sampling of intensity and central-difference gradient volumes with the
+// Trilinear sampling of intensity and of the corners' central differences with the
 // field-of-view validity rule (docs/design.md section 2). See frame.h for the gradient rule
 // and the layout.
 #include "dsr/image/frame.h"
@@ -52,25 +52,6 @@ Frame::Frame(const std::vector<Image>& phases, const Mask& mask)
           }(),
           mask) {}
 
-// Values everywhere (resampling reads them without the mask rule); central differences at
-// stencil voxels only, 0 elsewhere (no valid cell reads those).
-std::shared_ptr<const std::vector<float>> Frame::Interleave(const float* v,
-                                                            const std::vector<uint8_t>& stencil)
-    const {
-  const Eigen::Vector3i n = geometry_.size;
-  const int64_t num = geometry_.NumVoxels();
-  const int64_t stride[3] = {1, n[0], int64_t{n[0]} * n[1]};
-  std::vector<float> interleaved;
-  AssignWithHugePages(&interleaved, static_cast<size_t>(4 * num), 0.0f);
-  for (int64_t l = 0; l < num; ++l) {
-    float* out = &interleaved[4 * l];
-    out[0] = v[l];
-    if (!stencil[l]) continue;
-    for (int a = 0; a < 3; ++a) out[1 + a] = 0.5f * (v[l + stride[a]] - v[l - stride[a]]);
-  }
-  return std::make_shared<const std::vector<float>>(std::move(interleaved));
-}
-
 Frame::Frame(const Image& phase0, const std::vector<Image>& later_phases, const Mask& mask)
     : Frame(
           [&] {
@@ -86,7 +67,17 @@ const std::vector<Image>& LaterPhasesOf(const std::vector<std::vector<Image>>* l
   return later_phases == nullptr || later_phases->empty() ? kNone : later_phases->at(view);
 }
 
+Frame Frame::Borrowing(const Image& phase0, const std::vector<Image>& later_phases,
+                       const Mask& mask) {
+  std::vector<const Image*> pointers(1, &phase0);
+  for (const Image& phase : later_phases) pointers.push_back(&phase);
+  return Frame(pointers, mask, /*borrow=*/true);
+}
+
 Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
+    : Frame(phases, mask, /*borrow=*/false) {}
+
+Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask, bool borrow)
     : geometry_(phases.front()->geometry) {
   CHECK(geometry_.SameGrid(mask.geometry)) << "mask and image grids differ";
   for (const Image* image : phases) {
@@ -116,13 +107,21 @@ Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask)
     }
   }
 
-  // One interleaved volume per phase, all with the one mask's stencil.
+  // Each phase's values, borrowed (an owner-less pointer) or copied.
   for (const Image* image : phases) {
-    auto shared = Interleave(image->voxels.data(), stencil);
-    if (interleaved_ == nullptr) {
-      interleaved_ = std::move(shared);
+    std::shared_ptr<const float> values;
+    if (borrow) {
+      values = std::shared_ptr<const float>(std::shared_ptr<const float>(), image->voxels.data());
     } else {
-      more_phases_.push_back(std::move(shared));
+      auto copy = std::make_shared<std::vector<float>>();
+      AssignWithHugePages(copy.get(), image->voxels.size(), 0.0f);
+      std::copy(image->voxels.begin(), image->voxels.end(), copy->begin());
+      values = std::shared_ptr<const float>(copy, copy->data());
+    }
+    if (values_ == nullptr) {
+      values_ = std::move(values);
+    } else {
+      more_phases_.push_back(std::move(values));
     }
   }
 
@@ -163,7 +162,7 @@ Frame Frame::Phase(int phase) const {
   CHECK(phase >= 0 && phase < num_phases()) << "phase " << phase << " of " << num_phases();
   Frame one = *this;
   one.more_phases_.clear();
-  if (phase > 0) one.interleaved_ = more_phases_[phase - 1];
+  if (phase > 0) one.values_ = more_phases_[phase - 1];
   return one;
 }
 
@@ -215,14 +214,14 @@ bool Frame::SampleAtIndex(const Eigen::Vector3d& ijk,
   const int j = static_cast<int>(std::floor(ijk[1]));
   const int k = static_cast<int>(std::floor(ijk[2]));
   const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
-  const int64_t sx = 4, sy = 4 * int64_t{geometry_.size[0]},
-                sz = sy * int64_t{geometry_.size[1]};
-  const float* base = &(*interleaved_)[4 * geometry_.LinearIndex(i, j, k)];
+  const int64_t sy = geometry_.size[0], sz = sy * int64_t{geometry_.size[1]};
+  const float* base = values() + geometry_.LinearIndex(i, j, k);
   double acc[4] = {0.0, 0.0, 0.0, 0.0};
   for (int c = 0; c < 8; ++c) {
     const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
     const double w = (dx ? fx : 1.0 - fx) * (dy ? fy : 1.0 - fy) * (dz ? fz : 1.0 - fz);
-    const float* p = base + dx * sx + dy * sy + dz * sz;
+    float p[4];
+    CornerSample(base + dx + dy * sy + dz * sz, sy, sz, p);
     for (int q = 0; q < 4; ++q) acc[q] += w * p[q];
   }
   *value = acc[0];
@@ -240,9 +239,8 @@ bool Frame::SampleSlopesAtIndex(const Eigen::Vector3d& ijk,
   const int j = static_cast<int>(std::floor(ijk[1]));
   const int k = static_cast<int>(std::floor(ijk[2]));
   const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
-  const int64_t sx = 4, sy = 4 * int64_t{geometry_.size[0]},
-                sz = sy * int64_t{geometry_.size[1]};
-  const float* base = &(*interleaved_)[4 * geometry_.LinearIndex(i, j, k)];
+  const int64_t sy = geometry_.size[0], sz = sy * int64_t{geometry_.size[1]};
+  const float* base = values() + geometry_.LinearIndex(i, j, k);
   double acc[4] = {0.0, 0.0, 0.0, 0.0};
   double slope[4][3] = {};
   for (int c = 0; c < 8; ++c) {
@@ -252,7 +250,8 @@ bool Frame::SampleSlopesAtIndex(const Eigen::Vector3d& ijk,
     // d w / d u_a: the corner's weight along a is f or 1 - f, of slope +1 or -1.
     const double dw[3] = {(dx ? 1.0 : -1.0) * wy * wz, wx * (dy ? 1.0 : -1.0) * wz,
                           wx * wy * (dz ? 1.0 : -1.0)};
-    const float* p = base + dx * sx + dy * sy + dz * sz;
+    float p[4];
+    CornerSample(base + dx + dy * sy + dz * sz, sy, sz, p);
     for (int q = 0; q < 4; ++q) {
       acc[q] += w * p[q];
       for (int a = 0; a < 3; ++a) slope[q][a] += dw[a] * p[q];
@@ -296,7 +295,7 @@ double Frame::InterpolateValue(const Eigen::Vector3d& ijk) const {
       inside = inside && corner >= 0.0 && corner <= n[a] - 1;
       idx[a] = inside ? static_cast<int>(corner) : 0;
     }
-    if (inside && w != 0.0) acc += w * (*interleaved_)[4 * geometry_.LinearIndex(idx[0], idx[1], idx[2])];
+    if (inside && w != 0.0) acc += w * values()[geometry_.LinearIndex(idx[0], idx[1], idx[2])];
   }
   return acc;
 }

@@ -2,11 +2,11 @@
 //
 // Sampling at a physical point x (mm, frame coordinates): u = (D S)^-1 (x - o); the value
 // I(u) by trilinear interpolation of the voxels, and the gradient by trilinear
-// interpolation of central-difference gradient volumes (index units), converted to
+// interpolation of the corners' central differences (index units), converted to
 // physical units: grad_x I = (D S)^-T grad_u I (= D S^-1 grad_u I for an orthonormal D).
 //
 // The gradient rule, one for every mode (all of them sample through this class or its
-// interleaved data): no gradient reads a voxel outside the field-of-view mask.
+// raw values): no gradient reads a voxel outside the field-of-view mask.
 //  * Stencil voxels: inside the mask with all 6 neighbours inside the mask (the grid border
 //    counts as outside), i.e. the mask eroded by the 6-neighbourhood. Only they carry a
 //    gradient, the central difference g_a(l) = (I(l + e_a) - I(l - e_a)) / 2; all other
@@ -25,11 +25,15 @@
 // either. The price is the outermost voxel layer of the mask, in which no valid cell has
 // a corner.
 //
-// Memory layout: one interleaved float4 [I, dI/du, dI/dv, dI/dw] per voxel, x-fastest, so
-// one trilinear gather reads value and gradient together; plus one bit per voxel for the
+// Memory layout: the voxel values of each phase, x-fastest, 4 bytes per voxel (a frame
+// borrows its images' storage or holds one copy), plus one bit per voxel for the
 // valid-cell map (cell (i,j,k) is valid when its 8 corners (i..i+1, j..j+1, k..k+1) are
-// stencil voxels; bit l % 8 of byte l / 8 for linear index l). 16.125 bytes per voxel in
-// all; the bit map (0.8 MB for 6M voxels) stays in cache where a byte map would not.
+// stencil voxels; bit l % 8 of byte l / 8 for linear index l). The central differences are
+// formed where a sample reads them (CornerSample below), in float as a stored gradient
+// volume would hold them, so a sample is the same, bit for bit, as one from such a volume:
+// 4.125 bytes per voxel instead of 16.125, and a sample's 32 voxels (the cell's 8 corners
+// and their 24 outer neighbours) are 12 rows of 4 floats. The bit map (0.8 MB for 6M
+// voxels) stays in cache where a byte map would not.
 #ifndef DSR_IMAGE_FRAME_H_
 #define DSR_IMAGE_FRAME_H_
 
@@ -44,25 +48,40 @@
 
 namespace dsr {
 
+// The value and the 3 central differences [I, gu, gv, gw] at the stencil voxel `v` points
+// to (x-fastest values, strides `sy` and `sz` in voxels), in float: the one formula every
+// sampler (the Frame's own, the stream's portable and SIMD ones) takes a corner from.
+inline void CornerSample(const float* v, int64_t sy, int64_t sz, float out[4]) {
+  out[0] = v[0];
+  out[1] = 0.5f * (v[1] - v[-1]);
+  out[2] = 0.5f * (v[sy] - v[-sy]);
+  out[3] = 0.5f * (v[sz] - v[-sz]);
+}
+
 class Frame {
  public:
   Frame() = default;
   // `mask` must lie on `image`'s grid (CHECKed; validate user input with ReadMask first).
   Frame(const Image& image, const Mask& mask);
   // A view recorded over T = phases.size() >= 1 phases (an ECG-gated loop; docs/design.md
-  // section 12): one grid, one mask and so one valid-cell map, one interleaved volume per
+  // section 12): one grid, one mask and so one valid-cell map, one volume of values per
   // phase. Every phase must lie on the mask's grid (CHECKed). One phase is the frame above.
   Frame(const std::vector<Image>& phases, const Mask& mask);
   // The same from the phases' images held elsewhere (non-null, in phase order).
   Frame(const std::vector<const Image*>& phases, const Mask& mask);
+  // A frame that reads the phases' voxels where they are, copying none (4 bytes per voxel
+  // and phase saved): `phase0` and `later_phases` must outlive the frame and every copy of
+  // it, unchanged. For frames a function builds from its inputs and drops before it returns.
+  static Frame Borrowing(const Image& phase0, const std::vector<Image>& later_phases,
+                         const Mask& mask);
   // A view given as its phase 0 and its later phases (empty: a 3D frame), as the pipeline
   // and the front ends hold them.
   Frame(const Image& phase0, const std::vector<Image>& later_phases, const Mask& mask);
-  // Number of phases (1 for a 3D frame). interleaved() and the sampling functions read
+  // Number of phases (1 for a 3D frame). values() and the sampling functions read
   // phase 0; Phase(p) gives phase p as a one-phase frame.
   int num_phases() const { return 1 + static_cast<int>(more_phases_.size()); }
   // Phase `phase` (in [0, num_phases())) as a one-phase frame sharing this one's data and
-  // geometry (cheap: no voxel is copied).
+  // geometry (cheap: no voxel is copied; borrowed values stay borrowed).
   Frame Phase(int phase) const;
 
   const ImageGeometry& geometry() const { return geometry_; }
@@ -127,23 +146,22 @@ class Frame {
     return geometry_.IndexToPhysical(valid_index_box_.center());
   }
 
-  // Raw interleaved data [I, gu, gv, gw] per voxel and the valid-cell bit map (see above;
-  // one spare zero byte at the end), for fast paths.
-  const float* interleaved() const { return interleaved_ ? interleaved_->data() : nullptr; }
+  // Phase 0's voxel values (x-fastest) and the valid-cell bit map (see above; one spare
+  // zero byte at the end), for fast paths.
+  const float* values() const { return values_.get(); }
   const uint8_t* valid_bits() const { return valid_bits_ ? valid_bits_->data() : nullptr; }
 
  private:
-  // One phase's interleaved data (the layout above) from its voxels `v` on this grid.
-  std::shared_ptr<const std::vector<float>> Interleave(const float* v,
-                                                       const std::vector<uint8_t>& stencil) const;
+  Frame(const std::vector<const Image*>& phases, const Mask& mask, bool borrow);
   ImageGeometry geometry_;
   Eigen::Matrix3d index_from_physical_ = Eigen::Matrix3d::Identity();
   Eigen::Matrix3d gradient_to_physical_ = Eigen::Matrix3d::Identity();
   // Shared and immutable: copying a Frame (e.g. into a two-frame sub-problem) is cheap.
-  std::shared_ptr<const std::vector<float>> interleaved_;
+  // Phase 0's values: owned (shared among copies) or borrowed (no owner).
+  std::shared_ptr<const float> values_;
   std::shared_ptr<const std::vector<uint8_t>> valid_bits_;
-  // Phases 1..T-1's interleaved data (phase 0's is interleaved_); empty for a 3D frame.
-  std::vector<std::shared_ptr<const std::vector<float>>> more_phases_;
+  // Phases 1..T-1's values (phase 0's are values_); empty for a 3D frame.
+  std::vector<std::shared_ptr<const float>> more_phases_;
   int64_t num_valid_cells_ = 0;
   Eigen::AlignedBox3d valid_index_box_;
 };

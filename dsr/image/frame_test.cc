@@ -4,6 +4,7 @@
 // whatever the image holds outside the mask (the gradient rule of image/frame.h).
 #include "dsr/image/frame.h"
 
+#include <cmath>
 #include <random>
 
 #include <gtest/gtest.h>
@@ -179,6 +180,75 @@ TEST(Frame, GradientsNeverReadOutsideTheMask) {
     }
     EXPECT_GT(valid, 100);
   }
+}
+
+// The sampler's twin: a stored float4 [I, gu, gv, gw] volume (the central differences in
+// float at stencil voxels, 0 elsewhere), trilinearly interpolated in double corner by corner.
+// The frame forms the differences where it samples; its samples must equal the stored
+// volume's bit for bit, on a random image in a ball-shaped field of view (edge cells too),
+// for a frame holding a copy of the image and for one that borrows the image's voxels.
+TEST(Frame, SamplesEqualThoseOfAStoredGradientVolume) {
+  const ImageGeometry g = ObliqueAnisotropicGeometry();
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  Image image(g);
+  for (float& v : image.voxels) v = static_cast<float>(300.0 * u(rng) - 50.0);
+  Mask mask(g, 0);
+  const Eigen::Vector3d center(5.5, 4.5, 4.0);
+  for (int k = 0; k < g.size[2]; ++k)
+    for (int j = 0; j < g.size[1]; ++j)
+      for (int i = 0; i < g.size[0]; ++i)
+        mask.at(i, j, k) = (Eigen::Vector3d(i, j, k) - center).norm() <= 4.2 ? 1 : 0;
+  const int64_t sx = 1, sy = g.size[0], sz = sy * g.size[1];
+  std::vector<float> stored(4 * static_cast<size_t>(g.NumVoxels()), 0.0f);
+  for (int k = 1; k + 1 < g.size[2]; ++k)
+    for (int j = 1; j + 1 < g.size[1]; ++j)
+      for (int i = 1; i + 1 < g.size[0]; ++i) {
+        const int64_t l = g.LinearIndex(i, j, k);
+        stored[4 * l] = image.voxels[l];
+        const bool stencil = mask.voxels[l] && mask.voxels[l - sx] && mask.voxels[l + sx] &&
+                             mask.voxels[l - sy] && mask.voxels[l + sy] &&
+                             mask.voxels[l - sz] && mask.voxels[l + sz];
+        if (!stencil) continue;
+        const float* v = &image.voxels[l];
+        stored[4 * l + 1] = 0.5f * (v[sx] - v[-sx]);
+        stored[4 * l + 2] = 0.5f * (v[sy] - v[-sy]);
+        stored[4 * l + 3] = 0.5f * (v[sz] - v[-sz]);
+      }
+  const Frame copied(image, mask);
+  const Frame borrowed = Frame::Borrowing(image, {}, mask);
+  EXPECT_EQ(borrowed.values(), image.voxels.data());  // read in place
+  EXPECT_NE(copied.values(), image.voxels.data());
+  int valid = 0;
+  for (int n = 0; n < 3000; ++n) {
+    const Eigen::Vector3d ijk(u(rng) * (g.size[0] - 1.001), u(rng) * (g.size[1] - 1.001),
+                              u(rng) * (g.size[2] - 1.001));
+    double value;
+    Eigen::Vector3d gradient;
+    const bool ok = copied.SampleAtIndex(ijk, &value, &gradient);
+    double borrowed_value;
+    Eigen::Vector3d borrowed_gradient;
+    ASSERT_EQ(borrowed.SampleAtIndex(ijk, &borrowed_value, &borrowed_gradient), ok);
+    if (!ok) continue;
+    ++valid;
+    const int i = static_cast<int>(std::floor(ijk[0])), j = static_cast<int>(std::floor(ijk[1])),
+              k = static_cast<int>(std::floor(ijk[2]));
+    const double fx = ijk[0] - i, fy = ijk[1] - j, fz = ijk[2] - k;
+    double twin[4] = {0.0, 0.0, 0.0, 0.0};
+    for (int c = 0; c < 8; ++c) {
+      const int dx = c & 1, dy = (c >> 1) & 1, dz = (c >> 2) & 1;
+      const double w = (dx ? fx : 1.0 - fx) * (dy ? fy : 1.0 - fy) * (dz ? fz : 1.0 - fz);
+      const float* corner = &stored[4 * g.LinearIndex(i + dx, j + dy, k + dz)];
+      for (int q = 0; q < 4; ++q) twin[q] += w * corner[q];
+    }
+    EXPECT_EQ(value, twin[0]);
+    EXPECT_EQ(borrowed_value, twin[0]);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(gradient[a], twin[1 + a]) << "axis " << a << " at " << ijk.transpose();
+      EXPECT_EQ(borrowed_gradient[a], twin[1 + a]);
+    }
+  }
+  EXPECT_GT(valid, 100);
 }
 
 // The slopes of a sample's interpolants (the pose uncertainty's curvature): the value and

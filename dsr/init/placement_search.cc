@@ -33,14 +33,14 @@ void ValuesAndValidCells(const Frame& frame, Eigen::Vector3i* lo, Image* values,
   cropped.size = (box.max() - box.min()).cast<int>().cwiseMax(1);
   *values = Image(cropped, 0.0f);
   *valid = Mask(cropped, 0);
-  const float* data = frame.interleaved();
+  const float* data = frame.values();
   for (int k = 0; k < cropped.size[2]; ++k) {
     for (int j = 0; j < cropped.size[1]; ++j) {
       for (int i = 0; i < cropped.size[0]; ++i) {
         const int64_t l = g.LinearIndex(i + (*lo)[0], j + (*lo)[1], k + (*lo)[2]);
         if (!frame.IsValidCell(l)) continue;
         const int64_t c = cropped.LinearIndex(i, j, k);
-        values->voxels[c] = data[4 * l];
+        values->voxels[c] = data[l];
         valid->voxels[c] = 1;
       }
     }
@@ -162,7 +162,7 @@ Placement ScorePlacement(const Frame& fixed,
                          double min_overlap_fraction) {
   const ImageGeometry& g = moving.geometry();
   const Eigen::Isometry3d fixed_from_moving = moving_from_fixed.inverse();
-  const float* data = moving.interleaved();
+  const float* data = moving.values();
   Correlation c;
   int64_t valid = 0;
   for (int k = 0; k < g.size[2]; ++k) {
@@ -173,7 +173,7 @@ Placement ScorePlacement(const Frame& fixed,
         ++valid;
         double value = 0.0;
         const Eigen::Vector3d x = fixed_from_moving * g.IndexToPhysical(Eigen::Vector3d(i, j, k));
-        if (fixed.Sample(x, &value, nullptr)) c.Add(value, data[4 * l]);
+        if (fixed.Sample(x, &value, nullptr)) c.Add(value, data[l]);
       }
     }
   }
@@ -286,9 +286,9 @@ bool HalfResolution(const Frame& frame, Frame* half) {
   if (g.size.minCoeff() < 8) return false;
   const Mask mask = ValidCellCorners(frame);
   Image values(g, 0.0f);
-  const float* data = frame.interleaved();
+  const float* data = frame.values();
   for (int64_t l = 0; l < g.NumVoxels(); ++l) {
-    if (mask.voxels[l]) values.voxels[l] = data[4 * l];
+    if (mask.voxels[l]) values.voxels[l] = data[l];
   }
   ImageLevel level = Downsample(values, mask, 1.0, 1);
   // A Frame's valid cells lie one voxel inside its mask (their gradients' stencil), which

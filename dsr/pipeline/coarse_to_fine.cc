@@ -24,7 +24,9 @@ namespace dsr {
 namespace {
 
 // Frames of one pyramid level. When `release` is set, the level's images are freed once
-// the frames hold their copies (no recovery can come back to them).
+// the frames hold their copies (no recovery can come back to them); otherwise the frames
+// read the stored level's voxels, as they read the input's where it is the level (both
+// outlive the run), without a copy.
 // With `later_phases` (views of T > 1 phases, [view][phase - 1]), frames of every phase.
 std::vector<Frame> LevelFrames(const std::vector<Image>& images,
                                const std::vector<std::vector<Image>>* later_phases,
@@ -38,9 +40,14 @@ std::vector<Frame> LevelFrames(const std::vector<Image>& images,
   ParallelFor(0, m, num_threads, [&](int64_t i) {
     ImageLevel& stored = pyramids->levels[i][level];
     const bool input_is_level = level == 0 && stored.image.empty();
-    frames[i] = input_is_level ? Frame(images[i], LaterPhasesOf(later_phases, i), masks[i])
-                                     .Translated(-pyramids->centre[i])
-                               : Frame(stored.image, stored.later_phases, stored.mask);
+    if (input_is_level) {
+      frames[i] = Frame::Borrowing(images[i], LaterPhasesOf(later_phases, i), masks[i])
+                      .Translated(-pyramids->centre[i]);
+    } else if (release) {
+      frames[i] = Frame(stored.image, stored.later_phases, stored.mask);
+    } else {
+      frames[i] = Frame::Borrowing(stored.image, stored.later_phases, stored.mask);
+    }
     if (release) stored = ImageLevel();
   });
   return frames;
@@ -580,7 +587,7 @@ std::vector<std::pair<double, double>> FrameSpreads(const std::vector<Frame>& fr
     const int64_t stride = voxels > kSpreadVoxels ? kSpreadStride : 1;
     for (int64_t l = 0; l < voxels; l += stride) {
       if (!f.IsValidCell(l)) continue;
-      const double v = f.interleaved()[4 * l];
+      const double v = f.values()[l];
       sum += v;
       sum2 += v * v;
       ++n;

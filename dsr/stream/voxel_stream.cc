@@ -67,7 +67,7 @@ inline bool CellOf(const PosedFrame& f, const double p[3], double u[3], double f
 // The portable sampler always tests the bounds (the twin stays the plain formula).
 inline bool RunInside(const FrameView&, const Point&, const Point&) { return false; }
 
-template <bool kInside>
+template <bool kInside, bool kGradient>
 inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
   const PosedFrame& f = *view.f;
   const double* ahead = view.ahead;
@@ -79,13 +79,13 @@ inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
   }
   const int64_t cell = static_cast<int64_t>(later[0]) + f.stride_y * static_cast<int64_t>(later[1]) +
                        f.stride_z * static_cast<int64_t>(later[2]);
-  const float* c = f.data + 4 * cell;
+  const float* c = f.values + cell;
   __builtin_prefetch(c);
-  __builtin_prefetch(c + 4 * f.stride_y);
-  __builtin_prefetch(c + 4 * f.stride_z);
-  __builtin_prefetch(c + 4 * (f.stride_y + f.stride_z));
+  __builtin_prefetch(c + f.stride_y);
+  __builtin_prefetch(c + f.stride_z);
+  __builtin_prefetch(c + f.stride_y + f.stride_z);
   __builtin_prefetch(f.valid_bits + (cell >> 3));
-  return SampleAt(f, p.p, sample);
+  return kGradient ? SampleAt(f, p.p, sample) : SampleValueAt(f, p.p, sample);
 }
 
 #define DSR_KERNEL_ATTR
@@ -102,7 +102,7 @@ std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
     PosedFrame& pf = out[i];
     std::memset(&pf, 0, sizeof(pf));
     const Eigen::Vector3i& n = f.geometry().size;
-    pf.data = f.interleaved();
+    pf.values = f.values();
     pf.valid_bits = f.valid_bits();
     for (int d = 0; d < 3; ++d) pf.max_cell[d] = n[d] - 2.0;
     pf.stride_y = n[0];
@@ -134,18 +134,41 @@ bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
   if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
   const double wx1 = u[0] - fl[0], wy1 = u[1] - fl[1], wz1 = u[2] - fl[2];
   const double wx0 = 1.0 - wx1, wy0 = 1.0 - wy1, wz0 = 1.0 - wz1;
-  const float* c = f.data + 4 * cell;
-  const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;
-  const float* r00 = c;
-  const float* r10 = c + sy;
-  const float* r01 = c + sz;
-  const float* r11 = c + sy + sz;
+  const float* c = f.values + cell;
+  const int64_t sy = f.stride_y, sz = f.stride_z;
+  // The 8 corners' [I, gu, gv, gw] (image/frame.h: CornerSample), as 4 rows of two.
+  float r00[8], r10[8], r01[8], r11[8];
+  for (int dx = 0; dx < 2; ++dx) {
+    CornerSample(c + dx, sy, sz, r00 + 4 * dx);
+    CornerSample(c + dx + sy, sy, sz, r10 + 4 * dx);
+    CornerSample(c + dx + sz, sy, sz, r01 + 4 * dx);
+    CornerSample(c + dx + sy + sz, sy, sz, r11 + 4 * dx);
+  }
   for (int q = 0; q < 4; ++q) {
     const double t00 = r00[q] * wx0 + r00[4 + q] * wx1, t10 = r10[q] * wx0 + r10[4 + q] * wx1;
     const double t01 = r01[q] * wx0 + r01[4 + q] * wx1, t11 = r11[q] * wx0 + r11[4 + q] * wx1;
     const double ty0 = t00 * wy0 + t10 * wy1, ty1 = t01 * wy0 + t11 * wy1;
     out[q] = ty0 * wz0 + ty1 * wz1;
   }
+  return true;
+}
+
+bool SampleValueAt(const PosedFrame& f, const double p[3], double* value) {
+  double u[3], fl[3];
+  int64_t cell;
+  if (!CellOf(f, p, u, fl, &cell)) return false;
+  if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
+  const double wx1 = u[0] - fl[0], wy1 = u[1] - fl[1], wz1 = u[2] - fl[2];
+  const double wx0 = 1.0 - wx1, wy0 = 1.0 - wy1, wz0 = 1.0 - wz1;
+  // SampleAt's value (its q = 0), from the corners' values alone.
+  const float* r00 = f.values + cell;
+  const float* r10 = r00 + f.stride_y;
+  const float* r01 = r00 + f.stride_z;
+  const float* r11 = r10 + f.stride_z;
+  const double t00 = r00[0] * wx0 + r00[1] * wx1, t10 = r10[0] * wx0 + r10[1] * wx1;
+  const double t01 = r01[0] * wx0 + r01[1] * wx1, t11 = r11[0] * wx0 + r11[1] * wx1;
+  const double ty0 = t00 * wy0 + t10 * wy1, ty1 = t01 * wy0 + t11 * wy1;
+  *value = ty0 * wz0 + ty1 * wz1;
   return true;
 }
 

@@ -3,7 +3,7 @@
 //
 // For each candidate voxel j (model/observation.h) the stream samples every candidate
 // observer i at p_ij = T_i p_j with the observation model of model/observation.h (value
-// and gradient in one trilinear gather of the interleaved frame data), keeps those with
+// and gradient in one trilinear pass over the frame's voxel values), keeps those with
 // sigma_ij = 1, and, when at least two frames observe the voxel, builds their Jacobians
 // J_ij and hands them to a per-voxel term (stream/voxel_term.h) that adds its cost,
 // gradient and Gauss-Newton matrix to an accumulator. Nothing per observation is kept
@@ -68,11 +68,11 @@ struct NormalEquations {
 };
 
 // A frame's pose folded into its index map (u = A p + b), with the raw sampler data, so
-// that the hot loop samples without calls: one validity bit and one gather of 8 float4
-// [I, gu, gv, gw] per observation. Vectors are stored as 4 lanes (x, y, z, 0) so that the
-// AVX2 path loads them whole.
+// that the hot loop samples without calls: one validity bit and the 32 voxel values of a
+// cell's corners and their neighbours (12 rows of 4) per observation. Vectors are stored
+// as 4 lanes (x, y, z, 0) so that the AVX2 path loads them whole.
 struct PosedFrame {
-  const float* data;           // interleaved float4 per voxel (image/frame.h)
+  const float* values;         // voxel values, x-fastest (image/frame.h)
   const uint8_t* valid_bits;   // valid-cell bit map (image/frame.h)
   int64_t stride_y, stride_z;  // in voxels
   double a[4][4];              // columns of A, then b: u = A p + b (index units)
@@ -103,6 +103,9 @@ inline KernelPath StreamKernelPath(const StreamContext& context) {
 // Samples frame `f` at world point p with the portable sampler: false when sigma = 0;
 // else out = [I, dI/du, dI/dv, dI/dw] (value and index-space gradient).
 bool SampleAt(const PosedFrame& f, const double p[3], double out[4]);
+// The same sample's value alone (SampleAt's out[0], bit for bit), from the cell's 8 values:
+// what an evaluation without Jacobians reads.
+bool SampleValueAt(const PosedFrame& f, const double p[3], double* value);
 
 // The observations of consecutive candidate voxels with at least two observers. Voxel t
 // has k_t = begin[t + 1] - begin[t] observations, in increasing frame order.

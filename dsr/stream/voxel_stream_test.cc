@@ -82,6 +82,36 @@ TEST(VoxelStream, BatchSamplerMatchesObserveSample) {
   }
 }
 
+// A batch without Jacobians reads the cells' 8 values only (no differences): the same
+// observations and the same values, bit for bit, as the batch with them, on every path.
+TEST(VoxelStream, ValuesWithoutJacobiansAreThoseWithThem) {
+  const auto s = KernelTestSequence(5);
+  const auto poses = Perturbed(s.ground_truth, 0.05, 1.5, 7);
+  const CandidateSet cand = Candidates(s, poses, /*margin=*/2);
+  ASSERT_GT(cand.num_voxels(), 100);
+  const std::vector<PosedFrame> posed = PoseFrames(s.frames, poses);
+  for (KernelPath path : AvailablePaths()) {
+    const std::unique_ptr<VoxelBatch> with(new VoxelBatch), without(new VoxelBatch);
+    int64_t observations = 0;
+    for (int64_t v = 0; v < cand.num_voxels();) {
+      const int64_t next = SampleVoxelBatch(path, posed, cand, v, cand.num_voxels(), true,
+                                            with.get());
+      ASSERT_EQ(SampleVoxelBatch(path, posed, cand, v, cand.num_voxels(), false, without.get()),
+                next);
+      ASSERT_EQ(without->num_voxels, with->num_voxels);
+      ASSERT_EQ(without->num_observations, with->num_observations);
+      for (int t = 0; t <= with->num_voxels; ++t) ASSERT_EQ(without->begin[t], with->begin[t]);
+      for (int o = 0; o < with->num_observations; ++o) {
+        ASSERT_EQ(without->frame[o], with->frame[o]);
+        ASSERT_EQ(without->value[o], with->value[o]) << KernelPathToString(path);
+      }
+      observations += with->num_observations;
+      v = next;
+    }
+    EXPECT_GT(observations, 1000);
+  }
+}
+
 TEST(VoxelStream, NonFinitePosesObserveNothing) {
   const auto s = KernelTestSequence(7);
   std::vector<Eigen::Isometry3d> poses = s.ground_truth;

@@ -2,9 +2,12 @@
 // (stream/voxel_stream.cc) and group kernel (stream/hessian_batch.cc), four lanes at a time.
 //
 // Sampling one observation: u = A p + b as one 4-lane vector (x, y, z, 0); the 8 corners
-// of the trilinear cell are 4 rows of two neighbouring float4 [I, gu, gv, gw] (32 bytes
-// each), converted to double and blended with the x weights, then the rows with the y and
-// z weights: the value and the index-space gradient come out together in one register.
+// of the trilinear cell are 4 rows of two corners. Each row's two [I, gu, gv, gw] come
+// from the values x-1..x+2 of that row and of its neighbouring rows along y and z (12
+// rows of 4 floats in all): the central differences in float, as CornerSample (image/
+// frame.h) forms them, one 4 x 4 transpose, then converted to double and blended with the
+// x weights, then the rows with the y and z weights: the value and the index-space
+// gradient come out together in one register.
 // The Jacobian: grad = G gu and p_ij = R p + t as 4-lane vectors, p_ij x grad by lane
 // permutes.
 #include "dsr/stream/kernels/kernels_avx2.h"
@@ -37,7 +40,7 @@ struct FrameView {
   __m256d strides;   // 1, n_x, n_x n_y, 0
   __m256d g[3];      // columns of (D S)^-T
   __m256d r[4];      // columns of R, then t
-  const float* data;
+  const float* values;
   const uint8_t* valid_bits;
   int64_t stride_y, stride_z;  // in voxels
 };
@@ -52,7 +55,7 @@ DSR_TARGET_AVX2 inline FrameView MakeFrameView(const PosedFrame& f, const double
   view.max_cell = _mm256_loadu_pd(f.max_cell);
   view.ahead = _mm256_loadu_pd(ahead);
   view.strides = _mm256_loadu_pd(f.strides);
-  view.data = f.data;
+  view.values = f.values;
   view.valid_bits = f.valid_bits;
   view.stride_y = f.stride_y;
   view.stride_z = f.stride_z;
@@ -65,10 +68,22 @@ DSR_TARGET_AVX2 inline __m256d Affine(const __m256d cols[4], const Point& p) {
                          _mm256_fmadd_pd(cols[1], p.y, _mm256_fmadd_pd(cols[2], p.z, cols[3])));
 }
 
-// One row of the cell: x weights applied to the float4 at r and at r + 4.
-DSR_TARGET_AVX2 inline __m256d CellRow(const float* r, __m256d wx0, __m256d wx1) {
-  return _mm256_fmadd_pd(_mm256_cvtps_pd(_mm_loadu_ps(r + 4)), wx1,
-                         _mm256_mul_pd(_mm256_cvtps_pd(_mm_loadu_ps(r)), wx0));
+// One row of the cell: its values at x-1..x+2 (`row`) and those of the rows before and
+// after it along y and z (lanes 1 and 2 read). Its two corners' value and differences
+// (CornerSample without the factor 1/2, which the caller applies once: exact) as doubles,
+// [I_x, I_x+1, du_x, du_x+1] in `a` and [dv_x, dv_x+1, dw_x, dw_x+1] in `b`. The
+// differences are formed in float, as CornerSample forms them.
+struct RowCorners {
+  __m256d a, b;
+};
+DSR_TARGET_AVX2 inline RowCorners CellRow(__m128 row, __m128 y_before, __m128 y_after,
+                                          __m128 z_before, __m128 z_after) {
+  // Lanes 0 and 1: x+1 - (x-1) and x+2 - x.
+  const __m128 du = _mm_sub_ps(_mm_movehl_ps(row, row), row);
+  const __m128 dv = _mm_sub_ps(y_after, y_before);
+  const __m128 dw = _mm_sub_ps(z_after, z_before);
+  return {_mm256_cvtps_pd(_mm_shuffle_ps(row, du, _MM_SHUFFLE(1, 0, 2, 1))),
+          _mm256_cvtps_pd(_mm_shuffle_ps(dv, dw, _MM_SHUFFLE(2, 1, 2, 1)))};
 }
 
 // The linear indices of the cells whose lowest corners are `a` and `b` (integer-valued,
@@ -96,7 +111,7 @@ DSR_TARGET_AVX2 inline bool RunInside(const FrameView& f, const Point& first, co
   return (_mm256_movemask_pd(ok) & 0x7) == 0x7;  // lanes x, y, z
 }
 
-template <bool kInside>
+template <bool kInside, bool kGradient>
 DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double sample[4]) {
   const __m256d u = Affine(f.a, p);
   const __m256d max_cell = f.max_cell;
@@ -115,12 +130,22 @@ DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double
              &cell);
   }
   {
-    const char* c = reinterpret_cast<const char*>(f.data + 4 * hint);
-    const int64_t sy = 16 * f.stride_y, sz = 16 * f.stride_z;  // bytes
+    const char* c = reinterpret_cast<const char*>(f.values + hint);
+    const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;  // bytes
     _mm_prefetch(c, _MM_HINT_T0);
     _mm_prefetch(c + sy, _MM_HINT_T0);
     _mm_prefetch(c + sz, _MM_HINT_T0);
     _mm_prefetch(c + sy + sz, _MM_HINT_T0);
+    if (kGradient) {  // the outer rows the differences read
+      _mm_prefetch(c - sy, _MM_HINT_T0);
+      _mm_prefetch(c + 2 * sy, _MM_HINT_T0);
+      _mm_prefetch(c - sy + sz, _MM_HINT_T0);
+      _mm_prefetch(c + 2 * sy + sz, _MM_HINT_T0);
+      _mm_prefetch(c - sz, _MM_HINT_T0);
+      _mm_prefetch(c + 2 * sz, _MM_HINT_T0);
+      _mm_prefetch(c + sy - sz, _MM_HINT_T0);
+      _mm_prefetch(c + sy + 2 * sz, _MM_HINT_T0);
+    }
     _mm_prefetch(reinterpret_cast<const char*>(f.valid_bits + (hint >> 3)), _MM_HINT_T0);
   }
   if (!kInside) {
@@ -130,18 +155,59 @@ DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double
     if (_mm256_movemask_pd(inside) != 0xF) return false;
   }
   if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
-  const __m256d w1 = _mm256_sub_pd(u, fl);
-  const __m256d w0 = _mm256_sub_pd(_mm256_set1_pd(1.0), w1);
-  const __m256d wx0 = _mm256_permute4x64_pd(w0, 0x00), wx1 = _mm256_permute4x64_pd(w1, 0x00);
-  const float* c = f.data + 4 * cell;
-  const int64_t sy = 4 * f.stride_y, sz = 4 * f.stride_z;
-  const __m256d t00 = CellRow(c, wx0, wx1), t10 = CellRow(c + sy, wx0, wx1);
-  const __m256d t01 = CellRow(c + sz, wx0, wx1), t11 = CellRow(c + sy + sz, wx0, wx1);
-  const __m256d wy0 = _mm256_permute4x64_pd(w0, 0x55), wy1 = _mm256_permute4x64_pd(w1, 0x55);
-  const __m256d wz0 = _mm256_permute4x64_pd(w0, 0xAA), wz1 = _mm256_permute4x64_pd(w1, 0xAA);
-  const __m256d ty0 = _mm256_fmadd_pd(t10, wy1, _mm256_mul_pd(t00, wy0));
-  const __m256d ty1 = _mm256_fmadd_pd(t11, wy1, _mm256_mul_pd(t01, wy0));
-  _mm256_storeu_pd(sample, _mm256_fmadd_pd(ty1, wz1, _mm256_mul_pd(ty0, wz0)));
+  // The weights broadcast from memory (loads, not lane permutes): w1 = u - floor(u) per
+  // axis, w0 = 1 - w1.
+  alignas(32) double w[4];
+  _mm256_store_pd(w, _mm256_sub_pd(u, fl));
+  const __m256d one = _mm256_set1_pd(1.0);
+  const __m256d wy1 = _mm256_broadcast_sd(w + 1), wz1 = _mm256_broadcast_sd(w + 2);
+  const __m256d wy0 = _mm256_sub_pd(one, wy1), wz0 = _mm256_sub_pd(one, wz1);
+  // [wx0, wx1, wx0, wx1] (wx0 = 1 - wx1 rounded once, as a subtraction rounds it).
+  const __m256d wx = _mm256_fmadd_pd(_mm256_set_pd(1.0, -1.0, 1.0, -1.0), _mm256_broadcast_sd(w),
+                                     _mm256_set_pd(0.0, 1.0, 0.0, 1.0));
+  if (!kGradient) {
+    // The value alone: the cell's 4 rows of 2 values, with the ops (and so the rounding)
+    // of lanes 0 and 1 of the gradient path below.
+    const float* c = f.values + cell;
+    const int64_t sy = f.stride_y, sz = f.stride_z;
+    const auto pair = [](const float* r) {
+      return _mm_cvtps_pd(_mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(r))));
+    };
+    const __m128d y0 = _mm256_castpd256_pd128(wy0), y1 = _mm256_castpd256_pd128(wy1);
+    const __m128d z0 = _mm256_castpd256_pd128(wz0), z1 = _mm256_castpd256_pd128(wz1);
+    const __m128d a = _mm_fmadd_pd(
+        _mm_fmadd_pd(pair(c + sy + sz), y1, _mm_mul_pd(pair(c + sz), y0)), z1,
+        _mm_mul_pd(_mm_fmadd_pd(pair(c + sy), y1, _mm_mul_pd(pair(c), y0)), z0));
+    const __m128d x = _mm_mul_pd(a, _mm256_castpd256_pd128(wx));
+    sample[0] = _mm_cvtsd_f64(_mm_hadd_pd(x, x));
+    return true;
+  }
+  // The 12 rows (x-1..x+2) around the cell: its 4 rows (y, z in {0, 1}) and their outer
+  // neighbours along y (y = -1, 2) and z (z = -1, 2). All inside the grid: a valid cell's
+  // corners are stencil voxels, one voxel inside it on every side.
+  const float* c = f.values + cell - 1;
+  const int64_t sy = f.stride_y, sz = f.stride_z;
+  const __m128 r00 = _mm_loadu_ps(c), r10 = _mm_loadu_ps(c + sy);
+  const __m128 r01 = _mm_loadu_ps(c + sz), r11 = _mm_loadu_ps(c + sy + sz);
+  const RowCorners t00 = CellRow(r00, _mm_loadu_ps(c - sy), r10, _mm_loadu_ps(c - sz), r01);
+  const RowCorners t10 =
+      CellRow(r10, r00, _mm_loadu_ps(c + 2 * sy), _mm_loadu_ps(c + sy - sz), r11);
+  const RowCorners t01 =
+      CellRow(r01, _mm_loadu_ps(c - sy + sz), r11, r00, _mm_loadu_ps(c + 2 * sz));
+  const RowCorners t11 =
+      CellRow(r11, r01, _mm_loadu_ps(c + 2 * sy + sz), r10, _mm_loadu_ps(c + sy + 2 * sz));
+  // The y and z weights first (every lane is a corner quantity), then x across lanes.
+  const __m256d a = _mm256_fmadd_pd(
+      _mm256_fmadd_pd(t11.a, wy1, _mm256_mul_pd(t01.a, wy0)), wz1,
+      _mm256_mul_pd(_mm256_fmadd_pd(t10.a, wy1, _mm256_mul_pd(t00.a, wy0)), wz0));
+  const __m256d b = _mm256_fmadd_pd(
+      _mm256_fmadd_pd(t11.b, wy1, _mm256_mul_pd(t01.b, wy0)), wz1,
+      _mm256_mul_pd(_mm256_fmadd_pd(t10.b, wy1, _mm256_mul_pd(t00.b, wy0)), wz0));
+  // The differences' factor 1/2 on the gradient lanes.
+  const __m256d wa = _mm256_mul_pd(wx, _mm256_set_pd(0.5, 0.5, 1.0, 1.0));
+  const __m256d wb = _mm256_mul_pd(wx, _mm256_set1_pd(0.5));
+  // hadd: [I, gv, gu, gw], the order JacobianOne reads.
+  _mm256_storeu_pd(sample, _mm256_hadd_pd(_mm256_mul_pd(a, wa), _mm256_mul_pd(b, wb)));
   return true;
 }
 
@@ -149,9 +215,9 @@ DSR_TARGET_AVX2 inline void JacobianOne(const FrameView& f,
                                         const Point& p,
                                         const double sample[4],
                                         double jac[6]) {
-  const __m256d s = _mm256_loadu_pd(sample);
-  const __m256d gu = _mm256_permute4x64_pd(s, 0x55), gv = _mm256_permute4x64_pd(s, 0xAA),
-                gw = _mm256_permute4x64_pd(s, 0xFF);
+  // The sample as SampleOne stores it: [I, gv, gu, gw].
+  const __m256d gu = _mm256_broadcast_sd(sample + 2), gv = _mm256_broadcast_sd(sample + 1),
+                gw = _mm256_broadcast_sd(sample + 3);
   const __m256d grad =
       _mm256_fmadd_pd(f.g[0], gu, _mm256_fmadd_pd(f.g[1], gv, _mm256_mul_pd(f.g[2], gw)));
   const __m256d q = Affine(f.r, p);  // p_ij
