@@ -107,7 +107,7 @@ void FusionRun::Fuse() {
   for (int p = 0; p < later; ++p) {  // phase by phase: one more set of frames at a time
     std::vector<Frame> frames(frames_.size());
     ParallelFor(0, static_cast<int64_t>(frames.size()), config_.num_threads, [&](int64_t i) {
-      frames[i] = Frame(later_phases_[i][p], masks_[i]);
+      frames[i] = Frame::Borrowing(later_phases_[i][p], {}, masks_[i]);
     });
     later_means_.push_back(FusePanorama(frames, frame_from_world_, grid_, config_.feather,
                                         config_.feather_voxels, config_.num_threads,

@@ -275,7 +275,7 @@ bool RegistrationRun::Write(std::string* error) {
   if (fused_) {
     frames.resize(m);
     ParallelFor(0, m, options_.solve.num_threads, [&](int64_t i) {
-      frames[i] = Frame(images_[i], LaterPhasesOf(&later_phases_, i), masks_[i]);
+      frames[i] = Frame::Borrowing(images_[i], LaterPhasesOf(&later_phases_, i), masks_[i]);
     });
     panorama = FusedPanorama(frames);
   }

@@ -482,7 +482,7 @@ bool ResultOnInputIntensities(const std::vector<Image>& input_images,
   ParallelFor(0, m, options.solve.num_threads, [&](int64_t i) {
     const std::vector<Image>& later = LaterPhasesOf(&later_phases, i);
     if (options.smoothing <= 0.0) {
-      frames[i] = Frame(input_images[i], later, masks[i]);
+      frames[i] = Frame::Borrowing(input_images[i], later, masks[i]);
       return;
     }
     std::vector<Image> smoothed;
