@@ -1,6 +1,6 @@
 // Google Benchmark of the hot kernels on the paper-sized sequence (11 frames of 96x96x80,
 // sigma 25, ground-truth poses, full resolution):
-//   BM_SampleValueAndGradient                    one trilinear gather (stream/voxel_stream.h)
+//   BM_SampleValueAndGradient                    one sample with its gradient (stream/voxel_stream.h)
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
@@ -75,7 +75,7 @@ const Problem& Paper() {
   return *p;
 }
 
-// One trilinear gather of value and gradient (the portable sampler, as in the stream).
+// One sample of value and gradient (the portable sampler, as in the stream).
 void BM_SampleValueAndGradient(benchmark::State& state) {
   const Problem& p = Paper();
   const std::vector<PosedFrame> posed = PoseFrames(p.frames, p.poses);
