@@ -171,7 +171,7 @@ DSR_TARGET_AVX2 inline bool SampleOne(const FrameView& f, const Point& p, double
     const float* c = f.values + cell;
     const int64_t sy = f.stride_y, sz = f.stride_z;
     const auto pair = [](const float* r) {
-      return _mm_cvtps_pd(_mm_castpd_ps(_mm_load_sd(reinterpret_cast<const double*>(r))));
+      return _mm_cvtps_pd(_mm_castsi128_ps(_mm_loadu_si64(r)));  // 2 floats, unaligned
     };
     const __m128d y0 = _mm256_castpd256_pd128(wy0), y1 = _mm256_castpd256_pd128(wy1);
     const __m128d z0 = _mm256_castpd256_pd128(wz0), z1 = _mm256_castpd256_pd128(wz1);
