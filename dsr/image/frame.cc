@@ -114,8 +114,8 @@ Frame::Frame(const std::vector<const Image*>& phases, const Mask& mask, bool bor
       values = std::shared_ptr<const float>(std::shared_ptr<const float>(), image->voxels.data());
     } else {
       auto copy = std::make_shared<std::vector<float>>();
-      AssignWithHugePages(copy.get(), image->voxels.size(), 0.0f);
-      std::copy(image->voxels.begin(), image->voxels.end(), copy->begin());
+      const float* v = image->voxels.data();
+      AssignWithHugePages(copy.get(), v, v + image->voxels.size());
       values = std::shared_ptr<const float>(copy, copy->data());
     }
     if (values_ == nullptr) {

@@ -127,14 +127,42 @@ std::vector<PosedFrame> PoseFrames(const std::vector<Frame>& frames,
   return out;
 }
 
-bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
-  double u[3], fl[3];
+namespace {
+
+// The valid cell of p in f (sigma = 1) and its trilinear weights; false otherwise.
+struct CellWeights {
   int64_t cell;
-  if (!CellOf(f, p, u, fl, &cell)) return false;
-  if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
-  const double wx1 = u[0] - fl[0], wy1 = u[1] - fl[1], wz1 = u[2] - fl[2];
-  const double wx0 = 1.0 - wx1, wy0 = 1.0 - wy1, wz0 = 1.0 - wz1;
-  const float* c = f.values + cell;
+  double wx0, wx1, wy0, wy1, wz0, wz1;
+};
+inline bool ValidCellWeights(const PosedFrame& f, const double p[3], CellWeights* c) {
+  double u[3], fl[3];
+  if (!CellOf(f, p, u, fl, &c->cell)) return false;
+  if (((f.valid_bits[c->cell >> 3] >> (c->cell & 7)) & 1) == 0) return false;
+  c->wx1 = u[0] - fl[0];
+  c->wy1 = u[1] - fl[1];
+  c->wz1 = u[2] - fl[2];
+  c->wx0 = 1.0 - c->wx1;
+  c->wy0 = 1.0 - c->wy1;
+  c->wz0 = 1.0 - c->wz1;
+  return true;
+}
+
+// One quantity given at the cell's 8 corners as 4 rows (y, z) of two (x, then x + 1 `dx`
+// floats further on), blended along x, then y, then z.
+inline double Blend(const CellWeights& c, const float* r00, const float* r10, const float* r01,
+                    const float* r11, int dx) {
+  const double t00 = r00[0] * c.wx0 + r00[dx] * c.wx1, t10 = r10[0] * c.wx0 + r10[dx] * c.wx1;
+  const double t01 = r01[0] * c.wx0 + r01[dx] * c.wx1, t11 = r11[0] * c.wx0 + r11[dx] * c.wx1;
+  const double ty0 = t00 * c.wy0 + t10 * c.wy1, ty1 = t01 * c.wy0 + t11 * c.wy1;
+  return ty0 * c.wz0 + ty1 * c.wz1;
+}
+
+}  // namespace
+
+bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
+  CellWeights w;
+  if (!ValidCellWeights(f, p, &w)) return false;
+  const float* c = f.values + w.cell;
   const int64_t sy = f.stride_y, sz = f.stride_z;
   // The 8 corners' [I, gu, gv, gw] (image/frame.h: CornerSample), as 4 rows of two.
   float r00[8], r10[8], r01[8], r11[8];
@@ -144,31 +172,17 @@ bool SampleAt(const PosedFrame& f, const double p[3], double out[4]) {
     CornerSample(c + dx + sz, sy, sz, r01 + 4 * dx);
     CornerSample(c + dx + sy + sz, sy, sz, r11 + 4 * dx);
   }
-  for (int q = 0; q < 4; ++q) {
-    const double t00 = r00[q] * wx0 + r00[4 + q] * wx1, t10 = r10[q] * wx0 + r10[4 + q] * wx1;
-    const double t01 = r01[q] * wx0 + r01[4 + q] * wx1, t11 = r11[q] * wx0 + r11[4 + q] * wx1;
-    const double ty0 = t00 * wy0 + t10 * wy1, ty1 = t01 * wy0 + t11 * wy1;
-    out[q] = ty0 * wz0 + ty1 * wz1;
-  }
+  for (int q = 0; q < 4; ++q) out[q] = Blend(w, r00 + q, r10 + q, r01 + q, r11 + q, 4);
   return true;
 }
 
 bool SampleValueAt(const PosedFrame& f, const double p[3], double* value) {
-  double u[3], fl[3];
-  int64_t cell;
-  if (!CellOf(f, p, u, fl, &cell)) return false;
-  if (((f.valid_bits[cell >> 3] >> (cell & 7)) & 1) == 0) return false;
-  const double wx1 = u[0] - fl[0], wy1 = u[1] - fl[1], wz1 = u[2] - fl[2];
-  const double wx0 = 1.0 - wx1, wy0 = 1.0 - wy1, wz0 = 1.0 - wz1;
+  CellWeights w;
+  if (!ValidCellWeights(f, p, &w)) return false;
   // SampleAt's value (its q = 0), from the corners' values alone.
-  const float* r00 = f.values + cell;
+  const float* r00 = f.values + w.cell;
   const float* r10 = r00 + f.stride_y;
-  const float* r01 = r00 + f.stride_z;
-  const float* r11 = r10 + f.stride_z;
-  const double t00 = r00[0] * wx0 + r00[1] * wx1, t10 = r10[0] * wx0 + r10[1] * wx1;
-  const double t01 = r01[0] * wx0 + r01[1] * wx1, t11 = r11[0] * wx0 + r11[1] * wx1;
-  const double ty0 = t00 * wy0 + t10 * wy1, ty1 = t01 * wy0 + t11 * wy1;
-  *value = ty0 * wz0 + ty1 * wz1;
+  *value = Blend(w, r00, r10, r00 + f.stride_z, r10 + f.stride_z, 1);
   return true;
 }
 

@@ -21,19 +21,28 @@ bool HugePagesRequested();
 // HugePagesRequested(). A hint: no effect where unsupported.
 void AdviseHugePages(void* data, size_t bytes);
 
-// v = n copies of `value`, the storage advised for huge pages before it is first written
-// (when it is large enough to hold one).
+// v's storage emptied and reserved for n elements, advised for huge pages before it is
+// first written (when it is large enough to hold one).
 template <class T>
-void AssignWithHugePages(std::vector<T>* v, size_t n, const T& value) {
+void ReserveWithHugePages(std::vector<T>* v, size_t n) {
   constexpr size_t kHugePage = size_t{2} << 20;
-  if (n * sizeof(T) < 2 * kHugePage) {
-    v->assign(n, value);
-    return;
-  }
   std::vector<T>().swap(*v);  // fresh, untouched storage
   v->reserve(n);
-  AdviseHugePages(v->data(), n * sizeof(T));
+  if (n * sizeof(T) >= 2 * kHugePage) AdviseHugePages(v->data(), n * sizeof(T));
+}
+
+// v = n copies of `value`, on storage advised as above.
+template <class T>
+void AssignWithHugePages(std::vector<T>* v, size_t n, const T& value) {
+  ReserveWithHugePages(v, n);
   v->assign(n, value);
+}
+
+// v = [first, last), on storage advised as above (each element written once).
+template <class T>
+void AssignWithHugePages(std::vector<T>* v, const T* first, const T* last) {
+  ReserveWithHugePages(v, static_cast<size_t>(last - first));
+  v->assign(first, last);
 }
 
 }  // namespace dsr
