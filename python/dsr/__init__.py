@@ -178,9 +178,28 @@ def _inputs(images, masks, names):
             mk = _as_image(mask, f"mask {i}")
             core_masks.append((np.asarray(mk.array), mk.geometry()))  # non-zero = inside
         default_names = [f"frame_{i:02d}" for i in range(len(images))]
+    for what, given in (("images", paths), ("masks", [_as_path(m) for m in mask_list])):
+        for i, path in enumerate(given):
+            if path is not None and "\0" in path:
+                raise ValueError(f"{what}: the path of {what[:-1]} {i} contains a NUL character "
+                                 f"({path!r}); a path ends there")
+    if isinstance(names, (str, bytes)):
+        raise TypeError(f"names: a sequence of names, one per image, not one name ({names!r})")
     image_names = list(names) if names is not None else default_names
     if len(image_names) != len(images):
         raise ValueError(f"names: {len(image_names)} names for {len(images)} images")
+    if names is not None:
+        first: Dict[str, int] = {}
+        for i, name in enumerate(image_names):
+            if not isinstance(name, str):
+                raise ValueError(f"names: name {i} is not a string ({type(name).__name__})")
+            if "\0" in name:
+                raise ValueError(f"names: name {i} contains a NUL character ({name!r})")
+            if name in first:
+                raise ValueError(f"names: {name!r} is given twice (images {first[name]} and {i}); "
+                                 "each image needs its own name (poses are matched to images "
+                                 "by name)")
+            first[name] = i
     return core_images, core_masks, image_names
 
 
@@ -195,7 +214,10 @@ def _flag_value(value: Any) -> str:
 
 
 def _flags(options: Dict[str, Any]) -> List[Tuple[str, str]]:
-    return [(name, _flag_value(value)) for name, value in options.items()]
+    """The options as (name, text) pairs; ``flagfile=None`` (the signatures' default) is no
+    flagfile."""
+    return [(name, _flag_value(value)) for name, value in options.items()
+            if not (name == "flagfile" and value is None)]
 
 
 @dataclass
@@ -243,7 +265,8 @@ def register(images: SequenceOf[ImageLike],
         nibabel); frame 0 is the reference. A view recorded over the heart cycle is a 4D
         file or a dsr.Image whose array is (T, z, y, x): its phases share one pose and its
         mask (3D), every view with the same T phases; ``phases="0,2"`` picks some.
-    masks: one field-of-view mask per image, the same kind as the images; default: each
+    masks: one field-of-view mask per image, the same kind as the images (a (T, z, y, x)
+        array is taken as a 4D mask file is: when its phases are equal); default: each
         image's field of view by ``mask_rule`` ("hull": the convex hull of its non-zero
         voxels; "nonzero") eroded by ``mask_erosion`` voxels.
     mode, init, **options: the options of the options table that dsr_register takes as
@@ -255,7 +278,8 @@ def register(images: SequenceOf[ImageLike],
     initial_poses: start poses (4x4, world -> frame, one per image in the images' order)
         instead of ``init``'s, used as dsr_register uses an ``init`` poses file (with
         recovery).
-    names: the images' names in the poses file (default: the file names, or frame_NN).
+    names: the images' names in the poses file, each its own (default: the file names, or
+        frame_NN).
     on_iteration: called after every solver iteration as on_iteration(label, record) with
         record {"iteration", "cost", "step_norm", "seconds", "step_accepted"} and label the
         solve's (e.g. "level 1 dsr"); returning False stops the registration
@@ -332,8 +356,9 @@ def fuse(images: SequenceOf[ImageLike],
     grid; ``.to_simpleitk()`` makes a SimpleITK image of each).
 
     poses: a Result (its gains and offsets correct the intensities, as dsr_fuse does with a
-        poses file that has them), a poses file, or one 4x4 array per image. A file's or a
-        Result's entries are matched to the images by name.
+        poses file that has them), a poses file, or one 4x4 array per image (a list, a
+        generator: any iterable). A file's or a Result's entries are matched to the images
+        by name.
     blend: "feather" (weights falling to 0 towards each field of view's edge) or "mean".
     **options: the options dsr_fuse takes as flags, by name (``panorama_spacing``,
         ``feather_voxels``, ``mask_rule``, ``mask_erosion``, ``num_threads``).
@@ -345,8 +370,18 @@ def fuse(images: SequenceOf[ImageLike],
     elif _as_path(poses) is not None:
         table = _as_path(poses)  # read and checked as dsr_fuse reads --poses
     else:
-        table = {"images": [""] * len(poses),
-                 "frame_from_world": [np.asarray(p, dtype=float) for p in poses]}
+        try:
+            given = list(poses)  # any iterable (a generator too), read once
+        except TypeError as error:
+            raise ValueError(f"poses: a Result, a poses file or one 4x4 array per image, not "
+                             f"{type(poses).__name__}") from error
+        matrices = []
+        for i, pose in enumerate(given):
+            try:
+                matrices.append(np.asarray(pose, dtype=float))
+            except (TypeError, ValueError) as error:
+                raise ValueError(f"pose {i}: not a 4x4 array of numbers ({error})") from error
+        table = {"images": [""] * len(matrices), "frame_from_world": matrices}
     mean, count, _ = _core.fuse(core_images, core_masks, image_names, table,
                                 _flags({"blend": blend, **options}))
     return Image._from_core(mean), Image._from_core(count)

@@ -69,13 +69,42 @@ std::string AsOptions(const std::string& message) {
   return FieldPathsAsOptions(message, kPythonFrontEnds);
 }
 
+// `text` with each NUL character written as \0 (a message holding one would end there).
+std::string ShowNul(const std::string& text) {
+  std::string out;
+  for (const char c : text) out += c == '\0' ? std::string("\\0") : std::string(1, c);
+  return out;
+}
+
+// A name or value with a NUL character in it: C strings end there, so "50\0junk" would be
+// read as 50 and a message that shows it would be cut. Refused, naming the option.
+void RefuseNul(const std::string& name, const std::string& value) {
+  if (name.find('\0') == std::string::npos && value.find('\0') == std::string::npos) return;
+  BadInput("--" + ShowNul(name) + "=" + ShowNul(value) +
+           ": contains a NUL character (a string ends there); give it without");
+}
+
+// Every floating-point option of `front_end` finite, whatever its own rule says (those of a
+// few, --rebuild_tolerance among them, would take inf or nan): one check for all, made once
+// the front end's own checks of its options have passed (their messages are the command
+// line's).
+void RefuseNonFinite(const Settings& settings, uint32_t front_end) {
+  for (const OptionSpec& spec : OptionTable()) {
+    if (spec.type != OptionType::kDouble || (spec.front_ends & front_end) == 0) continue;
+    if (std::isfinite(settings.Double(spec.name))) continue;
+    BadInput("--" + std::string(spec.name) + "=" + OptionValueText(settings.Value(spec.name)) +
+             ": must be a finite number");
+  }
+}
+
 // The Settings of one call of a function of `front_end` from its (name, value) options, in
 // order: "flagfile" reads a flagfile with the command line's checks; an option of another
-// function is refused as unknown.
+// function is refused as unknown, and a NUL in a name or value.
 Settings MakeSettings(const Options& options, uint32_t front_end) {
   Settings settings = Settings::For(front_end);
   std::string error;
   for (const auto& [name, value] : options) {
+    RefuseNul(name, value);
     if (name == "flagfile") {
       if (!settings.ReadFlagfile(value, front_end, &error)) BadInput(error);
       continue;
@@ -86,6 +115,18 @@ Settings MakeSettings(const Options& options, uint32_t front_end) {
     }
     if (!settings.Set(name, value, &error)) BadInput(error);
   }
+  return settings;
+}
+
+// MakeSettings' Settings of a registration (kPyRegister or kDsrRegister), its options checked
+// as the registration checks them (RunOptionsFrom: each one's rule and the rules between
+// them), then RefuseNonFinite.
+Settings RegisterSettings(const Options& options, uint32_t front_end) {
+  Settings settings = MakeSettings(options, front_end);
+  RegistrationOptions checked;
+  std::string init_file, error;
+  if (!RunOptionsFrom(settings, &checked, &init_file, &error)) BadInput(error);
+  RefuseNonFinite(settings, front_end);
   return settings;
 }
 
@@ -182,6 +223,27 @@ Mask ToMask(const py::array& input, const Geometry& geometry, const std::string&
     any = any || mask.voxels[v] != 0;
   }
   if (!any) BadInput(what + ": no voxel inside (every voxel is 0)");
+  return mask;
+}
+
+// A mask as a mask file of a view is read (io/io_phases.h, ReadMaskPhases): a 3D array as
+// ToMask; an array of 4 axes [t][k][j][i] only when every phase has phase 0's inside (then it
+// is that 3D mask), refused with the command line's message otherwise.
+Mask ToMaskPhases(const py::array& input, const Geometry& geometry, const std::string& what) {
+  if (input.ndim() != 4) return ToMask(input, geometry, what);
+  if (input.shape(0) == 0) BadInput(what + ": an array of 0 phases");
+  Mask mask = ToMask(input.attr("__getitem__")(0), geometry, what);
+  const Eigen::Vector3i& n = mask.geometry.size;
+  for (ssize_t t = 1; t < input.shape(0); ++t) {
+    const Volume<double> phase = ToVolume<double>(input.attr("__getitem__")(t), geometry,
+                                                  what + " phase " + std::to_string(t));
+    for (size_t v = 0; v < phase.voxels.size(); ++v) {
+      if ((phase.voxels[v] != 0.0) == (mask.voxels[v] != 0)) continue;
+      BadInput(what + ": mask phase " + std::to_string(t) + " differs from phase 0 at " +
+               VoxelName(static_cast<int64_t>(v), n[0], n[1]) +
+               " (a 4D mask is taken only when every phase has the same inside)");
+    }
+  }
   return mask;
 }
 
@@ -404,7 +466,9 @@ void ReadArrays(int min_frames, const py::list& images, const py::list& masks,
       continue;
     }
     const auto [mask, mask_geometry] = masks[i].cast<std::pair<py::array, Geometry>>();
-    frame_masks->push_back(ToMask(mask, mask_geometry, "mask " + std::to_string(i)));
+    const std::string mask_what = "mask " + std::to_string(i);
+    frame_masks->push_back(later_phases != nullptr ? ToMaskPhases(mask, mask_geometry, mask_what)
+                                                   : ToMask(mask, mask_geometry, mask_what));
     if (!frame_masks->back().geometry.SameGrid(frames->back().geometry, 1e-3)) {
       BadInput("mask " + std::to_string(i) + ": not on its image's voxel grid");
     }
@@ -545,7 +609,8 @@ py::dict RegisterImages(const py::list& images,
                         const std::optional<std::vector<py::array_t<double>>>& initial_poses,
                         const IterationObserver& on_iteration) {
   RegistrationRun run(kPyRegister);
-  PrepareRun(images, masks, names, MakeSettings(options_in, kPyRegister), initial_poses, &run);
+  PrepareRun(images, masks, names, RegisterSettings(options_in, kPyRegister), initial_poses,
+             &run);
   RegistrationOptions& options = run.options();
   options.solve.progress = false;  // Python has on_iteration and progress_bar instead
   SolveRun(&run, on_iteration, [](const std::string& m) { return AsOptions(m); });
@@ -562,7 +627,7 @@ py::dict RegisterImages(const py::list& images,
 // dsr_register's byte for byte. Returns the summary's lines and figures; ValueError for bad
 // input, RegistrationError for a registration without a result, OSError for a failed write.
 py::dict RegisterFiles(const Options& options_in) {
-  Settings settings = MakeSettings(options_in, kDsrRegister);
+  Settings settings = RegisterSettings(options_in, kDsrRegister);
   const auto start = std::chrono::steady_clock::now();
   const RegistrationOutputs outputs = RegistrationOutputsFrom(settings);
   std::string error;
@@ -603,6 +668,7 @@ py::dict SimulateSequence(const Options& options_in) {
   std::string error;
   const Settings settings = MakeSettings(options_in, kPySimulate);
   if (!SimulationOptionsFrom(settings, &options, &phantom, &error)) BadInput(error);
+  RefuseNonFinite(settings, kPySimulate);
   // As dsr_simulate: what would not fit in memory is refused before any of it is allocated.
   Image source;
   if (!LoadSimulationSource(options, phantom, settings.String("source"), &source, &error)) {
@@ -688,6 +754,7 @@ py::tuple FuseImages(const py::list& images,
   std::vector<std::string> match_names;
   std::vector<std::vector<Image>> later_phases;
   const Settings settings = MakeSettings(options_in, kPyFuse);
+  RefuseNonFinite(settings, kPyFuse);  // (its double options' rules refuse inf and nan)
   const bool phases_selected = ReadFusionInputs(images, masks, names, settings, &frames_in,
                                                 &masks_in, &match_names, &later_phases);
   FusionRun run(settings);

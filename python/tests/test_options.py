@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 import dsr
-from cli import run_tool
+from cli import error_line, run_tool
 
 ROOT = pathlib.Path(__file__).parents[2]
 TOOLS = {"dsr_register", "dsr_fuse", "dsr_simulate", "dsr_compare"}
@@ -246,3 +246,109 @@ def test_simulate_phases_are_a_beating_source_whose_phase_0_is_the_still_sequenc
         assert not np.array_equal(view[1].array, view[0].array)
     with pytest.raises(ValueError, match=r"--num_phases=65: must be in \[1, 64\]"):
         dsr.simulate(num_phases=65, **small)
+
+
+# What a careless caller passes: None for the flagfile, names twice, NUL characters,
+# non-finite numbers, a generator, 4D masks. Each accepted as the command line takes the
+# same, or a ValueError naming the argument.
+def test_flagfile_none_is_no_flagfile(small):
+    given = dsr.register(small.frames, masks=small.masks, pyramid_levels=1, flagfile=None)
+    plain = dsr.register(small.frames, masks=small.masks, pyramid_levels=1)
+    assert all(np.array_equal(a, b) for a, b in zip(given.poses, plain.poses))
+    dsr.fuse(small.frames, given, masks=small.masks, flagfile=None)
+    assert dsr.simulate(num_frames=2, phantom_size=32, frame_size=(8, 8, 8), min_depth_voxels=0,
+                        max_rotation_deg=0, max_translation_voxels=0, flagfile=None).frames
+
+
+def test_names_given_twice_are_refused(small, tmp_path):
+    names = ["a", "a", "b"]
+    with pytest.raises(ValueError, match=r"names: 'a' is given twice \(images 0 and 1\); each "
+                                         r"image needs its own name"):
+        dsr.register(small.frames, masks=small.masks, names=names)
+    with pytest.raises(ValueError, match=r"names: 'a' is given twice \(images 0 and 1\)"):
+        dsr.fuse(small.frames, [np.eye(4)] * 3, masks=small.masks, names=names)
+    with pytest.raises(TypeError, match=r"names: a sequence of names"):
+        dsr.register(small.frames, masks=small.masks, names="abc")
+
+
+def test_a_nul_character_is_refused_naming_the_option(tmp_path):
+    images = [str(tmp_path / "a.nii.gz"), str(tmp_path / "b.nii.gz")]
+    for options, shown in [({"max_iterations": "50\0junk"}, r"--max_iterations=50\\0junk"),
+                           ({"mode": "dsr\0pairwise"}, r"--mode=dsr\\0pairwise"),
+                           ({"init": "auto\0"}, r"--init=auto\\0")]:
+        with pytest.raises(ValueError, match=shown + r": contains a NUL character") as error:
+            dsr.register(images, **options)
+        assert "\0" not in str(error.value)
+    with pytest.raises(ValueError, match=r"--seed=1\\0: contains a NUL character"):
+        dsr.simulate(seed="1\0")
+    with pytest.raises(ValueError, match=r"images: the path of image 1 contains a NUL"):
+        dsr.register([images[0], images[1] + "\0x"])
+    with pytest.raises(ValueError, match=r"names: name 0 contains a NUL character"):
+        dsr.register(images, names=["a\0", "b"])
+
+
+@pytest.mark.parametrize("front_end", ["python:register", "python:fuse", "python:simulate"])
+def test_every_floating_point_option_must_be_finite(front_end, tmp_path):
+    """Every double option of every function refuses inf and nan, naming itself, by its own
+    rule or by the one every double option has (from keyword arguments and flagfiles)."""
+    images = [str(tmp_path / "a.nii.gz"), str(tmp_path / "b.nii.gz")]
+    call = {"python:register": lambda **o: dsr.register(images, **o),
+            "python:fuse": lambda **o: dsr.fuse(images, [np.eye(4)] * 2, **o),
+            "python:simulate": lambda **o: dsr.simulate(**o)}[front_end]
+    doubles = [n for n, o in dsr.options().items()
+               if front_end in o["front_ends"] and o["type"] == "double"]
+    assert doubles
+    for name in doubles:
+        for value, text in ((float("inf"), "inf"), (float("-inf"), "-inf"), (float("nan"), "nan")):
+            with pytest.raises(ValueError, match=rf"^--{name}={text}: .*"):
+                call(**{name: value})
+    # One whose own rule would take inf (register's), or the first: from a flagfile too.
+    name = "rebuild_tolerance" if front_end == "python:register" else doubles[0]
+    flags = tmp_path / "inf.flags"
+    flags.write_text(f"--{name}=inf\n")
+    with pytest.raises(ValueError, match=rf"--{name}=inf: must be"):
+        call(flagfile=str(flags))
+    with pytest.raises(ValueError, match=r"^--rebuild_tolerance=inf: must be a finite number$"):
+        dsr.register(images, rebuild_tolerance=float("inf"))
+
+
+def test_fuse_takes_poses_from_any_iterable(small):
+    listed = dsr.fuse(small.frames, list(small.frame_from_world), masks=small.masks)
+    generated = dsr.fuse(small.frames, (p for p in small.frame_from_world), masks=small.masks)
+    assert np.array_equal(listed[0].array, generated[0].array)
+    with pytest.raises(ValueError, match=r"poses: a Result, a poses file or one 4x4 array per "
+                                         r"image, not int"):
+        dsr.fuse(small.frames, 5, masks=small.masks)
+    with pytest.raises(ValueError, match=r"pose 1: not a 4x4 array of numbers"):
+        dsr.fuse(small.frames, [np.eye(4), "abc", np.eye(4)], masks=small.masks)
+
+
+def test_a_4d_mask_array_is_taken_as_a_4d_mask_file(small, tmp_path):
+    """Phases equal: the view's 3D mask, as dsr_register takes such a 4D mask file; phases
+    that differ: refused with dsr_register's message."""
+    def stacked(mask, change=False):
+        array = np.stack([mask.array, mask.array]).astype(np.float32)
+        if change:
+            array[1, 0, 0, 0] = 1 - array[1, 0, 0, 0]
+        return dsr.Image(array, mask.spacing, mask.origin, mask.direction)
+
+    flat = dsr.register(small.frames, masks=small.masks, pyramid_levels=1)
+    four = dsr.register(small.frames, masks=[stacked(m) for m in small.masks], pyramid_levels=1)
+    assert all(np.array_equal(a, b) for a, b in zip(flat.poses, four.poses))
+    panorama = dsr.fuse(small.frames, flat, masks=[stacked(m) for m in small.masks])[0]
+    assert np.array_equal(panorama.array, dsr.fuse(small.frames, flat, masks=small.masks)[0].array)
+    masks = [stacked(m, change=i == 1) for i, m in enumerate(small.masks)]
+    frames, files = [], []
+    for i, (frame, mask) in enumerate(zip(small.frames, masks)):
+        frames.append(str(tmp_path / f"f{i}.nii.gz"))
+        files.append(str(tmp_path / f"m{i}.nii.gz"))
+        dsr.write_image(frame, frames[-1])
+        dsr.write_image(mask, files[-1])
+    line = error_line("dsr_register", "--images=" + ",".join(frames), "--masks=" + ",".join(files),
+                      f"--out_poses={tmp_path / 'p.json'}")
+    assert line.startswith(files[1] + ": mask phase 1 differs from phase 0 at voxel (0,0,0)")
+    for call in (lambda: dsr.register(small.frames, masks=masks),
+                 lambda: dsr.fuse(small.frames, flat, masks=masks)):
+        with pytest.raises(ValueError) as error:
+            call()
+        assert str(error.value) == "mask 1" + line[len(files[1]):]
