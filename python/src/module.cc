@@ -661,6 +661,30 @@ py::dict RegisterFiles(const Options& options_in) {
   return out;
 }
 
+// check_register_files(options): what register_files refuses before it reads an image, with
+// its messages: the options' rules, the --images and --masks lists (at least 2 frames, none
+// given twice, every file there), --init's and --gt_poses' files, and every output against
+// the inputs and its folder (the output plan). Nothing is read or written: dsr.cohort checks
+// every study of a manifest with it before any study runs.
+void CheckRegisterFiles(const Options& options_in) {
+  const Settings settings = RegisterSettings(options_in, kDsrRegister);
+  RegistrationRun run(kDsrRegister);
+  std::string error;
+  if (!run.PlanFiles(settings, RegistrationOutputsFrom(settings), &error)) BadInput(error);
+}
+
+// check_register_options(options): the options alone (without files) as register_files
+// checks them (RegisterSettings).
+void CheckRegisterOptions(const Options& options_in) {
+  RegisterSettings(options_in, kDsrRegister);
+}
+
+// init_is_file(text): whether --init=text is a poses file's path (not one of --init's names).
+bool InitIsFile(const std::string& text) {
+  RegistrationOptions options;
+  return !SetInitialisation(text, 0, &options);
+}
+
 // simulate(options): dsr_simulate's sequence (frames, masks, ground truth) in memory.
 py::dict SimulateSequence(const Options& options_in) {
   SimulationOptions options;
@@ -886,6 +910,9 @@ PYBIND11_MODULE(_core, m) {
         py::arg("options"), py::arg("initial_poses"), py::arg("on_iteration"));
   m.def("simulate", &dsr::SimulateSequence, py::arg("options"));
   m.def("register_files", &dsr::RegisterFiles, py::arg("options"));
+  m.def("check_register_options", &dsr::CheckRegisterOptions, py::arg("options"));
+  m.def("check_register_files", &dsr::CheckRegisterFiles, py::arg("options"));
+  m.def("init_is_file", &dsr::InitIsFile, py::arg("text"));
   m.def("fuse", &dsr::FuseImages, py::arg("images"), py::arg("masks"), py::arg("names"),
         py::arg("poses"), py::arg("options"));
   m.def("write_tfm", &dsr::WriteTransformFile, py::arg("pose"), py::arg("path"));
