@@ -118,6 +118,49 @@ TEST(Frame, ValidityNeedsEveryCornersCentralDifferenceInsideTheMask) {
   EXPECT_EQ(frame.num_valid_cells(), 7);
 }
 
+// The valid-cell map against the rule written out cell by cell (the slow twin): a cell is
+// valid when each of its 8 corners is inside the mask with its 6 neighbours, all inside the
+// grid; the count and the bounding box of the valid cells follow. A random mask.
+TEST(Frame, ValidCellsAreTheRuleCellByCell) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(17, 11, 9);
+  Mask mask(g, 0);
+  std::mt19937_64 rng(5);
+  std::bernoulli_distribution inside(0.99);
+  for (int k = 1; k + 1 < g.size[2]; ++k)
+    for (int j = 2; j + 1 < g.size[1]; ++j)
+      for (int i = 1; i + 3 < g.size[0]; ++i) mask.at(i, j, k) = inside(rng) ? 1 : 0;
+  const Frame frame(Image(g, 1.0f), mask);
+  const auto in = [&](int i, int j, int k) {
+    return i >= 0 && j >= 0 && k >= 0 && i < g.size[0] && j < g.size[1] && k < g.size[2] &&
+           mask.at(i, j, k) != 0;
+  };
+  const auto stencil = [&](int i, int j, int k) {
+    return in(i, j, k) && in(i - 1, j, k) && in(i + 1, j, k) && in(i, j - 1, k) &&
+           in(i, j + 1, k) && in(i, j, k - 1) && in(i, j, k + 1);
+  };
+  int64_t count = 0;
+  Eigen::AlignedBox3d box;
+  for (int k = 0; k + 1 < g.size[2]; ++k) {
+    for (int j = 0; j + 1 < g.size[1]; ++j) {
+      for (int i = 0; i + 1 < g.size[0]; ++i) {
+        bool valid = true;
+        for (int c = 0; c < 8; ++c) valid = valid && stencil(i + (c & 1), j + (c >> 1 & 1),
+                                                             k + (c >> 2));
+        ASSERT_EQ(frame.IsValidCell(g.LinearIndex(i, j, k)), valid) << i << "," << j << "," << k;
+        if (!valid) continue;
+        ++count;
+        box.extend(Eigen::Vector3d(i, j, k));
+        box.extend(Eigen::Vector3d(i + 1, j + 1, k + 1));
+      }
+    }
+  }
+  ASSERT_GT(count, 50);
+  EXPECT_EQ(frame.num_valid_cells(), count);
+  EXPECT_EQ(frame.ValidIndexBox().min(), box.min());
+  EXPECT_EQ(frame.ValidIndexBox().max(), box.max());
+}
+
 TEST(Frame, GradientsNeverReadOutsideTheMask) {
   // A linear field inside a ball-shaped field of view, 0 outside (and, second, a constant
   // that is no continuation of the field): every valid sample has the field's exact

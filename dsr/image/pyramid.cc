@@ -49,8 +49,43 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
   const int64_t in_stride = axis == 0 ? 1 : axis == 1 ? in.size[0] : int64_t{in.size[0]} * in.size[1];
   const int64_t out_stride =
       axis == 0 ? 1 : axis == 1 ? out.size[0] : int64_t{out.size[0]} * out.size[1];
-  // Lines along `axis`: indexed by the two other output coordinates.
-  const int a1 = axis == 0 ? 1 : 0, a2 = axis == 2 ? 1 : 2;
+  if (axis != 0) {
+    // Along y or z the line's samples lie a row or a plane apart: each output row (along x)
+    // is the kernel-weighted sum of whole input rows, added tap by tap in the order the line
+    // sum below takes them, so every output is the same float sum, with unit-stride rows.
+    const int nx = in.size[0];
+    const int outer = axis == 1 ? in.size[2] : 1;  // planes (y pass) or one (z pass)
+    const int64_t plane_in = int64_t{in.size[0]} * in.size[1];
+    const int64_t plane_out = int64_t{out.size[0]} * out.size[1];
+    // Work items: (plane, output line index along the axis) pairs, or for z whole outputs.
+    const int64_t lines = int64_t{outer} * out.size[axis];
+    ParallelFor(0, lines, num_threads, [&](int64_t item) {
+      const int c2 = static_cast<int>(item / out.size[axis]);
+      const int o = static_cast<int>(item % out.size[axis]);
+      const int64_t in_plane = axis == 1 ? c2 * plane_in : 0;
+      const int64_t out_plane = axis == 1 ? c2 * plane_out : 0;
+      // For the z pass, every row of output plane o; for the y pass, output row o.
+      const int rows = axis == 1 ? 1 : in.size[1];
+      const int center = stride * o;
+      for (int r = 0; r < rows; ++r) {
+        float* dst = out.v.data() + out_plane + o * out_stride + int64_t{r} * nx;
+        const float* src = in.v.data() + in_plane + int64_t{r} * nx;
+        if (kernel.empty()) {
+          std::copy(src + center * in_stride, src + center * in_stride + nx, dst);
+          continue;
+        }
+        const int lo = std::max(0, center - radius), hi = std::min(n - 1, center + radius);
+        for (int x = lo; x <= hi; ++x) {
+          const float w = kernel[x - center + radius];
+          const float* line = src + x * in_stride;
+          for (int i = 0; i < nx; ++i) dst[i] += w * line[i];
+        }
+      }
+    });
+    return out;
+  }
+  // Lines along x: indexed by the two other output coordinates.
+  const int a1 = 1, a2 = 2;
   ParallelFor(0, out.size[a2], num_threads, [&](int64_t c2) {
     for (int c1 = 0; c1 < out.size[a1]; ++c1) {
       int in_ijk[3] = {0, 0, 0};

@@ -3,6 +3,7 @@
 // the product of the three normalised 1-D kernels), and does not depend on the thread count.
 #include "dsr/image/pyramid.h"
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -90,6 +91,107 @@ TEST(SmoothInsideMask, PerAxisIsIndependentOfTheThreadCount) {
     EXPECT_EQ(SmoothInsideMask(image, mask, sigma, threads).voxels, one.voxels) << threads;
   }
   EXPECT_NE(one.voxels, image.voxels);
+}
+
+// The normalised convolution written out voxel by voxel (the slow twin of the separable
+// passes): the float kernel as image/pyramid.cc builds it, then for each output voxel the
+// x sums (masked) of the rows it needs, their y sums, their z sum, each tap added in
+// increasing index order as float, and the value divided by the weight where the weight
+// exceeds 1e-3. The fast passes take the same operations in the same order, so the two
+// agree bit for bit.
+std::vector<float> FloatKernel(double sigma) {
+  const int radius = std::max(1, static_cast<int>(std::ceil(3.0 * sigma)));
+  std::vector<float> w(2 * radius + 1);
+  double sum = 0.0;
+  for (int d = -radius; d <= radius; ++d) {
+    const double x = std::exp(-0.5 * d * d / (sigma * sigma));
+    w[d + radius] = static_cast<float>(x);
+    sum += x;
+  }
+  for (float& x : w) x = static_cast<float>(x / sum);
+  return w;
+}
+
+std::vector<float> TwinSmooth(const Image& image, const Mask& mask, const Eigen::Vector3d& sigma,
+                              int stride, Eigen::Vector3i* out_size) {
+  const Eigen::Vector3i n = image.geometry.size;
+  Eigen::Vector3i o;
+  std::vector<float> kernel[3];
+  int radius[3], step[3];
+  for (int a = 0; a < 3; ++a) {
+    step[a] = n[a] == 1 ? 1 : stride;
+    o[a] = step[a] == 1 ? n[a] : (n[a] - 1) / step[a] + 1;
+    // No smoothing: the x pass weighs by 1, the y and z passes copy (a one-tap kernel of 1).
+    kernel[a] = sigma[a] > 0.0 && n[a] > 1 ? FloatKernel(sigma[a]) : std::vector<float>{1.0f};
+    radius[a] = static_cast<int>(kernel[a].size()) / 2;
+  }
+  *out_size = o;
+  std::vector<float> out(static_cast<size_t>(o.cast<int64_t>().prod()));
+  for (int k = 0; k < o[2]; ++k) {
+    for (int j = 0; j < o[1]; ++j) {
+      for (int i = 0; i < o[0]; ++i) {
+        const int cx = step[0] * i, cy = step[1] * j, cz = step[2] * k;
+        float value = 0.0f, weight = 0.0f;
+        for (int z = std::max(0, cz - radius[2]); z <= std::min(n[2] - 1, cz + radius[2]); ++z) {
+          float vy = 0.0f, wy = 0.0f;
+          for (int y = std::max(0, cy - radius[1]); y <= std::min(n[1] - 1, cy + radius[1]);
+               ++y) {
+            float vx = 0.0f, wx = 0.0f;
+            for (int x = std::max(0, cx - radius[0]); x <= std::min(n[0] - 1, cx + radius[0]);
+                 ++x) {
+              if (mask.at(x, y, z) == 0) continue;
+              const float c = kernel[0][x - cx + radius[0]];
+              vx += c * image.at(x, y, z);
+              wx += c;
+            }
+            const float c = kernel[1][y - cy + radius[1]];
+            vy += c * vx;
+            wy += c * wx;
+          }
+          const float c = kernel[2][z - cz + radius[2]];
+          value += c * vy;
+          weight += c * wy;
+        }
+        out[i + int64_t{o[0]} * (j + int64_t{o[1]} * k)] =
+            weight > 1e-3f ? value / weight : 0.0f;
+      }
+    }
+  }
+  return out;
+}
+
+TEST(SmoothInsideMask, IsTheNormalisedConvolutionVoxelByVoxelBitForBit) {
+  const Image image = RandomImage(Eigen::Vector3i(19, 13, 11), 7);
+  const Mask mask = IrregularMask(image.geometry);
+  for (const Eigen::Vector3d& sigma :
+       {Eigen::Vector3d(1.0, 1.0, 1.0), Eigen::Vector3d(1.7, 0.0, 0.6),
+        Eigen::Vector3d(0.0, 2.3, 0.4)}) {
+    Eigen::Vector3i size;
+    const std::vector<float> twin = TwinSmooth(image, mask, sigma, 1, &size);
+    ASSERT_EQ(size, image.geometry.size);
+    for (int threads : {1, 2}) {
+      EXPECT_EQ(SmoothInsideMask(image, mask, sigma, threads).voxels, twin)
+          << sigma.transpose() << " threads " << threads;
+    }
+  }
+}
+
+TEST(Downsample, IsTheNormalisedConvolutionAtEveryOtherVoxelBitForBit) {
+  for (const Eigen::Vector3i& n :
+       {Eigen::Vector3i(19, 13, 11), Eigen::Vector3i(16, 9, 1), Eigen::Vector3i(1, 12, 7)}) {
+    const Image image = RandomImage(n, 11 + n[0]);
+    const Mask mask = IrregularMask(image.geometry);
+    for (double sigma : {1.0, 0.5}) {
+      Eigen::Vector3i size;
+      const std::vector<float> twin = TwinSmooth(image, mask, Eigen::Vector3d::Constant(sigma),
+                                                 2, &size);
+      for (int threads : {1, 2}) {
+        const ImageLevel level = Downsample(image, mask, sigma, threads);
+        EXPECT_EQ(level.image.geometry.size, size);
+        EXPECT_EQ(level.image.voxels, twin) << n.transpose() << " sigma " << sigma;
+      }
+    }
+  }
 }
 
 }  // namespace

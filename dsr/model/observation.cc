@@ -87,18 +87,22 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
         const uint8_t* near = margin_cells > 0 ? dilated[f].data() : nullptr;
         const int64_t sy = fs[0], sz = int64_t{fs[0]} * fs[1];
         if (near == nullptr) {  // margin 0: the cell itself must be a valid one
-          const double max_cell[3] = {fs[0] - 2.0, fs[1] - 2.0, fs[2] - 2.0};
+          // floor(u) lies in [0, n - 2] exactly when 0 <= u < n - 1 (n - 1 is an integer a
+          // double holds exactly), and there floor is truncation: the cells std::floor
+          // would give, without its call per axis and voxel.
+          const double end_cell[3] = {fs[0] - 1.0, fs[1] - 1.0, fs[2] - 1.0};
+          const uint8_t* bits = frame.valid_bits();
           for (int i = static_cast<int>(lo); i <= static_cast<int>(hi); ++i) {
-            const double fx = std::floor(u0[0] + i * step[0]);
-            const double fy = std::floor(u0[1] + i * step[1]);
-            const double fz = std::floor(u0[2] + i * step[2]);
-            if (!(fx >= 0.0 && fy >= 0.0 && fz >= 0.0 && fx <= max_cell[0] && fy <= max_cell[1] &&
-                  fz <= max_cell[2])) {
+            const double ux = u0[0] + i * step[0];
+            const double uy = u0[1] + i * step[1];
+            const double uz = u0[2] + i * step[2];
+            if (!(ux >= 0.0 && uy >= 0.0 && uz >= 0.0 && ux < end_cell[0] && uy < end_cell[1] &&
+                  uz < end_cell[2])) {
               continue;
             }
-            const int64_t cell = static_cast<int64_t>(fx) + sy * static_cast<int64_t>(fy) +
-                                 sz * static_cast<int64_t>(fz);
-            if (frame.IsValidCell(cell)) row[i] |= bit;
+            const int64_t cell = static_cast<int64_t>(ux) + sy * static_cast<int64_t>(uy) +
+                                 sz * static_cast<int64_t>(uz);
+            if ((bits[cell >> 3] >> (cell & 7)) & 1) row[i] |= bit;
           }
           continue;
         }
@@ -181,11 +185,19 @@ CandidateSet CandidatesInRows(const CandidateSet& candidates, int keep_one_row_i
 Eigen::MatrixXi CandidateOverlap(const CandidateSet& candidates) {
   const int m = candidates.num_frames;
   Eigen::MatrixXi overlap = Eigen::MatrixXi::Zero(m, m);
-  for (uint32_t bits : candidates.observers) {
+  // Neighbouring voxels mostly have the same observers: each run of equal sets adds its
+  // length to every pair of the set once.
+  const std::vector<uint32_t>& observers = candidates.observers;
+  for (size_t v = 0; v < observers.size();) {
+    const uint32_t bits = observers[v];
+    size_t end = v + 1;
+    while (end < observers.size() && observers[end] == bits) ++end;
+    const int run = static_cast<int>(end - v);
     for (uint32_t as = bits; as != 0; as &= as - 1) {  // set bits only
       const int a = __builtin_ctz(as);
-      for (uint32_t bs = as; bs != 0; bs &= bs - 1) ++overlap(a, __builtin_ctz(bs));
+      for (uint32_t bs = as; bs != 0; bs &= bs - 1) overlap(a, __builtin_ctz(bs)) += run;
     }
+    v = end;
   }
   overlap.triangularView<Eigen::StrictlyLower>() = overlap.transpose();
   return overlap;

@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
+#include <random>
 
 #include "dsr/model/panorama.h"
 #include "dsr/tests/support/enum_names.h"
@@ -194,6 +196,85 @@ TEST(BuildCandidates, KeepsVoxelsWithTwoCandidateObservers) {
   // x in [4, 10] (6 voxel centres), y and z in [-1, 10] (11).
   const CandidateSet c1 = BuildCandidates(t.frames, t.poses, grid, 1);
   EXPECT_EQ(c1.num_voxels(), 6 * 11 * 11);
+}
+
+// BuildCandidates against the rule written out for every voxel of every row (the slow
+// twin): the frame's continuous index u(i) = u(0) + i step along the row, as the fast path
+// forms it, its cell by std::floor, valid when inside the grid and a valid cell; a voxel is
+// kept with two or more such frames. And CandidateOverlap against a count over every voxel
+// and pair. Frames with holes in their masks, turned and shifted, on a panorama grid
+// coarser along z.
+TEST(BuildCandidates, EqualsTheRuleVoxelByVoxelAndOverlapCountsEveryPair) {
+  std::mt19937_64 rng(17);
+  std::uniform_real_distribution<double> angle(-0.4, 0.4), shift(-3.0, 3.0);
+  std::vector<Frame> frames;
+  std::vector<Eigen::Isometry3d> poses;
+  for (int f = 0; f < 4; ++f) {
+    ImageGeometry g;
+    g.size = Eigen::Vector3i(13 + f, 12, 11 - f);
+    g.spacing_mm = Eigen::Vector3d(1.0, 0.9, 1.2);
+    Mask mask(g, 1);
+    for (int k = 0; k < g.size[2]; ++k)
+      for (int j = 0; j < g.size[1]; ++j)
+        for (int i = 0; i < g.size[0]; ++i)
+          if ((i * 7 + j * 3 + k * (f + 2)) % 61 == 0) mask.at(i, j, k) = 0;
+    frames.emplace_back(Image(g, 1.0f), mask);
+    Eigen::Isometry3d pose = Eigen::Isometry3d::Identity();
+    if (f > 0) {
+      pose.linear() = (Eigen::AngleAxisd(angle(rng), Eigen::Vector3d::UnitZ()) *
+                       Eigen::AngleAxisd(angle(rng), Eigen::Vector3d::UnitX()))
+                          .toRotationMatrix();
+      pose.translation() = Eigen::Vector3d(shift(rng), shift(rng), shift(rng));
+    }
+    poses.push_back(pose);
+  }
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
+  grid.spacing_mm[2] *= 1.5;
+  const CandidateSet fast = BuildCandidates(frames, poses, grid, 0);
+  ASSERT_GT(fast.num_voxels(), 100);
+
+  std::vector<int64_t> voxel;
+  std::vector<uint32_t> observers;
+  const Eigen::Matrix3d to_world = grid.IndexToPhysicalMatrix();
+  for (int k = 0; k < grid.size[2]; ++k) {
+    for (int j = 0; j < grid.size[1]; ++j) {
+      const Eigen::Vector3d p0 = grid.origin_mm + to_world * Eigen::Vector3d(0, j, k);
+      for (int i = 0; i < grid.size[0]; ++i) {
+        uint32_t bits = 0;
+        for (int f = 0; f < 4; ++f) {
+          const Eigen::Matrix3d a = frames[f].index_from_physical() * poses[f].linear();
+          const Eigen::Vector3d b = frames[f].index_from_physical() *
+                                    (poses[f].translation() - frames[f].geometry().origin_mm);
+          const Eigen::Vector3d u0 = a * p0 + b, step = a * to_world.col(0);
+          const Eigen::Vector3i& n = frames[f].geometry().size;
+          int64_t cell = 0, stride = 1;
+          bool inside = true;
+          for (int ax = 0; ax < 3; ++ax) {
+            const double c = std::floor(u0[ax] + i * step[ax]);
+            inside = inside && c >= 0.0 && c <= n[ax] - 2.0;
+            if (inside) cell += static_cast<int64_t>(c) * stride;
+            stride *= n[ax];
+          }
+          if (inside && frames[f].IsValidCell(cell)) bits |= 1u << f;
+        }
+        if (__builtin_popcount(bits) >= 2) {
+          voxel.push_back(grid.LinearIndex(i, j, k));
+          observers.push_back(bits);
+        }
+      }
+    }
+  }
+  EXPECT_EQ(fast.voxel, voxel);
+  EXPECT_EQ(fast.observers, observers);
+
+  Eigen::MatrixXi pairs = Eigen::MatrixXi::Zero(4, 4);
+  for (uint32_t bits : observers)
+    for (int a = 0; a < 4; ++a)
+      for (int b = 0; b < 4; ++b)
+        if ((bits >> a & 1u) && (bits >> b & 1u)) ++pairs(a, b);
+  EXPECT_EQ(CandidateOverlap(fast), pairs);
 }
 
 TEST(CandidatesInCubes, KeepsWholeCubesSpreadEvenly) {

@@ -6,6 +6,7 @@
 
 #include "dsr/model/panorama.h"
 #include "dsr/pipeline/registration_options.h"
+#include "dsr/util/parallel.h"
 
 namespace dsr {
 namespace {
@@ -40,10 +41,15 @@ constexpr double kMaxOneVoxelShare = 0.5;
 // The frames' outlier voxels (a corrupt or saturated value such as 1e30): false with
 // `error` naming the frame, the voxel, its value and its share of the frame's squared
 // deviation. The median comes from at most about 10^5 evenly spaced voxels.
-bool CheckOutlierVoxels(const std::vector<Image>& images, std::string* error) {
-  for (size_t f = 0; f < images.size(); ++f) {
+bool CheckOutlierVoxels(const std::vector<Image>& images, int num_threads, std::string* error) {
+  // The frames in parallel, each summed in voxel order; the first frame in order that fails
+  // is the one named.
+  const size_t m = images.size();
+  std::vector<double> largest_share(m, 0.0), median_of(m, 0.0);
+  std::vector<size_t> largest_at(m, 0);
+  ParallelFor(0, static_cast<int64_t>(m), num_threads, [&](int64_t f) {
     const std::vector<float>& v = images[f].voxels;
-    if (v.empty()) continue;
+    if (v.empty()) return;
     const size_t stride = std::max<size_t>(1, v.size() / 100000);
     std::vector<float> sample;
     for (size_t l = 0; l < v.size(); l += stride) sample.push_back(v[l]);
@@ -56,13 +62,20 @@ bool CheckOutlierVoxels(const std::vector<Image>& images, std::string* error) {
       sum += d;
       if (d > largest) largest = d, at = l;
     }
-    if (!(sum > 0.0) || largest <= kMaxOneVoxelShare * sum) continue;
+    median_of[f] = median;
+    largest_at[f] = at;
+    if (sum > 0.0 && largest > kMaxOneVoxelShare * sum) largest_share[f] = largest / sum;
+  });
+  for (size_t f = 0; f < m; ++f) {
+    if (largest_share[f] == 0.0) continue;
+    const std::vector<float>& v = images[f].voxels;
+    const size_t at = largest_at[f];
     const Eigen::Vector3i& n = images[f].geometry.size;
     std::ostringstream text;
     text << "frame " << f << " has an outlier intensity: its voxel ("
          << at % n[0] << "," << at / n[0] % n[1] << "," << at / (size_t(n[0]) * n[1]) << ") is "
-         << v[at] << " (the frame's median " << median << ") and holds "
-         << Format(100.0 * largest / sum) << "% of the frame's squared deviation from its "
+         << v[at] << " (the frame's median " << median_of[f] << ") and holds "
+         << Format(100.0 * largest_share[f]) << "% of the frame's squared deviation from its "
          << "median: that one voxel would outweigh all the others in the registration's cost; "
          << "clip or remove it";
     *error = text.str();
@@ -91,7 +104,7 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
       return false;
     }
   }
-  if (!CheckOutlierVoxels(images, error)) return false;
+  if (!CheckOutlierVoxels(images, options.solve.num_threads, error)) return false;
   const int shortest_axis = first.size.minCoeff();
   if (options.smoothing > 0.25 * shortest_axis) {
     *error = "smoothing=" + Format(options.smoothing) +
