@@ -146,6 +146,54 @@ TEST(ImageIo, IntegerPixelTypesAreReadAsFloat) {
   }
 }
 
+// A float NIfTI file is decompressed once: the data check copies the voxels out as it
+// scans them (io_itk.cc). The voxels and geometry read that way are ITK's own reader's, bit
+// for bit, compressed or not, in 3D and as a 4D file of one volume; a header with
+// scl_slope 2 and scl_inter 1 (which the copy must not skip) is read scaled, as ITK reads it.
+TEST(ImageIo, FloatNiftiReadInTheCheckPassIsItksReadBitForBit) {
+  ScopedTempDir dir;
+  const ImageGeometry g = ObliqueGeometry();
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> value(-1e3, 1e3);
+  std::vector<double> values(g.NumVoxels());
+  for (double& v : values) v = value(rng);
+  test_itk::Grid four = ToGrid(g);
+  four.size.push_back(1);
+  const auto compare = [&](const std::string& path, double slope, double intercept) {
+    Image image;
+    std::string error;
+    ASSERT_TRUE(ReadImage(path, &image, &error)) << error;
+    ExpectSameGeometry(image.geometry, g);
+    std::vector<std::vector<float>> itk;
+    ASSERT_EQ(test_itk::ReadPhasesWithItk(path, &itk), "") << path;
+    ASSERT_EQ(itk.size(), 1u);
+    EXPECT_EQ(image.voxels, itk[0]) << path;
+    for (size_t v = 0; v < values.size(); v += 41) {
+      EXPECT_EQ(image.voxels[v], static_cast<float>(slope * static_cast<float>(values[v]) +
+                                                    intercept))
+          << path << " voxel " << v;
+    }
+  };
+  for (const std::string name : {"f.nii.gz", "f.nii", "f4.nii.gz"}) {
+    const std::string path = dir.File(name);
+    ASSERT_EQ(test_itk::WriteScalarImage(path, name == "f4.nii.gz" ? four : ToGrid(g),
+                                         test_itk::Pixel::kFloat, values),
+              "");
+    compare(path, 1.0, 0.0);
+  }
+  // The uncompressed file with scl_slope = 2, scl_inter = 1 (bytes 112 and 116).
+  const std::string scaled = dir.File("scaled.nii");
+  std::filesystem::copy_file(dir.File("f.nii"), scaled);
+  {
+    std::fstream file(scaled, std::ios::in | std::ios::out | std::ios::binary);
+    const float slope = 2.0f, intercept = 1.0f;
+    file.seekp(112);
+    file.write(reinterpret_cast<const char*>(&slope), 4);
+    file.write(reinterpret_cast<const char*>(&intercept), 4);
+  }
+  compare(scaled, 2.0, 1.0);
+}
+
 TEST(ImageIo, FourDimensionalImageWithOneVolumeIsRead) {
   ScopedTempDir dir;
   const ImageGeometry g = ObliqueGeometry();

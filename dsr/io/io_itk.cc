@@ -523,10 +523,24 @@ enum class DataProblem { kNone, kData, kVoxel };
 // them. The scan rides along the decompression for .nii.gz and costs one read of the file
 // for .nii. With `checked` (one entry per phase of a 4D file), only the phases it marks are
 // scanned: the others are not read.
+// A read that may take its voxels from the data check's own pass (CheckNiftiData): `count`
+// float voxels expected (ITK's header: one float component), stored in `voxels` when the
+// check could copy them, which `filled` then says.
+struct DirectVoxels {
+  uint64_t count = 0;
+  std::vector<float>* voxels = nullptr;
+  bool filled = false;
+};
+
+// With `direct`, a float32 file in this machine's byte order without scaling (what
+// nifti_read_buffer would hand ITK unchanged, bad floats aside, which the scan refuses)
+// also has its voxels copied out as the check decompresses them: ITK's read would
+// decompress the whole file a second time for the same bytes.
 DataProblem CheckNiftiData(const std::string& path,
                            bool exact,
                            std::string* reason,
-                           const std::vector<bool>* checked = nullptr) {
+                           const std::vector<bool>* checked = nullptr,
+                           DirectVoxels* direct = nullptr) {
   gzFile file = gzopen(path.c_str(), "rb");  // also reads uncompressed files
   if (file == nullptr) {
     *reason = std::strerror(errno);
@@ -570,12 +584,32 @@ DataProblem CheckNiftiData(const std::string& path,
     if (exact && size != expected) return too_long(size);
     return DataProblem::kNone;
   }
+  // The direct copy: only for a file that could hold the voxels at zlib's largest ratio
+  // (a fuzzed header asking for gigabytes gets the check's own message, not an allocation).
+  unsigned char* copy_to = nullptr;
+  if (direct != nullptr && !exact && checked == nullptr && layout.header_size == 348 &&
+      layout.datatype == 16 && !layout.swap && layout.single_file && layout.intercept == 0.0 &&
+      (layout.slope == 0.0 || layout.slope == 1.0) && layout.voxels == direct->count) {
+    std::error_code ec;
+    const uint64_t file_bytes = std::filesystem::file_size(path, ec);
+    if (!ec && data_bytes <= 1100 * file_bytes + 4096) {
+      direct->voxels->resize(static_cast<size_t>(layout.voxels));
+      copy_to = reinterpret_cast<unsigned char*>(direct->voxels->data());
+    }
+  }
   uint64_t total = static_cast<uint64_t>(layout.header_size);
   std::unique_ptr<unsigned char[]> chunk(new unsigned char[kChunkBytes]);
   for (;;) {
     const int got = gzread(file, chunk.get(), static_cast<unsigned>(kChunkBytes));
     if (got <= 0) break;
     scan.Feed(chunk.get(), static_cast<size_t>(got), total);
+    if (copy_to != nullptr) {
+      const uint64_t from = std::max(total, layout.data_start);
+      const uint64_t to = std::min(total + static_cast<uint64_t>(got), expected);
+      if (from < to) {
+        std::memcpy(copy_to + (from - layout.data_start), chunk.get() + (from - total), to - from);
+      }
+    }
     total += static_cast<uint64_t>(got);
   }
   int status = Z_OK;
@@ -600,6 +634,7 @@ DataProblem CheckNiftiData(const std::string& path,
               "," + std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
     return DataProblem::kVoxel;
   }
+  if (copy_to != nullptr) direct->filled = true;
   return DataProblem::kNone;
 }
 
@@ -1081,11 +1116,12 @@ DataProblem CheckDataBlock(const itk::ImageIOBase& io,
                            const std::string& path,
                            bool exact,
                            std::string* reason,
-                           const std::vector<bool>* checked = nullptr) {
+                           const std::vector<bool>* checked = nullptr,
+                           DirectVoxels* direct = nullptr) {
   const std::string name = io.GetNameOfClass();
   const uint64_t bytes = static_cast<uint64_t>(io.GetImageSizeInBytes());
   bool ok = true;
-  if (name == "NiftiImageIO") return CheckNiftiData(path, exact, reason, checked);
+  if (name == "NiftiImageIO") return CheckNiftiData(path, exact, reason, checked, direct);
   if (name == "MetaImageIO") ok = CheckMetaImageData(path, bytes, exact, reason);
   if (name == "NrrdImageIO" && exact) ok = CheckWrittenNrrdData(path, bytes, reason);
   return ok ? DataProblem::kNone : DataProblem::kData;
@@ -1211,11 +1247,12 @@ itk::ImageIOBase::Pointer OpenHeader(const std::string& path, std::string* error
 bool CheckBeforeReading(const itk::ImageIOBase& io,
                         const std::string& path,
                         const std::vector<bool>* checked,
-                        std::string* error) {
+                        std::string* error,
+                        DirectVoxels* direct = nullptr) {
   namespace fs = std::filesystem;
   const char* stage = "cannot read the voxels";
   std::string reason;
-  const DataProblem problem = CheckDataBlock(io, path, /*exact=*/false, &reason, checked);
+  const DataProblem problem = CheckDataBlock(io, path, /*exact=*/false, &reason, checked, direct);
   if (problem != DataProblem::kNone) {
     *error = problem == DataProblem::kVoxel ? path + ": " + reason
                                             : path + ": " + stage + " (" + reason + ")";
@@ -1265,13 +1302,23 @@ void ReadWholeAsFloat(itk::ImageIOBase& io, std::vector<float>* voxels) {
   }
 }
 
-// CheckBeforeReading, then ReadWholeAsFloat.
+// CheckBeforeReading, then ReadWholeAsFloat, unless the check's pass already holds the
+// voxels (DirectVoxels: a float NIfTI file is decompressed once, not twice).
 bool ReadAllAsFloat(itk::ImageIOBase& io,
                     const std::string& path,
                     std::vector<float>* voxels,
                     std::string* error) {
-  if (!CheckBeforeReading(io, path, nullptr, error)) return false;
-  ReadWholeAsFloat(io, voxels);
+  DirectVoxels direct;
+  const bool one_float = io.GetComponentType() == itk::IOComponentEnum::FLOAT &&
+                         io.GetNumberOfComponents() == 1 &&
+                         io.GetPixelType() == itk::IOPixelEnum::SCALAR;
+  if (one_float) {
+    direct.count = 1;
+    for (unsigned d = 0; d < io.GetNumberOfDimensions(); ++d) direct.count *= io.GetDimensions(d);
+    direct.voxels = voxels;
+  }
+  if (!CheckBeforeReading(io, path, nullptr, error, one_float ? &direct : nullptr)) return false;
+  if (!direct.filled) ReadWholeAsFloat(io, voxels);
   return true;
 }
 
