@@ -37,8 +37,8 @@ bool ValidateLevels(const RegistrationOptions& o, std::string* error) {
     return RefuseField(error, "coarse_max_iterations", o.coarse_max_iterations, "must be >= 1");
   }
   if (o.max_rebuilds < 0) return RefuseField(error, "max_rebuilds", o.max_rebuilds, "must be >= 0");
-  if (!(o.rebuild_tolerance > 0.0)) {
-    return RefuseField(error, "rebuild_tolerance", o.rebuild_tolerance, "must be > 0");
+  if (!(o.rebuild_tolerance > 0.0 && std::isfinite(o.rebuild_tolerance))) {
+    return RefuseField(error, "rebuild_tolerance", o.rebuild_tolerance, "must be finite and > 0");
   }
   if (!(o.unsettled_motion_voxels >= 0.0 && std::isfinite(o.unsettled_motion_voxels))) {
     return RefuseField(error, "unsettled_motion_voxels", o.unsettled_motion_voxels,

@@ -315,7 +315,7 @@ FLAG_CASES = {
     "an unknown option": (["--speckle_looks=2"],
                           r"options: --speckle_looks is not an option of dsr\.register"),
     "a bad shared value": (["--rebuild_tolerance=inf"],
-                           r"options: --rebuild_tolerance=inf: must be a finite number"),
+                           r"options: --rebuild_tolerance=inf: must be finite and > 0"),
     "a missing --init": (["--init=none.json"], r"options: --init: none\.json does not exist"),
     "no --manifest": ([], r"the following arguments are required: --manifest"),
 }
