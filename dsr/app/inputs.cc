@@ -125,8 +125,13 @@ namespace {
 // Whether a poses entry named `name` is the image `path` (see MatchPosesToImages).
 bool PoseNameMatches(const std::string& name, const std::string& path) {
   if (name.empty()) return false;
-  const std::string file = std::filesystem::path(path).filename().string();
-  if (name == path || name == file) return true;
+  if (name == path) return true;
+  // A view given as its phases' files joined by ';' goes by its first file, the name a poses
+  // file written for it holds.
+  const std::vector<std::string> files = ViewFiles(path);
+  const std::string& first = files.empty() ? path : files.front();
+  const std::string file = std::filesystem::path(first).filename().string();
+  if (name == first || name == file) return true;
   std::string lower = file;
   std::transform(lower.begin(), lower.end(), lower.begin(),
                  [](unsigned char c) { return std::tolower(c); });

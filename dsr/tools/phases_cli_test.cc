@@ -143,6 +143,32 @@ TEST_F(PhasesCli, FuseWritesEveryPhase) {
   EXPECT_EQ(fused[0].voxels, phase2.voxels);
 }
 
+// Views given as their phases' files joined by ';': the poses file dsr_register writes for
+// them (each view named by its first file) is read back by dsr_fuse --poses and by
+// dsr_register's --init and --gt_poses, which once refused it ("no entry names the image").
+TEST_F(PhasesCli, PosesOfJoinedPhaseFilesAreReadBackByEveryTool) {
+  std::string joined;
+  for (int f = 0; f < 3; ++f) {
+    joined += std::string(f ? "," : "") + Phase3D(f, 0) + ";" + Phase3D(f, 1) + ";" +
+              Phase3D(f, 2);
+  }
+  const std::string images = "'--images=" + joined + "'";  // the shell ends a command at ';'
+  const ToolRun reg = Register(images + " --out_poses=" + Out("own.json"));
+  ASSERT_EQ(reg.exit_code, 0) << reg.err;
+  const ToolRun fuse = RunTool(DSR_FUSE_BIN, images + " --masks=" + Masks() + " --poses=" +
+                                                 Out("own.json") + " --out=" +
+                                                 Out("own_fused.nii.gz"),
+                               Dir());
+  EXPECT_EQ(fuse.exit_code, 0) << fuse.err;
+  const ToolRun init = Register(images + " --init=" + Out("own.json") + " --out_poses=" +
+                                Out("own_again.json"));
+  EXPECT_EQ(init.exit_code, 0) << init.err;
+  const ToolRun gt = Register(images + " --gt_poses=" + Out("own.json") + " --out_poses=" +
+                              Out("own_gt.json"));
+  ASSERT_EQ(gt.exit_code, 0) << gt.err;
+  EXPECT_NE(gt.out.find("TRE mean 0.0000 mm"), std::string::npos) << gt.out;
+}
+
 TEST_F(PhasesCli, OnePhaseOfFourDimensionalFilesIsRegisteredAndFusedAsItsThreeDimensionalFiles) {
   // --phases=1 reads phase 1 alone from each 4D file: the same poses and the same fusion as
   // the files holding phase 1 only (read as 3D images, as before).

@@ -83,5 +83,28 @@ TEST(MatchPosesToImages, FilesWithoutGainsStayWithout) {
   EXPECT_EQ(poses.frame_from_world[0].translation().x(), 1.0);
 }
 
+// A view given as its phases' files joined by ';' is named in a poses file by its first file
+// (what dsr_register writes for it), with or without the folder and the extension; its
+// other files name nothing.
+TEST(MatchPosesToImages, ViewsOfJoinedPhaseFilesGoByTheirFirstFile) {
+  PosesFile poses;
+  poses.images = {"v0_p0.nii.gz", "v1_p0"};
+  poses.frame_from_world = {Shift(0), Shift(1)};
+  std::string error;
+  const std::vector<std::string> views = {"/x/v1_p0.nii.gz;/x/v1_p1.nii.gz",
+                                          "/x/v0_p0.nii.gz; /x/v0_p1.nii.gz"};
+  ASSERT_TRUE(MatchPosesToImages("init", "p.json", views, &poses, &error))
+      << error;
+  EXPECT_EQ(poses.images, std::vector<std::string>({"v1_p0", "v0_p0.nii.gz"}));
+  EXPECT_EQ(poses.frame_from_world[0].translation().x(), 1.0);
+  PosesFile later;
+  later.images = {"v0_p1.nii.gz", "v1_p1.nii.gz"};
+  later.frame_from_world = {Shift(0), Shift(1)};
+  EXPECT_FALSE(MatchPosesToImages("init", "p.json", views, &later, &error));
+  EXPECT_NE(error.find("no entry names the image /x/v1_p0.nii.gz;/x/v1_p1.nii.gz"),
+            std::string::npos)
+      << error;
+}
+
 }  // namespace
 }  // namespace dsr
