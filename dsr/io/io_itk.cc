@@ -516,13 +516,6 @@ class NonFiniteScan {
 // or a voxel is not finite (said the way io_image.cc says it for the other formats).
 enum class DataProblem { kNone, kData, kVoxel };
 
-// NIfTI-1 or NIfTI-2, plain or gzip-compressed: once decompressed the file must hold
-// vox_offset + product(dim) * (datatype size) bytes, exactly if `exact` (files just
-// written) else at least. Float voxels are scanned for NaN/Inf because niftilib's
-// nifti_read_buffer silently replaces them by 0 ("fixes bad floats"), so ITK never shows
-// them. The scan rides along the decompression for .nii.gz and costs one read of the file
-// for .nii. With `checked` (one entry per phase of a 4D file), only the phases it marks are
-// scanned: the others are not read.
 // A read that may take its voxels from the data check's own pass (CheckNiftiData): `count`
 // float voxels expected (ITK's header: one float component), stored in `voxels` when the
 // check could copy them, which `filled` then says.
@@ -532,6 +525,14 @@ struct DirectVoxels {
   bool filled = false;
 };
 
+// NIfTI-1 or NIfTI-2, plain or gzip-compressed: once decompressed the file must hold
+// vox_offset + product(dim) * (datatype size) bytes, exactly if `exact` (files just
+// written) else at least. Float voxels are scanned for NaN/Inf because niftilib's
+// nifti_read_buffer silently replaces them by 0 ("fixes bad floats"), so ITK never shows
+// them. The scan rides along the decompression for .nii.gz and costs one read of the file
+// for .nii. With `checked` (one entry per phase of a 4D file), only the phases it marks are
+// scanned: the others are not read.
+//
 // With `direct`, a float32 file in this machine's byte order without scaling (what
 // nifti_read_buffer would hand ITK unchanged, bad floats aside, which the scan refuses)
 // also has its voxels copied out as the check decompresses them: ITK's read would
