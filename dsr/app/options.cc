@@ -235,8 +235,8 @@ const OptionSpec kOptionTable[] = {
    "function (docs/design.md 4.8): mean (every pose free, frame 0's too, with a prior "
    "holding the frames' mean centre and orientation in the world, so that no frame alone "
    "takes the pull of what moves all frames together) or frame0 (frame 0's pose constant, "
-   "the rule before; the baselines always use it). Output poses are relative to frame 0 "
-   "either way.",
+   "the rule before; the baselines always use it, and refuse an explicit mean). Output "
+   "poses are relative to frame 0 either way.",
    DSR_RULE(IsGauge(S(v)), "must be frame0 or mean"),
    DSR_NAMED_FIELD(registration.gauge, StringToGauge)},
   {"panorama_sampling", OptionType::kString, "half_voxel", "Registration",
