@@ -9,16 +9,6 @@
 #include "dsr/util/parallel.h"
 
 namespace dsr {
-namespace {
-
-// A dense float volume with plain sizes (intermediate results of separable passes).
-struct Grid3 {
-  Eigen::Vector3i size;
-  std::vector<float> v;
-  int64_t Index(int i, int j, int k) const {
-    return i + int64_t{size[0]} * (j + int64_t{size[1]} * k);
-  }
-};
 
 std::vector<float> GaussianKernel(double sigma) {
   const int radius = std::max(1, static_cast<int>(std::ceil(3.0 * sigma)));
@@ -32,6 +22,17 @@ std::vector<float> GaussianKernel(double sigma) {
   for (float& x : w) x = static_cast<float>(x / sum);
   return w;
 }
+
+namespace {
+
+// A dense float volume with plain sizes (intermediate results of separable passes).
+struct Grid3 {
+  Eigen::Vector3i size;
+  std::vector<float> v;
+  int64_t Index(int i, int j, int k) const {
+    return i + int64_t{size[0]} * (j + int64_t{size[1]} * k);
+  }
+};
 
 int OutputSize(int n, int stride) { return stride == 1 ? n : (n - 1) / stride + 1; }
 

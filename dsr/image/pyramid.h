@@ -30,6 +30,10 @@ struct ImageLevel {
   std::vector<Image> later_phases;
 };
 
+// The normalised 1-D Gaussian the smoothing uses, in float: radius max(1, ceil(3 sigma)),
+// weights exp(-d^2 / (2 sigma^2)) over their double sum (index d + radius).
+std::vector<float> GaussianKernel(double sigma);
+
 // Smooths `image` inside `mask` by normalised convolution (see above) without
 // resampling; voxels where the smoothed mask is 0 become 0. `sigma_voxels` <= 0 copies.
 // Bit-identical for every num_threads (each output voxel is one thread's sum).

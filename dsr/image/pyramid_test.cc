@@ -94,24 +94,11 @@ TEST(SmoothInsideMask, PerAxisIsIndependentOfTheThreadCount) {
 }
 
 // The normalised convolution written out voxel by voxel (the slow twin of the separable
-// passes): the float kernel as image/pyramid.cc builds it, then for each output voxel the
+// passes): the float kernel (GaussianKernel), then for each output voxel the
 // x sums (masked) of the rows it needs, their y sums, their z sum, each tap added in
 // increasing index order as float, and the value divided by the weight where the weight
 // exceeds 1e-3. The fast passes take the same operations in the same order, so the two
 // agree bit for bit.
-std::vector<float> FloatKernel(double sigma) {
-  const int radius = std::max(1, static_cast<int>(std::ceil(3.0 * sigma)));
-  std::vector<float> w(2 * radius + 1);
-  double sum = 0.0;
-  for (int d = -radius; d <= radius; ++d) {
-    const double x = std::exp(-0.5 * d * d / (sigma * sigma));
-    w[d + radius] = static_cast<float>(x);
-    sum += x;
-  }
-  for (float& x : w) x = static_cast<float>(x / sum);
-  return w;
-}
-
 std::vector<float> TwinSmooth(const Image& image, const Mask& mask, const Eigen::Vector3d& sigma,
                               int stride, Eigen::Vector3i* out_size) {
   const Eigen::Vector3i n = image.geometry.size;
@@ -122,7 +109,7 @@ std::vector<float> TwinSmooth(const Image& image, const Mask& mask, const Eigen:
     step[a] = n[a] == 1 ? 1 : stride;
     o[a] = step[a] == 1 ? n[a] : (n[a] - 1) / step[a] + 1;
     // No smoothing: the x pass weighs by 1, the y and z passes copy (a one-tap kernel of 1).
-    kernel[a] = sigma[a] > 0.0 && n[a] > 1 ? FloatKernel(sigma[a]) : std::vector<float>{1.0f};
+    kernel[a] = sigma[a] > 0.0 && n[a] > 1 ? GaussianKernel(sigma[a]) : std::vector<float>{1.0f};
     radius[a] = static_cast<int>(kernel[a].size()) / 2;
   }
   *out_size = o;
