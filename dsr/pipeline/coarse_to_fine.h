@@ -87,11 +87,6 @@ class CoarseToFine {
                const std::vector<Frame>& search_frames,
                Pyramids* pyramids);
 
-  // The determination check also with gains and offsets estimated (their corrections not
-  // applied to its noise estimate, which they can only inflate): for the photometric model's
-  // last resort after a refusal for undetermined poses (RegisterScaled).
-  void JudgeDeterminationWithGains() { determination_with_gains_ = true; }
-
   // Runs the round from `start_poses` (frame 0 = identity). With photometric parameters
   // they start at gain 1 and offset 0, each solve from the previous one's estimate, and end
   // in result->photometric. Returns false for bad input or set-up problems; a round that is
@@ -156,10 +151,13 @@ class CoarseToFine {
   // With photometric kAuto, undecided, when the structure check flags frames at a level:
   // true (and the solves estimate gains and offsets from here on, recorded in the result)
   // when every frame lines up once the gains and offsets estimated at these poses correct
-  // it; false when the structure stands (a wrong minimum) or the choice is made.
+  // it (none stands out, and each of `outliers`, those that stood out without them, is
+  // judged and within max_structure_fraction); false when the structure stands (a wrong
+  // minimum) or the choice is made.
   bool StructureExplainedByBrightness(int level,
                                       const std::vector<Frame>& frames,
-                                      const CandidateSet& candidates);
+                                      const CandidateSet& candidates,
+                                      const std::vector<int>& outliers);
   // With photometric kAuto, undecided, at the last coarse level (1) once its checks pass
   // (where recovery is on; else after its solves):
   // where the gains and offsets estimated at its poses change some frame's intensities by
@@ -192,6 +190,12 @@ class CoarseToFine {
                        CandidateSet* candidates);
   // CheckFinalPoses's determination check (modes dsr and dba with the squared loss), on
   // `all_sums` when given (the pose uncertainty's sums over all the candidates).
+  // At the final poses, where phase 0 passed the structure check: each later phase's
+  // structure check against the other frames' same phase; a phase out of line is refused
+  // naming its frame (no frame to re-place).
+  Next CheckLaterPhases(const std::vector<Frame>& frames,
+                        const CandidateSet& candidates,
+                        const std::vector<Eigen::Isometry3d>& poses);
   Next CheckFinalDetermination(const std::vector<Frame>& frames,
                                const CandidateSet& candidates,
                                const std::vector<Eigen::Isometry3d>& poses,
@@ -246,7 +250,6 @@ class CoarseToFine {
   std::vector<Photometric> photometric_;
   DivergenceGuard guard_;
   bool determined_checked_ = false;
-  bool determination_with_gains_ = false;
   // The last coarse level's structure check could not judge some frame (too smooth at its
   // lag): the next level judges the poses it starts from (BuildLevelProblem).
   bool unjudged_ = false;

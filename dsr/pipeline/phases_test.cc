@@ -160,5 +160,33 @@ TEST(Phases, BadPhaseSetsAreRefusedWithOneLine) {
                    "(or register one phase)");
 }
 
+// A probe that moved within the loop: one view's later phase shifted by 8 voxels along x
+// while its phase 0 stays (the tied model is false for that view). Accepted 7.6 mm off
+// before the later phases had a check of their own; now refused naming the phase, and the
+// same sequence as recorded registers.
+TEST(Phases, APhaseThatDoesNotFitItsViewsPoseIsRefused) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const SimulatedSequence s = Beating(3, 10.0, 7);
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  std::vector<std::vector<Image>> later = s.later_phases;
+  Image& moved = later[1][0];
+  const Eigen::Vector3i size = moved.geometry.size;
+  const Image recorded = moved;
+  for (int k = 0; k < size.z(); ++k) {
+    for (int j = 0; j < size.y(); ++j) {
+      for (int i = 0; i < size.x(); ++i) moved.at((i + 8) % size.x(), j, k) = recorded.at(i, j, k);
+    }
+  }
+  RegistrationResult result;
+  std::string error;
+  ASSERT_TRUE(Register(s.frames, later, s.masks, identity, Options(Mode::kDsr), &result, &error))
+      << error;
+  EXPECT_FALSE(result.usable);
+  EXPECT_NE(result.failure.find("phase 1 does not line up across the frames"), std::string::npos)
+      << result.failure;
+  EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
+  RegisterPhases(s, Options(Mode::kDsr), true, &result);  // expects it usable
+}
+
 }  // namespace
 }  // namespace dsr

@@ -697,8 +697,8 @@ TEST(Pipeline, RefusesPosesTheDataDoNotDetermine) {
   EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
   EXPECT_TRUE(result.poses_undetermined);
   // The tools' default photometric model tries gains and offsets as a last resort, and the
-  // determination check judges that attempt too (it does not run with them otherwise: the
-  // sphere passed).
+  // determination check judges that attempt too (as every run with them: the sphere passed
+  // when it did not).
   RegistrationOptions automatic = Options("dsr");
   automatic.photometric = PhotometricModel::kAuto;
   ASSERT_TRUE(Register(sequence.frames, sequence.masks, identity, automatic, &result, &error))

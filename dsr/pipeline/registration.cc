@@ -76,10 +76,6 @@ struct RegistrationRun {
   const std::vector<Image>* search_images = nullptr;
   // When the registration started: its result's seconds count from here.
   std::chrono::steady_clock::time_point start;
-  // The determination check judges the final poses even with gains and offsets estimated
-  // (CoarseToFine::JudgeDeterminationWithGains; the photometric model's last resort after
-  // a refusal for undetermined poses).
-  bool determination_with_gains = false;
   RegistrationResult* result = nullptr;
   std::string* error = nullptr;
 };
@@ -117,7 +113,6 @@ bool PairwiseStart(const RegistrationRun& run,
   init_run.search_images = nullptr;  // no check of this run searches: no extra pyramids
   init_run.later_phases = nullptr;   // the baseline registers phase 0
   init_run.start = std::chrono::steady_clock::now();
-  init_run.determination_with_gains = false;
   init_run.result = &init;
   if (!init_options.Validate(run.error) || !RegisterScaled(init_run)) {
     *run.error = "init=pairwise: " + *run.error;
@@ -275,7 +270,6 @@ bool RunRounds(const RegistrationRun& run,
     CoarseToFine levels(*run.images, run.later_phases, *run.masks, options,
                         options.max_recoveries > 0,
                         recovery->misfit_exempt, search_frames, pyramids);
-    if (run.determination_with_gains) levels.JudgeDeterminationWithGains();
     if (!levels.Run(*poses, result, run.error)) return false;
     if (result->usable && result->photometric_detected && result->photometric.empty() &&
         !affine_round) {
@@ -312,10 +306,9 @@ bool RunRounds(const RegistrationRun& run,
 // ultrasound-like sequence whose third round switched to them and failed). Frames of
 // different brightness can slide, or settle nowhere, before any level lines them up. Once
 // more with them from the same start; its result stands only if it passes every check,
-// which guard it as they guard the first. After a refusal for undetermined poses the
-// determination check judges it too (it does not run with gains and offsets otherwise): a
-// symmetric object stays refused, while a wrong minimum that looked undetermined (the
-// frames out of line, an ultrasound-like chest CT sequence 12 mm off) may end right.
+// which guard it as they guard the first (the determination check among them: a symmetric
+// object stays refused, while a wrong minimum that looked undetermined, the frames out of
+// line, an ultrasound-like chest CT sequence 12 mm off, may end right).
 bool RegisterAgainWithGains(const RegistrationRun& run) {
   RegistrationResult* result = run.result;
   RegistrationOptions affine = *run.options;
@@ -324,7 +317,6 @@ bool RegisterAgainWithGains(const RegistrationRun& run) {
   RegistrationRun second_run = run;
   second_run.options = &affine;
   second_run.start = std::chrono::steady_clock::now();
-  second_run.determination_with_gains = result->poses_undetermined;
   second_run.result = &second;
   if (!RegisterScaled(second_run)) return false;
   second.seconds = SecondsSince(run.start);  // both attempts (its pyramid time: its own)

@@ -138,6 +138,16 @@ bool ObserveWithSlopes(const Frame& frame,
   return true;
 }
 
+// The sample of the corrected frame gain * I + offset: its value, and every derivative by
+// the gain (the interpolants are linear in the voxels, whose weights sum to 1).
+void CorrectSample(const Photometric& photometric, SlopedSample* sample) {
+  const double gain = photometric.gain();
+  sample->value = gain * sample->value + photometric.offset;
+  sample->jacobian *= gain;
+  sample->value_slope *= gain;
+  sample->jacobian_slope *= gain;
+}
+
 // One slab's sums (SumForUncertainty): its cubes' gradient shares [6m x cubes of the slab]
 // and A per group.
 struct SlabSums {
@@ -281,7 +291,8 @@ UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
                                   const CandidateSet& candidates,
                                   const std::vector<Eigen::Isometry3d>& frame_from_world,
                                   int num_threads,
-                                  int keep_one_in) {
+                                  int keep_one_in,
+                                  const std::vector<Photometric>* photometric) {
   const int m = static_cast<int>(frames.size());
   const int n = 6 * m;
   const ImageGeometry& grid = candidates.grid;
@@ -330,6 +341,7 @@ UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
         for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
           const int f = __builtin_ctz(bits);
           if (ObserveWithSlopes(phases[p][f], frame_from_world[f], centre, &sample[k])) {
+            if (photometric != nullptr) CorrectSample((*photometric)[f], &sample[k]);
             sample[k].frame = f;
             observed |= 1u << f;
             ++k;
@@ -760,7 +772,8 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
                        std::vector<UndeterminedPose>* undetermined,
                        std::string* why,
                        std::vector<double>* error_voxels,
-                       const UncertaintySums* all_sums) {
+                       const UncertaintySums* all_sums,
+                       const std::vector<Photometric>* photometric) {
   const std::vector<FieldOfViewMoments> fields = FieldsOfView(frames, masks);
   const int n = 6 * (static_cast<int>(frames.size()) - 1);
   // The candidates fill about this many whole cubes (partial ones at the overlap's border
@@ -770,7 +783,8 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
   const int keep = static_cast<int>(cubes / (kSubsetCubesPerParameter * n));
   if (all_sums == nullptr && keep >= 2) {
     const UncertaintySums sums =
-        SumForUncertainty(frames, candidates, frame_from_world, context.num_threads, keep);
+        SumForUncertainty(frames, candidates, frame_from_world, context.num_threads, keep,
+                          photometric);
     const double fraction = static_cast<double>(sums.voxels) / candidates.num_voxels();
     if (JudgeDetermination(sums, fraction, false, fields, max_error_voxels, undetermined, why,
                            error_voxels) == Verdict::kJudged) {
@@ -782,7 +796,7 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
                               error_voxels) == Verdict::kJudged;
   }
   const UncertaintySums sums =
-      SumForUncertainty(frames, candidates, frame_from_world, context.num_threads);
+      SumForUncertainty(frames, candidates, frame_from_world, context.num_threads, 1, photometric);
   return JudgeDetermination(sums, 1.0, true, fields, max_error_voxels, undetermined, why,
                             error_voxels) == Verdict::kJudged;
 }

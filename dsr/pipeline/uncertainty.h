@@ -35,6 +35,7 @@
 #include "dsr/geometry/volume.h"
 #include "dsr/image/frame.h"
 #include "dsr/model/observation.h"
+#include "dsr/model/photometric.h"
 #include "dsr/stream/voxel_stream.h"
 
 namespace dsr {
@@ -75,11 +76,14 @@ struct UncertaintySums {
 // Deterministic for any thread count.
 // With keep_one_in > 1, over 1 in keep_one_in of the cubes only (chosen by a fixed hash of
 // their indices): about 1 / keep_one_in of the candidates, spread evenly, in whole cubes.
+// With `photometric` (one per frame), on the corrected samples gain * I + offset: the sums of
+// frames whose voxels were so corrected, the gains and offsets held fixed.
 UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
                                   const CandidateSet& candidates,
                                   const std::vector<Eigen::Isometry3d>& frame_from_world,
                                   int num_threads,
-                                  int keep_one_in = 1);
+                                  int keep_one_in = 1,
+                                  const std::vector<Photometric>* photometric = nullptr);
 
 // The estimate above at `frame_from_world` (frame 0 first, the gauge) over `candidates`, on
 // the frames of the finest level; `masks` (the frames' input masks) give the field-of-view
@@ -127,7 +131,11 @@ struct UndeterminedPose {
 // `all_sums` (the sums over all of `candidates`, already taken for --uncertainty) on those
 // alone. True when it could judge (false, with `why`, when too few observations are left
 // for a noise estimate). `error_voxels` (may be null): every frame's predicted error in its
-// voxels where the curvature is positive (frame 0: 0).
+// voxels where the curvature is positive (frame 0: 0). With `photometric` (runs that
+// estimate gains and offsets), on the corrected frames, whose cost the solve minimised (the
+// gains and offsets held fixed): brightness the correction removes neither counts as noise
+// nor bends the curvature (frames whose gains differ by 30 % looked undetermined on their
+// own intensities).
 bool UndeterminedPoses(const std::vector<Frame>& frames,
                        const CandidateSet& candidates,
                        const std::vector<Eigen::Isometry3d>& frame_from_world,
@@ -137,7 +145,8 @@ bool UndeterminedPoses(const std::vector<Frame>& frames,
                        std::vector<UndeterminedPose>* undetermined,
                        std::string* why,
                        std::vector<double>* error_voxels = nullptr,
-                       const UncertaintySums* all_sums = nullptr);
+                       const UncertaintySums* all_sums = nullptr,
+                       const std::vector<Photometric>* photometric = nullptr);
 
 // "the data do not determine frame 2's rotation (...)" for the frames found, naming each
 // frame, what is undetermined and its predicted error.

@@ -276,6 +276,53 @@ TEST(PoseUncertainty, DeterminationOnASubsetAgreesWithAllTheCandidates) {
   EXPECT_FALSE(undetermined.empty()) << "only all of the candidates refuse";
 }
 
+// With gains and offsets (runs that estimate them), the sums are those of the corrected
+// frames gain * I + offset, built as such (the slow twin: every voxel corrected first), and
+// the check judges on them.
+TEST(PoseUncertainty, CorrectedSumsAreThoseOfCorrectedFrames) {
+  const SimulatedSequence s = Sequence(10.0);
+  const int m = static_cast<int>(s.frames.size());
+  std::vector<Photometric> photometric(m);
+  for (int i = 1; i < m; ++i) {
+    photometric[i].log_gain = (i % 2 == 0 ? 0.2 : -0.3);
+    photometric[i].offset = 4.0 * i - 7.0;
+  }
+  std::vector<Frame> frames, corrected;
+  std::vector<Image> corrected_images = s.frames;
+  for (int i = 0; i < m; ++i) {
+    frames.emplace_back(s.frames[i], s.masks[i]);
+    for (float& v : corrected_images[i].voxels) {
+      v = static_cast<float>(photometric[i].Correct(v));
+    }
+    corrected.emplace_back(corrected_images[i], s.masks[i]);
+  }
+  const std::vector<Eigen::Isometry3d>& poses = s.frame_from_world;
+  ImageGeometry grid;
+  std::string error;
+  ASSERT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
+  const CandidateSet candidates = BuildCandidates(frames, poses, grid, 0);
+  for (int keep : {1, 3}) {
+    const UncertaintySums fast = SumForUncertainty(frames, candidates, poses, 2, keep, &photometric);
+    const UncertaintySums twin = SumForUncertainty(corrected, candidates, poses, 2, keep);
+    EXPECT_EQ(fast.voxels, twin.voxels);
+    EXPECT_EQ(fast.observations, twin.observations);
+    EXPECT_NEAR(fast.cost, twin.cost, 1e-5 * twin.cost) << "keep " << keep;
+    const Eigen::MatrixXd a = twin.Curvature(), b = twin.GradientCovariance();
+    EXPECT_LT((fast.Curvature() - a).cwiseAbs().maxCoeff(), 1e-5 * a.cwiseAbs().maxCoeff());
+    EXPECT_LT((fast.GradientCovariance() - b).cwiseAbs().maxCoeff(),
+              1e-5 * b.cwiseAbs().maxCoeff());
+    // The correction does change them (unit gains would leave them as they were).
+    const UncertaintySums plain = SumForUncertainty(frames, candidates, poses, 2, keep);
+    EXPECT_GT(std::abs(plain.cost - twin.cost), 1e-3 * twin.cost);
+  }
+  std::vector<UndeterminedPose> undetermined;
+  std::string why;
+  ASSERT_TRUE(UndeterminedPoses(frames, candidates, poses, s.masks, StreamContext{2}, 1.0,
+                                &undetermined, &why, nullptr, nullptr, &photometric))
+      << why;
+  EXPECT_TRUE(undetermined.empty());
+}
+
 TEST(PoseUncertainty, IsPositiveDefiniteAndGrowsWithTheNoise) {
   const RegistrationResult low = RegisterWithUncertainty(Sequence(10.0));
   const RegistrationResult high = RegisterWithUncertainty(Sequence(40.0));
