@@ -123,9 +123,12 @@ const OptionSpec kOptionTable[] = {
    "(\"v0_p0.nii.gz;v0_p1.nii.gz\"). Every view needs the same phases, aligned by index; "
    "each view keeps one pose and its mask stays 3D. The phases registered: all, or "
    "0-based indices 'i,j,...' in that order (the first is the one the global search, "
-   "recovery and the report look at). 3D images have one phase.",
+   "recovery and the report look at), each index decimal digits only, the items separated "
+   "by single commas (no spaces, signs or empty items: '0,2' but not '0, 2', '+1' or "
+   "'0,2,'). 3D images have one phase.",
    DSR_RULE(ParsePhaseList(S(v), nullptr),
-            "must be all or comma-separated phase indices >= 0 without a repeat"),
+            "must be all or comma-separated phase indices (digits only: no space, sign or "
+            "empty item) without a repeat"),
    DSR_APPLY(ParsePhaseList(S(v), &c->phases))},
   {"mask_rule", OptionType::kString, "hull", "Inputs",
    kDsrRegister | kDsrFuse | kDsrCompare | kPyRegister | kPyFuse,

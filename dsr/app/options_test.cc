@@ -5,6 +5,7 @@
 #include <fstream>
 #include <set>
 #include <string>
+#include <vector>
 
 #include <gtest/gtest.h>
 
@@ -102,6 +103,25 @@ TEST(RunOptions, RulesBetweenOptionsNameThem) {
   ASSERT_TRUE(settings.Set("uncertainty", "false", &error));
   ASSERT_TRUE(RunOptionsFrom(settings, &options, &init_file, &error)) << error;
   EXPECT_EQ(init_file, "start.json");
+}
+
+TEST(RunOptions, PhaseListIsDigitsSeparatedBySingleCommas) {
+  std::vector<int> phases;
+  ASSERT_TRUE(ParsePhaseList("all", &phases));
+  EXPECT_TRUE(phases.empty());
+  ASSERT_TRUE(ParsePhaseList("2,0,13", &phases));
+  EXPECT_EQ(phases, (std::vector<int>{2, 0, 13}));
+  ASSERT_TRUE(ParsePhaseList("07", &phases));  // decimal, leading zeros allowed
+  EXPECT_EQ(phases, std::vector<int>{7});
+  // Spaces, signs and empty items anywhere, repeats, and what is not a number.
+  for (const std::string bad : {"", " 1", "1 ", "+1", "-1", "0,1,", ",0", "0,,1", "0, 1", "1,1",
+                                "0x1", "1.0", "4097", "99999999999", "ALL", "all,0"}) {
+    EXPECT_FALSE(ParsePhaseList(bad, &phases)) << "'" << bad << "'";
+    Settings settings = Settings::For(kDsrRegister);
+    std::string error;
+    EXPECT_FALSE(settings.Set("phases", bad, &error)) << "'" << bad << "'";
+    EXPECT_EQ(error.rfind("--phases=" + bad + ": must be all or", 0), 0u) << error;
+  }
 }
 
 class FlagfileTest : public testing::Test {

@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <set>
-#include <sstream>
 
 #include "dsr/app/inputs.h"
 #include "dsr/model/robust_loss.h"
@@ -14,23 +13,22 @@ namespace dsr {
 bool ParsePhaseList(const std::string& text, std::vector<int>* phases) {
   std::vector<int> list;
   if (text != "all") {
-    std::stringstream items(text);
-    std::string item;
-    while (std::getline(items, item, ',')) {
-      size_t used = 0;
-      int phase = -1;
-      try {
-        phase = std::stoi(item, &used);
-      } catch (const std::exception&) {
+    // Items of decimal digits only, split at every comma: no sign, no space and no empty
+    // item (" 1", "+1", "0,1," and "0,,1" are refused alike).
+    for (size_t begin = 0;;) {
+      const size_t comma = text.find(',', begin);
+      const size_t end = comma == std::string::npos ? text.size() : comma;
+      const std::string item = text.substr(begin, end - begin);
+      if (item.empty() || item.size() > 9 ||
+          item.find_first_not_of("0123456789") != std::string::npos) {
         return false;
       }
-      if (used != item.size() || phase < 0 || phase > 4096 ||
-          std::find(list.begin(), list.end(), phase) != list.end()) {
-        return false;
-      }
+      const int phase = std::stoi(item);
+      if (phase > 4096 || std::find(list.begin(), list.end(), phase) != list.end()) return false;
       list.push_back(phase);
+      if (comma == std::string::npos) break;
+      begin = comma + 1;
     }
-    if (list.empty()) return false;
   }
   if (phases != nullptr) *phases = std::move(list);
   return true;

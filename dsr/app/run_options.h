@@ -31,8 +31,9 @@ struct RunConfig {
   PhantomOptions phantom;
 };
 
-// --phases' value: "all" (empty `phases`) or comma-separated phase indices >= 0 without a
-// repeat, in the order given. False for anything else (`phases` may be null: a check).
+// --phases' value: "all" (empty `phases`) or comma-separated phase indices without a
+// repeat, in the order given, each of decimal digits only (no sign, no space, no empty item:
+// "0,1," and " 1" are refused). False for anything else (`phases` may be null: a check).
 bool ParsePhaseList(const std::string& text, std::vector<int>* phases);
 
 // Every field of the table from `settings`.

@@ -215,6 +215,11 @@ TEST_F(PhasesCli, BadPhaseSetsGiveOneLineNamingTheFileOrFlag) {
   expect_bad("--images=" + Images() + " --phases=0,3", Frame(0) + " has 3 phases (0 to 2), no "
                                                        "phase 3");
   expect_bad("--images=" + Images() + " --phases=1,1", "--phases=1,1: must be all or");
+  // One grammar: digits separated by single commas, no space, sign or empty item.
+  for (const std::string phases : {" 1", "1 ", "+1", "0,1,", ",0", "0,,1"}) {
+    expect_bad("--images=" + Images() + " '--phases=" + phases + "'",
+               "--phases=" + phases + ": must be all or");
+  }
   expect_bad("--images=" + Images() + " --phases=0 --report_phase=1 --report_dir=" + Out("r"),
              "--report_phase=1: only 1 phase is registered");
   expect_bad("--images=" + Images() + " --mode=ape", "mode=ape registers 3D frames");

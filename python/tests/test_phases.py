@@ -1,6 +1,8 @@
 """4D images (one 3D volume per heart phase, io/io_phases.h): dsr.write_image of a (T, z, y,
 x) array writes NIfTI with a time axis and 3D Slicer's .seq.nrrd; SimpleITK reads what dsr
 writes and dsr reads what SimpleITK writes, with the same voxels and geometry."""
+import re
+
 import numpy as np
 import pytest
 import SimpleITK as sitk
@@ -185,6 +187,17 @@ def test_uneven_phases_are_refused_naming_the_view():
         dsr.register(views, sequence.masks, **SMALL)
     with pytest.raises(ValueError, match="frame_00 has 3 phases .0 to 2., no phase 5"):
         dsr.register(sequence.views(), sequence.masks, phases="0,5", **SMALL)
+
+
+def test_phases_are_digits_separated_by_single_commas():
+    """phases= has the command line's grammar: a space, a sign or an empty item anywhere is
+    refused, naming the option, before any work."""
+    sequence = beating(seed=5)
+    for bad in (" 1", "1 ", "+1", "0,1,", ",0", "0,,1"):
+        with pytest.raises(ValueError, match=f"--phases={re.escape(bad)}: must be all or"):
+            dsr.register(sequence.views(), sequence.masks, phases=bad, **SMALL)
+    with pytest.raises(ValueError, match=r"--phases=0,1,: must be all or"):
+        dsr.fuse(sequence.views(), [np.eye(4)] * 3, sequence.masks, phases="0,1,")
 
 
 def test_dsr_fuse_writes_a_4d_panorama_simpleitk_and_slicer_read(tmp_path):
