@@ -358,6 +358,7 @@ struct NiftiLayout {
   int datatype = 0;
   int bitpix = 0;
   int64_t size[3] = {1, 1, 1};  // dim[1..3], for voxel indices in messages
+  int64_t dim[8] = {0};         // dim[0..7] as stored
   uint64_t voxels = 1;          // product of dim[1..dim[0]]
   uint64_t data_start = 0;      // vox_offset
   // NIfTI-1 only: a single file ("n+1" magic) and scl_slope/scl_inter as niftilib keeps
@@ -377,6 +378,7 @@ bool ReadNiftiLayout(gzFile file, NiftiLayout* layout) {
   layout->header_size = layout->swap ? LoadAt<int32_t>(header, 0, true) : sizeof_hdr;
   const bool swap = layout->swap;
   if (layout->header_size == 348) {
+    for (int d = 0; d < 8; ++d) layout->dim[d] = LoadAt<int16_t>(header, 40 + 2 * d, swap);
     const int ndim = std::clamp<int>(LoadAt<int16_t>(header, 40, swap), 1, 7);
     for (int d = 1; d <= ndim; ++d) {
       const int64_t n = std::max<int16_t>(LoadAt<int16_t>(header, 40 + 2 * d, swap), 1);
@@ -398,6 +400,7 @@ bool ReadNiftiLayout(gzFile file, NiftiLayout* layout) {
   }
   if (layout->header_size == 540) {
     if (gzread(file, header + 348, 540 - 348) != 540 - 348) return false;
+    for (int d = 0; d < 8; ++d) layout->dim[d] = LoadAt<int64_t>(header, 16 + 8 * d, swap);
     const int ndim = static_cast<int>(std::clamp<int64_t>(LoadAt<int64_t>(header, 16, swap), 1, 7));
     for (int d = 1; d <= ndim; ++d) {
       // Clamped so that the product cannot overflow; ITK refuses such sizes anyway.
@@ -416,13 +419,24 @@ bool ReadNiftiLayout(gzFile file, NiftiLayout* layout) {
 
 // A header whose bitpix disagrees with its datatype is refused: which of the two is wrong
 // cannot be known, and a file cut to the bitpix size would otherwise pass the size check
-// while niftilib, reading by datatype, zero-fills the rest.
-bool CheckNiftiBitpix(const std::string& path, std::string* reason) {
+// while niftilib, reading by datatype, zero-fills the rest. So is a size below 1 on a used
+// axis (the standard requires dim[i] >= 1 for i = 1..dim[0]): the readers take a dim[4] of 0
+// or -3 as 1, one phase of a file that may hold more. A dim[0] outside 1..7 is ITK's to
+// refuse (niftilib tells the byte order by it).
+bool CheckNiftiFields(const std::string& path, std::string* reason) {
   gzFile file = gzopen(path.c_str(), "rb");
   if (file == nullptr) return true;  // the data check reports unreadable files
   std::unique_ptr<gzFile_s, int (*)(gzFile)> closer(file, gzclose_r);
   NiftiLayout layout;
   if (!ReadNiftiLayout(file, &layout)) return true;
+  const int64_t ndim = layout.dim[0];
+  for (int64_t d = 1; ndim <= 7 && d <= ndim; ++d) {
+    if (layout.dim[d] >= 1) continue;
+    *reason = "NIfTI header field dim[" + std::to_string(d) + "] is " +
+              std::to_string(layout.dim[d]) + "; the standard requires dim[1] to dim[" +
+              std::to_string(ndim) + "] (dim[0] = " + std::to_string(ndim) + ") to be >= 1";
+    return false;
+  }
   const NiftiType* type = FindNiftiType(layout.datatype);
   if (type == nullptr || type->bits == layout.bitpix) return true;
   *reason = "bitpix " + std::to_string(layout.bitpix) + " disagrees with datatype " + type->name +
@@ -1203,7 +1217,7 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
 // functions) or read it by rules that disagree with the file's size.
 bool CheckHeaderBeforeItk(const std::string& io_name, const std::string& path, std::string* reason) {
   if (io_name == "NiftiImageIO") {
-    return CheckNiftiOrientation(path, reason) && CheckNiftiBitpix(path, reason);
+    return CheckNiftiOrientation(path, reason) && CheckNiftiFields(path, reason);
   }
   if (io_name == "MetaImageIO") return CheckMetaImageKeys(path, reason);
   return true;

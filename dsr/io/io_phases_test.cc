@@ -760,6 +760,44 @@ TEST(PhasesIo, ViewOfJoinedFilesReadsOnlyTheChosenFiles) {
                        dir.File("p2.nii.gz") + ")");
 }
 
+TEST(PhasesIo, NiftiSizeBelowOneOnAUsedAxisIsRefused) {
+  // The standard requires dim[i] >= 1 for i = 1..dim[0]; the readers would take a dim[4] of
+  // 0 or -3 as 1 and read one phase of a file that holds three.
+  ScopedTempDir dir;
+  const std::string path = dir.File("cine.nii");
+  std::string error;
+  ASSERT_TRUE(WritePhases(ObliquePhases(), path, &error)) << error;
+  const std::string bytes = ReadBytes(path);
+  for (const int16_t dim4 : {0, -3}) {
+    SCOPED_TRACE(dim4);
+    std::string edited = bytes;
+    std::memcpy(&edited[40 + 2 * 4], &dim4, sizeof(dim4));
+    WriteText(path, edited);
+    EXPECT_EQ(ReadPhasesError(path), path + ": NIfTI header field dim[4] is " +
+                                         std::to_string(dim4) + "; the standard requires dim[1] "
+                                         "to dim[4] (dim[0] = 4) to be >= 1");
+    int count = 0;
+    EXPECT_FALSE(NumPhasesInFile(path, &count, &error));
+    ExpectOneLineNaming(error, path);
+    std::vector<Image> view;
+    EXPECT_FALSE(ReadView(path, &view, &error));
+    EXPECT_THAT(error, HasSubstr("dim[4] is"));
+  }
+  // A 3D file with no slice is no image either; sizes beyond dim[0] are not looked at.
+  ASSERT_TRUE(WriteImage(ObliquePhases(1)[0], path, &error)) << error;
+  std::string flat = ReadBytes(path);
+  const int16_t zero = 0;
+  std::memcpy(&flat[40 + 2 * 5], &zero, sizeof(zero));  // dim[5], dim[0] = 3
+  WriteText(path, flat);
+  std::vector<Image> phases;
+  EXPECT_TRUE(ReadPhases(path, &phases, &error)) << error;
+  std::memcpy(&flat[40 + 2 * 3], &zero, sizeof(zero));  // dim[3]
+  WriteText(path, flat);
+  Image image;
+  EXPECT_FALSE(ReadImage(path, &image, &error));
+  EXPECT_THAT(error, HasSubstr(path + ": NIfTI header field dim[3] is 0"));
+}
+
 // The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.
 struct Resident {
   double now = 0.0;
