@@ -124,6 +124,24 @@ TEST(RunOptions, PhaseListIsDigitsSeparatedBySingleCommas) {
   }
 }
 
+TEST(RunOptions, EachFileOfTheViewsIsGivenOnce) {
+  std::string error;
+  EXPECT_TRUE(CheckEachFileOnce({"a.nii", "b0.nii;b1.nii", "c.nii"}, &error)) << error;
+  // Two frames, as before: the same path once normalised.
+  EXPECT_FALSE(CheckEachFileOnce({"a.nii", "x/../a.nii"}, &error));
+  EXPECT_EQ(error, "--images: x/../a.nii is given twice");
+  // Two phases of one view, a phase file in two views, a phase file that is also a frame.
+  EXPECT_FALSE(CheckEachFileOnce({"p0.nii;p0.nii;p2.nii", "b.nii"}, &error));
+  EXPECT_EQ(error, "--images: p0.nii is given twice (phase 0 of image 0 and phase 1 of image 0; "
+                   "each frame and phase is a file of its own)");
+  EXPECT_FALSE(CheckEachFileOnce({"a0.nii;a1.nii", "./a0.nii;b1.nii"}, &error));
+  EXPECT_EQ(error, "--images: ./a0.nii is given twice (phase 0 of image 0 and phase 0 of image 1; "
+                   "each frame and phase is a file of its own)");
+  EXPECT_FALSE(CheckEachFileOnce({"a0.nii;a1.nii", "a1.nii"}, &error));
+  EXPECT_EQ(error.rfind("--images: a1.nii is given twice (phase 1 of image 0 and image 1;", 0), 0u)
+      << error;
+}
+
 class FlagfileTest : public testing::Test {
  protected:
   std::string Write(const std::string& name, const std::string& text) {

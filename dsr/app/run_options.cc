@@ -2,9 +2,10 @@
 #include "dsr/app/run_options.h"
 
 #include <algorithm>
-#include <set>
+#include <map>
 
 #include "dsr/app/inputs.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/model/robust_loss.h"
 #include "dsr/util/option_fields.h"
 
@@ -99,6 +100,36 @@ bool SimulationOptionsFrom(const Settings& settings, SimulationOptions* options,
   return true;
 }
 
+namespace {
+
+// Where a file of --images is: "image 2", or "phase 1 of image 0" for a view given as its
+// phases' files joined by ';'.
+std::string PlaceOf(int image, int phase, size_t phases) {
+  const std::string name = "image " + std::to_string(image);
+  return phases > 1 ? "phase " + std::to_string(phase) + " of " + name : name;
+}
+
+}  // namespace
+
+bool CheckEachFileOnce(const std::vector<std::string>& views, std::string* error) {
+  std::map<std::string, std::string> place_of;  // CanonicalPath -> PlaceOf
+  for (size_t i = 0; i < views.size(); ++i) {
+    const std::vector<std::string> files = ViewFiles(views[i]);
+    for (size_t p = 0; p < files.size(); ++p) {
+      const std::string place = PlaceOf(static_cast<int>(i), static_cast<int>(p), files.size());
+      const auto [first, inserted] = place_of.emplace(CanonicalPath(files[p]), place);
+      if (inserted) continue;
+      *error = "--images: " + files[p] + " is given twice";
+      if (files.size() > 1 || first->second.rfind("phase", 0) == 0) {
+        *error += " (" + first->second + " and " + place + "; each frame and phase is a file "
+                  "of its own)";
+      }
+      return false;
+    }
+  }
+  return true;
+}
+
 bool FrameFilesFrom(const Settings& settings, int min_frames,
                     std::vector<std::string>* image_paths,
                     std::vector<std::string>* mask_paths, std::string* error) {
@@ -123,14 +154,7 @@ bool FrameFilesFrom(const Settings& settings, int min_frames,
              std::to_string(m) + " images";
     return false;
   }
-  std::set<std::string> unique;
-  for (const std::string& p : *image_paths) {
-    if (!unique.insert(CanonicalPath(p)).second) {
-      *error = "--images: " + p + " is given twice";
-      return false;
-    }
-  }
-  return true;
+  return CheckEachFileOnce(*image_paths, error);
 }
 
 }  // namespace dsr

@@ -66,9 +66,15 @@ bool RunOptionsFrom(const Settings& settings, RegistrationOptions* options,
 bool SimulationOptionsFrom(const Settings& settings, SimulationOptions* options,
                            PhantomOptions* phantom, std::string* error);
 
+// Every file of the views `views` (--images: io/io_phases.h ViewFiles, so each phase file
+// of a view joined by ';') is another file, by CanonicalPath: a file given as two frames,
+// two phases of one view or phases of two views is refused, "--images: <file> is given
+// twice" (with the two places when a phase file is one of them).
+bool CheckEachFileOnce(const std::vector<std::string>& views, std::string* error);
+
 // The files of --images and --masks: parsed (ParseInputList), between min_frames and
-// kMaxFrames images, one mask per image or none, no image given twice. False with a
-// one-line `error` naming the option.
+// kMaxFrames images, one mask per image or none, no file given twice (CheckEachFileOnce).
+// False with a one-line `error` naming the option.
 bool FrameFilesFrom(const Settings& settings, int min_frames,
                     std::vector<std::string>* image_paths,
                     std::vector<std::string>* mask_paths, std::string* error);
