@@ -60,6 +60,7 @@
 #include <itkImageIOBase.h>
 #include <itkImageIOFactory.h>
 #include <itkImageIORegion.h>
+#include <itkMetaDataObject.h>
 #include <itkMetaImageIOFactory.h>
 #include <itkNiftiImageIOFactory.h>
 #include <itkNrrdImageIOFactory.h>
@@ -1450,6 +1451,87 @@ bool FourthAxisApart(const itk::ImageIOBase& io) {
   return true;
 }
 
+bool NrrdCount(const std::string& text, uint64_t* value);
+int NrrdPhaseAxis(const itk::ImageIOBase& io,
+                  const NrrdLayout& layout,
+                  const std::vector<uint64_t>& sizes);
+
+// Whether `value` is a number as a numeric index value of 3D Slicer is: all of it a finite
+// decimal (or scientific) floating-point number.
+bool IsIndexNumber(const std::string& value) {
+  if (value.empty() || value.find_first_not_of("0123456789+-.eE") != std::string::npos) {
+    return false;
+  }
+  char* end = nullptr;
+  const double number = std::strtod(value.c_str(), &end);
+  return end == value.c_str() + value.size() && std::isfinite(number);
+}
+
+// 3D Slicer's sequence keys in a NRRD of `phases` phases (vtkMRMLVolumeSequenceStorageNode):
+// "axis <A> index type:=numeric|text" and "axis <A> index values:=<v0> <v1> ...", A the
+// list axis (3 as Slicer writes it now, 0 as it wrote it and dsr writes it), one value per
+// phase (split at spaces), numbers unless the type is text (numeric is Slicer's default).
+// dsr indexes phases by position, but keys that disagree with the data mean a file edited
+// or assembled by hand: refused, naming the key.
+bool CheckSequenceKeys(const std::string& path,
+                       const itk::ImageIOBase& io,
+                       int phases,
+                       std::string* error) {
+  static const std::regex kKey(R"(axis ([0-9]{1,9}) index (type|values))");
+  NrrdLayout layout;
+  std::string reason;
+  std::vector<uint64_t> sizes;
+  int axis = -1;
+  if (ParseNrrdLayout(path, &layout, &reason)) {
+    sizes.resize(layout.sizes.size());
+    bool counts = true;
+    for (size_t a = 0; a < sizes.size(); ++a) {
+      counts = counts && NrrdCount(layout.sizes[a], &sizes[a]);
+    }
+    if (counts) axis = NrrdPhaseAxis(io, layout, sizes);
+  }
+  const itk::MetaDataDictionary& keys = io.GetMetaDataDictionary();
+  std::string type = "numeric", values_key, values;
+  for (const std::string& key : keys.GetKeys()) {
+    std::smatch match;
+    std::string value;
+    if (!std::regex_match(key, match, kKey) || !itk::ExposeMetaData(keys, key, value)) continue;
+    const std::string named = "key '" + key + "'";
+    if (axis >= 0 && std::stoi(match[1].str()) != axis) {
+      *error = path + ": " + named + " is about axis " + match[1].str() +
+               ", but the phases are on axis " + std::to_string(axis) +
+               " (3D Slicer's sequence keys name the list axis)";
+      return false;
+    }
+    if (match[2] == "type") {
+      type = Trim(value);
+      if (type != "numeric" && type != "text") {
+        *error = path + ": " + named + " is '" + type + "'; 3D Slicer's index types are numeric "
+                 "and text";
+        return false;
+      }
+    } else {
+      values_key = named;
+      values = value;
+    }
+  }
+  if (values_key.empty()) return true;
+  const std::vector<std::string> items = Words(values);
+  if (items.size() != static_cast<size_t>(phases)) {
+    *error = path + ": " + values_key + " has " + std::to_string(items.size()) + " value" +
+             (items.size() == 1 ? "" : "s") + " for " + std::to_string(phases) +
+             " phases (one index value per phase)";
+    return false;
+  }
+  for (size_t t = 0; t < items.size() && type == "numeric"; ++t) {
+    if (IsIndexNumber(items[t])) continue;
+    *error = path + ": " + values_key + ": value " + std::to_string(t) + " '" +
+             items[t].substr(0, 40) + "' is not a number (the index type is numeric)";
+    return false;
+  }
+  return true;
+}
+
 // ReadPhasesHeader's classification of the header `io` has read (see io_itk.h).
 bool InspectPhasesHeader(const std::string& path,
                          const itk::ImageIOBase& io,
@@ -1496,6 +1578,10 @@ bool InspectPhasesHeader(const std::string& path,
   }
   if (phases < 1 || phases > static_cast<uint64_t>(INT_MAX)) {
     *error = path + ": " + std::to_string(phases) + " phases is not a usable number";
+    return false;
+  }
+  if (!header->single_volume && std::string(io.GetNameOfClass()) == "NrrdImageIO" &&
+      !CheckSequenceKeys(path, io, static_cast<int>(phases), error)) {
     return false;
   }
   header->phases = static_cast<int>(phases);

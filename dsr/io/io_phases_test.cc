@@ -798,6 +798,51 @@ TEST(PhasesIo, NiftiSizeBelowOneOnAUsedAxisIsRefused) {
   EXPECT_THAT(error, HasSubstr(path + ": NIfTI header field dim[3] is 0"));
 }
 
+TEST(PhasesIo, SlicerSequenceKeysThatDisagreeWithTheDataAreRefused) {
+  ScopedTempDir dir;
+  const std::string path = dir.File("cine.seq.nrrd");
+  const auto error_of = [&](int list_axis, const std::string& keys) {
+    WriteText(path, SmallNrrd(3, "list", list_axis, keys));
+    return ReadPhasesError(path);
+  };
+  EXPECT_EQ(error_of(0, "axis 0 index values:=0 1\n"),
+            path + ": key 'axis 0 index values' has 2 values for 3 phases (one index value per "
+                   "phase)");
+  EXPECT_EQ(error_of(3, "axis 3 index type:=numeric\naxis 3 index values:=0 1 2 3\n"),
+            path + ": key 'axis 3 index values' has 4 values for 3 phases (one index value per "
+                   "phase)");
+  EXPECT_EQ(error_of(0, "axis 0 index type:=numeric\naxis 0 index values:=a b c\n"),
+            path + ": key 'axis 0 index values': value 0 'a' is not a number (the index type is "
+                   "numeric)");
+  // Without a type the index is numeric (3D Slicer's default).
+  EXPECT_THAT(error_of(0, "axis 0 index values:=0 1 nan\n"),
+              HasSubstr("value 2 'nan' is not a number"));
+  EXPECT_EQ(error_of(0, "axis 3 index values:=0 1 2\n"),
+            path + ": key 'axis 3 index values' is about axis 3, but the phases are on axis 0 "
+                   "(3D Slicer's sequence keys name the list axis)");
+  EXPECT_THAT(error_of(3, "axis 0 index type:=numeric\n"),
+              HasSubstr("key 'axis 0 index type' is about axis 0, but the phases are on axis 3"));
+  EXPECT_EQ(error_of(0, "axis 0 index type:=date\n"),
+            path + ": key 'axis 0 index type' is 'date'; 3D Slicer's index types are numeric and "
+                   "text");
+  // The same keys in a plain .nrrd.
+  const std::string plain = dir.File("cine.nrrd");
+  WriteText(plain, SmallNrrd(3, "list", 0, "axis 0 index values:=0 1\n"));
+  EXPECT_THAT(ReadPhasesError(plain), HasSubstr("key 'axis 0 index values' has 2 values"));
+  // What 3D Slicer writes (the list axis last; times, URL-encoded text) is read.
+  for (const std::string keys :
+       {"DataNodeClassName:=vtkMRMLScalarVolumeNode\naxis 3 index type:=numeric\n"
+        "axis 3 index values:=0 0.0333 1.5e2\naxis 3 item 0 Window:=400\n",
+        "axis 3 index type:=text\naxis 3 index values:=diastole mid%20systole systole\n"}) {
+    SCOPED_TRACE(keys);
+    WriteText(path, SmallNrrd(3, "list", 3, keys));
+    std::vector<Image> phases;
+    std::string error;
+    EXPECT_TRUE(ReadPhases(path, &phases, &error)) << error;
+    EXPECT_EQ(phases.size(), 3u);
+  }
+}
+
 // The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.
 struct Resident {
   double now = 0.0;
