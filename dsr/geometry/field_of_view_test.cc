@@ -294,5 +294,32 @@ TEST(FieldOfViewFromImage, NonZeroRuleIsMaskFromNonZero) {
   EXPECT_EQ(mask.voxels, MaskFromNonZero(image, 1).voxels);
 }
 
+TEST(CheckFiniteVoxels, TellsAConstantImageInTheSamePass) {
+  ImageGeometry g;
+  g.size = Eigen::Vector3i(20, 20, 20);  // 8000 voxels: more than one chunk of the scan
+  Image image(g, 0.0f);
+  std::string error;
+  bool constant = false;
+  ASSERT_TRUE(CheckFiniteVoxels(image, "blank", &error, &constant));
+  EXPECT_TRUE(constant);
+  image.at(19, 19, 19) = -0.0f;  // equal to 0
+  ASSERT_TRUE(CheckFiniteVoxels(image, "blank", &error, &constant));
+  EXPECT_TRUE(constant);
+  image.at(19, 19, 19) = 1e-30f;  // the last voxel differs
+  ASSERT_TRUE(CheckFiniteVoxels(image, "image", &error, &constant));
+  EXPECT_FALSE(constant);
+  // Non-finite voxels are named as the check without `constant` names them.
+  for (const float bad : {std::nanf(""), INFINITY, -INFINITY}) {
+    Image copy = image;
+    copy.at(3, 12, 13) = bad;
+    copy.at(4, 12, 13) = bad;
+    std::string expected;
+    EXPECT_FALSE(CheckFiniteVoxels(copy, "image", &expected));
+    EXPECT_FALSE(CheckFiniteVoxels(copy, "image", &error, &constant));
+    EXPECT_EQ(error, expected);
+    EXPECT_EQ(error, std::string("image: voxel (3,12,13) is ") + (std::isnan(bad) ? "NaN" : "Inf"));
+  }
+}
+
 }  // namespace
 }  // namespace dsr

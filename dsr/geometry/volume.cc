@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <vector>
 #include <cmath>
+#include <limits>
 #include <sstream>
 
 namespace dsr {
@@ -27,14 +28,51 @@ std::string VoxelName(int64_t linear, int64_t nx, int64_t ny) {
          std::to_string(linear / nxy) + ")";
 }
 
+namespace {
+
+std::string NotFinite(const Image& image, size_t v, const std::string& what) {
+  return what + ": " + VoxelName(static_cast<int64_t>(v), image.geometry.size[0],
+                                 image.geometry.size[1]) +
+         " is " + (std::isnan(image.voxels[v]) ? "NaN" : "Inf");
+}
+
+}  // namespace
+
 bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string* error) {
   const auto bad = std::find_if(image.voxels.begin(), image.voxels.end(),
                                 [](float v) { return !std::isfinite(v); });
   if (bad == image.voxels.end()) return true;
-  *error = what + ": " +
-           VoxelName(bad - image.voxels.begin(), image.geometry.size[0], image.geometry.size[1]) +
-           " is " + (std::isnan(*bad) ? "NaN" : "Inf");
+  *error = NotFinite(image, static_cast<size_t>(bad - image.voxels.begin()), what);
   return false;
+}
+
+bool CheckFiniteVoxels(const Image& image,
+                       const std::string& what,
+                       std::string* error,
+                       bool* constant) {
+  // Chunks of branch-free integer reductions, which the compiler vectorises: at -O3 this
+  // pass takes less time than the search of CheckFiniteVoxels above.
+  constexpr size_t kChunk = 4096;
+  const float* x = image.voxels.data();
+  const size_t n = image.voxels.size();
+  const float first = n > 0 ? x[0] : 0.0f;
+  int differs = 0;
+  for (size_t begin = 0; begin < n; begin += kChunk) {
+    const size_t end = std::min(n, begin + kChunk);
+    int bad = 0;
+    for (size_t v = begin; v < end; ++v) {
+      bad |= std::fabs(x[v]) <= std::numeric_limits<float>::max() ? 0 : 1;  // NaN: 1
+      differs |= x[v] != first ? 1 : 0;
+    }
+    if (bad != 0) {
+      size_t v = begin;
+      while (std::isfinite(x[v])) ++v;
+      *error = NotFinite(image, v, what);
+      return false;
+    }
+  }
+  *constant = n > 0 && differs == 0;
+  return true;
 }
 
 bool ImageGeometry::Validate(const std::string& what, std::string* error) const {

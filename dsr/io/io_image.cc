@@ -254,9 +254,7 @@ bool MaskFromImage(const std::string& path,
   return true;
 }
 
-}  // namespace io_internal
-
-bool ReadImage(const std::string& path, Image* image, std::string* error) {
+bool ReadImage(const std::string& path, Image* image, std::string* error, bool* constant) {
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
     return false;
@@ -276,9 +274,18 @@ bool ReadImage(const std::string& path, Image* image, std::string* error) {
   out.geometry = ToGeometry(raw);
   if (nifti && !io_internal::CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
   out.voxels = std::move(raw.voxels);
-  if (!CheckFiniteVoxels(out, path, error)) return false;
+  if (constant == nullptr ? !CheckFiniteVoxels(out, path, error)
+                          : !CheckFiniteVoxels(out, path, error, constant)) {
+    return false;
+  }
   *image = std::move(out);
   return true;
+}
+
+}  // namespace io_internal
+
+bool ReadImage(const std::string& path, Image* image, std::string* error) {
+  return io_internal::ReadImage(path, image, error, nullptr);
 }
 
 bool ReadMask(const std::string& path,

@@ -28,6 +28,10 @@ std::string ZeroNiftiSpacing(const std::string& path);
 bool CheckNiftiOriginPrecision(const std::string& path, const ImageGeometry& g,
                                std::string* error);
 
+// ReadImage, with `constant` (when not null) telling whether every voxel holds one value,
+// found by the finite-voxel check's own pass.
+bool ReadImage(const std::string& path, Image* image, std::string* error, bool* constant);
+
 // ReadMask's rules for an image read from `path`: on `expected`'s grid (same size, then
 // ImageGeometry::SameGrid), non-zero = inside, at least one voxel inside.
 bool MaskFromImage(const std::string& path,

@@ -90,6 +90,16 @@ bool CheckWhich(const std::string& name,
   return true;
 }
 
+// A phase of one value in every voxel (a blank phase: 0) is refused as a frame of one value
+// in its field of view is: nothing in it can be registered, and it would pull the view's
+// one pose for every phase. `what` names the file and the phase.
+std::string ConstantPhase(const std::string& what, const Image& phase) {
+  std::ostringstream value;
+  value << (phase.voxels.empty() ? 0.0f : phase.voxels[0]);
+  return what + " has the same value (" + value.str() + ") in every voxel: a blank or "
+         "constant phase has nothing to register";
+}
+
 }  // namespace
 
 bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
@@ -103,10 +113,15 @@ bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
   return true;
 }
 
-bool ReadPhases(const std::string& path,
-                const std::vector<int>& which,
-                std::vector<Image>* phases,
-                std::string* error) {
+namespace {
+
+// ReadPhases, and with `refuse_constant` (a view's phases, ReadView) a 4D file's phase of one
+// value in every voxel refused (ConstantPhase), found by the finite-voxel check's pass.
+bool ReadFilePhases(const std::string& path,
+                    const std::vector<int>& which,
+                    bool refuse_constant,
+                    std::vector<Image>* phases,
+                    std::string* error) {
   if (!HasSupportedImageExtension(path)) {
     *error = UnsupportedExtension(path);
     return false;
@@ -143,10 +158,29 @@ bool ReadPhases(const std::string& path,
     out[k].voxels = std::move(voxels[k]);
     // Named by its index in the file, whatever its place in `which`.
     const int t = which.empty() ? static_cast<int>(k) : which[k];
-    if (!CheckFiniteVoxels(out[k], path + ": phase " + std::to_string(t), error)) return false;
+    const std::string phase = path + ": phase " + std::to_string(t);
+    bool constant = false;
+    if (!refuse_constant) {
+      if (!CheckFiniteVoxels(out[k], phase, error)) return false;
+    } else if (!CheckFiniteVoxels(out[k], phase, error, &constant)) {
+      return false;
+    }
+    if (constant) {
+      *error = ConstantPhase(phase, out[k]);
+      return false;
+    }
   }
   *phases = std::move(out);
   return true;
+}
+
+}  // namespace
+
+bool ReadPhases(const std::string& path,
+                const std::vector<int>& which,
+                std::vector<Image>* phases,
+                std::string* error) {
+  return ReadFilePhases(path, which, /*refuse_constant=*/false, phases, error);
 }
 
 bool ReadPhases(const std::string& path, std::vector<Image>* phases, std::string* error) {
@@ -241,7 +275,9 @@ bool ReadView(const std::string& spec,
               std::vector<Image>* phases,
               std::string* error) {
   const std::vector<std::string> files = ViewFiles(spec);
-  if (files.size() == 1) return ReadPhases(files[0], which, phases, error);
+  if (files.size() == 1) {
+    return ReadFilePhases(files[0], which, /*refuse_constant=*/true, phases, error);
+  }
   const int count = static_cast<int>(files.size());
   if (!CheckWhich(spec, which, count, "view", error)) return false;
   std::vector<int> order = which;
@@ -251,7 +287,12 @@ bool ReadView(const std::string& spec,
   std::vector<Image> out(order.size());
   for (size_t k = 0; k < order.size(); ++k) {
     const std::string& file = files[order[k]];
-    if (!ReadImage(file, &out[k], error)) return false;
+    bool constant = false;
+    if (!io_internal::ReadImage(file, &out[k], error, &constant)) return false;
+    if (constant) {
+      *error = ConstantPhase(file + ": phase " + std::to_string(order[k]), out[k]);
+      return false;
+    }
     if (k > 0 && !out[k].geometry.SameGrid(out[0].geometry)) {
       *error = file + ": phase " + std::to_string(order[k]) + " lies on another grid than phase " +
                std::to_string(order[0]) + " (" + files[order[0]] + ")";

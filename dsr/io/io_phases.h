@@ -69,7 +69,11 @@ std::vector<std::string> ViewFiles(const std::string& spec);
 // A view's phases `which` (as ReadPhases; empty: all) (docs/design.md section 12): ReadPhases
 // of its one file (3D: one phase), or for files joined by ';' (ViewFiles) the 3D images of
 // the files `which` names, only those read, each on the grid of the first one read
-// ("<file>: phase 2 lies on another grid than phase 0 (<first>)").
+// ("<file>: phase 2 lies on another grid than phase 0 (<first>)"). A phase of a view of
+// several phases that holds one value in every voxel (a blank phase) is refused ("<file>:
+// phase 2 has the same value (0) in every voxel: ..."), found by the finite-voxel check's
+// own pass; a 3D view is read as ReadImage reads it (the registration refuses a frame of one
+// value in its field of view).
 bool ReadView(const std::string& spec,
               const std::vector<int>& which,
               std::vector<Image>* phases,

@@ -843,6 +843,46 @@ TEST(PhasesIo, SlicerSequenceKeysThatDisagreeWithTheDataAreRefused) {
   }
 }
 
+TEST(PhasesIo, ConstantPhaseOfAViewIsRefusedNamingThePhase) {
+  ScopedTempDir dir;
+  std::vector<Image> phases = ObliquePhases();
+  std::fill(phases[1].voxels.begin(), phases[1].voxels.end(), 0.0f);  // a blank phase
+  std::string error;
+  for (const std::string ext : {".nii.gz", ".seq.nrrd"}) {
+    SCOPED_TRACE(ext);
+    const std::string path = dir.File("blank" + ext);
+    ASSERT_TRUE(WritePhases(phases, path, &error)) << error;
+    std::vector<Image> view;
+    EXPECT_FALSE(ReadView(path, &view, &error));
+    EXPECT_EQ(error, path + ": phase 1 has the same value (0) in every voxel: a blank or "
+                            "constant phase has nothing to register");
+    // Only the phases read are looked at; ReadPhases, a reader of any 4D image, takes it.
+    ASSERT_TRUE(ReadView(path, {2, 0}, &view, &error)) << error;
+    EXPECT_EQ(view.size(), 2u);
+    ASSERT_TRUE(ReadPhases(path, &view, &error)) << error;
+    ExpectSamePhases(view, phases);
+  }
+  // A view of 3D files: the file and its phase are named.
+  std::fill(phases[2].voxels.begin(), phases[2].voxels.end(), 7.5f);
+  std::string spec;
+  for (int t = 0; t < kPhases; ++t) {
+    const std::string file = dir.File("p" + std::to_string(t) + ".nrrd");
+    ASSERT_TRUE(WriteImage(phases[t], file, &error)) << error;
+    spec += (t ? ";" : "") + file;
+  }
+  std::vector<Image> view;
+  EXPECT_FALSE(ReadView(spec, {0, 2}, &view, &error));
+  EXPECT_EQ(error, dir.File("p2.nrrd") + ": phase 2 has the same value (7.5) in every voxel: a "
+                                         "blank or constant phase has nothing to register");
+  // A 3D view is read as ReadImage reads it (the registration judges its field of view), and
+  // a 4D mask may be all inside.
+  ASSERT_TRUE(ReadView(dir.File("p2.nrrd"), &view, &error)) << error;
+  Image full(ObliqueGeometry(), 1.0f);
+  ASSERT_TRUE(WritePhases({full, full, full}, dir.File("mask.nii.gz"), &error)) << error;
+  Mask mask;
+  ASSERT_TRUE(ReadMaskPhases(dir.File("mask.nii.gz"), ObliqueGeometry(), &mask, &error)) << error;
+}
+
 // The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.
 struct Resident {
   double now = 0.0;

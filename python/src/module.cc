@@ -191,7 +191,8 @@ void CheckFloatRange(const py::array& input, const std::string& what) {
 }
 
 template <typename T>
-Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::string& what) {
+Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::string& what,
+                   bool refuse_constant = false) {
   // numpy would cast complex values to their real part with no more than a warning.
   if (input.dtype().kind() == 'c') {
     BadInput(what + ": complex pixels (" + std::string(py::str(input.dtype())) +
@@ -206,7 +207,18 @@ Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::
   if (!out.geometry.Validate(what, &error)) BadInput(error);
   std::copy(array.data(), array.data() + out.voxels.size(), out.voxels.begin());
   if constexpr (std::is_same_v<T, float>) {
-    if (!CheckFiniteVoxels(out, what, &error)) BadInput(error);
+    bool constant = false;
+    if (refuse_constant ? !CheckFiniteVoxels(out, what, &error, &constant)
+                        : !CheckFiniteVoxels(out, what, &error)) {
+      BadInput(error);
+    }
+    // A view's phase as a 4D file's is read (io/io_phases.h, ReadView).
+    if (constant) {
+      std::ostringstream value;
+      value << out.voxels[0];
+      BadInput(what + " has the same value (" + value.str() + ") in every voxel: a blank or "
+               "constant phase has nothing to register");
+    }
   }
   return out;
 }
@@ -446,7 +458,8 @@ void ReadArrays(int min_frames, const py::list& images, const py::list& masks,
       }
       for (ssize_t t = 0; t < array.shape(0); ++t) {
         const py::array phase = array.attr("__getitem__")(t);
-        Image volume = ToVolume<float>(phase, geometry, what + " phase " + std::to_string(t));
+        Image volume = ToVolume<float>(phase, geometry, what + " phase " + std::to_string(t),
+                                       /*refuse_constant=*/array.shape(0) > 1);
         if (t == 0) {
           frames->push_back(std::move(volume));
         } else {

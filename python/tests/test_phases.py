@@ -200,6 +200,23 @@ def test_phases_are_digits_separated_by_single_commas():
         dsr.fuse(sequence.views(), [np.eye(4)] * 3, sequence.masks, phases="0,1,")
 
 
+def test_a_blank_phase_is_refused_in_memory_and_from_files(tmp_path):
+    """A phase of one value in every voxel has nothing to register: refused naming the
+    image (or file) and the phase, as dsr_register refuses it."""
+    sequence = beating(seed=5)
+    views = sequence.views()
+    blank = views[1].array.copy()
+    blank[2] = 0.0
+    views[1] = dsr.Image(blank, views[1].spacing, views[1].origin, views[1].direction)
+    with pytest.raises(ValueError, match=r"image 1 phase 2 has the same value \(0\) in every "
+                                         r"voxel"):
+        dsr.register(views, sequence.masks, **SMALL)
+    paths, masks = write_views(tmp_path, views, sequence.masks)
+    with pytest.raises(ValueError, match=r"view_1\.nii\.gz: phase 2 has the same value \(0\)"):
+        dsr.register(paths, masks, **SMALL)
+    assert dsr.read_image(paths[1]).array.shape[0] == 3  # a reader of any 4D image takes it
+
+
 def test_dsr_fuse_writes_a_4d_panorama_simpleitk_and_slicer_read(tmp_path):
     """dsr_simulate's 4D views, registered and fused by the tools: SimpleITK reads the
     NIfTI panorama as 4D, and the .seq.nrrd carries 3D Slicer's sequence keys."""
