@@ -883,6 +883,26 @@ TEST(PhasesIo, ConstantPhaseOfAViewIsRefusedNamingThePhase) {
   ASSERT_TRUE(ReadMaskPhases(dir.File("mask.nii.gz"), ObliqueGeometry(), &mask, &error)) << error;
 }
 
+TEST(PhasesIo, HeaderOfManyMorePhasesThanTheDataIsRefused) {
+  // 100000 phases declared, the voxels of one present: refused before anything is allocated.
+  ScopedTempDir dir;
+  std::string text =
+      "NRRD0004\ntype: float\ndimension: 4\nspace: left-posterior-superior\n"
+      "sizes: 100000 32 32 32\nspace directions: none (1,0,0) (0,1,0) (0,0,1)\n"
+      "kinds: list domain domain domain\nendian: little\nencoding: raw\n"
+      "space origin: (0,0,0)\n\n";
+  text += std::string(4 * 32 * 32 * 32, '\0');
+  for (const std::string name : {"many.seq.nrrd", "many.nrrd"}) {
+    const std::string path = dir.File(name);
+    WriteText(path, text);
+    EXPECT_THAT(ReadPhasesError(path), HasSubstr("cannot read the voxels"));
+    std::vector<Image> view;
+    std::string error;
+    EXPECT_FALSE(ReadView(path, {0}, &view, &error));
+    ExpectOneLineNaming(error, path);
+  }
+}
+
 // The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.
 struct Resident {
   double now = 0.0;

@@ -4,7 +4,9 @@
 // Slicer's sequence, the report of a chosen phase), the same views as one 3D file per phase
 // joined by ';', --phases' selection, dsr_fuse's 4D panorama, and bad phase sets refused
 // with one line naming the file or flag.
+#include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -226,6 +228,64 @@ TEST_F(PhasesCli, BadPhaseSetsGiveOneLineNamingTheFileOrFlag) {
   expect_bad("'--images=" + Phase3D(0, 0) + ";" + Seq("missing.nii.gz") + "," + Frame(1) + "," +
                  Frame(2) + "'",
              "missing.nii.gz: no such file");
+}
+
+// Views whose files contradict themselves or each other: refused before any work with one
+// line naming the file, exit status 2, nothing written.
+TEST_F(PhasesCli, ContradictoryViewsGiveOneLineNamingTheFile) {
+  const auto expect_bad = [&](const std::string& images, const std::string& needle) {
+    const ToolRun run = Register("'--images=" + images + "' --out_poses=" + Out("bad.json"));
+    EXPECT_EQ(run.exit_code, 2) << images << "\n" << run.err;
+    ASSERT_EQ(run.err_lines.size(), 1u) << images << "\n" << run.err;
+    EXPECT_NE(run.err_lines[0].find(needle), std::string::npos) << images << "\n" << run.err;
+    EXPECT_FALSE(fs::exists(Out("bad.json")));
+  };
+  const auto joined = [](int f) {
+    return Phase3D(f, 0) + ";" + Phase3D(f, 1) + ";" + Phase3D(f, 2);
+  };
+  // One file as two phases of a view, and one phase file in two views (under another name).
+  expect_bad(Phase3D(0, 0) + ";" + Phase3D(0, 0) + ";" + Phase3D(0, 2) + "," + Frame(1) + "," +
+                 Frame(2),
+             "--images: " + Phase3D(0, 0) + " is given twice (phase 0 of image 0 and phase 1 of "
+             "image 0");
+  const std::string renamed = Seq("./view_0_phase_0.nii.gz");
+  expect_bad(joined(0) + "," + renamed + ";" + Phase3D(1, 1) + ";" + Phase3D(1, 2) + "," +
+                 joined(2),
+             "--images: " + renamed + " is given twice (phase 0 of image 0 and phase 0 of image 1");
+  std::vector<Image> phases;
+  std::string error;
+  ASSERT_TRUE(ReadPhases(Frame(0), &phases, &error)) << error;
+  const std::string others = "," + Frame(1) + "," + Frame(2);
+  // A NIfTI time axis of size 0.
+  const std::string nifti = Out("dim0.nii");
+  ASSERT_TRUE(WritePhases(phases, nifti, &error)) << error;
+  std::string bytes = ReadText(nifti);
+  bytes[40 + 2 * 4] = bytes[40 + 2 * 4 + 1] = 0;
+  std::ofstream(nifti, std::ios::binary) << bytes;
+  expect_bad(nifti + others, nifti + ": NIfTI header field dim[4] is 0");
+  // 3D Slicer's index values, one short.
+  const std::string sequence = Out("keys.seq.nrrd");
+  ASSERT_TRUE(WritePhases(phases, sequence, &error)) << error;
+  bytes = ReadText(sequence);
+  const size_t values = bytes.find("axis 0 index values:=0 1 2\n");
+  ASSERT_NE(values, std::string::npos);
+  bytes.replace(values, 27, "axis 0 index values:=0 1\n");
+  std::ofstream(sequence, std::ios::binary) << bytes;
+  expect_bad(sequence + others,
+             sequence + ": key 'axis 0 index values' has 2 values for 3 phases");
+  // A blank phase.
+  const std::string blank = Out("blank.nii.gz");
+  std::fill(phases[1].voxels.begin(), phases[1].voxels.end(), 0.0f);
+  ASSERT_TRUE(WritePhases(phases, blank, &error)) << error;
+  expect_bad(blank + others, blank + ": phase 1 has the same value (0) in every voxel");
+  // 100000 phases declared, one phase of data.
+  const std::string many = Out("many.seq.nrrd");
+  std::ofstream(many, std::ios::binary)
+      << "NRRD0004\ntype: float\ndimension: 4\nspace: left-posterior-superior\n"
+         "sizes: 100000 32 32 28\nspace directions: none (1,0,0) (0,1,0) (0,0,1)\n"
+         "kinds: list domain domain domain\nendian: little\nencoding: raw\n\n"
+      << std::string(4 * 32 * 32 * 28, '\0');
+  expect_bad(many + others, many + ": cannot read the voxels");
 }
 
 }  // namespace
