@@ -901,6 +901,15 @@ TEST(PhasesIo, HeaderOfManyMorePhasesThanTheDataIsRefused) {
     EXPECT_FALSE(ReadView(path, {0}, &view, &error));
     ExpectOneLineNaming(error, path);
   }
+  // A detached header is held to its data file's size (teem would check it only after the
+  // 13 GB are allocated).
+  const std::string detached = dir.File("many.seq.nhdr");
+  const size_t blank_line = text.find("\n\n");
+  WriteText(detached, text.substr(0, blank_line + 1) + "data file: many.raw\n\n");
+  WriteText(dir.File("many.raw"), std::string(4 * 32 * 32 * 32, '\0'));
+  EXPECT_THAT(ReadPhasesError(detached),
+              HasSubstr("cannot read the voxels (the header promises 13107200000 bytes of voxels, "
+                        "more than its data file (131072 bytes) can hold)"));
 }
 
 // The process's resident memory and its peak (VmRSS, VmHWM of /proc/self/status), bytes.

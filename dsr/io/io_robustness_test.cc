@@ -1,7 +1,8 @@
 // Tests that the IO layer loses no data and never accepts an incomplete file:
 // failed writes (file-size limit, i.e. disk full) never replace a previous file, NIfTI
 // sizes follow the datatype, NIfTI NaN/Inf are refused, MetaImage LIST and detached data
-// files are checked, and the files an image consists of or a write creates are listed.
+// files are checked (a detached NRRD header's promise too), and the files an image consists
+// of or a write creates are listed.
 #include <fcntl.h>
 #include <signal.h>
 #include <sys/resource.h>
@@ -28,6 +29,7 @@
 
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_itk.h"
+#include "dsr/io/io_phases.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
 #include "dsr/util/atomic_file.h"
 
@@ -474,6 +476,53 @@ TEST(NrrdIo, DetachedDataFileMissingOrShortIsRefused) {
   EXPECT_THAT(ReadError(path), HasSubstr("cannot read the voxels"));
   fs::remove(dir.File("frame.raw"));
   EXPECT_THAT(ReadError(path), HasSubstr("couldn't open \"" + dir.File("frame.raw") + "\""));
+}
+
+// Found by fuzzing (tests/fuzz/fuzz_phases): a .nhdr whose sizes promise far more voxels
+// than it or its data file holds had them allocated before teem (or the phase reader) read
+// a byte: 1.6 TB for a 2.5 KB file, and 2^31 phases listed one by one. Refused first, as
+// attached headers are (a missing data file is teem's error, above).
+TEST(NrrdIo, DetachedHeaderPromisingMoreThanItsDataHoldsIsRefusedBeforeAllocating) {
+  ScopedTempDir dir;
+  const std::string head =
+      "NRRD0004\ntype: short\ndimension: 4\nspace: left-posterior-superior\n"
+      "space directions: none (1,0,0) (0,1,0) (0,0,1)\nkinds: list domain domain domain\n"
+      "endian: little\nencoding: raw\n";
+  const std::string data(3 * 2 * 2 * 2 * 2, '\1');
+  const auto read_error = [](const std::string& path) {
+    std::vector<Image> phases;
+    std::string error;
+    EXPECT_FALSE(ReadPhases(path, &phases, &error)) << path;
+    return error;
+  };
+  WriteBytes(dir.File("huge.nhdr"), head + "sizes: 3 2 2147483647 2\n\n" + data);
+  const std::string size = std::to_string(fs::file_size(dir.File("huge.nhdr")));
+  EXPECT_THAT(read_error(dir.File("huge.nhdr")),
+              HasSubstr("cannot read the voxels (the header promises 51539607528 bytes of "
+                        "voxels, more than a " + size + "-byte file can hold)"));
+  // Only the header is read to count the phases.
+  WriteBytes(dir.File("phases.seq.nhdr"), head + "sizes: 2147483647 2 2 2\n\n" + data);
+  int count = 0;
+  std::string error;
+  ASSERT_TRUE(NumPhasesInFile(dir.File("phases.seq.nhdr"), &count, &error)) << error;
+  EXPECT_EQ(count, 2147483647);
+  EXPECT_THAT(read_error(dir.File("phases.seq.nhdr")), HasSubstr("can hold)"));
+  // Data files: their sizes bound the data.
+  WriteBytes(dir.File("d.raw"), data);
+  WriteBytes(dir.File("detached.nhdr"), head + "sizes: 3 2 2 100000000\ndata file: d.raw\n");
+  EXPECT_THAT(read_error(dir.File("detached.nhdr")),
+              HasSubstr("more than its data file (48 bytes) can hold)"));
+  // A 3D image reads the same way.
+  const std::string slab = "NRRD0004\ntype: float\ndimension: 3\nsizes: 100000 100000 100\n"
+                           "endian: little\nencoding: raw\n";
+  WriteBytes(dir.File("slab.nhdr"), slab + "data file: d.raw\n");
+  Image image;
+  EXPECT_FALSE(ReadImage(dir.File("slab.nhdr"), &image, &error));
+  EXPECT_THAT(error, HasSubstr("more than its data file (48 bytes) can hold)"));
+  // Not a regular file: 0 bytes (teem would read its terabytes from the device).
+  WriteBytes(dir.File("zeros.nhdr"), slab + "data file: /dev/zero\n");
+  EXPECT_FALSE(ReadImage(dir.File("zeros.nhdr"), &image, &error));
+  EXPECT_THAT(error, HasSubstr("more than its data file (0 bytes) can hold)"));
 }
 
 // ---- Files an image consists of, files a write creates ----
