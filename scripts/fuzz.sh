@@ -3,6 +3,7 @@
 # reader of a view's phases) with clang + ASan + UBSan in build-fuzz/ and runs each for a
 # bounded time, all at once (one process each; on two cores they share). Usage:
 # bash scripts/fuzz.sh [seconds per target, default 600] [target...: poses image phases]
+# (the ctest suite replays the same targets on the corpus without clang: FuzzReplay.*)
 # The committed seeds (dsr/tests/fuzz/corpus) are copied to build-fuzz/corpus first, so runs
 # grow their own corpus; crashes and hangs (an input over 10 s) land in build-fuzz/artifacts/
 # and fail the script.
