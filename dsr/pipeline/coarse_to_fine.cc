@@ -572,6 +572,16 @@ void CoarseToFine::UseAffine() {
 
 namespace {
 
+// Every frame's structure statistics at verbosity 1, each line led by `what`.
+void LogStructure(const std::string& what, const std::vector<FrameStructure>& structure) {
+  if (!VLOG_IS_ON(1)) return;
+  for (size_t f = 0; f < structure.size(); ++f) {
+    VLOG(1) << what << " structure: frame " << f << " fraction " << structure[f].fraction
+            << " significance " << structure[f].significance
+            << (structure[f].judged ? "" : " (not judged)") << " pairs " << structure[f].pairs;
+  }
+}
+
 // Each frame's mean and standard deviation over its valid cells (phase 0), from every
 // kSpreadStride-th voxel where the frame has more than kSpreadVoxels (a prime stride: no
 // alignment with the grid's rows; half a million samples fix both to a fraction of a per
@@ -850,14 +860,7 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
     }
     unjudged_ = std::any_of(structure.begin(), structure.end(),
                             [](const FrameStructure& f) { return !f.judged; });
-    if (VLOG_IS_ON(1)) {
-      for (size_t f = 0; f < structure.size(); ++f) {
-        VLOG(1) << "level " << level << " structure: frame " << f << " fraction "
-                << structure[f].fraction << " significance " << structure[f].significance
-                << (structure[f].judged ? "" : " (not judged)") << " pairs "
-                << structure[f].pairs;
-      }
-    }
+    LogStructure("level " + std::to_string(level), structure);
     const std::vector<int> outliers =
         StructureOutliers(structure, options_.max_structure_fraction, &misfit_exempt_);
     if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
@@ -1007,14 +1010,7 @@ CoarseToFine::Next CoarseToFine::CheckLaterPhases(const std::vector<Frame>& fram
       structure = FrameStructures(PhaseFrames(frames, p), candidates, poses, stream_,
                                   photometric_);
     }
-    if (VLOG_IS_ON(1)) {
-      for (size_t f = 0; f < structure.size(); ++f) {
-        VLOG(1) << "phase " << p << " structure: frame " << f << " fraction "
-                << structure[f].fraction << " significance " << structure[f].significance
-                << (structure[f].judged ? "" : " (not judged)") << " pairs "
-                << structure[f].pairs;
-      }
-    }
+    LogStructure("phase " + std::to_string(p), structure);
     const std::vector<int> outliers =
         StructureOutliers(structure, options_.max_structure_fraction, &misfit_exempt_);
     if (outliers.empty()) continue;
