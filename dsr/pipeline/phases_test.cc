@@ -186,6 +186,16 @@ TEST(Phases, APhaseThatDoesNotFitItsViewsPoseIsRefused) {
       << result.failure;
   EXPECT_TRUE(result.flagged_frames.empty()) << "no start would fix it: nothing to re-place";
   RegisterPhases(s, Options(Mode::kDsr), true, &result);  // expects it usable
+  // A corrupt phase (its values times 1e6) does not fit either: refused, or registered
+  // right (it was accepted 9.3 mm off).
+  later = s.later_phases;
+  for (float& v : later[1][1].voxels) v *= 1e6f;
+  RegistrationOptions automatic = Options(Mode::kDsr);
+  automatic.photometric = PhotometricModel::kAuto;
+  ASSERT_TRUE(Register(s.frames, later, s.masks, identity, automatic, &result, &error)) << error;
+  if (result.usable) {
+    EXPECT_LT(ComparePoses(result.frame_from_world, s.frame_from_world, s.masks).tre_mean_mm, 0.5);
+  }
 }
 
 }  // namespace
