@@ -1051,7 +1051,9 @@ CoarseToFine::Next CoarseToFine::CheckFinalDetermination(
     if (UndeterminedPoses(frames, candidates, poses, masks_, stream_,
                           options_.max_pose_error_voxels, &undetermined, &not_judged,
                           &result_->pose_error_voxels, all_sums,
-                          affine_ ? &photometric_ : nullptr) &&
+                          affine_ && static_cast<int>(photometric_.size()) == m_
+                              ? &photometric_
+                              : nullptr) &&
         !undetermined.empty()) {
       std::ostringstream why;
       why << UndeterminedPhrase(undetermined)
