@@ -470,7 +470,7 @@ CoarseToFine::Next CoarseToFine::JudgeLevelStart(int level,
   const std::vector<int> outliers =
       StructureOutliers(structure, options_.max_structure_fraction, &misfit_exempt_);
   if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
-      !StructureExplainedByBrightness(level, frames, candidates, outliers)) {
+      !StructureExplainedByBrightness(level, frames, candidates)) {
     return Diverged(last_level,
                     why + " (judged on pyramid level " + std::to_string(level) +
                         "'s frames before its solve)",
@@ -786,8 +786,7 @@ void CoarseToFine::DetectBrightnessEarly(int level, const std::vector<Frame>& fr
 
 bool CoarseToFine::StructureExplainedByBrightness(int level,
                                                   const std::vector<Frame>& frames,
-                                                  const CandidateSet& candidates,
-                                                  const std::vector<int>& outliers) {
+                                                  const CandidateSet& candidates) {
   if (!AutoPhotometricUndecided()) return false;
   // Frames of different brightness (gains, offsets) leave structure in each other's
   // differences that is not anatomy out of line. If the frames line up once the gains and
@@ -814,17 +813,6 @@ bool CoarseToFine::StructureExplainedByBrightness(int level,
   }
   if (!StructureOutliers(corrected, options_.max_structure_fraction, &misfit_exempt_).empty()) {
     return false;
-  }
-  // Each frame that stood out must line up, its fraction now within the limit: one that
-  // stays over it has not been explained, even where it no longer stands out of its spread
-  // (two more parameters per frame widen it; on three views of 32^3 voxels a wrong minimum
-  // went from 14 % at 5.6 standard errors to 15 % at 3.9), nor one too flat, corrected, to
-  // be judged. (On an echo-like MNI152 sequence a frame at 5.13 % corrected was so sent to
-  // a recovery, after which it measured 4.8 %: the same poses, in twice the time.)
-  for (int i : outliers) {
-    if (!corrected[i].judged || corrected[i].fraction > options_.max_structure_fraction) {
-      return false;
-    }
   }
   result_->photometric_detected = true;
   std::ostringstream why;
@@ -865,7 +853,7 @@ CoarseToFine::Next CoarseToFine::CheckCoarseLevel(int level, const std::vector<F
     const std::vector<int> outliers =
         StructureOutliers(structure, options_.max_structure_fraction, &misfit_exempt_);
     if (StructureOutlier(structure, options_.max_structure_fraction, &why, &misfit_exempt_) &&
-        !StructureExplainedByBrightness(level, frames, last_candidates_, outliers)) {
+        !StructureExplainedByBrightness(level, frames, last_candidates_)) {
       return Diverged(level, why, outliers);
     }
   }
@@ -968,7 +956,7 @@ CoarseToFine::Next CoarseToFine::CheckFinalPoses(const std::vector<Frame>& frame
       result_->frame_structure, options_.max_structure_fraction, &misfit_exempt_);
   if (StructureOutlier(result_->frame_structure, options_.max_structure_fraction, &why,
                        &misfit_exempt_) &&
-      !StructureExplainedByBrightness(0, frames, final_candidates, outliers)) {
+      !StructureExplainedByBrightness(0, frames, final_candidates)) {
     return Diverged(0, why, outliers);
   }
   next = CheckLaterPhases(frames, final_candidates, poses);

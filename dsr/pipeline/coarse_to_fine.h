@@ -151,13 +151,10 @@ class CoarseToFine {
   // With photometric kAuto, undecided, when the structure check flags frames at a level:
   // true (and the solves estimate gains and offsets from here on, recorded in the result)
   // when every frame lines up once the gains and offsets estimated at these poses correct
-  // it (none stands out, and each of `outliers`, those that stood out without them, is
-  // judged and within max_structure_fraction); false when the structure stands (a wrong
-  // minimum) or the choice is made.
+  // it; false when the structure stands (a wrong minimum) or the choice is made.
   bool StructureExplainedByBrightness(int level,
                                       const std::vector<Frame>& frames,
-                                      const CandidateSet& candidates,
-                                      const std::vector<int>& outliers);
+                                      const CandidateSet& candidates);
   // With photometric kAuto, undecided, at the last coarse level (1) once its checks pass
   // (where recovery is on; else after its solves):
   // where the gains and offsets estimated at its poses change some frame's intensities by
@@ -188,14 +185,15 @@ class CoarseToFine {
   Next FinalCandidates(const std::vector<Frame>& frames,
                        const std::vector<Eigen::Isometry3d>& poses,
                        CandidateSet* candidates);
-  // CheckFinalPoses's determination check (modes dsr and dba with the squared loss), on
-  // `all_sums` when given (the pose uncertainty's sums over all the candidates).
   // At the final poses, where phase 0 passed the structure check: each later phase's
   // structure check against the other frames' same phase; a phase out of line is refused
-  // naming its frame (no frame to re-place).
+  // naming the phase (no frame to re-place).
   Next CheckLaterPhases(const std::vector<Frame>& frames,
                         const CandidateSet& candidates,
                         const std::vector<Eigen::Isometry3d>& poses);
+  // CheckFinalPoses's determination check (modes dsr and dba with the squared loss), on
+  // `all_sums` when given (the pose uncertainty's sums over all the candidates), on the
+  // corrected frames where gains and offsets are estimated.
   Next CheckFinalDetermination(const std::vector<Frame>& frames,
                                const CandidateSet& candidates,
                                const std::vector<Eigen::Isometry3d>& poses,
