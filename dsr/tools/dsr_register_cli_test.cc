@@ -426,11 +426,9 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
 // Three views of 32^3 voxels at 2 mm with the simulator's default motion (+/-12 deg, +/-15
 // voxels: half a view): too little overlap for some draws to fix the poses. Every flag at
 // its default, a run either ends near the truth or is refused with its reason; poses 23 and
-// 50 mm off (seeds 3 and 4) were accepted, one through gains and offsets the structure
-// check took for the explanation (a frame's fraction 14 % -> 15 %, only less significant),
-// the other through the photometric model's last resort, which the determination check
-// did not judge. With --photometric=affine and one pyramid level, gains of 15.7 and 0.0001
-// (a view taken out of the comparison) were accepted at poses 37 mm off.
+// 50 mm off (seeds 3 and 4) were accepted through gains and offsets, whose runs the
+// determination check did not judge. With --photometric=affine and one pyramid level, gains
+// of 15.7 and 0.0001 were accepted at poses 37 mm off.
 class SmallViewsCli : public ::testing::Test {
  protected:
   static void SetUpTestSuite() {
