@@ -302,7 +302,8 @@ TEST(PoseUncertainty, CorrectedSumsAreThoseOfCorrectedFrames) {
   ASSERT_TRUE(BuildPanoramaGrid(frames, poses, 1.0, &grid, &error)) << error;
   const CandidateSet candidates = BuildCandidates(frames, poses, grid, 0);
   for (int keep : {1, 3}) {
-    const UncertaintySums fast = SumForUncertainty(frames, candidates, poses, 2, keep, &photometric);
+    const UncertaintySums fast =
+        SumForUncertainty(frames, candidates, poses, 2, keep, &photometric);
     const UncertaintySums twin = SumForUncertainty(corrected, candidates, poses, 2, keep);
     EXPECT_EQ(fast.voxels, twin.voxels);
     EXPECT_EQ(fast.observations, twin.observations);

@@ -446,7 +446,9 @@ class SmallViewsCli : public ::testing::Test {
     delete temp_;
     temp_ = nullptr;
   }
-  static std::string Seq(int seed) { return (temp_->dir() / ("s" + std::to_string(seed))).string(); }
+  static std::string Seq(int seed) {
+    return (temp_->dir() / ("s" + std::to_string(seed))).string();
+  }
   static std::string Files(int seed, const std::string& kind) {
     const std::string d = Seq(seed) + "/" + kind;
     return d + "_00.nii.gz," + d + "_01.nii.gz," + d + "_02.nii.gz";
