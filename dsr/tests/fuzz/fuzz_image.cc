@@ -2,8 +2,6 @@
 // io/io_phases.h ReadPhases, ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
 // .mha, .nrrd); the rest is the file. Any outcome but a crash, a sanitizer report or a leak
 // is fine; an accepted image (each accepted phase) must have a valid grid and finite voxels.
-#include <unistd.h>
-
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -13,17 +11,12 @@
 
 #include "dsr/io/io_image.h"
 #include "dsr/io/io_phases.h"
+#include "dsr/tests/fuzz/fuzz_input.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  if (size < 1) return 0;
   static const char* const kExtensions[] = {".nii", ".nii.gz", ".mha", ".nrrd"};
-  const char* dir = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp";
-  const std::string path = std::string(dir) + "/dsr_fuzz_image_" + std::to_string(getpid()) +
-                           kExtensions[data[0] % 4];
-  FILE* f = std::fopen(path.c_str(), "wb");
-  if (f == nullptr) return 0;
-  std::fwrite(data + 1, 1, size - 1, f);
-  std::fclose(f);
+  const std::string path = dsr::WriteFuzzInput("image", kExtensions, 4, data, size);
+  if (path.empty()) return 0;
   dsr::Image image;
   std::string error;
   const bool ok = dsr::ReadImage(path, &image, &error);

@@ -9,8 +9,6 @@
 // itself, accepted phases must agree with the header's count, share a valid grid and hold
 // finite voxels, and a selection must give exactly those phases of the full read.
 // DSR_FUZZ_VERBOSE=1 prints each read's outcome (to check that the seeds are accepted).
-#include <unistd.h>
-
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -19,6 +17,7 @@
 #include <vector>
 
 #include "dsr/io/io_phases.h"
+#include "dsr/tests/fuzz/fuzz_input.h"
 
 namespace {
 
@@ -49,16 +48,10 @@ void Say(const char* what, bool ok, const std::string& error, size_t phases) {
 }  // namespace
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
-  if (size < 1) return 0;
   static const char* const kExtensions[] = {".nii",  ".nii.gz", ".nrrd",     ".seq.nrrd",
                                             ".mha",  ".nhdr",   ".seq.nhdr", ".mhd"};
-  const char* dir = access("/dev/shm", W_OK) == 0 ? "/dev/shm" : "/tmp";
-  const std::string path = std::string(dir) + "/dsr_fuzz_phases_" + std::to_string(getpid()) +
-                           kExtensions[data[0] % 8];
-  FILE* f = std::fopen(path.c_str(), "wb");
-  if (f == nullptr) return 0;
-  std::fwrite(data + 1, 1, size - 1, f);
-  std::fclose(f);
+  const std::string path = dsr::WriteFuzzInput("phases", kExtensions, 8, data, size);
+  if (path.empty()) return 0;
 
   int count = 0;
   std::string error;
