@@ -38,20 +38,12 @@ std::string NotFinite(const Image& image, size_t v, const std::string& what) {
 
 }  // namespace
 
-bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string* error) {
-  const auto bad = std::find_if(image.voxels.begin(), image.voxels.end(),
-                                [](float v) { return !std::isfinite(v); });
-  if (bad == image.voxels.end()) return true;
-  *error = NotFinite(image, static_cast<size_t>(bad - image.voxels.begin()), what);
-  return false;
-}
-
 bool CheckFiniteVoxels(const Image& image,
                        const std::string& what,
                        std::string* error,
                        bool* constant) {
   // Chunks of branch-free integer reductions, which the compiler vectorises: at -O3 this
-  // pass takes less time than the search of CheckFiniteVoxels above.
+  // pass took less time than a std::find_if for the first non-finite voxel.
   constexpr size_t kChunk = 4096;
   const float* x = image.voxels.data();
   const size_t n = image.voxels.size();
@@ -71,7 +63,7 @@ bool CheckFiniteVoxels(const Image& image,
       return false;
     }
   }
-  *constant = n > 0 && differs == 0;
+  if (constant != nullptr) *constant = n > 0 && differs == 0;
   return true;
 }
 

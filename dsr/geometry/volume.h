@@ -86,13 +86,12 @@ std::string VoxelName(int64_t linear, int64_t nx, int64_t ny);
 // Checks that every voxel is finite (the registration's sums take no NaN or Inf). On
 // failure `error` names the first bad voxel by index, "<what>: voxel (i,j,k) is NaN". The
 // front ends check what they read or are given (io_image's ReadImage, the Python module).
-bool CheckFiniteVoxels(const Image& image, const std::string& what, std::string* error);
-// The same check, also telling in the same pass whether every voxel holds one value (0 for
-// a blank image; false for no voxel): `*constant`, set when the check passes.
+// With `constant` (may be null), also tells in the same pass whether every voxel holds one
+// value (0 for a blank image; false for no voxel), set when the check passes.
 bool CheckFiniteVoxels(const Image& image,
                        const std::string& what,
                        std::string* error,
-                       bool* constant);
+                       bool* constant = nullptr);
 
 // A field-of-view mask from an image that is zero outside its field of view: 1 except at
 // the zero voxels connected to the grid border through zero voxels (so zeros enclosed by

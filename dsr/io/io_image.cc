@@ -274,10 +274,7 @@ bool ReadImage(const std::string& path, Image* image, std::string* error, bool* 
   out.geometry = ToGeometry(raw);
   if (nifti && !io_internal::CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
   out.voxels = std::move(raw.voxels);
-  if (constant == nullptr ? !CheckFiniteVoxels(out, path, error)
-                          : !CheckFiniteVoxels(out, path, error, constant)) {
-    return false;
-  }
+  if (!CheckFiniteVoxels(out, path, error, constant)) return false;
   *image = std::move(out);
   return true;
 }

@@ -90,17 +90,17 @@ bool CheckWhich(const std::string& name,
   return true;
 }
 
+}  // namespace
+
 // A phase of one value in every voxel (a blank phase: 0) is refused as a frame of one value
 // in its field of view is: nothing in it can be registered, and it would pull the view's
-// one pose for every phase. `what` names the file and the phase.
-std::string ConstantPhase(const std::string& what, const Image& phase) {
+// one pose for every phase.
+std::string ConstantPhaseError(const std::string& what, const Image& phase) {
   std::ostringstream value;
   value << (phase.voxels.empty() ? 0.0f : phase.voxels[0]);
   return what + " has the same value (" + value.str() + ") in every voxel: a blank or "
          "constant phase has nothing to register";
 }
-
-}  // namespace
 
 bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
   if (!HasSupportedImageExtension(path)) {
@@ -116,7 +116,7 @@ bool NumPhasesInFile(const std::string& path, int* phases, std::string* error) {
 namespace {
 
 // ReadPhases, and with `refuse_constant` (a view's phases, ReadView) a 4D file's phase of one
-// value in every voxel refused (ConstantPhase), found by the finite-voxel check's pass.
+// value in every voxel refused (ConstantPhaseError), found by the finite-voxel check's pass.
 bool ReadFilePhases(const std::string& path,
                     const std::vector<int>& which,
                     bool refuse_constant,
@@ -160,13 +160,11 @@ bool ReadFilePhases(const std::string& path,
     const int t = which.empty() ? static_cast<int>(k) : which[k];
     const std::string phase = path + ": phase " + std::to_string(t);
     bool constant = false;
-    if (!refuse_constant) {
-      if (!CheckFiniteVoxels(out[k], phase, error)) return false;
-    } else if (!CheckFiniteVoxels(out[k], phase, error, &constant)) {
+    if (!CheckFiniteVoxels(out[k], phase, error, refuse_constant ? &constant : nullptr)) {
       return false;
     }
     if (constant) {
-      *error = ConstantPhase(phase, out[k]);
+      *error = ConstantPhaseError(phase, out[k]);
       return false;
     }
   }
@@ -290,7 +288,7 @@ bool ReadView(const std::string& spec,
     bool constant = false;
     if (!io_internal::ReadImage(file, &out[k], error, &constant)) return false;
     if (constant) {
-      *error = ConstantPhase(file + ": phase " + std::to_string(order[k]), out[k]);
+      *error = ConstantPhaseError(file + ": phase " + std::to_string(order[k]), out[k]);
       return false;
     }
     if (k > 0 && !out[k].geometry.SameGrid(out[0].geometry)) {

@@ -66,6 +66,10 @@ bool WritePhases(const ImageGeometry& grid,
 // (items trimmed of spaces, empty items dropped).
 std::vector<std::string> ViewFiles(const std::string& spec);
 
+// ReadView's refusal of a phase of one value in every voxel, "<what> has the same value (0)
+// in every voxel: ..." (also the Python module's, for arrays); `what` names the phase.
+std::string ConstantPhaseError(const std::string& what, const Image& phase);
+
 // A view's phases `which` (as ReadPhases; empty: all) (docs/design.md section 12): ReadPhases
 // of its one file (3D: one phase), or for files joined by ';' (ViewFiles) the 3D images of
 // the files `which` names, only those read, each on the grid of the first one read

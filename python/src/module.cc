@@ -208,17 +208,11 @@ Volume<T> ToVolume(const py::array& input, const Geometry& geometry, const std::
   std::copy(array.data(), array.data() + out.voxels.size(), out.voxels.begin());
   if constexpr (std::is_same_v<T, float>) {
     bool constant = false;
-    if (refuse_constant ? !CheckFiniteVoxels(out, what, &error, &constant)
-                        : !CheckFiniteVoxels(out, what, &error)) {
+    if (!CheckFiniteVoxels(out, what, &error, refuse_constant ? &constant : nullptr)) {
       BadInput(error);
     }
     // A view's phase as a 4D file's is read (io/io_phases.h, ReadView).
-    if (constant) {
-      std::ostringstream value;
-      value << out.voxels[0];
-      BadInput(what + " has the same value (" + value.str() + ") in every voxel: a blank or "
-               "constant phase has nothing to register");
-    }
+    if (constant) BadInput(ConstantPhaseError(what, out));
   }
   return out;
 }
