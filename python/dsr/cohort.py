@@ -590,6 +590,7 @@ def _register_study(study: Study, out_dir: str, options: Dict[str, Any],
         folder = _study_folder(out_dir, study.study)
     except OSError as error:
         return _unwritten(record, error)
+    _remove_study_temporaries(folder)
     try:
         # The frames as @LIST files (a path may contain a comma), kept with the outputs.
         flags = []
@@ -908,6 +909,20 @@ def _remove_stale_temporaries(out_dir: str) -> None:
                 os.remove(os.path.join(out_dir, name))
 
 
+def _remove_study_temporaries(folder: str) -> None:
+    """The temporary files a killed worker left in a study's own folder (".name.tmp-..."
+    of the runner's writes and dsr_register's): before the study runs again, and when it is
+    recorded as failed. One worker runs a study at a time (Dask retries it only once the
+    worker running it has died) and the cohort's lock keeps other cohorts out."""
+    with contextlib.suppress(OSError):
+        with os.scandir(folder) as entries:
+            for entry in entries:
+                if entry.name.startswith(".") and ".tmp-" in entry.name and \
+                        entry.is_file(follow_symlinks=False):
+                    with contextlib.suppress(OSError):
+                        os.remove(entry.path)
+
+
 def run(manifest: str, out_dir: str, *, workers: int = 2, threads_per_worker: int = 1,
         memory_limit: Any = "auto", scheduler: Optional[str] = None, force: bool = False,
         progress: bool = True, _on_start: Optional[Callable[[Any], Any]] = None,
@@ -1053,6 +1068,7 @@ def _record_failure(out_dir: str, study: Study, reason: str) -> Dict[str, Any]:
               "reason": reason, "gt_poses": study.gt_poses, "retry": True}
     with contextlib.suppress(OSError):  # (a full disk: no record, so a rerun does it again)
         folder = _study_folder(out_dir, study.study)
+        _remove_study_temporaries(folder)
         _write_atomically(os.path.join(folder, "record.json"),
                           json.dumps(record, indent=1) + "\n")
     return record

@@ -130,19 +130,18 @@ def test_a_killed_worker_leaves_no_partial_study(tmp_path):
 
 
 def _kill_running_workers(client, times):
-    """Kills, `times` times, the worker process that runs a task, once it runs one."""
+    """Kills, `times` times, the worker process that a task was given to, as soon as the
+    scheduler has given it one: the study's solve is short, so any wait could let it end."""
     def kill():
-        for _ in range(times):
-            for _ in range(400):
-                processing = {w: t for w, t in client.processing().items() if t}
-                if processing:
-                    break
-                time.sleep(0.05)
-            time.sleep(0.5)
-            for worker in processing:
-                pid = client.run(os.getpid, workers=[worker])[worker]
+        killed = set()  # a restarted worker comes back on a new address
+        deadline = time.monotonic() + 60
+        while len(killed) < times and time.monotonic() < deadline:
+            busy = [w for w, tasks in client.processing().items() if tasks and w not in killed]
+            if busy:
+                pid = client.run(os.getpid, workers=busy[:1])[busy[0]]
                 os.kill(pid, signal.SIGKILL)
-            time.sleep(1.0)
+                killed.add(busy[0])
+            time.sleep(0.01)
     threading.Thread(target=kill, daemon=True).start()
 
 
