@@ -267,7 +267,9 @@ const OptionSpec kOptionTable[] = {
    " covers less than this fraction of what it covered at the initial poses (the frame "
    "slid out of the overlap) are a failure (exit 1), not a result; in [0, 1), 0 = off. "
    "dsr_compare: off by default (every method's poses are measured, diverged or not), 0.25"
-   " with --init=auto or global unless any of the three checks is set.",
+   " with --init=auto or global unless any check that flags frames is set (this one, "
+   "--max_structure_fraction, --max_pose_error_voxels, --max_misfit_ratio, "
+   "--max_pair_mismatch_ratio): then each has its own value, 0 where not given.",
    nullptr,
    DSR_FIELD(registration.min_kept_overlap)},
   {"max_structure_fraction", OptionType::kDouble, "0.05", "Checks",
@@ -281,12 +283,13 @@ const OptionSpec kOptionTable[] = {
    DSR_FIELD(registration.max_structure_fraction)},
   {"max_pose_error_voxels", OptionType::kDouble, "1.0", "Checks",
    kDsrRegister | kDsrCompare | kPyRegister,
-   "Determination check (docs/design.md 8.7; dsr and dba without gains and offsets or a "
-   "robust --loss): final poses at which the data leave some frame's pose undetermined "
+   "Determination check (docs/design.md 8.7; dsr and dba with the squared --loss, on the "
+   "gain-corrected intensities where gains and offsets are estimated): final poses at "
+   "which the data leave some frame's pose undetermined "
    "(the cost does not curve up along some motion of it, or the error the image noise "
    "alone puts on it exceeds this many of its voxels: a symmetric or featureless object) "
    "are a failure (exit 1) naming the frame and whether its rotation or translation; >= 0,"
-   " 0 = off.",
+   " 0 = off. dsr_compare: as --min_kept_overlap (1 with --init=auto or global).",
    nullptr,
    DSR_FIELD(registration.max_pose_error_voxels)},
   {"max_misfit_ratio", OptionType::kDouble, "0.0", "Checks",
