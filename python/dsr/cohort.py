@@ -590,7 +590,7 @@ def _register_study(study: Study, out_dir: str, options: Dict[str, Any],
         folder = _study_folder(out_dir, study.study)
     except OSError as error:
         return _unwritten(record, error)
-    _remove_study_temporaries(folder)
+    _remove_temporaries(folder)
     try:
         # The frames as @LIST files (a path may contain a comma), kept with the outputs.
         flags = []
@@ -901,24 +901,19 @@ def _locked(out_dir: str, manifest: str) -> Iterator[None]:
         os.close(fd)  # (the lock ends with its file descriptor)
 
 
-def _remove_stale_temporaries(out_dir: str) -> None:
-    """The cohort's own temporary files a killed run left in OUT (the lock is held)."""
-    for name in os.listdir(out_dir):
-        if any(name.startswith(f".{own}.tmp-") for own in _OWN_FILES):
-            with contextlib.suppress(OSError):
-                os.remove(os.path.join(out_dir, name))
-
-
-def _remove_study_temporaries(folder: str) -> None:
-    """The temporary files a killed worker left in a study's own folder (".name.tmp-..."
-    of the runner's writes and dsr_register's): before the study runs again, and when it is
-    recorded as failed. One worker runs a study at a time (Dask retries it only once the
-    worker running it has died) and the cohort's lock keeps other cohorts out."""
+def _remove_temporaries(folder: str, owners: Optional[Tuple[str, ...]] = None) -> None:
+    """The hidden temporary files (".name.tmp-...", the runner's writes and dsr_register's)
+    that a killed run left in `folder`; with `owners`, only those of these files. OUT's own
+    (the lock is held), and a study's before it runs again and when it is recorded as
+    failed: one worker runs a study at a time (Dask retries it only once the worker running
+    it has died) and the cohort's lock keeps other cohorts out."""
     with contextlib.suppress(OSError):
         with os.scandir(folder) as entries:
             for entry in entries:
-                if entry.name.startswith(".") and ".tmp-" in entry.name and \
-                        entry.is_file(follow_symlinks=False):
+                name = entry.name
+                ours = any(name.startswith(f".{own}.tmp-") for own in owners) if owners else \
+                    name.startswith(".") and ".tmp-" in name
+                if ours and entry.is_file(follow_symlinks=False):
                     with contextlib.suppress(OSError):
                         os.remove(entry.path)
 
@@ -974,7 +969,7 @@ def run(manifest: str, out_dir: str, *, workers: int = 2, threads_per_worker: in
     with _locked(out, manifest):
         if refused:
             _LOG.error(_summary(refused, len(good)))
-        _remove_stale_temporaries(out)
+        _remove_temporaries(out, _OWN_FILES)
         # Room for the results (a reason or path can be long) before the studies fill it.
         size = 16384 + 1024 * (len(good) + len(refused))
         reserved = {name: _Reserved(os.path.join(out, name), size)
@@ -1068,7 +1063,7 @@ def _record_failure(out_dir: str, study: Study, reason: str) -> Dict[str, Any]:
               "reason": reason, "gt_poses": study.gt_poses, "retry": True}
     with contextlib.suppress(OSError):  # (a full disk: no record, so a rerun does it again)
         folder = _study_folder(out_dir, study.study)
-        _remove_study_temporaries(folder)
+        _remove_temporaries(folder)
         _write_atomically(os.path.join(folder, "record.json"),
                           json.dumps(record, indent=1) + "\n")
     return record
