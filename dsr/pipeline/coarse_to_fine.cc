@@ -208,7 +208,7 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   result_ = result;
   error_ = error;
   if (options_.photometric == PhotometricModel::kAuto && result->photometric_detected) UseAffine();
-  poses_ = start_poses;
+  poses_ = round_start_ = start_poses;
   solve_world_ = Eigen::Isometry3d::Identity();
   unjudged_ = false;
   photometric_.clear();
@@ -217,6 +217,7 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   result->flagged_frames.clear();
   result->flagged_by_misfit = false;
   result->poses_undetermined = false;
+  result->brightness_suspected = false;
   result->failure.clear();
   for (int level = pyramids_->num_levels - 1; level >= 0; --level) {
     std::vector<Frame> frames;
@@ -229,7 +230,10 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
       next = level > 0 ? CheckCoarseLevel(level, frames) : CheckFinalPoses(frames);
       if (next == Next::kGoOn && level > 0) DetectBrightnessEarly(level, frames);
     }
-    if (next == Next::kEnd) return true;
+    if (next == Next::kEnd) {
+      SuspectBrightness(frames);
+      return true;
+    }
     if (next == Next::kError) return false;
   }
   result->frame_from_world = poses_;
@@ -618,7 +622,8 @@ bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
                                       double* largest_change,
                                       int* worst,
                                       double* largest_error,
-                                      bool refine) {
+                                      bool refine,
+                                      std::vector<std::pair<double, double>>* frame_changes) {
   ScopedSeconds timer(&result_->check_seconds.brightness);
   // The gains and offsets that best explain the frames at the poses reached, on a grid that
   // samples every frame at every sub-voxel phase (model/panorama.h): on frame 0's lattice,
@@ -659,11 +664,15 @@ bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
     *largest_change = 0.0;
     *worst = 0;
     double standard_error = 0.0;
+    if (frame_changes != nullptr) frame_changes->assign(m_, {0.0, 0.0});
     for (int i = 1; i < m_; ++i) {
       const double mean = spread[i].first, deviation = spread[i].second;
       if (!(deviation > 0.0)) continue;
       for (double x : {mean - deviation, mean + deviation}) {
         const double change = std::abs(estimate.Change(i, x)) / deviation;
+        if (frame_changes != nullptr && change > (*frame_changes)[i].first) {
+          (*frame_changes)[i] = {change, estimate.ChangeStandardError(i, x) / deviation};
+        }
         if (change > *largest_change) {
           *largest_change = change;
           *worst = i;
@@ -733,10 +742,11 @@ void CoarseToFine::ConfirmBrightness(const std::vector<Frame>& frames) {
     return;  // no estimate at these poses: the coarse level's stands
   }
   if (largest > kBrightnessTolerance) {
-    // "...; the limit is 3%)" becomes "...; at the final poses by up to X%, frame W; the
-    // limit is 3%)".
+    // "...; the limit is 3%)" becomes "...; at the final poses they change a frame's
+    // intensities by up to X%, frame W; the limit is 3%)".
     std::string& choice = result_->photometric_choice;
-    why << "; at the final poses by up to " << 100.0 * largest << "%, frame " << worst;
+    why << "; at the final poses they change a frame's intensities by up to " << 100.0 * largest
+        << "%, frame " << worst;
     const size_t limit = choice.rfind("; the limit is");
     choice.insert(limit == std::string::npos ? choice.size() : limit, why.str());
     return;
@@ -746,8 +756,8 @@ void CoarseToFine::ConfirmBrightness(const std::vector<Frame>& frames) {
   result_->photometric_detected = false;
   why << "none (photometric=auto: at the final poses the gains and offsets change a frame's "
       << "intensities by up to " << 100.0 * largest << "% of their spread, frame " << worst
-      << "; the limit is " << 100.0 * kBrightnessTolerance << "%; pyramid level 1's poses "
-      << "had put it at " << 100.0 * result_->photometric_early_change << "%)";
+      << "; the limit is " << 100.0 * kBrightnessTolerance << "%; "
+      << result_->photometric_early_evidence << ")";
   result_->photometric_choice = why.str();
 }
 
@@ -779,9 +789,48 @@ void CoarseToFine::DetectBrightnessEarly(int level, const std::vector<Frame>& fr
       << "is " << 100.0 * kBrightnessTolerance << "%)";
   result_->photometric_choice = why.str();
   result_->photometric_unconfirmed = true;
-  result_->photometric_early_change = largest;
+  std::ostringstream evidence;
+  evidence.precision(2);
+  evidence << "pyramid level 1's poses had put it at " << 100.0 * largest << "%";
+  result_->photometric_early_evidence = evidence.str();
   UseAffine();
   photometric_ = estimate;
+}
+
+void CoarseToFine::SuspectBrightness(const std::vector<Frame>& frames) {
+  // A frame that slid or sits in a wrong minimum gets whatever gain explains its wrong place,
+  // and the frames around it some of that; brightness differences between acquisitions give
+  // every frame its own gain. Without them the coarsest level's estimates reached 6 % (3
+  // standard errors over the limit) where the poses were right; with gains within 15 % they
+  // are tens of per cent.
+  if (result_->usable || !AutoPhotometricUndecided() || !result_->recoveries.empty() ||
+      result_->solves.empty() || result_->solves.back().level == 0 || m_ < 3) {
+    return;
+  }
+  std::vector<Photometric> estimate;
+  double largest = 0.0;
+  int worst = 0;
+  std::vector<std::pair<double, double>> changes;
+  if (!EstimateBrightness(frames, &estimate, &largest, &worst, nullptr, /*refine=*/false,
+                          &changes)) {
+    // A frame slid so far that nothing fixes its gain (an ultrasound-like chest CT
+    // sequence): the round's start poses, where the frames overlapped.
+    const std::vector<Eigen::Isometry3d> reached = poses_;
+    poses_ = round_start_;
+    const bool estimated = EstimateBrightness(frames, &estimate, &largest, &worst, nullptr,
+                                              /*refine=*/false, &changes);
+    poses_ = reached;
+    if (!estimated) return;
+  }
+  int clear = 0;
+  for (int i = 1; i < m_; ++i) {
+    if (changes[i].first - kBrightnessPrecision * changes[i].second > kBrightnessTolerance) {
+      ++clear;
+    }
+  }
+  VLOG(1) << "after the failed round: " << clear << " of " << m_ - 1 << " frames' brightness "
+          << "clearly changed (the largest by " << largest << ", frame " << worst << ")";
+  result_->brightness_suspected = 2 * clear >= m_ - 1;
 }
 
 bool CoarseToFine::StructureExplainedByBrightness(int level,

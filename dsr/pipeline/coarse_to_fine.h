@@ -162,20 +162,31 @@ class CoarseToFine {
   // level estimates them (recorded in the result, and the determination check still judges
   // its poses); otherwise the final poses decide (DetectBrightness).
   void DetectBrightnessEarly(int level, const std::vector<Frame>& frames);
-  // After DetectBrightnessEarly's choice, at the final poses: DetectBrightness's estimate
-  // there confirms it, or finds no change over kBrightnessTolerance; then the result says
-  // none, and the pipeline registers again without them from there (RunRounds).
+  // After an early choice (DetectBrightnessEarly's, or the pipeline's after a first round
+  // without gains and offsets failed at a coarse level), at the final poses:
+  // DetectBrightness's estimate there confirms it, or finds no change over
+  // kBrightnessTolerance; then the result says none, and the pipeline registers again
+  // without them from there (RunRounds).
   void ConfirmBrightness(const std::vector<Frame>& frames);
   // The gains and offsets that best explain `frames` at SolvePoses() (an every-phase grid),
   // and the largest change they make to a frame's intensities (over its spread), its frame
-  // and its standard error. With `refine`, more rows of the grid where the change is not
-  // clearly on one side of kBrightnessTolerance. False when no estimate could be made.
+  // and its standard error; in `frame_changes` (when given) every frame's largest change
+  // and its standard error (frame 0: 0). With `refine`, more rows of the grid where the
+  // change is not clearly on one side of kBrightnessTolerance. False when no estimate could
+  // be made.
   bool EstimateBrightness(const std::vector<Frame>& frames,
                           std::vector<Photometric>* photometric,
                           double* largest_change,
                           int* worst,
                           double* standard_error = nullptr,
-                          bool refine = true);
+                          bool refine = true,
+                          std::vector<std::pair<double, double>>* frame_changes = nullptr);
+  // With photometric kAuto, undecided, after the first round ended not usable at a coarse
+  // level (before any recovery):
+  // result->brightness_suspected where the gains and offsets estimated at the poses reached
+  // change at least half of the frames 1..m-1 by more than kBrightnessTolerance plus
+  // kBrightnessPrecision standard errors (DetectBrightnessEarly's rule, frame by frame).
+  void SuspectBrightness(const std::vector<Frame>& frames);
   bool AutoPhotometricUndecided() const;
   void UseAffine();
   Next CheckCoarseLevel(int level, const std::vector<Frame>& frames);
@@ -259,6 +270,7 @@ class CoarseToFine {
   std::vector<double> last_frame_motion_;
   bool solved_ = false;
   int max_rebuilds_ = 0;
+  std::vector<Eigen::Isometry3d> round_start_;  // the poses Run started from
 };
 
 }  // namespace dsr

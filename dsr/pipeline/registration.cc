@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <sstream>
 
 #include <glog/logging.h>
 
@@ -255,6 +256,31 @@ std::vector<Frame> SearchLevel(const RegistrationRun& run, const Pyramids& pyram
                       BuildPyramids(*run.search_images, *run.masks, options), options);
 }
 
+// Photometric kAuto, undecided, after a first round without gains and offsets that failed
+// at a coarse level where most frames' brightness clearly differs at the poses it reached
+// (CoarseToFine::SuspectBrightness): frames of different brightness can slide, or settle
+// nowhere, before any level lines them up (an ultrasound-like chest CT sequence: frame 1
+// slid out of the overlap at the coarsest level). A recovery would keep the brightness
+// that misled the solves and cost a search against the panorama or the pair graph (2-3 s
+// there, then the whole registration again with gains and offsets: 2.6 times
+// --preset=echo's time); the same round with them from the same start costs coarse solves
+// where it fails too. The final poses judge whether they were needed
+// (CoarseToFine::ConfirmBrightness).
+bool TryGainsBeforeRecovery(const RegistrationOptions& options, const RegistrationResult& result) {
+  return options.photometric == PhotometricModel::kAuto && options.max_recoveries > 0 &&
+         result.brightness_suspected && result.photometric_choice.empty() &&
+         result.photometric.empty();
+}
+
+// The result of a first round that failed without gains and offsets, as the next step
+// finds it (the round with them that followed failed too): the recoveries go on from it,
+// and the time and iterations of both rounds are counted.
+void RestoreFailedRound(RegistrationResult failed, RegistrationResult* result) {
+  failed.total_iterations = result->total_iterations;  // both counts run on over rounds
+  failed.check_seconds = result->check_seconds;
+  *result = std::move(failed);
+}
+
 // Rounds of coarse-to-fine solves from *poses (local coordinates), with a recovery between
 // them, until one is usable or no recovery is left; the result of the last in *run.result.
 bool RunRounds(const RegistrationRun& run,
@@ -266,11 +292,38 @@ bool RunRounds(const RegistrationRun& run,
   RegistrationResult* result = run.result;
   bool affine_round = false;  // photometric kAuto: the round after brightness was detected
   bool plain_round = false;   // and after the final poses found none where a level had
+  bool gains_round = false;   // and the first round once more with them (above)
+  bool gains_round_pending = false;  // that round's result not yet seen
+  const std::vector<Eigen::Isometry3d> start = *poses;
+  RegistrationResult failed_without_gains;
   for (int round = 0;; ++round) {
     CoarseToFine levels(*run.images, run.later_phases, *run.masks, options,
                         options.max_recoveries > 0,
                         recovery->misfit_exempt, search_frames, pyramids);
     if (!levels.Run(*poses, result, run.error)) return false;
+    if (round == 0 && !gains_round && TryGainsBeforeRecovery(options, *result)) {
+      gains_round = gains_round_pending = true;
+      failed_without_gains = *result;
+      std::ostringstream choice;
+      choice << "affine (photometric=auto: without gains and offsets the first round failed ("
+             << result->failure << "), with them from the same start it did not; the limit is "
+             << 100.0 * kBrightnessTolerance << "%)";
+      result->photometric_choice = choice.str();
+      result->photometric_early_evidence =
+          "they had been tried since the first round without them failed";
+      result->photometric_detected = true;  // the next round estimates them from its start
+      result->photometric_unconfirmed = true;
+      *poses = start;
+      --round;
+      continue;
+    }
+    if (gains_round_pending) {
+      gains_round_pending = false;
+      // With gains and offsets the round failed as well: not the brightness. The recoveries
+      // go on without them, as from the first round (the last resort, RegisterAgainWithGains,
+      // still tries them with recoveries).
+      if (!result->usable) RestoreFailedRound(std::move(failed_without_gains), result);
+    }
     if (result->usable && result->photometric_detected && result->photometric.empty() &&
         !affine_round) {
       // Brightness differs between frames, found at the final poses of a round that ran

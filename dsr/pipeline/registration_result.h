@@ -74,10 +74,16 @@ struct RegistrationResult {
   // solves used and why (empty when no detection ran).
   bool photometric_detected = false;
   std::string photometric_choice;
-  // Detected at the last coarse level, for the final poses to confirm (photometric_change
-  // there: the largest change it measured); false once they have.
+  // Chosen before the final poses (at the last coarse level, or after a first round without
+  // gains and offsets failed), for the final poses to confirm; false once they have.
+  // photometric_early_evidence: what chose them, as the choice's reason ends when the final
+  // poses do not confirm it ("pyramid level 1's poses had put it at 8.6%").
   bool photometric_unconfirmed = false;
-  double photometric_early_change = 0.0;
+  std::string photometric_early_evidence;
+  // Undecided, in a round that failed at a coarse level: the gains and offsets estimated at
+  // the poses it reached change some frame that no check named by clearly more than
+  // kBrightnessTolerance (the pipeline then runs the round with them before any recovery).
+  bool brightness_suspected = false;
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;
   CheckSeconds check_seconds;
