@@ -72,7 +72,7 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
   }
 
   const bool mean_gauge = options.gauge == Gauge::kMean;
-  if (mean_gauge) {
+  if (mean_gauge && options.reference_cost) {
     // The prior's stiffness, from the data's normal equations at the initial poses.
     gauge_stiffness_ = MeanGaugeStiffnessAt(frames, candidates, frame_from_world,
                                             PhotometricParameters(), weights,
@@ -131,6 +131,18 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
       chunks_.push_back(chunk);
       problem_->AddResidualBlock(chunk, nullptr, free_blocks);
     }
+  }
+  if (mean_gauge) {
+    // The prior's stiffness, from the data's normal equations at the initial poses: the
+    // chunks' passes there, which they keep for the solve's first evaluation (the reference
+    // cost's MeanGaugeStiffnessAt to rounding: the chunks' poses are their blocks').
+    Eigen::MatrixXd hessian;
+    for (const ReducedChunkCost* chunk : chunks_) {
+      const NormalEquations& pass = chunk->EvaluateWithJacobiansAt(free_blocks.data());
+      hessian = hessian.size() == 0 ? pass.hessian : Eigen::MatrixXd(hessian + pass.hessian);
+    }
+    const int p = options.photometric ? kWideJacobianSize : kJacobianSize;
+    gauge_stiffness_ = MeanGaugeStiffness(hessian, m, p);
   }
   if (mean_gauge) {
     problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, centres, gauge_stiffness_),
@@ -252,7 +264,6 @@ bool SolveOnce(const std::vector<Frame>& frames,
     return false;
   }
   if (!stop.reason().empty()) report->termination = stop.reason();
-  if (mean_gauge) ++report->jacobian_passes;  // the prior's stiffness
   report->frame_from_world = dsr.Poses();
   report->photometric = dsr.PhotometricParameters();
   report->observations_per_iteration = dsr.LastObservations();

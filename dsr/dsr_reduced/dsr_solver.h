@@ -86,6 +86,9 @@ class DsrProblem {
   int64_t LastObservations() const;
   // The fast path's blocks (empty for the reference cost).
   const std::vector<ReducedChunkCost*>& chunks() const { return chunks_; }
+  // The mean gauge's prior stiffness (MeanGaugeStiffness of the data's normal equations at
+  // the initial poses; zero in the frame-0 gauge).
+  const Vector6d& gauge_stiffness() const { return gauge_stiffness_; }
   // How the fast path's blocks reuse their passes (stream/streamed_cost.h); none by
   // default, so that evaluations outside a solve are plain ones.
   void SetEvaluationPolicy(const StreamedEvaluationPolicy& policy);

@@ -20,6 +20,7 @@
 #include "dsr/dsr_reduced/reduced_cost.h"
 #include "dsr/geometry/se3.h"
 #include "dsr/solve/gauge.h"
+#include "dsr/stream/reduced_system.h"
 #include "dsr/tests/support/fixed_point_options.h"
 #include "dsr/tests/support/pose_matchers.h"
 #include "dsr/tests/support/sanitizer.h"
@@ -200,6 +201,57 @@ TEST(MeanGaugeStiffness, IsMTimesTheMeanDiagonalPerKind) {
   for (int k = 0; k < 3; ++k) EXPECT_DOUBLE_EQ(s[k], 3.0 * 4.0);
   for (int k = 3; k < 6; ++k) EXPECT_DOUBLE_EQ(s[k], 3.0 * 200.0);
   EXPECT_EQ(MeanGaugeStiffness(Eigen::MatrixXd::Zero(6 * m, 6 * m), m, 6), Vector6d::Ones());
+}
+
+// The fast path's prior stiffness comes from its chunks' passes at the initial poses, which
+// they keep for the solve's first evaluation (one pass fewer per solve): MeanGaugeStiffnessAt's
+// (one pass over every candidate at the given poses) to rounding (the chunks evaluate at
+// the poses of their parameter blocks, quaternions); evaluating the problem there with
+// Jacobians makes no second pass.
+TEST(MeanGauge, PriorStiffnessIsTheChunksPassAtTheStart) {
+  uint64_t seed = 401;
+  for (bool photometric : {false, true}) {
+    SequenceOptions o;
+    o.num_frames = 4;
+    o.size = 14;
+    o.noise_sigma = 5.0;
+    o.seed = seed++;
+    const auto s = MakeSequence(o);
+    const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.03, 1.0, seed), seed + 1);
+    seed += 2;
+    const CandidateSet cand = Candidates(s, poses);
+    std::vector<Photometric> gains;
+    if (photometric) {
+      gains.assign(o.num_frames, Photometric{});
+      for (int i = 1; i < o.num_frames; ++i) gains[i] = {0.05 * i, 3.0 * i};
+    }
+    const Vector6d expected =
+        MeanGaugeStiffnessAt(s.frames, cand, poses, gains, nullptr, StreamContext{2});
+    for (int chunks : {1, 3}) {
+      DsrOptions options;
+      options.gauge = Gauge::kMean;
+      options.photometric = photometric;
+      options.initial_photometric = gains;
+      options.num_chunks = chunks;
+      options.solve.num_threads = 2;
+      DsrProblem problem(s.frames, cand, poses, options);
+      for (int k = 0; k < 6; ++k) {
+        EXPECT_NEAR(problem.gauge_stiffness()[k], expected[k], 1e-12 * expected[k]) << k;
+      }
+      for (const ReducedChunkCost* chunk : problem.chunks()) {
+        EXPECT_EQ(chunk->pass_counts().jacobian_passes, 1) << chunks;  // the stiffness's
+      }
+      double cost = 0.0;
+      std::vector<double> gradient;
+      ceres::CRSMatrix jacobian;
+      ASSERT_TRUE(problem.problem().Evaluate(ceres::Problem::EvaluateOptions(), &cost, nullptr,
+                                             &gradient, &jacobian));
+      for (const ReducedChunkCost* chunk : problem.chunks()) {
+        EXPECT_EQ(chunk->pass_counts().jacobian_passes, 1) << chunks;  // no second pass
+        EXPECT_EQ(chunk->pass_counts().cost_passes, 0) << chunks;
+      }
+    }
+  }
 }
 
 // Fast path and reference in the mean gauge: the same cost, gradient and Gauss-Newton matrix

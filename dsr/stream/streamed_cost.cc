@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 
 #include <Eigen/Eigenvalues>
 #include <glog/logging.h>
@@ -171,6 +172,21 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
   last_observations_ = accepted_.observations;
   if (!std::isfinite(accepted_.cost)) return false;
   return WriteJacobianEvaluation(accepted_, /*exact_cost=*/false, parameters, residuals, jacobians);
+}
+
+const NormalEquations& StreamedPoseCost::EvaluateWithJacobiansAt(
+    double const* const* parameters) const {
+  std::vector<double> residuals(num_residuals());
+  std::vector<std::vector<double>> jacobian_storage;
+  std::vector<double*> jacobians;
+  for (int32_t size : parameter_block_sizes()) {
+    jacobian_storage.emplace_back(static_cast<size_t>(num_residuals()) * size);
+    jacobians.push_back(jacobian_storage.back().data());
+  }
+  if (!Evaluate(parameters, residuals.data(), jacobians.data())) {
+    accepted_.cost = std::numeric_limits<double>::quiet_NaN();
+  }
+  return accepted_;
 }
 
 const NormalEquations* StreamedPoseCost::PassAt(

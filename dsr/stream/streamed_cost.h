@@ -101,6 +101,12 @@ class StreamedPoseCost : public ceres::CostFunction {
   const NormalEquations* PassAt(const std::vector<const double*>& free_blocks,
                                 const std::vector<const double*>& photometric_blocks = {}) const;
   bool photometric() const { return photometric_; }
+  // Evaluates the block with Jacobians at `parameters` (laid out as Evaluate takes them) and
+  // keeps the pass as the current point's, so that Ceres's first evaluation there reuses it:
+  // for a caller that needs the normal equations at a solve's initial point before the
+  // solve (DsrProblem: the mean gauge's stiffness). Returns the pass (cost NaN when it
+  // failed).
+  const NormalEquations& EvaluateWithJacobiansAt(double const* const* parameters) const;
 
  protected:
   // Normal equations over all m frames (p m x p m; p = 6, or 8 with photometric
