@@ -1,5 +1,5 @@
-// Drawing text and lines on a Picture and writing it as PNG, through OpenCV (io/ holds
-// the only users of OpenCV and ITK).
+// Drawing text and lines on a Picture (OpenCV) and writing it as PNG (libpng); io/ holds
+// the only users of OpenCV and ITK.
 #ifndef DSR_IO_IO_PICTURE_H_
 #define DSR_IO_IO_PICTURE_H_
 
