@@ -259,6 +259,12 @@ bool SolveOnce(const std::vector<Frame>& frames,
   }
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
+  if (!dsr.chunks().empty()) {
+    stop.SetTrialEndsSolve([&dsr] {
+      return std::all_of(dsr.chunks().begin(), dsr.chunks().end(),
+                         [](const ReducedChunkCost* c) { return c->last_trial_ends_solve(); });
+    });
+  }
   if (!RunCeres(options, options.reference_cost ? "dsr-ref" : "dsr", &stop, &dsr, report,
                 error)) {
     return false;

@@ -83,6 +83,15 @@ ceres::CallbackReturnType PoseStepCallback::operator()(const ceres::IterationSum
   if (summary.iteration == 0) return ceres::SOLVER_CONTINUE;
   if (!summary.step_is_successful) {
     ++rejected_in_a_row_;
+    if (tolerance_voxels_ > 0.0 && trial_ends_solve_ && trial_ends_solve_()) {
+      char text[160];
+      std::snprintf(text, sizeof(text),
+                    "pose step tolerance: a rejected step would have left less than %.2e "
+                    "voxels to go",
+                    tolerance_voxels_);
+      reason_ = text;
+      return ceres::SOLVER_TERMINATE_SUCCESSFULLY;
+    }
     if (max_rejected_steps_ > 0 && rejected_in_a_row_ >= max_rejected_steps_) {
       reason_ = "no cost decrease in " + std::to_string(rejected_in_a_row_) +
                 " steps in a row (at the noise floor)";

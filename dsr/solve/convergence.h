@@ -11,6 +11,7 @@
 #ifndef DSR_SOLVE_CONVERGENCE_H_
 #define DSR_SOLVE_CONVERGENCE_H_
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -60,6 +61,15 @@ class PoseStepCallback final : public ceres::IterationCallback {
   // Adds this callback to `options` when the rule is on (a tolerance > 0 or a rejection
   // limit > 0), with update_state_every_iteration, which the rule needs.
   void AddTo(ceres::Solver::Options* options);
+  // With a tolerance: `trial_ends_solve` says whether the step Ceres just tried would have
+  // ended the solve by the rule had it been accepted (the streamed blocks measure it:
+  // stream/streamed_cost.h). A rejected such step ends it too: the model's step from the
+  // current poses is already within the tolerance of its fixed point, and Levenberg-Marquardt
+  // only shortens the next ones (on the paper's clinical-size sequence, four more rejected
+  // steps of the same length, each an evaluation, ended level 1 at the same poses).
+  void SetTrialEndsSolve(std::function<bool()> trial_ends_solve) {
+    trial_ends_solve_ = std::move(trial_ends_solve);
+  }
   // Why it stopped the solve; empty when it did not.
   const std::string& reason() const { return reason_; }
 
@@ -73,6 +83,7 @@ class PoseStepCallback final : public ceres::IterationCallback {
   std::vector<Eigen::Isometry3d> previous_;
   double previous_motion_ = 0.0;  // the last accepted step's motion (0: none yet)
   int rejected_in_a_row_ = 0;
+  std::function<bool()> trial_ends_solve_;
   std::string reason_;
 };
 

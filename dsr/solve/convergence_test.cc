@@ -118,5 +118,35 @@ TEST(PoseStepCallback, EndsAfterTheRejectedStepsLimit) {
   EXPECT_NE(stop.reason().find("3 steps in a row"), std::string::npos) << stop.reason();
 }
 
+// A rejected step that the streamed blocks found would have ended the solve by the rule
+// (within the tolerance of its fixed point) ends it at once, without the run of rejected
+// steps; one that would not, does not; and without a tolerance the rule is off.
+TEST(PoseStepCallback, ARejectedStepWithinTheToleranceEndsTheSolve) {
+  const std::vector<Frame> frames = {UnitFrame(), UnitFrame()};
+  double x[kPoseAmbientSize];
+  PoseToParameters(Eigen::Isometry3d::Identity(), x);
+  for (double tolerance : {1e-3, 0.0}) {
+    bool trial_ends_solve = false;
+    PoseStepCallback stop(&frames, {nullptr, x}, tolerance, /*max_rejected_steps=*/5);
+    stop.SetTrialEndsSolve([&] { return trial_ends_solve; });
+    ceres::IterationSummary summary;
+    summary.iteration = 0;
+    ASSERT_EQ(stop(summary), ceres::SOLVER_CONTINUE);
+    summary.step_is_successful = false;
+    summary.iteration = 1;
+    EXPECT_EQ(stop(summary), ceres::SOLVER_CONTINUE);  // a step beyond the tolerance
+    trial_ends_solve = true;
+    summary.iteration = 2;
+    if (tolerance > 0.0) {
+      EXPECT_EQ(stop(summary), ceres::SOLVER_TERMINATE_SUCCESSFULLY);
+      EXPECT_NE(stop.reason().find("a rejected step would have left less than"),
+                std::string::npos)
+          << stop.reason();
+    } else {
+      EXPECT_EQ(stop(summary), ceres::SOLVER_CONTINUE);
+    }
+  }
+}
+
 }  // namespace
 }  // namespace dsr

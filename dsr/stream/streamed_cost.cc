@@ -78,10 +78,9 @@ StreamedPoseCost::StreamedPoseCost(int num_frames,
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
                                              const SolveOptions& solve) {
   StreamedEvaluationPolicy policy;
-  if (!solve.reuse_evaluations) return policy;
-  policy.speculate = true;
   policy.frames = &frames;
   policy.step_tolerance_voxels = solve.step_tolerance;
+  policy.speculate = policy.lazy_final = solve.reuse_evaluations;
   return policy;
 }
 
@@ -133,7 +132,8 @@ bool StreamedPoseCost::Evaluate(double const* const* parameters,
       ++(speculate ? counts_.jacobian_passes : counts_.cost_passes);
       pass_parameters_ = flat;
       pass_has_jacobian_ = speculate;
-      pass_is_final_ = final_step;
+      pass_is_final_ = final_step && policy_.lazy_final;
+      trial_ends_solve_ = final_step;
     }
     last_observations_ = pass_.observations;
     if (!std::isfinite(pass_.cost)) return false;
@@ -303,6 +303,10 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   options.callbacks.push_back(&progress);
   PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance,
                         solve.max_rejected_steps);
+  stop.SetTrialEndsSolve([&costs] {
+    return std::all_of(costs.begin(), costs.end(),
+                       [](const StreamedPoseCost* c) { return c->last_trial_ends_solve(); });
+  });
   stop.AddTo(&options);
   std::string why;
   if (!options.IsValid(&why)) {

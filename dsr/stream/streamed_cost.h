@@ -51,16 +51,18 @@ void CompressNormalEquations(const Eigen::MatrixXd& hessian,
 //    about 2x a cost-only pass) and keeps them; an accepted step then costs one pass, not
 //    two. After a rejected step the next trial is evaluated cost-only, and speculation
 //    resumes after the next accepted step.
-//  * lazy final Jacobian (when `frames` is set and step_tolerance_voxels > 0): a trial
-//    point whose step leaves less than `step_tolerance_voxels` still to go
-//    (RemainingMotionVoxels) ends the solve if it is accepted (the rule of
-//    solve/convergence.h, which then stops Ceres before it uses the Jacobians again). Its
-//    pass is cost-only, and the Jacobians Ceres asks for there are those of the previous
-//    point with the new point's exact cost.
+//  * lazy final Jacobian (`lazy_final`): a trial point whose step leaves less than
+//    `step_tolerance_voxels` still to go (RemainingMotionVoxels) ends the solve if it is
+//    accepted (the rule of solve/convergence.h, which then stops Ceres before it uses the
+//    Jacobians again). Its pass is cost-only, and the Jacobians Ceres asks for there are
+//    those of the previous point with the new point's exact cost.
 // Neither changes any cost Ceres sees or any pose it reaches (the cost-only and the
-// Jacobian passes give bit-identical costs); tests compare solves with and without.
+// Jacobian passes give bit-identical costs); tests compare solves with and without. Whether
+// a trial would end the solve is measured whenever `frames` is set and
+// step_tolerance_voxels > 0, reuse or not (last_trial_ends_solve).
 struct StreamedEvaluationPolicy {
   bool speculate = false;
+  bool lazy_final = false;
   const std::vector<Frame>* frames = nullptr;  // frame 0 first; not owned
   double step_tolerance_voxels = 0.0;
 };
@@ -71,8 +73,8 @@ struct StreamedPassCounts {
   int cost_passes = 0;
 };
 
-// The policy the solvers give their blocks: speculate and lazy final Jacobians when
-// solve.reuse_evaluations, with the solve's pose step tolerance.
+// The policy the solvers give their blocks: the solve's frames and pose step tolerance,
+// and speculation and lazy final Jacobians when solve.reuse_evaluations.
 StreamedEvaluationPolicy EvaluationPolicyFor(const std::vector<Frame>& frames,
                                              const SolveOptions& solve);
 
@@ -95,6 +97,10 @@ class StreamedPoseCost : public ceres::CostFunction {
   int64_t last_observations() const { return last_observations_; }
   void set_policy(const StreamedEvaluationPolicy& policy) { policy_ = policy; }
   const StreamedPassCounts& pass_counts() const { return counts_; }
+  // Whether the latest evaluation was a trial point that would end the solve if accepted
+  // (the lazy final Jacobian's test, with the policy's frames and tolerance): for the pose
+  // step rule's rejected steps (PoseStepCallback::SetTrialEndsSolve).
+  bool last_trial_ends_solve() const { return last_was_cost_only_ && trial_ends_solve_; }
   // The latest pass when it was made at exactly these free parameters (the pose blocks,
   // 7 each, and with photometric parameters the 2 each of frames 1..m-1), else null: e.g.
   // the pass at the final poses of a solve, whose per-frame costs the caller may reuse.
@@ -144,6 +150,7 @@ class StreamedPoseCost : public ceres::CostFunction {
   mutable NormalEquations pass_;
   mutable bool pass_has_jacobian_ = false;
   mutable bool pass_is_final_ = false;
+  mutable bool trial_ends_solve_ = false;  // the latest trial's step, by the rule
   mutable double pass_motion_ = 0.0;  // the latest trial's step, in field-of-view voxels
   // The latest evaluation with Jacobians (the current accepted point) and its poses.
   mutable NormalEquations accepted_;
