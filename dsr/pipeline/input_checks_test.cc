@@ -155,5 +155,53 @@ TEST(CheckRegistrationInputs, NamesWhatIsWrong) {
   EXPECT_TRUE(CheckRegistrationInputs(moved, identity, o, &error)) << error;
 }
 
+// One voxel that outweighs the rest of its frame (more than half of its squared deviation
+// from the median) is named with its position, value and share; the same frame with the
+// voxel's share just under half passes, just over half does not (the shares from a loop of
+// the test's own).
+TEST(CheckRegistrationInputs, NamesAnOutlierVoxelWithItsShare) {
+  const SimulatedSequence s = SmallSequence();
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  const RegistrationOptions o = SmallOptions();
+  std::vector<Image> frames = s.frames;
+  Image& frame = frames[1];
+  const Eigen::Vector3i& n = frame.geometry.size;
+  const size_t at = 3 + 5 * static_cast<size_t>(n[0]) + 2 * static_cast<size_t>(n[0]) * n[1];
+  std::vector<float> sample;
+  const size_t stride = std::max<size_t>(1, frame.voxels.size() / 100000);
+  for (size_t l = 0; l < frame.voxels.size(); l += stride) sample.push_back(frame.voxels[l]);
+  std::nth_element(sample.begin(), sample.begin() + sample.size() / 2, sample.end());
+  const double median = sample[sample.size() / 2];
+  const auto share_with = [&](float value) {
+    double sum = 0.0, largest = 0.0;
+    for (size_t l = 0; l < frame.voxels.size(); ++l) {
+      const double x = l == at ? value : frame.voxels[l];
+      sum += (x - median) * (x - median);
+      largest = std::max(largest, (x - median) * (x - median));
+    }
+    return largest / sum;
+  };
+  frame.voxels[at] = 1e30f;
+  ASSERT_GT(share_with(1e30f), 0.99);
+  std::string error;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  EXPECT_EQ(error.find("frame 1 has an outlier intensity: its voxel (3,5,2) is 1e+30"), 0u)
+      << error;
+  // A value whose share is 0.45: no outlier.
+  double rest = 0.0;
+  for (size_t l = 0; l < frame.voxels.size(); ++l) {
+    if (l != at) rest += (frame.voxels[l] - median) * (frame.voxels[l] - median);
+  }
+  const float moderate = static_cast<float>(median + std::sqrt(0.45 / 0.55 * rest));
+  EXPECT_NEAR(share_with(moderate), 0.45, 1e-3);
+  frame.voxels[at] = moderate;
+  EXPECT_TRUE(CheckRegistrationInputs(frames, identity, o, &error)) << error;
+  const float heavy = static_cast<float>(median + std::sqrt(0.55 / 0.45 * rest));
+  frame.voxels[at] = heavy;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  EXPECT_NE(error.find("holds 55% of the frame's squared deviation"), std::string::npos)
+      << error;
+}
+
 }  // namespace
 }  // namespace dsr
