@@ -615,6 +615,25 @@ std::vector<std::pair<double, double>> FrameSpreads(const std::vector<Frame>& fr
   return spread;
 }
 
+// Each frame's change of intensity by `estimate`, at its mean minus and plus one standard
+// deviation of its field of view (`spread`), over that deviation: the larger of the two and
+// its standard error (frame 0, and frames without spread: 0).
+std::vector<std::pair<double, double>> FrameChanges(
+    const PhotometricEstimate& estimate, const std::vector<std::pair<double, double>>& spread) {
+  std::vector<std::pair<double, double>> changes(spread.size(), {0.0, 0.0});
+  for (size_t i = 1; i < spread.size(); ++i) {
+    const double mean = spread[i].first, deviation = spread[i].second;
+    if (!(deviation > 0.0)) continue;
+    for (double x : {mean - deviation, mean + deviation}) {
+      const double change = std::abs(estimate.Change(static_cast<int>(i), x)) / deviation;
+      if (change > changes[i].first) {
+        changes[i] = {change, estimate.ChangeStandardError(static_cast<int>(i), x) / deviation};
+      }
+    }
+  }
+  return changes;
+}
+
 }  // namespace
 
 bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
@@ -659,27 +678,18 @@ bool CoarseToFine::EstimateBrightness(const std::vector<Frame>& frames,
       return false;
     }
     start = estimate.photometric;
-    // Each frame's change of intensity, at its mean minus and plus one standard deviation of
-    // its field of view, over that deviation, and the standard error of the largest.
+    const std::vector<std::pair<double, double>> changes = FrameChanges(estimate, spread);
     *largest_change = 0.0;
     *worst = 0;
     double standard_error = 0.0;
-    if (frame_changes != nullptr) frame_changes->assign(m_, {0.0, 0.0});
     for (int i = 1; i < m_; ++i) {
-      const double mean = spread[i].first, deviation = spread[i].second;
-      if (!(deviation > 0.0)) continue;
-      for (double x : {mean - deviation, mean + deviation}) {
-        const double change = std::abs(estimate.Change(i, x)) / deviation;
-        if (frame_changes != nullptr && change > (*frame_changes)[i].first) {
-          (*frame_changes)[i] = {change, estimate.ChangeStandardError(i, x) / deviation};
-        }
-        if (change > *largest_change) {
-          *largest_change = change;
-          *worst = i;
-          standard_error = estimate.ChangeStandardError(i, x) / deviation;
-        }
+      if (changes[i].first > *largest_change) {
+        *largest_change = changes[i].first;
+        *worst = i;
+        standard_error = changes[i].second;
       }
     }
+    if (frame_changes != nullptr) *frame_changes = changes;
     VLOG(1) << "brightness on 1 in " << keep << " rows (" << estimate.voxels << " voxels, "
             << estimate.iterations << " iterations): largest change " << *largest_change
             << " (frame " << *worst << "), standard error " << standard_error;
