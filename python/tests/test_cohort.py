@@ -496,7 +496,7 @@ def test_a_full_disk_fails_the_studies_it_stops_and_keeps_the_results(frames, tm
                               "--no_progress", "--pyramid_levels=1", "--max_iterations=3"])
         captured = capsys.readouterr()
         assert status == 1, captured
-        assert re.search(r"studies? could not write their outputs \(first k\d: could not write "
+        assert re.search(r"stud(y|ies) could not write their outputs \(first k\d: could not write "
                          r"its outputs \(.*full/k\d/.+\); a rerun does it again\)",
                          one_error_line(captured.err))
         results = list(csv.DictReader(open(out / "results.csv")))
