@@ -143,8 +143,6 @@ DsrProblem::DsrProblem(const std::vector<Frame>& frames,
     }
     const int p = options.photometric ? kWideJacobianSize : kJacobianSize;
     gauge_stiffness_ = MeanGaugeStiffness(hessian, m, p);
-  }
-  if (mean_gauge) {
     problem_->AddResidualBlock(new MeanPosePrior(frame_from_world, centres, gauge_stiffness_),
                                nullptr, all_poses);
   }
@@ -260,10 +258,7 @@ bool SolveOnce(const std::vector<Frame>& frames,
   PoseStepCallback stop(&frames, pose_blocks, options.solve.step_tolerance,
                         options.solve.max_rejected_steps);
   if (!dsr.chunks().empty()) {
-    stop.SetTrialEndsSolve([&dsr] {
-      return std::all_of(dsr.chunks().begin(), dsr.chunks().end(),
-                         [](const ReducedChunkCost* c) { return c->last_trial_ends_solve(); });
-    });
+    stop.SetTrialEndsSolve([&dsr] { return EveryTrialEndsSolve(dsr.chunks()); });
   }
   if (!RunCeres(options, options.reference_cost ? "dsr-ref" : "dsr", &stop, &dsr, report,
                 error)) {

@@ -203,6 +203,27 @@ TEST(MeanGaugeStiffness, IsMTimesTheMeanDiagonalPerKind) {
   EXPECT_EQ(MeanGaugeStiffness(Eigen::MatrixXd::Zero(6 * m, 6 * m), m, 6), Vector6d::Ones());
 }
 
+// A small noisy sequence (14^3 frames, noise 5) and a start every frame is off from, frame 0
+// included (all moved together too), with its candidates; *seed advances by 3.
+struct NoisyStart {
+  testing_problems::TestSequence sequence;
+  std::vector<Eigen::Isometry3d> poses;
+  CandidateSet candidates;
+};
+NoisyStart MakeNoisyStart(int num_frames, uint64_t* seed) {
+  SequenceOptions o;
+  o.num_frames = num_frames;
+  o.size = 14;
+  o.noise_sigma = 5.0;
+  o.seed = (*seed)++;
+  NoisyStart start;
+  start.sequence = MakeSequence(o);
+  start.poses = MovedTogether(Perturbed(start.sequence.ground_truth, 0.03, 1.0, *seed), *seed + 1);
+  *seed += 2;
+  start.candidates = Candidates(start.sequence, start.poses);
+  return start;
+}
+
 // The fast path's prior stiffness comes from its chunks' passes at the initial poses, which
 // they keep for the solve's first evaluation (one pass fewer per solve): MeanGaugeStiffnessAt's
 // (one pass over every candidate at the given poses) to rounding (the chunks evaluate at
@@ -211,19 +232,14 @@ TEST(MeanGaugeStiffness, IsMTimesTheMeanDiagonalPerKind) {
 TEST(MeanGauge, PriorStiffnessIsTheChunksPassAtTheStart) {
   uint64_t seed = 401;
   for (bool photometric : {false, true}) {
-    SequenceOptions o;
-    o.num_frames = 4;
-    o.size = 14;
-    o.noise_sigma = 5.0;
-    o.seed = seed++;
-    const auto s = MakeSequence(o);
-    const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.03, 1.0, seed), seed + 1);
-    seed += 2;
-    const CandidateSet cand = Candidates(s, poses);
+    const NoisyStart p = MakeNoisyStart(4, &seed);
+    const auto& s = p.sequence;
+    const auto& poses = p.poses;
+    const CandidateSet& cand = p.candidates;
     std::vector<Photometric> gains;
     if (photometric) {
-      gains.assign(o.num_frames, Photometric{});
-      for (int i = 1; i < o.num_frames; ++i) gains[i] = {0.05 * i, 3.0 * i};
+      gains.assign(s.frames.size(), Photometric{});
+      for (size_t i = 1; i < gains.size(); ++i) gains[i] = {0.05 * i, 3.0 * i};
     }
     const Vector6d expected =
         MeanGaugeStiffnessAt(s.frames, cand, poses, gains, nullptr, StreamContext{2});
@@ -260,15 +276,10 @@ TEST(MeanGauge, FastPathMatchesPerVoxelReference) {
   uint64_t seed = 301;
   for (bool photometric : {false, true}) {
     for (int num_frames : {3, 4}) {
-      SequenceOptions o;
-      o.num_frames = num_frames;
-      o.size = 14;
-      o.noise_sigma = 5.0;
-      o.seed = seed++;
-      const auto s = MakeSequence(o);
-      const auto poses = MovedTogether(Perturbed(s.ground_truth, 0.03, 1.0, seed), seed + 1);
-      seed += 2;
-      const CandidateSet cand = Candidates(s, poses);
+      const NoisyStart p = MakeNoisyStart(num_frames, &seed);
+      const auto& s = p.sequence;
+      const auto& poses = p.poses;
+      const CandidateSet& cand = p.candidates;
       DsrOptions ref_options;
       ref_options.reference_cost = true;
       ref_options.gauge = Gauge::kMean;

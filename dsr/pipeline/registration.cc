@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <optional>
 #include <sstream>
 
 #include <glog/logging.h>
@@ -293,16 +294,15 @@ bool RunRounds(const RegistrationRun& run,
   bool affine_round = false;  // photometric kAuto: the round after brightness was detected
   bool plain_round = false;   // and after the final poses found none where a level had
   bool gains_round = false;   // and the first round once more with them (above)
-  bool gains_round_pending = false;  // that round's result not yet seen
   const std::vector<Eigen::Isometry3d> start = *poses;
-  RegistrationResult failed_without_gains;
+  std::optional<RegistrationResult> failed_without_gains;  // until the gains round ends
   for (int round = 0;; ++round) {
     CoarseToFine levels(*run.images, run.later_phases, *run.masks, options,
                         options.max_recoveries > 0,
                         recovery->misfit_exempt, search_frames, pyramids);
     if (!levels.Run(*poses, result, run.error)) return false;
     if (round == 0 && !gains_round && TryGainsBeforeRecovery(options, *result)) {
-      gains_round = gains_round_pending = true;
+      gains_round = true;
       failed_without_gains = *result;
       std::ostringstream choice;
       choice << "affine (photometric=auto: without gains and offsets the first round failed ("
@@ -317,12 +317,12 @@ bool RunRounds(const RegistrationRun& run,
       --round;
       continue;
     }
-    if (gains_round_pending) {
-      gains_round_pending = false;
+    if (failed_without_gains) {
       // With gains and offsets the round failed as well: not the brightness. The recoveries
       // go on without them, as from the first round (the last resort, RegisterAgainWithGains,
       // still tries them with recoveries).
-      if (!result->usable) RestoreFailedRound(std::move(failed_without_gains), result);
+      if (!result->usable) RestoreFailedRound(std::move(*failed_without_gains), result);
+      failed_without_gains.reset();
     }
     if (result->usable && result->photometric_detected && result->photometric.empty() &&
         !affine_round) {

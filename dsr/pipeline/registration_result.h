@@ -80,9 +80,10 @@ struct RegistrationResult {
   // poses do not confirm it ("pyramid level 1's poses had put it at 8.6%").
   bool photometric_unconfirmed = false;
   std::string photometric_early_evidence;
-  // Undecided, in a round that failed at a coarse level: the gains and offsets estimated at
-  // the poses it reached change some frame that no check named by clearly more than
-  // kBrightnessTolerance (the pipeline then runs the round with them before any recovery).
+  // Undecided, in a first round that failed at a coarse level: the gains and offsets
+  // estimated at the poses it reached change at least half of the frames 1..m-1 by clearly
+  // more than kBrightnessTolerance (CoarseToFine::SuspectBrightness; the pipeline then runs
+  // the round with them before any recovery).
   bool brightness_suspected = false;
   double seconds = 0.0;       // wall time of the pipeline (pyramid + solves)
   double pyramid_seconds = 0.0;

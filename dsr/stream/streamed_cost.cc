@@ -303,10 +303,7 @@ bool SolveStreamedPoses(const std::vector<Frame>& frames,
   options.callbacks.push_back(&progress);
   PoseStepCallback stop(&frames, pose_blocks, solve.step_tolerance,
                         solve.max_rejected_steps);
-  stop.SetTrialEndsSolve([&costs] {
-    return std::all_of(costs.begin(), costs.end(),
-                       [](const StreamedPoseCost* c) { return c->last_trial_ends_solve(); });
-  });
+  stop.SetTrialEndsSolve([&costs] { return EveryTrialEndsSolve(costs); });
   stop.AddTo(&options);
   std::string why;
   if (!options.IsValid(&why)) {

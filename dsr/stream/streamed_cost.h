@@ -20,6 +20,7 @@
 #ifndef DSR_STREAM_STREAMED_COST_H_
 #define DSR_STREAM_STREAMED_COST_H_
 
+#include <algorithm>
 #include <cstdint>
 #include <functional>
 #include <string>
@@ -159,6 +160,15 @@ class StreamedPoseCost : public ceres::CostFunction {
   mutable bool last_was_cost_only_ = false;
   mutable bool speculate_next_ = true;
 };
+
+// Whether every block's latest trial would have ended the solve had it been accepted
+// (StreamedPoseCost::last_trial_ends_solve): the pose step rule's test for a rejected step
+// (PoseStepCallback::SetTrialEndsSolve), for the blocks of one solve.
+template <class Cost>
+bool EveryTrialEndsSolve(const std::vector<Cost*>& blocks) {
+  return std::all_of(blocks.begin(), blocks.end(),
+                     [](const Cost* block) { return block->last_trial_ends_solve(); });
+}
 
 // Solves min over the poses of frames 1..m-1 (frame 0 constant) of the sum of the
 // streamed blocks `make_block(begin, end)` returns for `num_blocks` equal ranges of
