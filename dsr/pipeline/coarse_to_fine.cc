@@ -6,6 +6,9 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#ifdef __GLIBC__
+#include <malloc.h>  // malloc_trim
+#endif
 
 #include <glog/logging.h>
 
@@ -118,6 +121,47 @@ Eigen::Vector3d LocalCentre(const ImageGeometry& geometry) {
   return geometry.IndexToPhysical(0.5 * (geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
 }
 
+namespace {
+
+std::vector<ImageLevel> PyramidOf(const Image& image,
+                                  const Mask& mask,
+                                  const RegistrationOptions& options) {
+  return BuildPyramid(image, mask, options.pyramid_levels, options.pyramid_sigma,
+                      options.smoothing, options.pyramid_min_size, options.solve.num_threads);
+}
+
+}  // namespace
+
+void BuildLaterPhaseLevels(const std::vector<std::vector<Image>>* later_phases,
+                           const std::vector<Mask>& masks,
+                           const RegistrationOptions& options,
+                           int first_level,
+                           Pyramids* pyramids) {
+  for (size_t i = 0; i < pyramids->levels.size(); ++i) {
+    std::vector<ImageLevel>& levels = pyramids->levels[i];
+    for (size_t l = first_level; l < levels.size(); ++l) levels[l].later_phases.clear();
+    // Every later phase's pyramid on the same grids (same mask, same sizes).
+    for (const Image& later : LaterPhasesOf(later_phases, i)) {
+      std::vector<ImageLevel> phase = PyramidOf(later, masks[i], options);
+      CHECK_EQ(phase.size(), levels.size());
+      for (size_t l = first_level; l < phase.size(); ++l) {
+        phase[l].image.geometry.origin_mm -= pyramids->centre[i];
+        levels[l].later_phases.push_back(std::move(phase[l].image));
+      }
+    }
+  }
+}
+
+void ReleaseLaterPhaseLevel(int level, Pyramids* pyramids) {
+  for (std::vector<ImageLevel>& levels : pyramids->levels) {
+    std::vector<Image>().swap(levels[level].later_phases);
+  }
+  pyramids->later_phases_released = true;
+#ifdef __GLIBC__
+  malloc_trim(0);  // give the freed images' pages back: they are what the peak would hold
+#endif
+}
+
 Pyramids BuildPyramids(const std::vector<Image>& images,
                        const std::vector<Mask>& masks,
                        const RegistrationOptions& options,
@@ -126,29 +170,17 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
   Pyramids pyramids;
   pyramids.levels.resize(m);
   pyramids.num_levels = options.pyramid_levels;
-  const auto pyramid = [&](const Image& image, int i) {
-    return BuildPyramid(image, masks[i], options.pyramid_levels, options.pyramid_sigma,
-                        options.smoothing, options.pyramid_min_size, options.solve.num_threads);
-  };
   for (int i = 0; i < m; ++i) {
-    pyramids.levels[i] = pyramid(images[i], i);
-    // Every later phase's pyramid on the same grids (same mask, same sizes).
-    for (const Image& later : LaterPhasesOf(later_phases, i)) {
-      std::vector<ImageLevel> phase = pyramid(later, i);
-      CHECK_EQ(phase.size(), pyramids.levels[i].size());
-      for (size_t l = 0; l < phase.size(); ++l) {
-        pyramids.levels[i][l].later_phases.push_back(std::move(phase[l].image));
-      }
-    }
+    pyramids.levels[i] = PyramidOf(images[i], masks[i], options);
     pyramids.num_levels =
         std::min(pyramids.num_levels, static_cast<int>(pyramids.levels[i].size()));
     pyramids.centre.push_back(LocalCentre(images[i].geometry));
     for (ImageLevel& level : pyramids.levels[i]) {
       level.image.geometry.origin_mm -= pyramids.centre[i];
       level.mask.geometry.origin_mm -= pyramids.centre[i];
-      for (Image& phase : level.later_phases) phase.geometry.origin_mm -= pyramids.centre[i];
     }
   }
+  BuildLaterPhaseLevels(later_phases, masks, options, 0, &pyramids);
   return pyramids;
 }
 
@@ -219,7 +251,14 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   result->poses_undetermined = false;
   result->brightness_suspected = false;
   result->failure.clear();
+  const bool phased = later_phases_ != nullptr && !later_phases_->empty();
+  if (phased && pyramids_->later_phases_released) {  // a round after one that freed them
+    BuildLaterPhaseLevels(later_phases_, masks_, options_, 1, pyramids_);
+    pyramids_->later_phases_released = false;
+  }
   for (int level = pyramids_->num_levels - 1; level >= 0; --level) {
+    // The level passed before is left behind (its frames are gone): its later phases too.
+    if (phased && level + 1 < pyramids_->num_levels) ReleaseLaterPhaseLevel(level + 1, pyramids_);
     std::vector<Frame> frames;
     Next next = BuildLevelFrames(level, &frames);
     if (next == Next::kSkipLevel) continue;

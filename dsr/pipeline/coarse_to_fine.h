@@ -46,10 +46,15 @@ namespace dsr {
 // coordinates minus centre[i], the centre of its input grid (LocalCentre), so that the
 // solves' Jacobians, [I, -[p]x] at the sampled points p, and their conditioning do not
 // depend on where the images' origins lie (docs/design.md 1.2).
+// A cardiac sequence's later phases (docs/design.md section 12) at the coarse levels are
+// freed once a round has passed the level (ReleaseLaterPhaseLevel): at the finest level
+// only the inputs' own phases stay in memory. A round that comes back to the coarse levels
+// (a recovery) builds them again, the same voxels (BuildLaterPhaseLevels).
 struct Pyramids {
   std::vector<std::vector<ImageLevel>> levels;  // [frame][level]
   int num_levels = 0;                           // common to every frame
   std::vector<Eigen::Vector3d> centre;          // per frame, physical mm
+  bool later_phases_released = false;           // some coarse level's later phases freed
 };
 
 // The centre of a grid in its physical coordinates, o + D S (n - 1) / 2.
@@ -62,6 +67,18 @@ Pyramids BuildPyramids(const std::vector<Image>& images,
                        const std::vector<Mask>& masks,
                        const RegistrationOptions& options,
                        const std::vector<std::vector<Image>>* later_phases = nullptr);
+
+// Builds levels first_level.. of every view's later phases anew (those of `later_phases`,
+// [view][phase - 1]; none: nothing), in the levels' local coordinates, replacing what the
+// levels held.
+void BuildLaterPhaseLevels(const std::vector<std::vector<Image>>* later_phases,
+                           const std::vector<Mask>& masks,
+                           const RegistrationOptions& options,
+                           int first_level,
+                           Pyramids* pyramids);
+
+// Frees every view's later phases at `level`.
+void ReleaseLaterPhaseLevel(int level, Pyramids* pyramids);
 
 // The frames the global search works on: the coarsest pyramid level, halved further until
 // no axis is longer than options.search_max_axis.

@@ -320,22 +320,23 @@ UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
     out.group_voxels.assign(kUncertaintyGroups, 0);
     out.shares = Eigen::MatrixXd::Zero(n, cx * cy);
     SlopedSample sample[kMaxFrames];
-    // One run per phase and group (a voxel's phases interleave, and the cubes along a row
-    // change group every kClusterVoxels voxels).
-    std::vector<ObserverRun> runs(phases.size() * kUncertaintyGroups);
-    for (int64_t v = slab_begin[s]; v < slab_begin[s + 1]; ++v) {
-      const int64_t l = candidates.voxel[v];
-      const int64_t j = (l % nxy) / nx, i = l % nx;
-      const int64_t cube = (j / kClusterVoxels) * cx + i / kClusterVoxels;
-      if (keep_one_in > 1 && !CubeKept(i / kClusterVoxels, j / kClusterVoxels, s, keep_one_in)) {
-        // On to the next cube along the row.
-        const int64_t cube_end = std::min(l - i + nx, l - i % kClusterVoxels + kClusterVoxels);
-        while (v + 1 < slab_begin[s + 1] && candidates.voxel[v + 1] < cube_end) ++v;
-        continue;
-      }
-      const int group = CubeGroup(i / kClusterVoxels, j / kClusterVoxels, s);
-      const Eigen::Vector3d centre = candidates.VoxelCenter(v);
-      for (int p = 0; p < phases.size(); ++p) {
+    // One run per group (the cubes along a row change group every kClusterVoxels voxels);
+    // the slab's voxels are walked once per phase, so the runs do not grow with the phases.
+    std::vector<ObserverRun> runs(kUncertaintyGroups);
+    for (int p = 0; p < phases.size(); ++p) {
+      for (int64_t v = slab_begin[s]; v < slab_begin[s + 1]; ++v) {
+        const int64_t l = candidates.voxel[v];
+        const int64_t j = (l % nxy) / nx, i = l % nx;
+        const int64_t cube = (j / kClusterVoxels) * cx + i / kClusterVoxels;
+        if (keep_one_in > 1 &&
+            !CubeKept(i / kClusterVoxels, j / kClusterVoxels, s, keep_one_in)) {
+          // On to the next cube along the row.
+          const int64_t cube_end = std::min(l - i + nx, l - i % kClusterVoxels + kClusterVoxels);
+          while (v + 1 < slab_begin[s + 1] && candidates.voxel[v + 1] < cube_end) ++v;
+          continue;
+        }
+        const int group = CubeGroup(i / kClusterVoxels, j / kClusterVoxels, s);
+        const Eigen::Vector3d centre = candidates.VoxelCenter(v);
         int k = 0;
         uint32_t observed = 0;
         for (uint32_t bits = candidates.observers[v]; bits != 0; bits &= bits - 1) {
@@ -347,9 +348,7 @@ UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
             ++k;
           }
         }
-        if (k >= 2) {
-          AddVoxel(sample, k, observed, group, cube, &runs[p * kUncertaintyGroups + group], &out);
-        }
+        if (k >= 2) AddVoxel(sample, k, observed, group, cube, &runs[group], &out);
       }
     }
     for (ObserverRun& run : runs) FlushRun(&run, &out.curvature);
