@@ -109,6 +109,9 @@ void AddPass(const Samples& s,
   // Per frame the sums of z z^T (P^2, P, 1), per pair of frames those over S, per frame -r z.
   std::vector<double> own(3 * m, 0.0), pair(3 * m * m, 0.0);
   out->gradient = Eigen::VectorXd::Zero(2 * m);
+  // In locals: the compiler cannot keep `out`'s members in registers across the stores.
+  double cost = 0.0;
+  double* const gradient = out->gradient.data();
   // The pairs' sums are the same for every voxel of a run with the same observers (voxels
   // along a row share them but at fields of view's borders): summed per run, then added to
   // each of the run's pairs (a, b), a <= b, once.
@@ -142,10 +145,10 @@ void AddPass(const Samples& s,
     for (int64_t o = first; o < last; ++o) {
       const int f = s.frame[o];
       const double r = s.value[o] - alpha[f] * panorama - beta[f];
-      out->cost += r * r;
+      cost += r * r;
       if (!system) continue;
-      out->gradient[2 * f] -= r * panorama;
-      out->gradient[2 * f + 1] -= r;
+      gradient[2 * f] -= r * panorama;
+      gradient[2 * f + 1] -= r;
       own[3 * f] += panorama * panorama;
       own[3 * f + 1] += panorama;
       own[3 * f + 2] += 1.0;
@@ -159,6 +162,7 @@ void AddPass(const Samples& s,
     run[1] += panorama / weight;
     run[2] += 1.0 / weight;
   }
+  out->cost += cost;
   if (!system) return;
   flush();
   out->hessian = Eigen::MatrixXd::Zero(2 * m, 2 * m);
@@ -307,28 +311,42 @@ bool EstimatePhotometricAtPoses(const std::vector<Frame>& frames,
       return false;
     }
     const Eigen::VectorXd step = ldlt.solve(-pass.gradient.tail(n));
-    // Backtrack while the cost rises (the projected problem is not quadratic).
-    double scale = 1.0, moved = 0.0;
-    Pass next;
-    std::vector<double> next_alpha = alpha, next_beta = beta;
-    for (int halving = 0; halving < 30; ++halving, scale *= 0.5) {
-      moved = 0.0;
+    // How far `scale` times the step moves a frame's mapping, at most, in its grey levels.
+    const auto moved_by = [&](double scale) {
+      double moved = 0.0;
       for (int f = 1; f < m; ++f) {
-        next_alpha[f] = alpha[f] + scale * step[2 * (f - 1)];
-        next_beta[f] = beta[f] + scale * step[2 * (f - 1) + 1];
         const double range = std::max(std::abs(high[f]), std::abs(low[f]));
         moved = std::max(moved, std::abs(scale * step[2 * (f - 1)]) * range +
                                     std::abs(scale * step[2 * (f - 1) + 1]));
       }
+      return moved;
+    };
+    ++estimate->iterations;
+    // Where the whole step stays within the tolerance, the estimate is at the minimiser to
+    // that tolerance already: no pass is made to take it (at the minimiser the cost's
+    // rounding can make every such step look uphill, and the backtracking below would halve
+    // it a dozen times, one pass over the samples each).
+    if (moved_by(1.0) < kStepTolerance) {
+      estimate->converged = true;
+      break;
+    }
+    // Backtrack while the cost rises (the projected problem is not quadratic).
+    double scale = 1.0;
+    Pass next;
+    std::vector<double> next_alpha = alpha, next_beta = beta;
+    for (int halving = 0; halving < 30; ++halving, scale *= 0.5) {
+      for (int f = 1; f < m; ++f) {
+        next_alpha[f] = alpha[f] + scale * step[2 * (f - 1)];
+        next_beta[f] = beta[f] + scale * step[2 * (f - 1) + 1];
+      }
       next = FullPass(blocks, next_alpha, next_beta, true, context.num_threads);
       if (next.cost <= pass.cost) break;
     }
-    ++estimate->iterations;
     if (!(next.cost <= pass.cost)) break;  // no descent left: at the minimiser
     alpha = next_alpha;
     beta = next_beta;
     pass = std::move(next);
-    if (moved < kStepTolerance) {
+    if (moved_by(scale) < kStepTolerance) {
       estimate->converged = true;
       break;
     }
