@@ -5,12 +5,16 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <string>
 #include <vector>
 
 #include "dsr/eval/eval.h"
+#include "dsr/geometry/se3.h"
+#include "dsr/model/observation.h"
+#include "dsr/pipeline/coarse_to_fine.h"
 #include "dsr/pipeline/registration.h"
 #include "dsr/sim/phantom.h"
 #include "dsr/sim/simulate.h"
@@ -196,6 +200,65 @@ TEST(Phases, APhaseThatDoesNotFitItsViewsPoseIsRefused) {
   if (result.usable) {
     EXPECT_LT(ComparePoses(result.frame_from_world, s.frame_from_world, s.masks).tre_mean_mm, 0.5);
   }
+}
+
+// A later phase's coarse levels are freed once a round has passed them, and a round that
+// comes back to them (a recovery) builds them again: the same voxels on the same grids.
+TEST(Phases, FreedCoarseLevelsOfLaterPhasesAreBuiltAgainTheSame) {
+  const SimulatedSequence s = Beating(3, 10.0, 21);
+  RegistrationOptions options = Options(Mode::kDsr);
+  options.pyramid_levels = 3;
+  options.pyramid_min_size = 4;
+  Pyramids pyramids = BuildPyramids(s.frames, s.masks, options, &s.later_phases);
+  ASSERT_EQ(pyramids.num_levels, 3);
+  const Pyramids before = pyramids;
+  for (int level = 1; level < pyramids.num_levels; ++level) {
+    ReleaseLaterPhaseLevel(level, &pyramids);
+    for (const std::vector<ImageLevel>& levels : pyramids.levels) {
+      EXPECT_TRUE(levels[level].later_phases.empty());
+      EXPECT_FALSE(levels[level].image.empty());  // phase 0 stays
+    }
+  }
+  EXPECT_TRUE(pyramids.later_phases_released);
+  BuildLaterPhaseLevels(&s.later_phases, s.masks, options, 1, &pyramids);
+  for (size_t i = 0; i < pyramids.levels.size(); ++i) {
+    for (int level = 0; level < pyramids.num_levels; ++level) {
+      const std::vector<Image>& again = pyramids.levels[i][level].later_phases;
+      const std::vector<Image>& first = before.levels[i][level].later_phases;
+      ASSERT_EQ(again.size(), 2u);
+      ASSERT_EQ(again.size(), first.size());
+      for (size_t p = 0; p < again.size(); ++p) {
+        EXPECT_TRUE(again[p].geometry.SameGrid(first[p].geometry)) << i << " " << level;
+        EXPECT_EQ(again[p].geometry.origin_mm, first[p].geometry.origin_mm);
+        EXPECT_EQ(again[p].voxels, first[p].voxels) << "view " << i << " level " << level;
+      }
+    }
+  }
+}
+
+// Through the pipeline: a view of a 3-phase sequence started 60 degrees off fails the first
+// round, which freed the coarse phases as it went; the recovery's round builds them again
+// and registers every phase.
+TEST(Phases, ARecoveryRoundRegistersEveryPhaseAfterTheFirstFreedThem) {
+  DSR_SKIP_HEAVY_UNDER_SANITIZER();
+  const SimulatedSequence s = Beating(3, 10.0, 22);
+  std::vector<Eigen::Isometry3d> start = RelativeToFrame0(s.frame_from_world);
+  const int off = 3;
+  const Eigen::Vector3d centre = s.frames[off].geometry.IndexToPhysical(
+      0.5 * (s.frames[off].geometry.size.cast<double>() - Eigen::Vector3d::Ones()));
+  Eigen::Isometry3d turn = Eigen::Isometry3d::Identity();
+  turn.linear() = ExpSO3(Eigen::Vector3d(1.0, 1.0, 0.0).normalized() * 60.0 * M_PI / 180.0);
+  turn.translation() = centre - turn.linear() * centre;
+  start[off] = turn * start[off];
+  RegistrationOptions options = Options(Mode::kDsr);
+  options.max_recoveries = 2;
+  RegistrationResult result;
+  std::string error;
+  ASSERT_TRUE(Register(s.frames, s.later_phases, s.masks, start, options, &result, &error))
+      << error;
+  ASSERT_TRUE(result.usable) << result.failure;
+  EXPECT_FALSE(result.recoveries.empty());
+  EXPECT_LT(ComparePoses(result.frame_from_world, s.frame_from_world, s.masks).tre_mean_mm, 0.1);
 }
 
 }  // namespace
