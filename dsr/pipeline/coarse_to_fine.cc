@@ -195,7 +195,7 @@ std::vector<Frame> SearchFrames(const std::vector<Image>& images,
     const ImageLevel& stored = pyramids.levels[i][coarsest];
     ImageLevel level = stored;
     if (stored.image.empty()) {  // the input is the level: in local coordinates
-      level = ImageLevel{images[i], masks[i]};
+      level = ImageLevel{images[i], masks[i], {}};
       level.image.geometry.origin_mm -= pyramids.centre[i];
       level.mask.geometry.origin_mm -= pyramids.centre[i];
     }
