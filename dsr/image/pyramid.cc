@@ -141,13 +141,27 @@ void MaskedPassX(const Image& image, const Mask& mask, double sigma, int stride,
   AssignWithHugePages(&value->v, static_cast<size_t>(out_count), 0.0f);
   AssignWithHugePages(&weight->v, static_cast<size_t>(out_count), 0.0f);
   const int nx = n[0], ox = value->size[0];
+  // With stride 2, the outputs whose taps all lie inside the row (o_lo..o_hi) are summed
+  // tap by tap over the whole run of them, from the row's even and odd voxels (masked: 0
+  // outside the mask, whose term then adds +0 and changes no sum), unit-stride loops the
+  // compiler vectorises. Each output still adds its taps in increasing x from 0, so it is
+  // the per-output loop's float sum bit for bit (that loop still makes the row's ends).
+  const bool runs = step == 2;
+  const int o_lo = (radius + 1) / 2, o_hi = (nx - 1 - radius) / 2;
   ParallelFor(0, n[2], num_threads, [&](int64_t k) {
+    std::vector<float> even_value, odd_value, even_weight, odd_weight;
+    if (runs) {
+      even_value.resize((nx + 1) / 2);
+      even_weight.resize((nx + 1) / 2);
+      odd_value.resize(nx / 2 + 1);
+      odd_weight.resize(nx / 2 + 1);
+    }
     for (int j = 0; j < n[1]; ++j) {
       const int64_t in_base = image.geometry.LinearIndex(0, j, static_cast<int>(k));
       const int64_t out_base = value->Index(0, j, static_cast<int>(k));
       const float* im = image.voxels.data() + in_base;
       const uint8_t* ma = mask.voxels.data() + in_base;
-      for (int o = 0; o < ox; ++o) {
+      const auto one_output = [&](int o) {
         const int center = step * o;
         const int lo = std::max(0, center - radius), hi = std::min(nx - 1, center + radius);
         float v = 0.0f, w = 0.0f;
@@ -159,7 +173,36 @@ void MaskedPassX(const Image& image, const Mask& mask, double sigma, int stride,
         }
         value->v[out_base + o] = v;
         weight->v[out_base + o] = w;
+      };
+      if (!runs || o_lo > o_hi) {
+        for (int o = 0; o < ox; ++o) one_output(o);
+        continue;
       }
+      for (int x = 0; x < nx; x += 2) {
+        even_value[x / 2] = ma[x] != 0 ? im[x] : 0.0f;
+        even_weight[x / 2] = ma[x] != 0 ? 1.0f : 0.0f;
+      }
+      for (int x = 1; x < nx; x += 2) {
+        odd_value[x / 2] = ma[x] != 0 ? im[x] : 0.0f;
+        odd_weight[x / 2] = ma[x] != 0 ? 1.0f : 0.0f;
+      }
+      for (int o = 0; o < o_lo; ++o) one_output(o);
+      float* __restrict v = value->v.data() + out_base;
+      float* __restrict w = weight->v.data() + out_base;
+      for (int t = 0; t <= 2 * radius; ++t) {
+        // Tap t of output o reads voxel 2 o + d: even voxel o + d / 2, or odd o + (d - 1) / 2.
+        const int d = t - radius;
+        const bool odd = (d & 1) != 0;
+        const int shift = odd ? (d - 1) / 2 : d / 2;
+        const float* __restrict sv = (odd ? odd_value : even_value).data();
+        const float* __restrict sw = (odd ? odd_weight : even_weight).data();
+        const float c = kernel[t];
+        for (int o = o_lo; o <= o_hi; ++o) {
+          v[o] += c * sv[o + shift];
+          w[o] += c * sw[o + shift];
+        }
+      }
+      for (int o = o_hi + 1; o < ox; ++o) one_output(o);
     }
   });
 }

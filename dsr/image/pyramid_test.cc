@@ -165,10 +165,11 @@ TEST(SmoothInsideMask, IsTheNormalisedConvolutionVoxelByVoxelBitForBit) {
 
 TEST(Downsample, IsTheNormalisedConvolutionAtEveryOtherVoxelBitForBit) {
   for (const Eigen::Vector3i& n :
-       {Eigen::Vector3i(19, 13, 11), Eigen::Vector3i(16, 9, 1), Eigen::Vector3i(1, 12, 7)}) {
+       {Eigen::Vector3i(19, 13, 11), Eigen::Vector3i(16, 9, 1), Eigen::Vector3i(1, 12, 7),
+        Eigen::Vector3i(53, 6, 5), Eigen::Vector3i(4, 5, 3)}) {
     const Image image = RandomImage(n, 11 + n[0]);
     const Mask mask = IrregularMask(image.geometry);
-    for (double sigma : {1.0, 0.5}) {
+    for (double sigma : {1.0, 0.5, 1.7}) {
       Eigen::Vector3i size;
       const std::vector<float> twin = TwinSmooth(image, mask, Eigen::Vector3d::Constant(sigma),
                                                  2, &size);
