@@ -89,7 +89,8 @@ bool CheckOutlierVoxels(const std::vector<Image>& images, int num_threads, std::
 bool CheckRegistrationInputs(const std::vector<Image>& images,
                              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
                              const RegistrationOptions& options,
-                             std::string* error) {
+                             std::string* error,
+                             bool scan_voxels) {
   const ImageGeometry& first = images[0].geometry;
   for (size_t i = 1; i < images.size(); ++i) {
     const Eigen::Vector3d ratio = images[i].geometry.spacing_mm.cwiseQuotient(first.spacing_mm);
@@ -104,7 +105,7 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
       return false;
     }
   }
-  if (!CheckOutlierVoxels(images, options.solve.num_threads, error)) return false;
+  if (scan_voxels && !CheckOutlierVoxels(images, options.solve.num_threads, error)) return false;
   const int shortest_axis = first.size.minCoeff();
   if (options.smoothing > 0.25 * shortest_axis) {
     *error = "smoothing=" + Format(options.smoothing) +
