@@ -224,7 +224,7 @@ bool RegistrationRun::Check(std::string* error) {
   // The pipeline's own checks of the frames' headers and poses first (Register repeats
   // them), so that a broken header or pose is named as such, not as a panorama too large
   // for memory. Their voxels are Register's to scan (once; its errors name the file too).
-  if (!CheckRegistrationInputs(images_, start_, options_, error, /*scan_voxels=*/false)) {
+  if (!CheckRegistrationGeometry(images_, start_, options_, error)) {
     *error = WithFrameFile(*error, image_paths_);
     return false;
   }

@@ -156,7 +156,6 @@ void ReleaseLaterPhaseLevel(int level, Pyramids* pyramids) {
   for (std::vector<ImageLevel>& levels : pyramids->levels) {
     std::vector<Image>().swap(levels[level].later_phases);
   }
-  pyramids->later_phases_released = true;
 #ifdef __GLIBC__
   malloc_trim(0);  // give the freed images' pages back: they are what the peak would hold
 #endif
@@ -252,10 +251,11 @@ bool CoarseToFine::Run(const std::vector<Eigen::Isometry3d>& start_poses,
   result->brightness_suspected = false;
   result->failure.clear();
   const bool phased = later_phases_ != nullptr && !later_phases_->empty();
-  if (phased && pyramids_->later_phases_released) {  // a round after one that freed them
-    BuildLaterPhaseLevels(later_phases_, masks_, options_, 1, pyramids_);
-    pyramids_->later_phases_released = false;
+  bool released = false;  // by a round before (every view's levels go together)
+  for (int level = 1; level < pyramids_->num_levels; ++level) {
+    released = released || pyramids_->levels[0][level].later_phases.empty();
   }
+  if (phased && released) BuildLaterPhaseLevels(later_phases_, masks_, options_, 1, pyramids_);
   for (int level = pyramids_->num_levels - 1; level >= 0; --level) {
     // The level passed before is left behind (its frames are gone): its later phases too.
     if (phased && level + 1 < pyramids_->num_levels) ReleaseLaterPhaseLevel(level + 1, pyramids_);

@@ -54,7 +54,6 @@ struct Pyramids {
   std::vector<std::vector<ImageLevel>> levels;  // [frame][level]
   int num_levels = 0;                           // common to every frame
   std::vector<Eigen::Vector3d> centre;          // per frame, physical mm
-  bool later_phases_released = false;           // some coarse level's later phases freed
 };
 
 // The centre of a grid in its physical coordinates, o + D S (n - 1) / 2.

@@ -86,11 +86,10 @@ bool CheckOutlierVoxels(const std::vector<Image>& images, int num_threads, std::
 
 }  // namespace
 
-bool CheckRegistrationInputs(const std::vector<Image>& images,
-                             const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
-                             const RegistrationOptions& options,
-                             std::string* error,
-                             bool scan_voxels) {
+bool CheckRegistrationGeometry(const std::vector<Image>& images,
+                               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                               const RegistrationOptions& options,
+                               std::string* error) {
   const ImageGeometry& first = images[0].geometry;
   for (size_t i = 1; i < images.size(); ++i) {
     const Eigen::Vector3d ratio = images[i].geometry.spacing_mm.cwiseQuotient(first.spacing_mm);
@@ -105,7 +104,6 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
       return false;
     }
   }
-  if (scan_voxels && !CheckOutlierVoxels(images, options.solve.num_threads, error)) return false;
   const int shortest_axis = first.size.minCoeff();
   if (options.smoothing > 0.25 * shortest_axis) {
     *error = "smoothing=" + Format(options.smoothing) +
@@ -151,6 +149,14 @@ bool CheckRegistrationInputs(const std::vector<Image>& images,
     }
   }
   return true;
+}
+
+bool CheckRegistrationInputs(const std::vector<Image>& images,
+                             const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                             const RegistrationOptions& options,
+                             std::string* error) {
+  return CheckRegistrationGeometry(images, initial_frame_from_world, options, error) &&
+         CheckOutlierVoxels(images, options.solve.num_threads, error);
 }
 
 double IntensitySpread(const std::vector<Image>& images, const std::vector<Mask>& masks) {

@@ -29,19 +29,24 @@ constexpr double kMaxInitialSpread = 1000.0;
 
 struct RegistrationOptions;
 
-// The checks above and: no frame has an outlier voxel that holds more than half of its
-// squared deviation from its median (one voxel would outweigh the rest in the cost); the
-// finest level's smoothing (--smoothing) must leave structure,
-// at most a quarter of frame 0's shortest axis; the panorama voxel (frame 0's spacing times
-// --panorama_spacing) at most an eighth of frame 0's shortest extent. Returns false with
-// `error` naming the frame (by index) or the option's flag. With `scan_voxels` false the
-// outlier-voxel check (a read of every voxel: 0.12 s at clinical size) is left out, for a
-// front end that checks headers and poses before Register, which scans them itself.
+// The checks above and of the headers and poses: the finest level's smoothing
+// (--smoothing) must leave structure, at most a quarter of frame 0's shortest axis; the
+// panorama voxel (frame 0's spacing times --panorama_spacing) at most an eighth of frame 0's
+// shortest extent; the frames' centres not too far apart. No voxel is read: a front end
+// checks these before its memory estimate and leaves the voxels to Register. Returns false
+// with `error` naming the frame (by index) or the option's flag.
+bool CheckRegistrationGeometry(const std::vector<Image>& images,
+                               const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
+                               const RegistrationOptions& options,
+                               std::string* error);
+
+// CheckRegistrationGeometry, then: no frame has an outlier voxel that holds more than half of
+// its squared deviation from its median (one voxel would outweigh the rest in the cost; a
+// read of every voxel, 0.12 s at clinical size). What Register checks.
 bool CheckRegistrationInputs(const std::vector<Image>& images,
                              const std::vector<Eigen::Isometry3d>& initial_frame_from_world,
                              const RegistrationOptions& options,
-                             std::string* error,
-                             bool scan_voxels = true);
+                             std::string* error);
 
 // Intensity normalisation. The solver's absolute tolerances (Ceres's gradient tolerance,
 // the Levenberg-Marquardt diagonal's bounds) assume intensity differences of a usual size:
