@@ -274,7 +274,11 @@ bool ReadImage(const std::string& path, Image* image, std::string* error, bool* 
   out.geometry = ToGeometry(raw);
   if (nifti && !io_internal::CheckNiftiOriginPrecision(path, out.geometry, error)) return false;
   out.voxels = std::move(raw.voxels);
-  if (!CheckFiniteVoxels(out, path, error, constant)) return false;
+  if (raw.checked_finite) {
+    if (constant != nullptr) *constant = raw.constant;
+  } else if (!CheckFiniteVoxels(out, path, error, constant)) {
+    return false;
+  }
   *image = std::move(out);
   return true;
 }

@@ -843,6 +843,31 @@ TEST(PhasesIo, SlicerSequenceKeysThatDisagreeWithTheDataAreRefused) {
   }
 }
 
+// A view of 3D float .nii.gz files, whose voxels the reader compares with the first while
+// it moves them out of the inflated file: a constant phase is refused, and one voxel that
+// differs, the last, makes it a phase to register.
+TEST(PhasesIo, ConstantPhaseOfCompressedNiftiFilesIsFoundInTheReadersOwnPass) {
+  ScopedTempDir dir;
+  std::vector<Image> phases = ObliquePhases();
+  std::fill(phases[1].voxels.begin(), phases[1].voxels.end(), -3.25f);
+  std::string error;
+  std::string spec;
+  for (int t = 0; t < kPhases; ++t) {
+    const std::string file = dir.File("p" + std::to_string(t) + ".nii.gz");
+    ASSERT_TRUE(WriteImage(phases[t], file, &error)) << error;
+    spec += (t ? ";" : "") + file;
+  }
+  std::vector<Image> view;
+  EXPECT_FALSE(ReadView(spec, &view, &error));
+  EXPECT_EQ(error, dir.File("p1.nii.gz") + ": phase 1 has the same value (-3.25) in every "
+                                           "voxel: a blank or constant phase has nothing to "
+                                           "register");
+  phases[1].voxels.back() = 0.5f;
+  ASSERT_TRUE(WriteImage(phases[1], dir.File("p1.nii.gz"), &error)) << error;
+  ASSERT_TRUE(ReadView(spec, &view, &error)) << error;
+  ExpectSamePhases(view, phases);
+}
+
 TEST(PhasesIo, ConstantPhaseOfAViewIsRefusedNamingThePhase) {
   ScopedTempDir dir;
   std::vector<Image> phases = ObliquePhases();

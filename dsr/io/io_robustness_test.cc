@@ -321,6 +321,38 @@ TEST(NiftiIo, DataSizeFollowsTheDatatype) {
   EXPECT_THAT(ReadError(gz), HasSubstr("cannot read the voxels (data ends after 1000 of 2048"));
 }
 
+// The float NIfTI read that inflates, scans and moves the voxels in one pass tests them in
+// blocks of 1024: a non-finite voxel is named wherever it lies, at a block's first or last
+// element, in the last partial block, or as the very first or last voxel; the same file
+// once fixed reads back exactly.
+TEST(NiftiIo, NonFiniteVoxelsAreNamedWhereverTheyLieInTheBlocks) {
+  ScopedTempDir dir;
+  const Image image = RandomImage(Eigen::Vector3i(67, 61, 59), 8);  // 241133: a partial block
+  const int64_t last = static_cast<int64_t>(image.voxels.size()) - 1;
+  for (const int64_t at : {int64_t{0}, int64_t{1023}, int64_t{1024}, int64_t{65536 + 7},
+                           int64_t{235 * 1024 - 1}, last - 1, last}) {
+    SCOPED_TRACE(at);
+    ASSERT_LE(at, last);
+    Image bad = image;
+    bad.voxels[static_cast<size_t>(at)] = at % 2 ? std::numeric_limits<float>::infinity()
+                                                 : std::numeric_limits<float>::quiet_NaN();
+    const std::string path = dir.File("bad.nii.gz");
+    std::string error;
+    ASSERT_TRUE(WriteImage(bad, path, &error)) << error;
+    const int64_t nx = 67, nxy = 67 * 61;
+    EXPECT_EQ(ReadError(path), path + ": voxel (" + std::to_string(at % nx) + "," +
+                                   std::to_string(at % nxy / nx) + "," +
+                                   std::to_string(at / nxy) + ") is " +
+                                   (at % 2 ? "Inf" : "NaN"));
+  }
+  const std::string path = dir.File("good.nii.gz");
+  std::string error;
+  ASSERT_TRUE(WriteImage(image, path, &error)) << error;
+  Image back;
+  ASSERT_TRUE(ReadImage(path, &back, &error)) << error;
+  EXPECT_EQ(back.voxels, image.voxels);
+}
+
 TEST(NiftiIo, NonFiniteVoxelsAreRefusedLikeInOtherFormats) {
   ScopedTempDir dir;
   // float32, little-endian, written by dsr itself (.nii and .nii.gz); the NaN lies beyond

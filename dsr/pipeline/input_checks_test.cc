@@ -203,5 +203,38 @@ TEST(CheckRegistrationInputs, NamesAnOutlierVoxelWithItsShare) {
       << error;
 }
 
+// The outlier is found wherever it lies and on either side of the median: below it at the
+// frame's last voxel (past the pass's whole groups of 8) and in its first group.
+TEST(CheckRegistrationInputs, NamesTheFirstOutlierVoxelWhereverItLies) {
+  const SimulatedSequence s = SmallSequence();
+  const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());
+  const RegistrationOptions o = SmallOptions();
+  std::vector<Image> frames = s.frames;
+  // Frame 2 cropped to 39x39x31 voxels (47151: 7 past the last whole group of 8).
+  ImageGeometry cropped = frames[2].geometry;
+  cropped.size = Eigen::Vector3i(39, 39, 31);
+  Image frame(cropped, 0.0f);
+  for (int k = 0; k < 31; ++k) {
+    for (int j = 0; j < 39; ++j) {
+      for (int i = 0; i < 39; ++i) frame.at(i, j, k) = frames[2].at(i, j, k);
+    }
+  }
+  const Eigen::Vector3i& n = frame.geometry.size;
+  ASSERT_EQ(frame.voxels.size() % 8, 7u);
+  frame.voxels.back() = -1e30f;
+  frames[2] = frame;
+  std::string error;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  const std::string last = "(" + std::to_string(n[0] - 1) + "," + std::to_string(n[1] - 1) +
+                           "," + std::to_string(n[2] - 1) + ")";
+  EXPECT_EQ(error.find("frame 2 has an outlier intensity: its voxel " + last + " is -1e+30"), 0u)
+      << error;
+  frames[2].voxels.back() = frames[2].voxels[0];
+  frames[2].voxels[7] = -1e30f;
+  EXPECT_FALSE(CheckRegistrationInputs(frames, identity, o, &error));
+  EXPECT_EQ(error.find("frame 2 has an outlier intensity: its voxel (7,0,0) is -1e+30"), 0u)
+      << error;
+}
+
 }  // namespace
 }  // namespace dsr
