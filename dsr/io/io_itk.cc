@@ -573,10 +573,11 @@ bool FileCanHold(uint64_t data_bytes, uint64_t file_bytes) {
 enum class DataProblem { kNone, kData, kVoxel };
 
 // A read that may take its voxels from the data check's own pass (CheckNiftiData): `count`
-// float voxels expected (ITK's header: one float component), stored in `voxels` when the
+// voxels expected (ITK's header: one float or uint8 component), stored as float in `voxels` when the
 // check could copy them, which `filled` then says. `checked` says that the copy's own pass found every voxel finite and set `constant`
 // (whether every voxel holds one value), so that the reader need not read them again.
 struct DirectVoxels {
+  int datatype = 16;  // the NIfTI datatype read directly: 16 (float32) or 2 (uint8)
   uint64_t count = 0;
   std::vector<float>* voxels = nullptr;
   bool filled = false;
@@ -586,16 +587,18 @@ struct DirectVoxels {
 
 // CheckNiftiData's direct copy, fast: a single-member gzip file whose trailer gives the
 // size it inflates to, read and inflated in one call by libdeflate (clinical frames of 25 MB:
-// 44 against zlib's 75 ms) into `voxels`' own storage, the scan fed from it in the zlib
-// loop's chunks and the voxels (`expected` - `data_start` bytes from `data_start`) then
-// moved to its start: no second buffer of the file's size. Sets *total (the inflated bytes)
-// and *constant (whether every voxel equals the first) and returns true when it did; false
-// (`voxels` emptied) for anything else: the zlib loop then reads the file as before, with
-// its messages for short, long or corrupt data.
+// 44 against zlib's 75 ms), a float32 file into `voxels`' own storage (no second buffer of
+// the file's size), a uint8 file into a buffer of its own. Then one pass in chunks that stay
+// in cache feeds the scan, puts each chunk's voxels (`element_bytes` each, `data_start` to
+// `expected`) in their place as float and compares them with voxel 0, so that the reader need
+// not read them again. Sets *total (the inflated bytes) and *constant (whether every voxel
+// equals the first) and returns true when it did; false (`voxels` emptied) for anything else:
+// the zlib loop then reads the file as before, with its messages for short, long or corrupt
+// data.
 bool InflateWhole(const std::string& path,
-                  uint64_t header_size,
                   uint64_t data_start,
                   uint64_t expected,
+                  int element_bytes,
                   NonFiniteScan* scan,
                   std::vector<float>* voxels,
                   uint64_t* total,
@@ -615,8 +618,13 @@ bool InflateWhole(const std::string& path,
   std::unique_ptr<libdeflate_decompressor, void (*)(libdeflate_decompressor*)> decompressor(
       libdeflate_alloc_decompressor(), libdeflate_free_decompressor);
   if (decompressor == nullptr) return false;
-  voxels->resize(static_cast<size_t>((inflated + sizeof(float) - 1) / sizeof(float)));
-  unsigned char* out = reinterpret_cast<unsigned char*>(voxels->data());
+  const bool floats = element_bytes == sizeof(float);
+  const size_t count = static_cast<size_t>((expected - data_start) / element_bytes);
+  std::unique_ptr<unsigned char[]> bytes;  // a uint8 file, inflated
+  voxels->resize(floats ? static_cast<size_t>((inflated + sizeof(float) - 1) / sizeof(float))
+                        : count);
+  if (!floats) bytes.reset(new unsigned char[static_cast<size_t>(inflated)]);
+  unsigned char* out = floats ? reinterpret_cast<unsigned char*>(voxels->data()) : bytes.get();
   size_t in_used = 0, out_got = 0;
   if (libdeflate_gzip_decompress_ex(decompressor.get(), compressed.get(),
                                     static_cast<size_t>(size), out, static_cast<size_t>(inflated),
@@ -625,23 +633,24 @@ bool InflateWhole(const std::string& path,
     voxels->clear();
     return false;
   }
-  // One pass in chunks that stay in cache: each is scanned, moved to its place and compared
-  // with voxel 0 (a constant image), so that the reader need not read the voxels again.
-  constexpr uint64_t kMoveChunk = uint64_t{1} << 18;  // bytes, a multiple of 4
-  float first;
-  std::memcpy(&first, out + data_start, sizeof(float));
+  constexpr uint64_t kPassChunk = uint64_t{1} << 18;  // bytes of the file, a multiple of 4
+  const float first = floats ? LoadAt<float>(out, data_start, false) : out[data_start];
   int differs = 0;
-  for (uint64_t at = data_start; at < expected; at += kMoveChunk) {
-    const uint64_t count = std::min<uint64_t>(kMoveChunk, expected - at);
-    scan->Feed(out + at, static_cast<size_t>(count), at);
-    unsigned char* to = out + (at - data_start);
-    std::memmove(to, out + at, static_cast<size_t>(count));
-    const float* moved = reinterpret_cast<const float*>(to);
-    for (uint64_t v = 0; v < count / sizeof(float); ++v) differs |= moved[v] != first ? 1 : 0;
+  for (uint64_t at = data_start; at < expected; at += kPassChunk) {
+    const uint64_t chunk = std::min<uint64_t>(kPassChunk, expected - at);
+    scan->Feed(out + at, static_cast<size_t>(chunk), at);
+    float* to = voxels->data() + (at - data_start) / element_bytes;
+    const size_t n = static_cast<size_t>(chunk / element_bytes);
+    if (floats) {
+      std::memmove(to, out + at, static_cast<size_t>(chunk));
+    } else {
+      for (size_t v = 0; v < n; ++v) to[v] = out[at + v];
+    }
+    for (size_t v = 0; v < n; ++v) differs |= to[v] != first ? 1 : 0;
   }
-  voxels->resize(static_cast<size_t>((expected - data_start) / sizeof(float)));
-  *constant = differs == 0;
+  voxels->resize(count);
   *total = inflated;
+  *constant = differs == 0;
   return true;
 }
 
@@ -653,10 +662,11 @@ bool InflateWhole(const std::string& path,
 // for .nii. With `checked` (one entry per phase of a 4D file), only the phases it marks are
 // scanned: the others are not read.
 //
-// With `direct`, a float32 file in this machine's byte order without scaling (what
-// nifti_read_buffer would hand ITK unchanged, bad floats aside, which the scan refuses)
-// also has its voxels copied out as the check decompresses them: ITK's read would
-// decompress the whole file a second time for the same bytes.
+// With `direct`, a file of its datatype (float32 in this machine's byte order, or uint8)
+// without scaling (what nifti_read_buffer would hand ITK unchanged, bad floats aside, which
+// the scan refuses) also has its voxels copied out as float as the check decompresses them:
+// ITK's read would decompress the whole file a second time for the same bytes. The zlib loop
+// (a file libdeflate does not take whole) copies float32 files only.
 DataProblem CheckNiftiData(const std::string& path,
                            bool exact,
                            std::string* reason,
@@ -709,7 +719,8 @@ DataProblem CheckNiftiData(const std::string& path,
   // (a fuzzed header asking for gigabytes gets the check's own message, not an allocation).
   bool copy = false;
   if (direct != nullptr && !exact && checked == nullptr && layout.header_size == 348 &&
-      layout.datatype == 16 && !layout.swap && layout.single_file && layout.intercept == 0.0 &&
+      layout.datatype == direct->datatype && !layout.swap && layout.single_file &&
+      layout.intercept == 0.0 &&
       (layout.slope == 0.0 || layout.slope == 1.0) && layout.voxels == direct->count) {
     std::error_code ec;
     const uint64_t file_bytes = std::filesystem::file_size(path, ec);
@@ -717,10 +728,10 @@ DataProblem CheckNiftiData(const std::string& path,
   }
   uint64_t total = static_cast<uint64_t>(layout.header_size);
   const bool inflated = copy && !gzdirect(file) &&
-                        InflateWhole(path, total, layout.data_start, expected, &scan,
+                        InflateWhole(path, layout.data_start, expected, type->bits / 8, &scan,
                                      direct->voxels, &total, &direct->constant);
   unsigned char* copy_to = nullptr;
-  if (copy && !inflated) {
+  if (copy && !inflated && layout.datatype == 16) {  // the zlib loop copies floats only
     direct->voxels->resize(static_cast<size_t>(layout.voxels));
     copy_to = reinterpret_cast<unsigned char*>(direct->voxels->data());
   }
@@ -760,7 +771,7 @@ DataProblem CheckNiftiData(const std::string& path,
               "," + std::to_string(v / nxy) + ") is " + (scan.first_is_nan() ? "NaN" : "Inf");
     return DataProblem::kVoxel;
   }
-  if (copy) direct->filled = true;
+  if (inflated || copy_to != nullptr) direct->filled = true;
   if (inflated) direct->checked = true;
   return DataProblem::kNone;
 }
@@ -1451,7 +1462,7 @@ void ReadWholeAsFloat(itk::ImageIOBase& io, std::vector<float>* voxels) {
 }
 
 // CheckBeforeReading, then ReadWholeAsFloat, unless the check's pass already holds the
-// voxels (DirectVoxels: a float NIfTI file is decompressed once, not twice), into
+// voxels (DirectVoxels: a float or uint8 NIfTI file is decompressed once, not twice), into
 // `volume`'s voxels; its `checked_finite` and `constant` as that pass found them.
 bool ReadAllAsFloat(itk::ImageIOBase& io,
                     const std::string& path,
@@ -1459,15 +1470,18 @@ bool ReadAllAsFloat(itk::ImageIOBase& io,
                     std::string* error) {
   std::vector<float>* voxels = &volume->voxels;
   DirectVoxels direct;
-  const bool one_float = io.GetComponentType() == itk::IOComponentEnum::FLOAT &&
+  const itk::IOComponentEnum component = io.GetComponentType();
+  const bool one_direct = (component == itk::IOComponentEnum::FLOAT ||
+                          component == itk::IOComponentEnum::UCHAR) &&
                          io.GetNumberOfComponents() == 1 &&
                          io.GetPixelType() == itk::IOPixelEnum::SCALAR;
-  if (one_float) {
+  if (one_direct) {
+    direct.datatype = component == itk::IOComponentEnum::FLOAT ? 16 : 2;
     direct.count = 1;
     for (unsigned d = 0; d < io.GetNumberOfDimensions(); ++d) direct.count *= io.GetDimensions(d);
     direct.voxels = voxels;
   }
-  if (!CheckBeforeReading(io, path, nullptr, error, one_float ? &direct : nullptr)) return false;
+  if (!CheckBeforeReading(io, path, nullptr, error, one_direct ? &direct : nullptr)) return false;
   if (!direct.filled) ReadWholeAsFloat(io, voxels);
   volume->checked_finite = direct.filled && direct.checked;
   volume->constant = volume->checked_finite && direct.constant;
