@@ -147,6 +147,31 @@ TEST(ImageIo, IntegerPixelTypesAreReadAsFloat) {
   }
 }
 
+// Writes `data` to `path` gzip-compressed: one member, or two split at `split` (what gzip
+// writes for concatenated files) when `split` lies inside the data.
+void GzipInMembers(const std::string& path, const std::string& data, size_t split) {
+  for (int member = 0; member < (split < data.size() ? 2 : 1); ++member) {
+    gzFile out = gzopen(path.c_str(), member == 0 ? "wb" : "ab");
+    ASSERT_NE(out, nullptr);
+    const size_t from = member == 0 ? 0 : split, to = member == 0 ? split : data.size();
+    ASSERT_EQ(gzwrite(out, data.data() + from, static_cast<unsigned>(to - from)),
+              static_cast<int>(to - from));
+    ASSERT_EQ(gzclose(out), Z_OK);
+  }
+}
+
+// Reads `path` with ReadImage into `image` and expects geometry `g` and ITK's own reader's
+// voxels, bit for bit.
+void ReadAsItkReadsIt(const std::string& path, const ImageGeometry& g, Image* image) {
+  std::string error;
+  ASSERT_TRUE(ReadImage(path, image, &error)) << error;
+  ExpectSameGeometry(image->geometry, g);
+  std::vector<std::vector<float>> itk;
+  ASSERT_EQ(test_itk::ReadPhasesWithItk(path, &itk), "") << path;
+  ASSERT_EQ(itk.size(), 1u);
+  EXPECT_EQ(image->voxels, itk[0]) << path;
+}
+
 // A float NIfTI file is decompressed once: the data check copies the voxels out as it
 // scans them (io_itk.cc; a .nii.gz of one gzip member inflated in one call by libdeflate,
 // others by zlib's stream). The voxels and geometry read that way are ITK's own reader's,
@@ -164,13 +189,7 @@ TEST(ImageIo, FloatNiftiReadInTheCheckPassIsItksReadBitForBit) {
   four.size.push_back(1);
   const auto compare = [&](const std::string& path, double slope, double intercept) {
     Image image;
-    std::string error;
-    ASSERT_TRUE(ReadImage(path, &image, &error)) << error;
-    ExpectSameGeometry(image.geometry, g);
-    std::vector<std::vector<float>> itk;
-    ASSERT_EQ(test_itk::ReadPhasesWithItk(path, &itk), "") << path;
-    ASSERT_EQ(itk.size(), 1u);
-    EXPECT_EQ(image.voxels, itk[0]) << path;
+    ASSERT_NO_FATAL_FAILURE(ReadAsItkReadsIt(path, g, &image));
     for (size_t v = 0; v < values.size(); v += 41) {
       EXPECT_EQ(image.voxels[v], static_cast<float>(slope * static_cast<float>(values[v]) +
                                                     intercept))
@@ -190,15 +209,7 @@ TEST(ImageIo, FloatNiftiReadInTheCheckPassIsItksReadBitForBit) {
     const std::string bytes((std::istreambuf_iterator<char>(plain)),
                             std::istreambuf_iterator<char>());
     const std::string two = dir.File("two_members.nii.gz");
-    const size_t half = bytes.size() / 2;
-    for (int member = 0; member < 2; ++member) {
-      gzFile out = gzopen(two.c_str(), member == 0 ? "wb" : "ab");
-      ASSERT_NE(out, nullptr);
-      const size_t from = member == 0 ? 0 : half, to = member == 0 ? half : bytes.size();
-      ASSERT_EQ(gzwrite(out, bytes.data() + from, static_cast<unsigned>(to - from)),
-                static_cast<int>(to - from));
-      ASSERT_EQ(gzclose(out), Z_OK);
-    }
+    ASSERT_NO_FATAL_FAILURE(GzipInMembers(two, bytes, bytes.size() / 2));
     compare(two, 1.0, 0.0);
   }
   // The uncompressed file with scl_slope = 2, scl_inter = 1 (bytes 112 and 116).
@@ -225,13 +236,7 @@ TEST(ImageIo, Uint8NiftiReadInTheCheckPassIsItksReadBitForBit) {
   for (size_t v = 0; v < values.size(); ++v) values[v] = static_cast<double>((v * 7 + 3) % 256);
   const auto compare = [&](const std::string& path, double slope, double intercept) {
     Image image;
-    std::string error;
-    ASSERT_TRUE(ReadImage(path, &image, &error)) << error;
-    ExpectSameGeometry(image.geometry, g);
-    std::vector<std::vector<float>> itk;
-    ASSERT_EQ(test_itk::ReadPhasesWithItk(path, &itk), "") << path;
-    ASSERT_EQ(itk.size(), 1u);
-    EXPECT_EQ(image.voxels, itk[0]) << path;
+    ASSERT_NO_FATAL_FAILURE(ReadAsItkReadsIt(path, g, &image));
     for (size_t v = 0; v < values.size(); ++v) {
       ASSERT_EQ(image.voxels[v], static_cast<float>(slope * values[v] + intercept)) << v;
     }
@@ -240,24 +245,14 @@ TEST(ImageIo, Uint8NiftiReadInTheCheckPassIsItksReadBitForBit) {
   ASSERT_EQ(test_itk::WriteScalarImage(plain, ToGrid(g), test_itk::Pixel::kUint8, values), "");
   std::ifstream in(plain, std::ios::binary);
   std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  const auto gzip = [&](const std::string& path, const std::string& data, size_t split) {
-    for (int member = 0; member < (split < data.size() ? 2 : 1); ++member) {
-      gzFile out = gzopen(path.c_str(), member == 0 ? "wb" : "ab");
-      ASSERT_NE(out, nullptr);
-      const size_t from = member == 0 ? 0 : split, to = member == 0 ? split : data.size();
-      ASSERT_EQ(gzwrite(out, data.data() + from, static_cast<unsigned>(to - from)),
-                static_cast<int>(to - from));
-      ASSERT_EQ(gzclose(out), Z_OK);
-    }
-  };
-  gzip(dir.File("one.nii.gz"), bytes, bytes.size());
+  ASSERT_NO_FATAL_FAILURE(GzipInMembers(dir.File("one.nii.gz"), bytes, bytes.size()));
   compare(dir.File("one.nii.gz"), 1.0, 0.0);
-  gzip(dir.File("two.nii.gz"), bytes, bytes.size() / 2);
+  ASSERT_NO_FATAL_FAILURE(GzipInMembers(dir.File("two.nii.gz"), bytes, bytes.size() / 2));
   compare(dir.File("two.nii.gz"), 1.0, 0.0);
   const float slope = 2.0f, intercept = 1.0f;  // bytes 112 and 116
   std::memcpy(&bytes[112], &slope, 4);
   std::memcpy(&bytes[116], &intercept, 4);
-  gzip(dir.File("scaled.nii.gz"), bytes, bytes.size());
+  ASSERT_NO_FATAL_FAILURE(GzipInMembers(dir.File("scaled.nii.gz"), bytes, bytes.size()));
   compare(dir.File("scaled.nii.gz"), 2.0, 1.0);
 }
 
