@@ -573,9 +573,10 @@ bool FileCanHold(uint64_t data_bytes, uint64_t file_bytes) {
 enum class DataProblem { kNone, kData, kVoxel };
 
 // A read that may take its voxels from the data check's own pass (CheckNiftiData): `count`
-// voxels expected (ITK's header: one float or uint8 component), stored as float in `voxels` when the
-// check could copy them, which `filled` then says. `checked` says that the copy's own pass found every voxel finite and set `constant`
-// (whether every voxel holds one value), so that the reader need not read them again.
+// voxels expected (ITK's header: one float or uint8 component), stored as float in `voxels`
+// when the check could copy them, which `filled` then says. `checked` says that the copy's
+// own pass found every voxel finite and set `constant` (whether every voxel holds one
+// value), so that the reader need not read them again.
 struct DirectVoxels {
   int datatype = 16;  // the NIfTI datatype read directly: 16 (float32) or 2 (uint8)
   uint64_t count = 0;

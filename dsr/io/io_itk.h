@@ -20,9 +20,9 @@ struct RawVolume {
   double spacing[3] = {1, 1, 1};
   double direction[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1};  // row-major D, columns = index axes
   std::vector<float> voxels;                          // x fastest
-  // Set by Read when its own pass over the voxels found every one finite (a float NIfTI
-  // file read directly); `constant` then says whether every voxel holds one value. When
-  // false, a caller that needs either reads the voxels itself.
+  // Set by Read when its own pass over the voxels found every one finite (a float or
+  // uint8 NIfTI file read directly); `constant` then says whether every voxel holds one
+  // value. When false, a caller that needs either reads the voxels itself.
   bool checked_finite = false;
   bool constant = false;
 };

@@ -38,56 +38,6 @@ double MedianOf(std::vector<float>* values) {
 // sum of squared differences the registration minimises.
 constexpr double kMaxOneVoxelShare = 0.5;
 
-// The sum of the squared deviations of `v` from `median`, in double, and the largest
-// one, which lies at `v`'s least or largest value: one pass the compiler vectorises (8
-// partial sums, added at the end; float min and max).
-struct DeviationSums {
-  double sum = 0.0;
-  double largest = 0.0;
-};
-DeviationSums SumDeviations(const std::vector<float>& v, double median) {
-  constexpr size_t kLanes = 8;
-  double partial[kLanes] = {};
-  float least[kLanes], most[kLanes];
-  std::fill(least, least + kLanes, v[0]);
-  std::fill(most, most + kLanes, v[0]);
-  const size_t whole = v.size() / kLanes * kLanes;
-  for (size_t l = 0; l < whole; l += kLanes) {
-    for (size_t k = 0; k < kLanes; ++k) {
-      const double deviation = static_cast<double>(v[l + k]) - median;
-      partial[k] += deviation * deviation;
-      least[k] = std::min(least[k], v[l + k]);
-      most[k] = std::max(most[k], v[l + k]);
-    }
-  }
-  DeviationSums out;
-  float lowest = v[0], highest = v[0];
-  for (size_t l = whole; l < v.size(); ++l) {
-    const double deviation = static_cast<double>(v[l]) - median;
-    out.sum += deviation * deviation;
-    lowest = std::min(lowest, v[l]);
-    highest = std::max(highest, v[l]);
-  }
-  for (size_t k = 0; k < kLanes; ++k) {
-    out.sum += partial[k];
-    lowest = std::min(lowest, least[k]);
-    highest = std::max(highest, most[k]);
-  }
-  const double below = static_cast<double>(lowest) - median;
-  const double above = static_cast<double>(highest) - median;
-  out.largest = std::max(below * below, above * above);
-  return out;
-}
-
-// The first voxel of `v` whose squared deviation from `median` is `largest`.
-size_t FirstDeviating(const std::vector<float>& v, double median, double largest) {
-  for (size_t l = 0; l < v.size(); ++l) {
-    const double deviation = static_cast<double>(v[l]) - median;
-    if (deviation * deviation == largest) return l;
-  }
-  return 0;
-}
-
 // The frames' outlier voxels (a corrupt or saturated value such as 1e30): false with
 // `error` naming the frame, the voxel, its value and its share of the frame's squared
 // deviation. The median comes from at most about 10^5 evenly spaced voxels.
@@ -104,12 +54,17 @@ bool CheckOutlierVoxels(const std::vector<Image>& images, int num_threads, std::
     std::vector<float> sample;
     for (size_t l = 0; l < v.size(); l += stride) sample.push_back(v[l]);
     const double median = MedianOf(&sample);
-    const DeviationSums sums = SumDeviations(v, median);
-    median_of[f] = median;
-    if (sums.sum > 0.0 && sums.largest > kMaxOneVoxelShare * sums.sum) {
-      largest_share[f] = sums.largest / sums.sum;
-      largest_at[f] = FirstDeviating(v, median, sums.largest);
+    double sum = 0.0, largest = 0.0;
+    size_t at = 0;
+    for (size_t l = 0; l < v.size(); ++l) {
+      const double deviation = static_cast<double>(v[l]) - median;
+      const double d = deviation * deviation;
+      sum += d;
+      if (d > largest) largest = d, at = l;
     }
+    median_of[f] = median;
+    largest_at[f] = at;
+    if (sum > 0.0 && largest > kMaxOneVoxelShare * sum) largest_share[f] = largest / sum;
   });
   for (size_t f = 0; f < m; ++f) {
     if (largest_share[f] == 0.0) continue;
