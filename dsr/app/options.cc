@@ -689,6 +689,47 @@ const OptionSpec kOptionTable[] = {
    "noise.",
    DSR_RULE(InRange(D(v), 0.0, 10.0), "must be in [0, 10]"),
    DSR_FIELD(simulation.attenuation_db_per_cm)},
+  {"echogenicity_range", OptionType::kDouble, "0.0", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "Real-echo effect (off at 0): view-dependent echogenicity; an interface (the noise-free "
+   "frame's gradient, its top 10 % fully) is brighter by up to this share where the beam "
+   "meets it head on and darker by as much where the beam runs along it (x 1 + this cos "
+   "2 phi, phi the angle between the gradient and the beam from the apex), in [0, 0.9].",
+   DSR_RULE(InRange(D(v), 0.0, 0.9), "must be in [0, 0.9]"),
+   DSR_FIELD(simulation.echogenicity_range)},
+  {"shadow_strength", OptionType::kDouble, "0.0", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "Real-echo effect (off at 0): acoustic shadows; each voxel a beam crosses with a value "
+   "above --shadow_threshold lets 1 - this x min(1, (value - threshold) / (255 - "
+   "threshold)) of it through, so what lies behind a bright reflector darkens, differently "
+   "in every view. In [0, 1].",
+   DSR_RULE(InRange(D(v), 0.0, 1.0), "must be in [0, 1]"),
+   DSR_FIELD(simulation.shadow_strength)},
+  {"shadow_threshold", OptionType::kDouble, "200.0", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "With --shadow_strength: the grey level above which a voxel casts a shadow, in [0, 250].",
+   DSR_RULE(InRange(D(v), 0.0, 250.0), "must be in [0, 250]"),
+   DSR_FIELD(simulation.shadow_threshold)},
+  {"psf_lateral_mm", OptionType::kDouble, "0.0", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "Real-echo effect (off at 0): a lateral point-spread function that widens with depth; "
+   "each slice at depth k is smoothed across the beam by a Gaussian of this standard "
+   "deviation (mm) times k / (depth - 1), inside the field of view, in [0, 20].",
+   DSR_RULE(InRange(D(v), 0.0, 20.0), "must be in [0, 20]"),
+   DSR_FIELD(simulation.psf_lateral_mm)},
+  {"dropout_fraction", OptionType::kDouble, "0.0", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "Real-echo effect (off at 0): signal dropouts; a view (with chance "
+   "--dropout_view_fraction) loses contact over a wedge of its sector covering between "
+   "half of this and this share of the azimuth opening, where only the noise remains. In "
+   "[0, 0.9].",
+   DSR_RULE(InRange(D(v), 0.0, 0.9), "must be in [0, 0.9]"),
+   DSR_FIELD(simulation.dropout_fraction)},
+  {"dropout_view_fraction", OptionType::kDouble, "0.33", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "With --dropout_fraction: the chance that a view has a dropout wedge, in [0, 1].",
+   DSR_RULE(InRange(D(v), 0.0, 1.0), "must be in [0, 1]"),
+   DSR_FIELD(simulation.dropout_view_fraction)},
   {"intensity_mapping", OptionType::kString, "none", "Simulation",
    kDsrSimulate | kDsrCompare | kPySimulate,
    "How the source's intensities are mapped before the frames are cut: none (as they are) "

@@ -54,6 +54,11 @@ bool CheckSimulationMemory(const SimulationOptions& options, const ImageGeometry
   const double effects_bytes =
       (options.attenuation_db_per_cm > 0.0 ? 8.0 * frame_voxels : 0.0) +
       (options.speckle_looks > 0 ? 48.0 * padded_voxels + 12.0 * frame_voxels : 0.0) +
+      // Real-echo artefacts: a gradient and its magnitude, two double maps for the shadows,
+      // a byte per voxel and view for the dropout wedges.
+      (options.echogenicity_range > 0.0 || options.shadow_strength > 0.0 ? 16.0 * frame_voxels
+                                                                         : 0.0) +
+      (options.dropout_fraction > 0.0 ? frame_voxels * options.num_frames : 0.0) +
       (world_speckle ? 4.0 * frame_voxels * options.num_frames : 0.0) +
       (world_speckle && source.size.minCoeff() > 0
            ? WorldSpeckleBytes(options, source, speckle_padding)

@@ -88,7 +88,7 @@ CutFrame Cut(const Image& source, const SimulationOptions& o, const Eigen::Isome
 }
 
 Frame Coarse(const CutFrame& f, int halvings) {
-  ImageLevel level{f.image, f.mask};
+  ImageLevel level{f.image, f.mask, {}};
   for (int h = 0; h < halvings; ++h) level = Downsample(level.image, level.mask, 1.0, 1);
   return Frame(level.image, level.mask);
 }

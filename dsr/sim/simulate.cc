@@ -13,6 +13,7 @@
 #include <glog/logging.h>
 
 #include "dsr/image/frame.h"
+#include "dsr/sim/echo_artifacts.h"
 #include "dsr/sim/echo_mapping.h"
 #include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
@@ -62,6 +63,11 @@ constexpr uint64_t kSpeckleWorldStream = 0x737065636b6c6557ull;
 // per-frame speckle part.
 constexpr uint64_t kPhaseNoiseStream = 0x70686173655f6e6full;
 constexpr uint64_t kSpecklePhaseStream = 0x737065636b6c6550ull;
+
+// The lateral point-spread function's largest standard deviation (simulate.h), mm.
+constexpr double kMaxPsfLateralMm = 20.0;
+// The dropouts' random stream (ASCII "dropout_"; echo_artifacts.h).
+constexpr uint64_t kDropoutStream = 0x64726f706f75745full;
 
 // Ranges of the beating source (simulate.h).
 constexpr int kMaxPhases = 64;
@@ -587,6 +593,18 @@ bool SimulationOptions::Validate(std::string* error) const {
       << kMaxEchoEdgeSigmaMm << "]";
   } else if (!range(echo_edge_weight, 0.0, 1.0)) {
     s << "echo_edge_weight=" << echo_edge_weight << ": must be in [0, 1]";
+  } else if (!range(echogenicity_range, 0.0, 0.9)) {
+    s << "echogenicity_range=" << echogenicity_range << ": must be in [0, 0.9]";
+  } else if (!range(shadow_strength, 0.0, 1.0)) {
+    s << "shadow_strength=" << shadow_strength << ": must be in [0, 1]";
+  } else if (!range(shadow_threshold, 0.0, kMaxEchoReject)) {
+    s << "shadow_threshold=" << shadow_threshold << ": must be in [0, " << kMaxEchoReject << "]";
+  } else if (!range(psf_lateral_mm, 0.0, kMaxPsfLateralMm)) {
+    s << "psf_lateral_mm=" << psf_lateral_mm << ": must be in [0, " << kMaxPsfLateralMm << "]";
+  } else if (!range(dropout_fraction, 0.0, 0.9)) {
+    s << "dropout_fraction=" << dropout_fraction << ": must be in [0, 0.9]";
+  } else if (!range(dropout_view_fraction, 0.0, 1.0)) {
+    s << "dropout_view_fraction=" << dropout_view_fraction << ": must be in [0, 1]";
   } else if (num_phases < 1 || num_phases > kMaxPhases) {
     s << "num_phases=" << num_phases << ": must be in [1, " << kMaxPhases << "]";
   } else if (!range(beat_amplitude_mm, 0.0, kMaxBeatAmplitudeMm)) {
@@ -975,11 +993,13 @@ bool SampleFrame(const SourceSampler& source, const ImageGeometry& g, const Mask
   return true;
 }
 
-// Source value x attenuation x speckle, x gain + offset, + noise, clamped, in the field of
-// view, in voxel order: each step skipped when off, so that a sequence without effects is
-// bit for bit the former one. `normal` and `rng` carry on from frame to frame.
+// Source value x attenuation x speckle, x gain + offset (0 where `lost`: a dropout), + noise,
+// clamped, in the field of view, in voxel order: each step skipped when off, so that a
+// sequence without effects is bit for bit the former one. `normal` and `rng` carry on from
+// frame to frame.
 void ApplyEffectsAndNoise(const Mask& fov, const std::vector<double>& attenuation,
                           const Image& speckle, double gain, double offset, double sigma,
+                          const std::vector<uint8_t>& lost,
                           std::normal_distribution<double>* normal, std::mt19937_64* rng,
                           Image* frame) {
   for (size_t l = 0; l < frame->voxels.size(); ++l) {
@@ -988,6 +1008,7 @@ void ApplyEffectsAndNoise(const Mask& fov, const std::vector<double>& attenuatio
     if (!attenuation.empty()) value *= attenuation[l];
     if (!speckle.empty()) value *= speckle.voxels[l];
     if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
+    if (!lost.empty() && lost[l]) value = 0.0;  // a dropout: only the noise remains
     const double noisy = value + sigma * (*normal)(*rng);
     frame->voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
   }
@@ -1101,7 +1122,13 @@ bool Simulate(const Image& source,
   for (int f = 0; f < options.num_frames; ++f) {
     Image frame(g, 0.0f);
     if (!SampleFrame(sampler, g, fov, poses[f], f, 0, beat, 0.0, &frame, error)) return false;
+    ApplyBeamArtifacts(fov, options, &frame);
     out.frames.push_back(std::move(frame));
+  }
+  std::vector<std::vector<uint8_t>> lost(options.num_frames);  // each view's dropout wedge
+  for (int f = 0; f < options.num_frames; ++f) {
+    lost[f] = DropoutWedge(g, fov, options,
+                           StreamSeed(options.seed, kDropoutStream, {static_cast<uint64_t>(f)}));
   }
   const bool world_part = options.speckle_looks > 0 && options.speckle_world_fraction > 0.0;
   std::vector<Image> world_speckle;  // all frames' speckle when it has a world-fixed part
@@ -1113,8 +1140,8 @@ bool Simulate(const Image& source,
     } else if (options.speckle_looks > 0) {
       speckle = SpeckleField(g, options, f, 0);
     }
-    ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma, &normal,
-                         &rng, &out.frames[f]);
+    ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma, lost[f],
+                         &normal, &rng, &out.frames[f]);
     out.masks.push_back(mask);
     out.frame_from_world.push_back(poses[f]);
     out.gain.push_back(gains[f]);
@@ -1129,6 +1156,7 @@ bool Simulate(const Image& source,
     for (int f = 0; f < options.num_frames; ++f) {
       Image frame(g, 0.0f);
       if (!SampleFrame(sampler, g, fov, poses[f], f, p, beat, t, &frame, error)) return false;
+      ApplyBeamArtifacts(fov, options, &frame);
       Image speckle;
       if (world_part) {
         speckle = std::move(world_speckle[f]);
@@ -1139,7 +1167,7 @@ bool Simulate(const Image& source,
           options.seed, kPhaseNoiseStream, {static_cast<uint64_t>(f), static_cast<uint64_t>(p)}));
       std::normal_distribution<double> phase_normal(0.0, 1.0);
       ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma,
-                           &phase_normal, &phase_rng, &frame);
+                           lost[f], &phase_normal, &phase_rng, &frame);
       out.later_phases[f].push_back(std::move(frame));
     }
   }

@@ -223,6 +223,20 @@ struct SimulationOptions {
   // Share w of the full scale that the interfaces (gradient magnitude at or above its 99th
   // percentile) add, in [0, 1]; 0: no edge term.
   double echo_edge_weight = 0.35;
+  // Real-echo artefacts (sim/echo_artifacts.h, docs/design.md 6.7); each off at 0.
+  // e: interfaces across the beam brighter by up to this share, along it darker, in [0, 0.9].
+  double echogenicity_range = 0.0;
+  // s: the share of the beam a voxel at full scale stops (acoustic shadows behind bright
+  // reflectors), in [0, 1]; shadow_threshold r: values above it cast shadows, in [0, 250].
+  double shadow_strength = 0.0;
+  double shadow_threshold = 200.0;
+  // Lateral point-spread function: the Gaussian's standard deviation (mm) across the beam at
+  // the frame's full depth, growing linearly from 0 at the apex, in [0, 20].
+  double psf_lateral_mm = 0.0;
+  // Dropouts: the largest share f of the sector's azimuth opening a view's wedge of lost
+  // signal covers, in [0, 0.9]; dropout_view_fraction q: the chance a view has one, [0, 1].
+  double dropout_fraction = 0.0;
+  double dropout_view_fraction = 0.33;
   // Beating source (see the header comment); the beat_ parameters are used only with
   // num_phases >= 2.
   int num_phases = 1;  // T phases of the heart cycle per view, in [1, 64]; 1: a still source
