@@ -18,10 +18,18 @@
 #            fields of view and touch their borders
 #   echo_flat  the same sequences (same seed: same poses, noise and speckle) without the
 #            gain, offset and attenuation
+#   echo_real  echo with what real 3D TEE has besides (docs/design.md 6.7): dropout wedges of
+#            20-40 % of the azimuth in about a third of the views, interfaces +-25 % brighter
+#            with their angle to the beam, acoustic shadows behind bright reflectors
+#            (strength 0.3 above grey level 200) and a lateral blur of 2 mm (standard
+#            deviation) at full depth
+#   echo_dropout, echo_angle, echo_shadow, echo_psf  echo with one of those four alone
 # protocol_flags NAME prints its dsr_simulate flags; an unknown name returns 1.
-protocol_names="paper, wide, walk, us, us_flat, us_gain, echo, echo_flat"
+protocol_names="paper, wide, walk, us, us_flat, us_gain, echo, echo_flat, echo_real, echo_dropout, echo_angle, echo_shadow, echo_psf"
 protocol_flags() {
   local walk="--pose_model=walk --step_rotation_deg=6 --step_translation_voxels=6 --max_rotation_deg=12 --max_translation_voxels=15"
+  local dropout="--dropout_fraction=0.4 --dropout_view_fraction=0.33" angle="--echogenicity_range=0.25"
+  local shadow="--shadow_strength=0.3 --shadow_threshold=200" psf="--psf_lateral_mm=2"
   case "$1" in
     paper) echo "--max_rotation_deg=12 --max_translation_voxels=15" ;;
     wide) echo "--max_rotation_deg=25 --max_translation_voxels=20" ;;
@@ -31,6 +39,11 @@ protocol_flags() {
     us_gain) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --gain_range=0.15 --offset_range=10" ;;
     echo) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --attenuation_db_per_cm=0.5 --gain_range=0.15 --offset_range=10 --intensity_mapping=echo" ;;
     echo_flat) echo "$walk --sigma=15 --speckle_looks=4 --speckle_world_fraction=0.8 --intensity_mapping=echo" ;;
+    echo_real) echo "$(protocol_flags echo) $dropout $angle $shadow $psf" ;;
+    echo_dropout) echo "$(protocol_flags echo) $dropout" ;;
+    echo_angle) echo "$(protocol_flags echo) $angle" ;;
+    echo_shadow) echo "$(protocol_flags echo) $shadow" ;;
+    echo_psf) echo "$(protocol_flags echo) $psf" ;;
     *) return 1 ;;
   esac
 }
