@@ -1143,6 +1143,11 @@ bool Simulate(const Image& source,
     ApplyEffectsAndNoise(fov, attenuation, speckle, gains[f], offsets[f], options.sigma, lost[f],
                          &normal, &rng, &out.frames[f]);
     out.masks.push_back(mask);
+    if (options.dropouts_out_of_masks) {
+      for (size_t l = 0; l < lost[f].size(); ++l) {
+        if (lost[f][l]) out.masks.back().voxels[l] = 0;
+      }
+    }
     out.frame_from_world.push_back(poses[f]);
     out.gain.push_back(gains[f]);
     out.offset.push_back(offsets[f]);

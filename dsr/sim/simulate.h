@@ -237,6 +237,9 @@ struct SimulationOptions {
   // signal covers, in [0, 0.9]; dropout_view_fraction q: the chance a view has one, [0, 1].
   double dropout_fraction = 0.0;
   double dropout_view_fraction = 0.33;
+  // The masks leave out each view's dropout wedge: the simulator's own knowledge of where
+  // the signal is lost, to compare a registration's detection with.
+  bool dropouts_out_of_masks = false;
   // Beating source (see the header comment); the beat_ parameters are used only with
   // num_phases >= 2.
   int num_phases = 1;  // T phases of the heart cycle per view, in [1, 64]; 1: a still source
