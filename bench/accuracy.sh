@@ -7,7 +7,8 @@
 #                          [--masks=fov,none] [--init=auto] [--methods=dsr]
 #                          [--uncertainty] [--photometric=auto|none|affine]
 #                          [--intensity_transform=none|sqrt] [--panorama_sampling=half_voxel|all_phases]
-#                          [--gauge=mean|frame0] [--mask_rule=hull|nonzero] [--no_checks_off]
+#                          [--gauge=mean|frame0] [--mask_rule=hull|nonzero] [--detect_dropouts]
+#                          [--no_checks_off]
 #                          [--out=bench/results/accuracy]
 #
 # Sources: the built-in phantom, the MNI152 T1 template and a chest CT with the heart in view
@@ -37,13 +38,15 @@
 # gauge (dsr_compare --gauge; the suffix -frame0_gauge last).
 # --mask_rule=nonzero: the none rows' masks by the non-zero rule rather than the default
 # convex hull of the non-zero voxels (dsr_compare --mask_rule; the suffix -nonzero_masks last).
+# --detect_dropouts: each view's beams without signal left out of its mask (dsr_compare
+# --detect_dropouts, as --preset=echo does; the suffix -dropouts last).
 # Long: about 2-4 s per run on 2 cores (20 seeds x 2 sources x 3 protocols x 2 mask kinds =
 # 240 runs per initialiser); not part of the test suite.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=20 sources=phantom,mni,ct protocols=paper,wide,walk masks=fov,none init=auto methods=dsr
 uncertainty="" checks_off="" photometric=auto transform=none sampling=half_voxel gauge=mean
-mask_rule=hull
+mask_rule=hull dropouts=false
 out=bench/results/accuracy
 for arg in "$@"; do
   case "$arg" in
@@ -61,6 +64,7 @@ for arg in "$@"; do
     --panorama_sampling=*) sampling=${arg#*=} ;;
     --gauge=*) gauge=${arg#*=} ;;
     --mask_rule=*) mask_rule=${arg#*=} ;;
+    --detect_dropouts) dropouts=true ;;
     *) echo "accuracy.sh: unknown argument '$arg' (see the header of bench/accuracy.sh)" >&2; exit 2 ;;
   esac
 done
@@ -82,6 +86,7 @@ suffix="${uncertainty:+-uncertainty}"
 [[ "$mask_rule" == hull || "$mask_rule" == nonzero ]] || {
   echo "accuracy.sh: --mask_rule=$mask_rule: must be hull or nonzero" >&2; exit 2; }
 [[ "$mask_rule" == nonzero ]] && suffix="$suffix-nonzero_masks"
+[[ "$dropouts" == true ]] && suffix="$suffix-dropouts"
 tools=${DSR_TOOLS:-build/tools}
 if [[ ! -x "$tools/dsr_compare" ]]; then bash scripts/build.sh; fi
 mni="" ct=""
@@ -124,7 +129,7 @@ for source in "${source_list[@]}"; do
       "$tools/dsr_compare" --out_dir="$run" --methods="$methods" --sequences="$list" \
         --sequence_masks="$use" --init="$init" --photometric="$photometric" \
         --intensity_transform="$transform" --panorama_sampling="$sampling" --gauge="$gauge" \
-        --mask_rule="$mask_rule" \
+        --mask_rule="$mask_rule" --detect_dropouts="$dropouts" \
         $uncertainty \
         2>"$run.log" >/dev/null || {
         echo "accuracy.sh: dsr_compare failed, see $run.log" >&2; exit 1; }
@@ -138,8 +143,8 @@ for source in "${source_list[@]}"; do
           --sequences="$refused" --sequence_masks="$use" --init="$init" \
           --photometric="$photometric" --intensity_transform="$transform" \
           --panorama_sampling="$sampling" --gauge="$gauge" --mask_rule="$mask_rule" \
-          --max_structure_fraction=0 --max_pose_error_voxels=0 --max_misfit_ratio=0 \
-          --max_pair_mismatch_ratio=0 \
+          --detect_dropouts="$dropouts" --max_structure_fraction=0 --max_pose_error_voxels=0 \
+          --max_misfit_ratio=0 --max_pair_mismatch_ratio=0 \
           --min_kept_overlap=0.25 \
           2>"$run-checks_off.log" >/dev/null || {
           echo "accuracy.sh: dsr_compare failed, see $run-checks_off.log" >&2; exit 1; }

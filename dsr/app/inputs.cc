@@ -99,6 +99,19 @@ std::string FieldOfViewSummary(const std::vector<MaskRule>& mask_rules, MaskRule
   return out;
 }
 
+std::string DropoutSummary(const std::vector<double>& dropout_fraction) {
+  std::string out;
+  for (size_t i = 0; i < dropout_fraction.size(); ++i) {
+    if (dropout_fraction[i] <= 0.0) continue;
+    char part[64];
+    std::snprintf(part, sizeof(part), "%sframe %zu %.1f%%", out.empty() ? "" : ", ", i,
+                  100.0 * dropout_fraction[i]);
+    out += part;
+  }
+  if (out.empty()) return out;
+  return "; dropouts (beams without signal) left out: " + out;
+}
+
 std::string InputFileRule(const std::string& path) {
   if (path.empty()) return "";
   std::error_code ec;

@@ -47,6 +47,11 @@ std::string WithFrameFile(const std::string& message, const std::vector<std::str
 // non-zero voxels, no 3D hull (frame 4)", "field of view: the given masks".
 std::string FieldOfViewSummary(const std::vector<MaskRule>& mask_rules, MaskRule asked);
 
+// What the field-of-view line adds about dropouts (RegistrationResult::dropout_fraction):
+// "; dropouts (beams without signal) left out: frame 3 19.3%, frame 7 21.7%", or "" when
+// no view had one.
+std::string DropoutSummary(const std::vector<double>& dropout_fraction);
+
 // The absolute, normalised form of a path (symlinks resolved where they exist), so that two
 // spellings of one file compare equal.
 std::string CanonicalPath(const std::string& path);

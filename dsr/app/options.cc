@@ -185,7 +185,7 @@ const OptionSpec kOptionTable[] = {
    "A named set of defaults for a kind of data (flags given explicitly still win): none, "
    "or echo, for 3D ultrasound with speckle and brightness changes between acquisitions: "
    "--photometric=affine --intensity_transform=sqrt --panorama_sampling=all_phases "
-   "(docs/accuracy_us.md). The summary lists what it set.",
+   "--detect_dropouts (docs/accuracy_us.md). The summary lists what it set.",
    DSR_CHECK(CheckPreset(S(v))),
    nullptr},
   {"photometric", OptionType::kString, "auto", "Registration",
@@ -292,6 +292,15 @@ const OptionSpec kOptionTable[] = {
    " 0 = off. dsr_compare: as --min_kept_overlap (1 with --init=auto or global).",
    nullptr,
    DSR_FIELD(registration.max_pose_error_voxels)},
+  {"detect_dropouts", OptionType::kBool, "false", "Registration",
+   kDsrRegister | kDsrCompare | kPyRegister,
+   "Dropouts (docs/design.md 2.10; on with --preset=echo): in each view whose field of view "
+   "is an ultrasound sector (it widens from an apex), leave out of its mask the beams along "
+   "which only noise remains (probe contact lost); the summary names the share of each view "
+   "left out. A view alone cannot tell lost contact from tissue that returns nothing, so "
+   "it is off for other data.",
+   nullptr,
+   DSR_FIELD(registration.detect_dropouts)},
   {"max_misfit_ratio", OptionType::kDouble, "0.0", "Checks",
    kDsrRegister | kDsrCompare | kPyRegister,
    "Former misfit check, off by default (docs/design.md 8.5): poses at which a frame's RMS"
@@ -730,6 +739,12 @@ const OptionSpec kOptionTable[] = {
    "With --dropout_fraction: the chance that a view has a dropout wedge, in [0, 1].",
    DSR_RULE(InRange(D(v), 0.0, 1.0), "must be in [0, 1]"),
    DSR_FIELD(simulation.dropout_view_fraction)},
+  {"dropouts_out_of_masks", OptionType::kBool, "false", "Simulation",
+   kDsrSimulate | kDsrCompare | kPySimulate,
+   "With --dropout_fraction: the masks leave out each view's dropout wedge (the "
+   "simulator's own knowledge of where the signal is lost, for comparisons).",
+   nullptr,
+   DSR_FIELD(simulation.dropouts_out_of_masks)},
   {"intensity_mapping", OptionType::kString, "none", "Simulation",
    kDsrSimulate | kDsrCompare | kPySimulate,
    "How the source's intensities are mapped before the frames are cut: none (as they are) "
@@ -990,7 +1005,8 @@ const std::vector<Preset>& Presets() {
       {"echo",
        {{"photometric", "affine"},
         {"intensity_transform", "sqrt"},
-        {"panorama_sampling", "all_phases"}}},
+        {"panorama_sampling", "all_phases"},
+        {"detect_dropouts", "true"}}},
   };
   return *presets;
 }

@@ -77,8 +77,10 @@ TEST(Settings, APresetSetsWhatWasNotGiven) {
   EXPECT_EQ(settings.String("photometric"), "none");  // given: kept
   EXPECT_EQ(settings.String("intensity_transform"), "sqrt");
   EXPECT_EQ(settings.String("panorama_sampling"), "all_phases");
+  EXPECT_TRUE(settings.Bool("detect_dropouts"));
   EXPECT_EQ(settings.PresetSummary(),
-            "preset echo: --intensity_transform=sqrt --panorama_sampling=all_phases");
+            "preset echo: --intensity_transform=sqrt --panorama_sampling=all_phases "
+            "--detect_dropouts=true");
   EXPECT_TRUE(settings.IsDefault("intensity_transform"));
 }
 

@@ -276,7 +276,9 @@ bool RegistrationRun::Write(std::string* error) {
   if (fused_) {
     frames.resize(m);
     ParallelFor(0, m, options_.solve.num_threads, [&](int64_t i) {
-      frames[i] = Frame::Borrowing(images_[i], LaterPhasesOf(&later_phases_, i), masks_[i]);
+      // The masks the registration used: a dropout is left out of the panorama too.
+      const Mask& mask = result_.masks_used.empty() ? masks_[i] : result_.masks_used[i];
+      frames[i] = Frame::Borrowing(images_[i], LaterPhasesOf(&later_phases_, i), mask);
     });
     panorama = FusedPanorama(frames);
   }
@@ -387,7 +389,8 @@ std::vector<std::string> RegistrationRun::RecoveryLines() const {
 }
 
 std::string RegistrationRun::FieldOfViewLine() const {
-  return FieldOfViewSummary(mask_rules_, config_.field_of_view.mask_rule);
+  return FieldOfViewSummary(mask_rules_, config_.field_of_view.mask_rule) +
+         DropoutSummary(result_.dropout_fraction);
 }
 
 // Each frame's estimated gain and offset and, when the ground truth has them (on frame

@@ -10,6 +10,7 @@
 #include <glog/logging.h>
 
 #include "dsr/dsr_reduced/dsr_solver.h"
+#include "dsr/geometry/lost_signal.h"
 #include "dsr/image/pyramid.h"
 #include "dsr/init/pair_graph.h"
 #include "dsr/init/recovery.h"
@@ -627,6 +628,72 @@ bool TransformLaterPhases(const std::vector<std::vector<Image>>& later_phases,
   return true;
 }
 
+// The views' masks less their dropouts (geometry/lost_signal.h), one view per task;
+// empty when no view has one. `fractions`: each view's share of its field of view left out.
+std::vector<Mask> MasksLessDropouts(const std::vector<Image>& images,
+                                    const std::vector<Mask>& masks,
+                                    int num_threads,
+                                    std::vector<double>* fractions) {
+  const int m = static_cast<int>(images.size());
+  std::vector<LostSignal> found(m);
+  ParallelFor(0, m, num_threads,
+              [&](int64_t i) { found[i] = FindLostSignal(images[i], masks[i]); });
+  fractions->assign(m, 0.0);
+  bool any = false;
+  for (int i = 0; i < m; ++i) {
+    if (found[i].lost_voxels == 0) continue;
+    any = true;
+    (*fractions)[i] = static_cast<double>(found[i].lost_voxels) / found[i].fov_voxels;
+    LOG(INFO) << "frame " << i << ": " << found[i].lost_bins << " of " << found[i].judged_bins
+              << " beam bins without signal, " << 100.0 * (*fractions)[i]
+              << " % of its field of view left out (sector widening "
+              << found[i].sector.widening << ")";
+  }
+  if (!any) return {};
+  std::vector<Mask> out = masks;
+  for (int i = 0; i < m; ++i) {
+    const Mask& lost = found[i].lost;
+    for (size_t l = 0; l < lost.voxels.size(); ++l) {
+      if (lost.voxels[l]) out[i].voxels[l] = 0;
+    }
+  }
+  return out;
+}
+
+// The rest of Register, on the masks it chose: the intensity transform where asked, then
+// the registration.
+bool RegisterInputs(const std::vector<Image>& input_images,
+                    const std::vector<std::vector<Image>>& later_phases,
+                    RegistrationRun run) {
+  const RegistrationOptions& options = *run.options;
+  const std::vector<Mask>& masks = *run.masks;
+  RegistrationResult* result = run.result;
+  std::string* error = run.error;
+  if (options.intensity_transform == IntensityTransform::kNone) return RegisterOnUsualScale(run);
+  const double c = IntensityTransformScale(input_images, masks);
+  std::vector<Image> transformed;
+  std::vector<std::vector<Image>> transformed_phases;
+  if (!ApplyIntensityTransform(input_images, masks, options.intensity_transform, c,
+                               &transformed, error) ||
+      !TransformLaterPhases(later_phases, masks, options.intensity_transform, c,
+                            &transformed_phases, error)) {
+    return false;
+  }
+  run.images = &transformed;
+  if (run.later_phases != nullptr) run.later_phases = &transformed_phases;
+  run.search_images = &input_images;
+  if (!RegisterOnUsualScale(run)) return false;
+  transformed = std::vector<Image>();  // freed before the input's frames are built
+  transformed_phases = std::vector<std::vector<Image>>();
+  result->intensity_transform = options.intensity_transform;
+  result->intensity_transform_scale = c;
+  if (!ResultOnInputIntensities(input_images, later_phases, masks, options, result, error)) {
+    return false;
+  }
+  result->seconds = SecondsSince(run.start);
+  return true;
+}
+
 }  // namespace
 
 bool Register(const std::vector<Image>& input_images,
@@ -672,29 +739,19 @@ bool Register(const std::vector<Image>& input_images,
   run.start = start;
   run.result = result;
   run.error = error;
-  if (options.intensity_transform == IntensityTransform::kNone) return RegisterOnUsualScale(run);
-  const double c = IntensityTransformScale(input_images, masks);
-  std::vector<Image> transformed;
-  std::vector<std::vector<Image>> transformed_phases;
-  if (!ApplyIntensityTransform(input_images, masks, options.intensity_transform, c,
-                               &transformed, error) ||
-      !TransformLaterPhases(later_phases, masks, options.intensity_transform, c,
-                            &transformed_phases, error)) {
-    return false;
+  // The masks less the dropouts stay here while the run goes on (it may start its result
+  // again) and are handed to the result at the end.
+  std::vector<double> dropout_fraction;
+  std::vector<Mask> less_dropouts;
+  if (options.detect_dropouts) {
+    less_dropouts =
+        MasksLessDropouts(input_images, masks, options.solve.num_threads, &dropout_fraction);
+    if (!less_dropouts.empty()) run.masks = &less_dropouts;
   }
-  run.images = &transformed;
-  if (run.later_phases != nullptr) run.later_phases = &transformed_phases;
-  run.search_images = &input_images;
-  if (!RegisterOnUsualScale(run)) return false;
-  transformed = std::vector<Image>();  // freed before the input's frames are built
-  transformed_phases = std::vector<std::vector<Image>>();
-  result->intensity_transform = options.intensity_transform;
-  result->intensity_transform_scale = c;
-  if (!ResultOnInputIntensities(input_images, later_phases, masks, options, result, error)) {
-    return false;
-  }
-  result->seconds = SecondsSince(start);
-  return true;
+  const bool ok = RegisterInputs(input_images, later_phases, run);
+  result->dropout_fraction = std::move(dropout_fraction);
+  result->masks_used = std::move(less_dropouts);
+  return ok;
 }
 
 }  // namespace dsr

@@ -148,6 +148,15 @@ struct RegistrationOptions {
   // 0 turns it off. Correct registrations of three sources predict 0.01-0.1 voxel.
   double max_pose_error_voxels = 1.0;
 
+  // Dropouts (geometry/lost_signal.h; docs/design.md 2.10): in each view whose field of
+  // view is an ultrasound sector, the beams along which only noise remains (contact lost)
+  // are left out of its mask before anything else, in every mode; the result names the
+  // share of each view left out (RegistrationResult::dropout_fraction). Off by default: a
+  // view alone cannot tell lost contact from tissue that returns nothing, and on small views
+  // of dark-background data leaving such beams out costs more than it gains (the tools'
+  // --preset=echo turns it on).
+  bool detect_dropouts = false;
+
   // Pose covariance and predicted TRE of the final poses (pipeline/uncertainty.h; modes dsr
   // and dba only, whose estimate it is; Validate refuses it for the baselines, naming
   // uncertainty): one cost pass over the finest level, one for the gradient's covariance and

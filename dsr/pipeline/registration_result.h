@@ -64,6 +64,11 @@ struct RegistrationResult {
   // Per frame, the determination check's predicted error at the final poses, in the frame's
   // voxels (UndeterminedPoses); empty when it did not run or could not judge.
   std::vector<double> pose_error_voxels;
+  // With RegistrationOptions::detect_dropouts, per view the share of its field of view
+  // left out as a dropout (0 where none was found); empty when detection was off. The masks
+  // the registration used: the given ones less the dropouts (empty when none was found).
+  std::vector<double> dropout_fraction;
+  std::vector<Mask> masks_used;
   std::string failure;        // why not usable
   // Not usable because the data do not determine some pose (the determination check): no
   // start or recovery is tried (the photometric model's last resort is, judged by the same

@@ -355,6 +355,8 @@ py::dict Summary(const RegistrationOptions& options, const RegistrationResult& r
   py::dict s;
   s["mode"] = ModeToString(options.mode);
   s["field_of_view"] = field_of_view;
+  // Per view, the share of its field of view left out as a dropout (empty when off).
+  s["dropout_fraction"] = result.dropout_fraction;
   s["frames"] = result.frame_from_world.size();
   s["solves"] = result.solves.size();
   s["levels"] = result.solves.empty() ? 0 : result.solves.front().level + 1;

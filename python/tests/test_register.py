@@ -89,10 +89,15 @@ def test_echo_preset_sets_the_ultrasound_flags_as_the_cli_does(sequence, tmp_pat
     assert result.summary["intensity_transform"] == "sqrt"
     assert len(result.gain) == 3
     assert len(result.summary["structure_fraction"]) == 3
+    # The preset looks for dropouts: each view's share left out is stated (0 where none).
+    assert len(result.summary["dropout_fraction"]) == 3
     plain = dsr.register(files(sequence, "frame"), files(sequence, "mask"),
                          **{**options, "photometric": "none", "intensity_transform": "none"})
-    assert plain.summary["preset"] == "preset echo: --panorama_sampling=all_phases"
+    assert (plain.summary["preset"] ==
+            "preset echo: --panorama_sampling=all_phases --detect_dropouts=true")
     assert "intensity_transform" not in plain.summary and not plain.gain
+    assert dsr.register(files(sequence, "frame"), files(sequence, "mask"),
+                        **LEVELS).summary["dropout_fraction"] == []
 
 
 def test_arrays_register_as_their_files_do(sequence):
