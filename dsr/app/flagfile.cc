@@ -8,15 +8,9 @@
 #include <fstream>
 
 #include "dsr/app/inputs.h"
+#include "dsr/util/text.h"
 
 namespace dsr {
-
-std::string Trim(const std::string& text) {
-  const size_t begin = text.find_first_not_of(" \t\r");
-  if (begin == std::string::npos) return "";
-  const size_t end = text.find_last_not_of(" \t\r");
-  return text.substr(begin, end - begin + 1);
-}
 
 bool ReadSmallTextFile(const std::string& path, const std::string& prefix, std::string* text,
                        std::string* error) {

@@ -49,8 +49,6 @@ bool SplitFlagArgument(const std::string& arg, std::string* name, std::string* v
 bool ReadSmallTextFile(const std::string& path, const std::string& prefix, std::string* text,
                        std::string* error);
 
-// `text` without leading and trailing spaces, tabs and carriage returns.
-std::string Trim(const std::string& text);
 // The lines of `text` (without their '\n').
 std::vector<std::string> Lines(const std::string& text);
 

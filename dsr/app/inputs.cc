@@ -14,6 +14,7 @@
 #include "dsr/io/io_frames.h"
 #include "dsr/io/io_phases.h"
 #include "dsr/solve/solve_options.h"
+#include "dsr/util/text.h"
 
 namespace dsr {
 
@@ -145,12 +146,9 @@ bool PoseNameMatches(const std::string& name, const std::string& path) {
   const std::string& first = files.empty() ? path : files.front();
   const std::string file = std::filesystem::path(first).filename().string();
   if (name == first || name == file) return true;
-  std::string lower = file;
-  std::transform(lower.begin(), lower.end(), lower.begin(),
-                 [](unsigned char c) { return std::tolower(c); });
+  const std::string lower = Lower(file);
   for (const std::string extension : {".nii.gz", ".nii", ".mha", ".mhd", ".nrrd", ".nhdr"}) {
-    if (lower.size() > extension.size() &&
-        lower.compare(lower.size() - extension.size(), extension.size(), extension) == 0) {
+    if (lower.size() > extension.size() && EndsWith(lower, extension)) {
       return name == file.substr(0, file.size() - extension.size());
     }
   }

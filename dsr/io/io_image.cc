@@ -9,7 +9,6 @@
 #include <zlib.h>
 
 #include <algorithm>
-#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -21,6 +20,7 @@
 #include "dsr/io/io_image_internal.h"
 #include "dsr/io/io_itk.h"
 #include "dsr/util/atomic_file.h"
+#include "dsr/util/text.h"
 
 namespace dsr {
 namespace {
@@ -31,16 +31,6 @@ constexpr const char* kSupportedExtensions[] = {
 }  // namespace
 
 namespace io_internal {
-
-std::string Lower(std::string text) {
-  for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return text;
-}
-
-bool EndsWith(const std::string& text, const std::string& suffix) {
-  return text.size() >= suffix.size() &&
-         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
 
 std::string UnsupportedExtension(const std::string& path) {
   std::string list;
@@ -76,9 +66,7 @@ itk_io::RawVolume ToRaw(const ImageGeometry& geometry) {
 
 namespace {
 
-using io_internal::EndsWith;
 using io_internal::IsNifti;
-using io_internal::Lower;
 using io_internal::ToGeometry;
 using io_internal::ToRaw;
 using io_internal::UnsupportedExtension;

@@ -12,8 +12,6 @@
 namespace dsr {
 namespace io_internal {
 
-std::string Lower(std::string text);
-bool EndsWith(const std::string& text, const std::string& suffix);
 // "<path>: unsupported extension (supported: ...)".
 std::string UnsupportedExtension(const std::string& path);
 

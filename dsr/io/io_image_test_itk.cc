@@ -20,14 +20,11 @@
 #include <itkVector.h>
 #include <itkVectorImage.h>
 
+#include "dsr/util/text.h"
+
 namespace dsr {
 namespace test_itk {
 namespace {
-
-bool EndsWith(const std::string& text, const std::string& suffix) {
-  return text.size() >= suffix.size() &&
-         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
 
 // The IO is chosen explicitly, so these writers do not depend on factory registration.
 itk::ImageIOBase::Pointer IoFor(const std::string& path) {

@@ -70,6 +70,7 @@
 #include <itk_zlib.h>
 
 #include "dsr/io/io_phase_stream.h"
+#include "dsr/util/text.h"
 
 namespace dsr {
 namespace itk_io {
@@ -130,11 +131,6 @@ void RegisterFactories() {
 // text on one line without the object address.
 // NRRD (teem) errors are a chain "[nrrd] outer: trouble [nrrd] ... [nrrd] inner: cause";
 // only the innermost link says what is wrong.
-bool EndsWith(const std::string& text, const std::string& suffix) {
-  return text.size() >= suffix.size() &&
-         text.compare(text.size() - suffix.size(), suffix.size(), suffix) == 0;
-}
-
 std::string OneLine(const std::string& message) {
   static const std::regex kItkPrefix(R"(ITK ERROR: \w+\(0x[0-9a-fA-F]+\): )");
   std::string text = std::regex_replace(message, kItkPrefix, "");
@@ -924,12 +920,6 @@ bool CheckPlainData(const std::string& file,
 
 bool IsTrue(const std::string& value) {
   return !value.empty() && (value[0] == 'T' || value[0] == 't' || value[0] == '1');
-}
-
-std::string Trim(const std::string& text) {
-  const size_t begin = text.find_first_not_of(" \t\r");
-  if (begin == std::string::npos) return "";
-  return text.substr(begin, text.find_last_not_of(" \t\r") - begin + 1);
 }
 
 std::vector<std::string> Words(const std::string& text) {

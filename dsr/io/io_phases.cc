@@ -13,13 +13,12 @@
 #include "dsr/io/io_image_internal.h"
 #include "dsr/io/io_itk.h"
 #include "dsr/util/atomic_file.h"
+#include "dsr/util/text.h"
 
 namespace dsr {
 namespace {
 
-using io_internal::EndsWith;
 using io_internal::IsNifti;
-using io_internal::Lower;
 using io_internal::ToGeometry;
 using io_internal::ToRaw;
 using io_internal::UnsupportedExtension;

@@ -11,7 +11,6 @@
 
 #include <atomic>
 
-#include <cctype>
 #include <cerrno>
 #include <cstdio>
 #include <cstring>
@@ -19,6 +18,8 @@
 #include <random>
 #include <thread>
 #include <vector>
+
+#include "dsr/util/text.h"
 
 namespace dsr {
 namespace {
@@ -31,11 +32,6 @@ constexpr size_t kMaxFileNameLength = 255;
 constexpr size_t kSuffixLength = 13;
 // Attempts at finding an unused temporary name before giving up.
 constexpr int kTemporaryNameAttempts = 100;
-
-std::string Lower(std::string text) {
-  for (char& c : text) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return text;
-}
 
 // "a.nii.gz" -> ".nii.gz", "a.raw.gz" -> ".raw.gz", "a.json" -> ".json", "a" -> "". A
 // compression suffix keeps the extension before it, so writers that pick the format from
