@@ -1,8 +1,9 @@
 // Google Benchmark programs for the global initialisation (init/): one masked NCC over
 // every shift (the FFTs), the search of one frame against another over the sampled
 // rotations, the search of one frame against the panorama of ten others (what one
-// recovery costs) and the pipeline's pair check of all frames, all at the search level of the paper's 96x96x80 frames (24x24x20 voxels
-// of 4 mm). bench/accuracy.sh measures what the search buys.
+// recovery costs) and the pipeline's pair check of all frames, all at the search level of
+// the paper's 96x96x80 frames (24x24x20 voxels of 4 mm). bench/accuracy.sh measures what
+// the search buys.
 #include <benchmark/benchmark.h>
 
 #include <memory>
@@ -64,8 +65,10 @@ void BM_MaskedNccBest(benchmark::State& state) {
   moving_grid.size = Eigen::Vector3i(35, 35, 35);
   Image fixed(fixed_grid, 0.0f), moving(moving_grid, 0.0f);
   Mask fixed_mask(fixed_grid, 1), moving_mask(moving_grid, 1);
-  for (size_t l = 0; l < fixed.voxels.size(); ++l) fixed.voxels[l] = static_cast<float>((l * 7919) % 255);
-  for (size_t l = 0; l < moving.voxels.size(); ++l) moving.voxels[l] = static_cast<float>((l * 104729) % 255);
+  for (size_t l = 0; l < fixed.voxels.size(); ++l)
+    fixed.voxels[l] = static_cast<float>((l * 7919) % 255);
+  for (size_t l = 0; l < moving.voxels.size(); ++l)
+    moving.voxels[l] = static_cast<float>((l * 104729) % 255);
   const MaskedNcc ncc(fixed, fixed_mask, moving_grid.size);
   for (auto _ : state) benchmark::DoNotOptimize(ncc.Best(moving, moving_mask, 100));
 }

@@ -1,6 +1,7 @@
 // Google Benchmark of the hot kernels on the paper-sized sequence (11 frames of 96x96x80,
 // sigma 25, ground-truth poses, full resolution):
-//   BM_SampleValueAndGradient                    one sample with its gradient (stream/voxel_stream.h)
+//   BM_SampleValueAndGradient                    one sample with its gradient
+//                                                (stream/voxel_stream.h)
 //   BM_DsrEvaluation/{jacobian}/{threads}        one DSR evaluation (normal equations)
 //   BM_ApeEvaluation/{jacobian}/{threads}        one APE evaluation, same voxels
 //   BM_ApeEvaluationBatchedHessian               APE with DSR's batched Gauss-Newton form
@@ -91,8 +92,9 @@ void BM_SampleValueAndGradient(benchmark::State& state) {
     if (SampleAt(posed[1], x.data(), out)) sum += out[0];
     benchmark::DoNotOptimize(sum);
   }
-  state.counters["ns_per_sample"] = benchmark::Counter(
-      static_cast<double>(state.iterations()), benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+  state.counters["ns_per_sample"] =
+      benchmark::Counter(static_cast<double>(state.iterations()),
+                         benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
 BENCHMARK(BM_SampleValueAndGradient);
 
@@ -113,7 +115,10 @@ void BM_DsrEvaluation(benchmark::State& state) {
   }
   SetObservationCounter(state, system.observations);
 }
-BENCHMARK(BM_DsrEvaluation)->ArgsProduct({{0, 1}, {1, 2}})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_DsrEvaluation)
+    ->ArgsProduct({{0, 1}, {1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // The same with photometric parameters (8 x 8 blocks per frame pair instead of
 // 6 x 6; the target is at most 1.5x BM_DsrEvaluation's time with the same arguments).
@@ -122,7 +127,8 @@ void BM_DsrPhotometricEvaluation(benchmark::State& state) {
   const Problem& p = Paper();
   std::vector<Photometric> photometric(p.frames.size());
   for (size_t i = 1; i < photometric.size(); ++i) {
-    photometric[i] = {0.1 * std::sin(static_cast<double>(i)), 3.0 * std::cos(static_cast<double>(i))};
+    photometric[i] = {0.1 * std::sin(static_cast<double>(i)),
+                      3.0 * std::cos(static_cast<double>(i))};
   }
   NormalEquations system;
   for (auto _ : state) {
@@ -148,7 +154,10 @@ void BM_ApeEvaluation(benchmark::State& state) {
   }
   SetObservationCounter(state, system.observations);
 }
-BENCHMARK(BM_ApeEvaluation)->ArgsProduct({{0, 1}, {1, 2}})->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_ApeEvaluation)
+    ->ArgsProduct({{0, 1}, {1, 2}})
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // APE with its Gauss-Newton matrix added in DSR's batched form instead of pair by pair (a
 // measurement: how much of APE's cost is its pair-by-pair matrix), 2 threads.
@@ -220,7 +229,9 @@ void BM_DsrEvaluationPortable(benchmark::State& state) {
 BENCHMARK(BM_DsrEvaluationPortable)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 // AVX2 throughout (where the default is the AVX-512 Gauss-Newton kernel, this shows its gain).
-void BM_DsrEvaluationAvx2(benchmark::State& state) { DsrEvaluationOnPath(state, KernelPath::kAvx2); }
+void BM_DsrEvaluationAvx2(benchmark::State& state) {
+  DsrEvaluationOnPath(state, KernelPath::kAvx2);
+}
 BENCHMARK(BM_DsrEvaluationAvx2)->Arg(1)->Unit(benchmark::kMillisecond)->UseRealTime();
 
 void BM_DsrEvaluationFrames(benchmark::State& state) {
@@ -234,7 +245,10 @@ void BM_DsrEvaluationFrames(benchmark::State& state) {
   }
   SetObservationCounter(state, system.observations);
 }
-BENCHMARK(BM_DsrEvaluationFrames)->DenseRange(3, 11, 2)->Unit(benchmark::kMillisecond)->UseRealTime();
+BENCHMARK(BM_DsrEvaluationFrames)
+    ->DenseRange(3, 11, 2)
+    ->Unit(benchmark::kMillisecond)
+    ->UseRealTime();
 
 // The clinical size: 11 frames of 176x176x200 at 0.6 mm (target: one evaluation with
 // Jacobians under 1.5 s on 2 cores).

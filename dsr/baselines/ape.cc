@@ -108,7 +108,8 @@ bool VoxelApeCost::Evaluate(double const* const* parameters,
   std::fill(residuals, residuals + rows, 0.0);
   if (jacobians != nullptr) {
     for (int a = 0; a < n; ++a) {
-      if (jacobians[a] != nullptr) std::memset(jacobians[a], 0, sizeof(double) * rows * kPoseAmbientSize);
+      if (jacobians[a] != nullptr)
+        std::memset(jacobians[a], 0, sizeof(double) * rows * kPoseAmbientSize);
     }
   }
   int row = 0;

@@ -282,7 +282,8 @@ PoseErrorSummary RegisterWith(const std::string& mode, RegistrationResult* resul
   EXPECT_TRUE(result->usable) << result->failure;
   const PoseErrorSummary errors =
       ComparePoses(result->frame_from_world, sequence.frame_from_world, sequence.masks);
-  if (getenv("DSR_TEST_LOG") != nullptr) std::printf("%s\n%s", mode.c_str(), errors.Table().c_str());
+  if (getenv("DSR_TEST_LOG") != nullptr)
+    std::printf("%s\n%s", mode.c_str(), errors.Table().c_str());
   return errors;
 }
 

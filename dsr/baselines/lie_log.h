@@ -34,7 +34,8 @@ void LogSE3Quaternion(const T* q, const T* t, T* out) {
     for (int d = 0; d < 3; ++d) phi[d] = scale * v[d];
   }
   const T theta2 = phi[0] * phi[0] + phi[1] * phi[1] + phi[2] * phi[2];
-  // V^-1 = I - 1/2 [phi]x + c [phi]x^2, c = (1 - theta sin(theta) / (2 (1 - cos(theta)))) / theta^2.
+  // V^-1 = I - 1/2 [phi]x + c [phi]x^2,
+  // c = (1 - theta sin(theta) / (2 (1 - cos(theta)))) / theta^2.
   T c;
   if (theta2 < T(1e-8)) {
     c = T(1.0 / 12.0) + theta2 / T(720.0);

@@ -309,7 +309,8 @@ std::vector<Photometric> DbaProblem::PhotometricParameters() const {
 
 void DbaProblem::SetPoses(const std::vector<Eigen::Isometry3d>& frame_from_world) {
   CHECK_EQ(frame_from_world.size(), poses_.size());
-  for (size_t i = 0; i < poses_.size(); ++i) PoseToParameters(frame_from_world[i], poses_[i].data());
+  for (size_t i = 0; i < poses_.size(); ++i)
+    PoseToParameters(frame_from_world[i], poses_[i].data());
 }
 
 std::shared_ptr<ceres::ParameterBlockOrdering> DbaProblem::MakeOrdering() {

@@ -325,8 +325,8 @@ bool SolveReweighted(const std::vector<Frame>& frames,
   }
   std::vector<ObservationWeights> weights(NumPhases(frames), ObservationWeights(candidates));
   ReweightStats stats;
-  UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context, &weights,
-                     &stats);
+  UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context,
+                                  &weights, &stats);
   *report = SolveReport();
   report->initial_cost = 0.5 * stats.robust_cost;
   report->usable = true;
@@ -361,8 +361,8 @@ bool SolveReweighted(const std::vector<Frame>& frames,
     const double motion = LargestMotionVoxels(frames, poses, part.frame_from_world);
     poses = part.frame_from_world;
     if (options.photometric) photometric = part.photometric;
-    UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context, &weights,
-                       &stats);
+    UpdateObservationWeightsByPhase(frames, candidates, poses, photometric, options.loss, context,
+                                    &weights, &stats);
     if (tolerance > 0.0 ? motion < tolerance
                         : (stats.max_weight_change <= kWeightChangeTolerance || motion == 0.0)) {
       ++solves;

@@ -371,7 +371,8 @@ void ExpectFullSolvesMeetAtTheTruth(const SequenceOptions& o, uint64_t init_seed
 TEST(Theorem, FullSolvesOfBothModesConvergeToTheSamePoses) {
   DSR_SKIP_HEAVY_UNDER_SANITIZER();
   uint64_t seed = 51;
-  for (const Case& c : {Case{3, 16, 0.0, 1}, Case{4, 16, 5.0, 1}, Case{4, 16, 0.0, 2}, Case{5, 16, 2.0, 1}}) {
+  for (const Case& c :
+       {Case{3, 16, 0.0, 1}, Case{4, 16, 5.0, 1}, Case{4, 16, 0.0, 2}, Case{5, 16, 2.0, 1}}) {
     const SequenceOptions o = LatticeOptionsFor(c, seed++);
     ExpectFullSolvesMeetAtTheTruth(o, seed++);
   }

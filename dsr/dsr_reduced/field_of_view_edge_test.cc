@@ -169,7 +169,8 @@ TEST(FieldOfViewEdge, NoiseFreeSolveReachesGroundTruth) {
       poses = report.frame_from_world;
     }
     const PoseErrorSummary error = ComparePoses(poses, s.ground_truth, s.masks, 1);
-    EXPECT_LT(error.tre_max_mm, kNoiseFreeAccuracyMm) << "m=" << num_frames << "\n" << error.Table();
+    EXPECT_LT(error.tre_max_mm, kNoiseFreeAccuracyMm) << "m=" << num_frames << "\n"
+                                                      << error.Table();
     // The start was far from it.
     EXPECT_GT(ComparePoses(Perturbed(s.ground_truth, 0.02, 0.5, seed - 1), s.ground_truth,
                            s.masks, 1)

@@ -40,7 +40,8 @@ void DilateAlongAxis(const Eigen::Vector3i& n, int axis, int r, std::vector<uint
 
 }  // namespace
 
-Frame::Frame(const Image& image, const Mask& mask) : Frame(std::vector<const Image*>{&image}, mask) {}
+Frame::Frame(const Image& image, const Mask& mask)
+    : Frame(std::vector<const Image*>{&image}, mask) {}
 
 Frame::Frame(const std::vector<Image>& phases, const Mask& mask)
     : Frame(

@@ -47,7 +47,9 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
   AssignWithHugePages(&out.v, static_cast<size_t>(out.size.cast<int64_t>().prod()), 0.0f);
   const int radius = static_cast<int>(kernel.size()) / 2;
   const int n = in.size[axis];
-  const int64_t in_stride = axis == 0 ? 1 : axis == 1 ? in.size[0] : int64_t{in.size[0]} * in.size[1];
+  const int64_t in_stride = axis == 0   ? 1
+                            : axis == 1 ? in.size[0]
+                                        : int64_t{in.size[0]} * in.size[1];
   const int64_t out_stride =
       axis == 0 ? 1 : axis == 1 ? out.size[0] : int64_t{out.size[0]} * out.size[1];
   if (axis != 0) {
@@ -101,7 +103,8 @@ Grid3 ConvolveAxis(const Grid3& in, int axis, const std::vector<float>& kernel, 
           sum = in.v[in_base + center * in_stride];
         } else {
           const int lo = std::max(0, center - radius), hi = std::min(n - 1, center + radius);
-          for (int x = lo; x <= hi; ++x) sum += kernel[x - center + radius] * in.v[in_base + x * in_stride];
+          for (int x = lo; x <= hi; ++x)
+            sum += kernel[x - center + radius] * in.v[in_base + x * in_stride];
         }
         out.v[out_base + o * out_stride] = sum;
       }

@@ -53,7 +53,8 @@ TEST(RotationGrid, SamplesTheBallEvenly) {
   for (int t = 0; t < 2000; ++t) {
     const Eigen::Matrix3d probe = centre * RandomRotation(&rng, max_angle);
     double nearest = M_PI;
-    for (const Eigen::Matrix3d& r : rotations) nearest = std::min(nearest, RotationAngleBetween(r, probe));
+    for (const Eigen::Matrix3d& r : rotations)
+      nearest = std::min(nearest, RotationAngleBetween(r, probe));
     worst = std::max(worst, nearest);
   }
   EXPECT_LT(worst, 2.0 * predicted) << "predicted covering radius " << predicted;
@@ -67,7 +68,9 @@ struct CutFrame {
   Mask mask;
 };
 
-CutFrame Cut(const Image& source, const SimulationOptions& o, const Eigen::Isometry3d& frame_from_world) {
+CutFrame Cut(const Image& source,
+             const SimulationOptions& o,
+             const Eigen::Isometry3d& frame_from_world) {
   const ImageGeometry g = SimulatedFrameGeometry(source.geometry, o);
   const Mask fov = PyramidFieldOfView(g, o);
   Mask all(source.geometry, 1);
@@ -248,7 +251,8 @@ TEST(PairGraph, ShuffledFramesGiveTheSamePoses) {
   std::string error;
   ASSERT_TRUE(Register(s.frames, s.masks, identity, o, &in_order, &error)) << error;
   ASSERT_TRUE(in_order.usable) << in_order.failure;
-  const PoseErrorSummary errors = ComparePoses(in_order.frame_from_world, s.frame_from_world, s.masks);
+  const PoseErrorSummary errors =
+      ComparePoses(in_order.frame_from_world, s.frame_from_world, s.masks);
   EXPECT_LT(errors.tre_mean_mm, 0.1);
 
   const std::vector<int> order = {0, 3, 1, 2};
@@ -262,7 +266,8 @@ TEST(PairGraph, ShuffledFramesGiveTheSamePoses) {
   ASSERT_TRUE(Register(frames, masks, identity, o, &shuffled, &error)) << error;
   ASSERT_TRUE(shuffled.usable) << shuffled.failure;
   for (size_t n = 0; n < order.size(); ++n) {
-    const Eigen::Isometry3d d = shuffled.frame_from_world[n] * in_order.frame_from_world[order[n]].inverse();
+    const Eigen::Isometry3d d =
+        shuffled.frame_from_world[n] * in_order.frame_from_world[order[n]].inverse();
     EXPECT_LT(LogSE3(d).norm(), 0.05) << "frame " << order[n];
   }
 }
@@ -303,7 +308,8 @@ TEST(Recovery, RePlacesAFrameStartedSixtyDegreesOff) {
     replaced = replaced || (f.frame == off && f.moved);
   }
   EXPECT_TRUE(replaced);
-  const PoseErrorSummary errors = ComparePoses(recovered.frame_from_world, s.frame_from_world, s.masks);
+  const PoseErrorSummary errors =
+      ComparePoses(recovered.frame_from_world, s.frame_from_world, s.masks);
   EXPECT_LT(errors.tre_mean_mm, 0.1);
 }
 
@@ -315,7 +321,8 @@ TEST(Recovery, ReplaceFramesFindsTheFrameAgainstThePanorama) {
   const SimulatedSequence s = SmallSequence(5);
   const std::vector<Eigen::Isometry3d> truth = RelativeToFrame0(s.frame_from_world);
   std::vector<Frame> frames;
-  for (size_t f = 0; f < s.frames.size(); ++f) frames.push_back(Coarse({s.frames[f], s.masks[f]}, 1));
+  for (size_t f = 0; f < s.frames.size(); ++f)
+    frames.push_back(Coarse({s.frames[f], s.masks[f]}, 1));
   std::vector<Eigen::Isometry3d> poses = truth;
   const int off = 3;
   const Eigen::Vector3d centre = frames[off].ValidCentre();
@@ -391,8 +398,9 @@ TEST(Recovery, AcceptsTheMisfitOfAFrameThatMatchesTheOthers) {
 // A coarse level whose last solve still moved frames by more than the rebuild tolerance
 // has not settled: with recovery, the registration stops there and recovers (the still
 // moving frames named), instead of spending the finer levels on it. A tolerance no solve
-// can meet (and no sliding threshold) makes every coarse level unsettled: each round ends at the coarsest level, and
-// once the recoveries are spent the failure says why; without recovery the rule is off.
+// can meet (and no sliding threshold) makes every coarse level unsettled: each round ends
+// at the coarsest level, and once the recoveries are spent the failure says why; without
+// recovery the rule is off.
 TEST(Recovery, AnUnsettledCoarseLevelIsRecoveredAtOnce) {
   const SimulatedSequence s = SmallSequence(3);
   const std::vector<Eigen::Isometry3d> identity(s.frames.size(), Eigen::Isometry3d::Identity());

@@ -233,7 +233,8 @@ std::vector<Placement> BestTranslations(const Frame& fixed,
   // Rotations in blocks, each block with its own resampling buffers (allocating them per
   // rotation cost a tenth of the search).
   const int64_t num_rotations = static_cast<int64_t>(rotations.size());
-  const int64_t block = std::max<int64_t>(1, num_rotations / (4 * ResolveThreads(options.num_threads)));
+  const int64_t block =
+      std::max<int64_t>(1, num_rotations / (4 * ResolveThreads(options.num_threads)));
   ParallelFor(0, (num_rotations + block - 1) / block, options.num_threads, [&](int64_t b) {
     Image w(w_grid, 0.0f);
     Mask w_mask(w_grid, 0);

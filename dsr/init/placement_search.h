@@ -15,9 +15,9 @@
 //
 // Both volumes are given as `Frame`s on one pyramid level (coarse: the search costs
 // rotations x FFTs of the padded grids); a volume's field of view for the NCC is its
-// valid-cell map (the cells whose 8 corners are inside its mask). NCC, not the squared difference, ranks the
-// candidates: it does not reward a small overlap with a low variance, and it is blind to a
-// gain and an offset between the volumes (a panorama mixes several frames).
+// valid-cell map (the cells whose 8 corners are inside its mask). NCC, not the squared difference,
+// ranks the candidates: it does not reward a small overlap with a low variance, and it is blind to
+// a gain and an offset between the volumes (a panorama mixes several frames).
 #ifndef DSR_INIT_PLACEMENT_SEARCH_H_
 #define DSR_INIT_PLACEMENT_SEARCH_H_
 

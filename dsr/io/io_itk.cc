@@ -785,7 +785,8 @@ bool CheckNiftiOrientation(const std::string& path, std::string* reason) {
   if (gzread(file, header, 348) != 348) return true;
   // Like niftilib (which does not insist on sizeof_hdr): NIfTI-2 by its magic, else
   // NIfTI-1; the byte order from dim[0], which must be 1..7.
-  const bool nifti2 = std::memcmp(header + 4, "n+2", 4) == 0 || std::memcmp(header + 4, "ni2", 4) == 0;
+  const bool nifti2 =
+      std::memcmp(header + 4, "n+2", 4) == 0 || std::memcmp(header + 4, "ni2", 4) == 0;
   bool swap = false;
   if (nifti2) {
     const int32_t sizeof_hdr = LoadAt<int32_t>(header, 0, false);
@@ -1233,8 +1234,9 @@ bool CheckWrittenNrrdData(const std::string& path, uint64_t bytes, std::string* 
   }
   const std::string file = layout.files.empty() ? path : layout.files[0];
   const uint64_t offset = layout.files.empty() ? layout.data_offset : 0;
-  const std::string what =
-      layout.files.empty() ? "data" : "data file " + std::filesystem::path(file).filename().string();
+  const std::string what = layout.files.empty()
+                               ? "data"
+                               : "data file " + std::filesystem::path(file).filename().string();
   if (gzip) return CheckCompressedStream(file, offset, bytes, true, what, reason);
   return CheckPlainData(file, offset, bytes, true, what, reason);
 }
@@ -1322,7 +1324,9 @@ bool CheckMetaImageKeys(const std::string& path, std::string* reason) {
 
 // Checks that must run before ITK parses a header: ITK would abort on it (see the
 // functions) or read it by rules that disagree with the file's size.
-bool CheckHeaderBeforeItk(const std::string& io_name, const std::string& path, std::string* reason) {
+bool CheckHeaderBeforeItk(const std::string& io_name,
+                          const std::string& path,
+                          std::string* reason) {
   if (io_name == "NiftiImageIO") {
     return CheckNiftiOrientation(path, reason) && CheckNiftiFields(path, reason);
   }

@@ -58,7 +58,8 @@ TEST(Fusion, MeanAndFeatherMatchBruteForce) {
             const int x = static_cast<int>(std::floor(u[0])) + (c & 1);
             const int y = static_cast<int>(std::floor(u[1])) + ((c >> 1) & 1);
             const int z = static_cast<int>(std::floor(u[2])) + ((c >> 2) & 1);
-            const double w = (1 - std::abs(u[0] - x)) * (1 - std::abs(u[1] - y)) * (1 - std::abs(u[2] - z));
+            const double w =
+                (1 - std::abs(u[0] - x)) * (1 - std::abs(u[1] - y)) * (1 - std::abs(u[2] - z));
             d += w * distance[f].at(x, y, z);
           }
           const double weight = std::clamp(d / feather, 1e-6, 1.0);
@@ -235,7 +236,10 @@ TEST(ItkTransform, FilesRoundTripAndResampleLikeTheProject) {
         const Eigen::Vector3d u =
             frame.ToIndex(poses[1] * grid.IndexToPhysical(Eigen::Vector3d(i, j, k)));
         // Inside the image (ITK and the project agree on the outside only as 0 vs 0).
-        if ((u.array() < 0.0).any() || (u.array() > (frame.geometry().size.cast<double>().array() - 1.0)).any()) continue;
+        if ((u.array() < 0.0).any() ||
+            (u.array() > (frame.geometry().size.cast<double>().array() - 1.0)).any()) {
+          continue;
+        }
         const double ours = frame.InterpolateValue(u);
         EXPECT_NEAR(itk[grid.LinearIndex(i, j, k)], ours, 1e-3 * (1.0 + std::abs(ours)));
         ++compared;

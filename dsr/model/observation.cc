@@ -116,7 +116,8 @@ CandidateSet BuildCandidates(const std::vector<Frame>& frames,
               inside = false;
               break;
             }
-            const int64_t c = static_cast<int64_t>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
+            const int64_t c =
+                static_cast<int64_t>(std::clamp(fl, 0.0, std::max(0.0, fs[ax] - 2.0)));
             cell += c * (ax == 0 ? 1 : (ax == 1 ? sy : sz));
           }
           if (inside && near[cell] != 0) row[i] |= bit;

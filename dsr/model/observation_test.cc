@@ -133,7 +133,8 @@ TEST(BuildPanoramaGrid, AllPhasesSamplesFrame0AtEveryPhase) {
     EXPECT_GE(all.origin_mm[a] + (all.size[a] - 1) * all.spacing_mm[a], box_max - 1e-9);
   }
   // The half-voxel grid's phases are all 1/2.
-  const double u = t.frames[0].geometry().PhysicalToIndex(half.origin_mm + 3.0 * half.spacing_mm)[0];
+  const double u =
+      t.frames[0].geometry().PhysicalToIndex(half.origin_mm + 3.0 * half.spacing_mm)[0];
   EXPECT_NEAR(u - std::floor(u), 0.5, 1e-9);
   // The names round-trip.
   testing_enums::ExpectNamesRoundTrip({PanoramaSampling::kHalfVoxel, PanoramaSampling::kAllPhases},

@@ -13,7 +13,8 @@
 namespace dsr {
 
 bool CheckPanoramaSpacing(const ImageGeometry& frame0, double spacing_factor, std::string* error) {
-  const double shortest_extent = frame0.size.cast<double>().cwiseProduct(frame0.spacing_mm).minCoeff();
+  const double shortest_extent =
+      frame0.size.cast<double>().cwiseProduct(frame0.spacing_mm).minCoeff();
   const double voxel = frame0.spacing_mm.minCoeff() * spacing_factor;
   if (voxel <= shortest_extent / 8.0) return true;
   std::ostringstream s;

@@ -815,8 +815,8 @@ void CoarseToFine::DetectBrightnessEarly(int level, const std::vector<Frame>& fr
   // there reads every row of a small grid. The coarsest level's are not close enough: on
   // sequences without brightness differences its estimates changed intensities by up to 6 %
   // (3 standard errors over the limit), against 0.4-1.5 % at level 1, and 44-89 % at level 1
-  // where the gains differ by up to 15 %. Only a change clearly over the limit decides here, so that
-  // the finest level estimates the gains and offsets (the final poses would otherwise have
+  // where the gains differ by up to 15 %. Only a change clearly over the limit decides here, so
+  // that the finest level estimates the gains and offsets (the final poses would otherwise have
   // found them and registered again); anything else is left to the final poses. The final
   // poses still judge (ConfirmBrightness): a coarse level's pose error can look like
   // brightness, which its standard error (of the noise) does not count.

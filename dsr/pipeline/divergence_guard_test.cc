@@ -44,7 +44,8 @@ class DivergenceGuardTest : public ::testing::Test {
 
 TEST_F(DivergenceGuardTest, TiedFractionsFollowTheOverlapChain) {
   const std::vector<Frame>& frames = sequence_.frames;
-  const std::vector<double> at_truth = TiedFractions(frames, CandidatesAt(frames, sequence_.ground_truth));
+  const std::vector<double> at_truth =
+      TiedFractions(frames, CandidatesAt(frames, sequence_.ground_truth));
   ASSERT_EQ(at_truth.size(), 4u);
   EXPECT_EQ(at_truth[0], 1.0);
   for (int i = 1; i < 4; ++i) {
@@ -90,8 +91,8 @@ TEST_F(DivergenceGuardTest, ZeroTurnsItOff) {
   const std::vector<Frame>& frames = sequence_.frames;
   DivergenceGuard guard = GuardFromTruth(0.0);
   std::string why;
-  EXPECT_FALSE(guard.Diverged(frames, CandidatesAt(frames, Shifted(sequence_.ground_truth, 2, 100.0)),
-                              &why));
+  EXPECT_FALSE(guard.Diverged(
+      frames, CandidatesAt(frames, Shifted(sequence_.ground_truth, 2, 100.0)), &why));
 }
 
 TEST_F(DivergenceGuardTest, MisfitsAreZeroAtAConsistentTruthAndPointAtAMisplacedFrame) {

@@ -354,10 +354,11 @@ std::string ComparisonMarkdown(const std::vector<ComparisonRow>& rows) {
       mem.push_back(row->peak_memory_mb);
       added.push_back(row->added_memory_mb);
     }
-    std::snprintf(line, sizeof(line),
-                  "| %s | %d/%zu | %.4g | %.3g | %.4g | %.0f | %.4g | %.4g | %.3g | %.0f | %.0f |\n",
-                  m.c_str(), ok, by_method[m].size(), Median(t), Median(r), Median(tre),
-                  Median(it), Median(spi), Median(dpi), Median(sec), Median(mem), Median(added));
+    std::snprintf(
+        line, sizeof(line),
+        "| %s | %d/%zu | %.4g | %.3g | %.4g | %.0f | %.4g | %.4g | %.3g | %.0f | %.0f |\n",
+        m.c_str(), ok, by_method[m].size(), Median(t), Median(r), Median(tre), Median(it),
+        Median(spi), Median(dpi), Median(sec), Median(mem), Median(added));
     s << line;
   }
   s << "\nMedians over sequences; time and intensity differences per iteration at the finest "

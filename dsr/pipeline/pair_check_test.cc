@@ -16,7 +16,9 @@
 namespace dsr {
 namespace {
 
-bool Contains(const std::vector<int>& v, int x) { return std::find(v.begin(), v.end(), x) != v.end(); }
+bool Contains(const std::vector<int>& v, int x) {
+  return std::find(v.begin(), v.end(), x) != v.end();
+}
 
 // All pairs of `m` frames with mismatch `good`, except those between `group` and the rest.
 std::vector<PairMismatch> TwoGroups(int m, const std::vector<int>& group, double good, double bad) {

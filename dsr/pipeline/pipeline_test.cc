@@ -163,7 +163,8 @@ TEST(Pipeline, DbaRecoversGroundTruth) {
     const PoseErrorSummary between =
         ComparePoses(dba.frame_from_world, dsr.frame_from_world, sequence.masks);
     EXPECT_LT(between.tre_max_mm, 0.05) << "sigma " << sigma;
-    EXPECT_LT(std::abs(dba_errors.mae_translation_voxels - dsr_errors.mae_translation_voxels), 0.02);
+    EXPECT_LT(std::abs(dba_errors.mae_translation_voxels - dsr_errors.mae_translation_voxels),
+              0.02);
   }
 }
 
@@ -556,7 +557,8 @@ TEST(Pipeline, DsrDenseSolversGiveTheSamePoses) {
       continue;
     }
     // Both factorise the same 6(m-1) x 6(m-1) system: the same iterates up to rounding.
-    const PoseErrorSummary between = ComparePoses(result.frame_from_world, first, sequence.masks, 1);
+    const PoseErrorSummary between =
+        ComparePoses(result.frame_from_world, first, sequence.masks, 1);
     EXPECT_LT(between.tre_max_mm, 1e-6) << solver;
   }
 }
@@ -789,7 +791,8 @@ TEST(Pipeline, RefusesBadSetups) {
   EXPECT_FALSE(Register({ramp, ramp}, {inside, inside},
                         {Eigen::Isometry3d::Identity(), Eigen::Isometry3d::Identity()}, o,
                         &result, &error));
-  EXPECT_NE(error.find("6 degrees of freedom of frame 1"), std::string::npos) << "[" << error << "]";
+  EXPECT_NE(error.find("6 degrees of freedom of frame 1"), std::string::npos)
+      << "[" << error << "]";
   // Photometric parameters with a baseline mode, naming the flag.
   o = Options("ape");
   o.photometric = PhotometricModel::kAffine;

@@ -227,8 +227,8 @@ std::vector<Eigen::Isometry3d> PosesFromLocal(std::vector<Eigen::Isometry3d> fra
 }
 
 // A result of the solves in local coordinates, in the frames' physical ones: the final
-// poses, the grid and DBA's intensities (world: + c_0), and the pose covariances. A left perturbation
-// Exp(delta) of a local pose is Exp(Ad delta) of the physical one, Ad the adjoint of
+// poses, the grid and DBA's intensities (world: + c_0), and the pose covariances. A left
+// perturbation Exp(delta) of a local pose is Exp(Ad delta) of the physical one, Ad the adjoint of
 // Translate(c_i): [rho; phi] -> [rho + c_i x phi; phi].
 void ResultFromLocal(const std::vector<Eigen::Vector3d>& centre, RegistrationResult* result) {
   result->frame_from_world = PosesFromLocal(std::move(result->frame_from_world), centre);

@@ -52,7 +52,8 @@ bool ValidateChecks(const RegistrationOptions& o, std::string* error) {
   if (!(o.min_kept_overlap >= 0.0 && o.min_kept_overlap < 1.0)) {
     return RefuseField(error, "min_kept_overlap", o.min_kept_overlap, "must be in [0, 1)");
   }
-  if (!(o.max_misfit_ratio == 0.0 || (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
+  if (!(o.max_misfit_ratio == 0.0 ||
+        (o.max_misfit_ratio > 1.0 && std::isfinite(o.max_misfit_ratio)))) {
     return RefuseField(error, "max_misfit_ratio", o.max_misfit_ratio, "must be 0 (off) or > 1");
   }
   if (!(o.max_pose_error_voxels >= 0.0 && std::isfinite(o.max_pose_error_voxels))) {

@@ -72,7 +72,8 @@ Picture RenderSlice(const Image& panorama,
       const Eigen::Vector3i ijk = voxel(iu, iv);
       const uint8_t grey = Grey(panorama.at(ijk[0], ijk[1], ijk[2]), window);
       for (int dy = 0; dy < scale; ++dy)
-        for (int dx = 0; dx < scale; ++dx) pic.Set(iu * scale + dx, iv * scale + dy, {grey, grey, grey});
+        for (int dx = 0; dx < scale; ++dx)
+          pic.Set(iu * scale + dx, iv * scale + dy, {grey, grey, grey});
     }
   }
   for (int f : outlined) {
@@ -93,9 +94,13 @@ Picture RenderSlice(const Image& panorama,
     for (int iv = 0; iv < nv; ++iv) {
       for (int iu = 0; iu < nu; ++iu) {
         if (!is_seen(iu, iv)) continue;
-        if (is_seen(iu - 1, iv) && is_seen(iu + 1, iv) && is_seen(iu, iv - 1) && is_seen(iu, iv + 1)) continue;
+        if (is_seen(iu - 1, iv) && is_seen(iu + 1, iv) && is_seen(iu, iv - 1) &&
+            is_seen(iu, iv + 1)) {
+          continue;
+        }
         for (int dy = 0; dy < scale; ++dy)
-          for (int dx = 0; dx < scale; ++dx) pic.Set(iu * scale + dx, iv * scale + dy, PaletteColor(f));
+          for (int dx = 0; dx < scale; ++dx)
+            pic.Set(iu * scale + dx, iv * scale + dy, PaletteColor(f));
       }
     }
   }
@@ -153,7 +158,8 @@ Picture RenderPanoramaSlices(const Image& panorama,
     x += slices[s].width + 10;
   }
   for (size_t n = 0; n < outlined.size(); ++n) {
-    const int lx = 10 + static_cast<int>(n % 6) * 90, ly = height + 45 + static_cast<int>(n / 6) * 16;
+    const int lx = 10 + static_cast<int>(n % 6) * 90,
+              ly = height + 45 + static_cast<int>(n / 6) * 16;
     DrawText("frame " + std::to_string(outlined[n]), lx, ly, 0.45, PaletteColor(outlined[n]), &out);
   }
   return out;
@@ -254,8 +260,10 @@ Picture RenderConvergence(const std::vector<LevelSolve>& solves) {
     const double n = std::max<double>(1.0, y.size() - 1.0);
     auto px = [&](double i) { return x0 + (x1 - x0) * i / n; };
     auto py = [&](double v) { return y1 - (y1 - y0) * (std::log10(v) - lo) / (hi - lo); };
-    for (size_t b : boundaries) DrawPolyline({{px(b), double(y0)}, {px(b), double(y1)}}, kGrey, 1, &out);
-    DrawPolyline({{double(x0), double(y0)}, {double(x0), double(y1)}, {double(x1), double(y1)}}, kBlack, 1, &out);
+    for (size_t b : boundaries)
+      DrawPolyline({{px(b), double(y0)}, {px(b), double(y1)}}, kGrey, 1, &out);
+    DrawPolyline({{double(x0), double(y0)}, {double(x0), double(y1)}, {double(x1), double(y1)}},
+                 kBlack, 1, &out);
     std::vector<std::pair<double, double>> line;
     for (size_t i = 0; i < y.size(); ++i) {
       if (y[i] > 0.0 && std::isfinite(y[i])) line.emplace_back(px(i), py(y[i]));
@@ -362,7 +370,8 @@ std::string ReportIndex(const ReportInputs& in, const std::string& pair_picture)
 
 }  // namespace
 
-PosesFile ResultPoses(const RegistrationResult& result, const std::vector<std::string>& image_names) {
+PosesFile ResultPoses(const RegistrationResult& result,
+                      const std::vector<std::string>& image_names) {
   PosesFile poses;
   poses.images = image_names;
   poses.frame_from_world = result.frame_from_world;

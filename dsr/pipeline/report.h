@@ -73,7 +73,8 @@ void PhotometricToPoses(const std::vector<Photometric>& photometric, PosesFile* 
 
 // The poses file of a registration: its poses under `image_names`, the pose covariance and
 // predicted TRE when estimated, and the gains and offsets when estimated.
-PosesFile ResultPoses(const RegistrationResult& result, const std::vector<std::string>& image_names);
+PosesFile ResultPoses(const RegistrationResult& result,
+                      const std::vector<std::string>& image_names);
 
 // The files WriteReport writes, relative to its folder, in the order it writes them (the
 // tools plan their outputs with it): panorama_slices.png, pair_AA_BB.png, convergence.png,

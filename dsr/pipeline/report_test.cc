@@ -48,10 +48,13 @@ const Registered& Small() {
     o.pyramid_levels = 2;
     o.pyramid_min_size = 8;
     const std::vector<Eigen::Isometry3d> identity(3, Eigen::Isometry3d::Identity());
-    EXPECT_TRUE(Register(out->sequence.frames, out->sequence.masks, identity, o, &out->result, &error))
+    EXPECT_TRUE(
+        Register(out->sequence.frames, out->sequence.masks, identity, o, &out->result, &error))
         << error;
-    for (int i = 0; i < 3; ++i) out->frames.emplace_back(out->sequence.frames[i], out->sequence.masks[i]);
-    out->panorama = FusePanoramaMean(out->frames, out->result.frame_from_world, out->result.grid, 2).mean;
+    for (int i = 0; i < 3; ++i)
+      out->frames.emplace_back(out->sequence.frames[i], out->sequence.masks[i]);
+    out->panorama =
+        FusePanoramaMean(out->frames, out->result.frame_from_world, out->result.grid, 2).mean;
     return out;
   }();
   return *r;
@@ -78,7 +81,8 @@ void ExpectNotBlank(const Picture& p) {
 TEST(Report, PicturesHaveTheExpectedSizeAndContent) {
   const Registered& r = Small();
   const ImageGeometry& g = r.panorama.geometry;
-  const Picture slices = RenderPanoramaSlices(r.panorama, r.frames, r.result.frame_from_world, {0, 2});
+  const Picture slices =
+      RenderPanoramaSlices(r.panorama, r.frames, r.result.frame_from_world, {0, 2});
   const int scale = std::max(1, 320 / std::max({g.size[0], g.size[1], g.size[2]}));
   // Three slices side by side: (x,y), (x,z), (y,z) at `scale` pixels per voxel, 10-pixel gaps.
   EXPECT_EQ(slices.width, scale * (2 * g.size[0] + g.size[1]) + 3 * 10 + 10);

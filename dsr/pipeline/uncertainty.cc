@@ -254,7 +254,8 @@ void AddSlab(const SlabSums& slab, int64_t slab_index, int64_t cubes_x, Uncertai
     if (slab.shares.col(c).isZero(0.0)) continue;
     ++sums->clusters;
     const int group = CubeGroup(c % cubes_x, c / cubes_x, slab_index);
-    sums->gradient_covariance[group].noalias() += slab.shares.col(c) * slab.shares.col(c).transpose();
+    sums->gradient_covariance[group].noalias() +=
+        slab.shares.col(c) * slab.shares.col(c).transpose();
   }
 }
 
@@ -306,7 +307,8 @@ UncertaintySums SumForUncertainty(const std::vector<Frame>& frames,
   for (int64_t v = candidates.num_voxels() - 1; v >= 0; --v) {
     slab_begin[candidates.voxel[v] / nxy / kClusterVoxels] = v;
   }
-  for (int64_t s = slabs - 1; s >= 0; --s) slab_begin[s] = std::min(slab_begin[s], slab_begin[s + 1]);
+  for (int64_t s = slabs - 1; s >= 0; --s)
+    slab_begin[s] = std::min(slab_begin[s], slab_begin[s + 1]);
   UncertaintySums sums;
   sums.curvature.assign(kUncertaintyGroups, Eigen::MatrixXd::Zero(n, n));
   sums.gradient_covariance.assign(kUncertaintyGroups, Eigen::MatrixXd::Zero(n, n));
@@ -460,7 +462,8 @@ Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
   return jacobian;
 }
 
-double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame) {
+double PredictedTre(const Matrix6d& covariance,
+                    const std::vector<Eigen::Vector3d>& points_in_frame) {
   if (points_in_frame.empty()) return 0.0;
   // A square root of the covariance (it is positive semi-definite).
   const Eigen::SelfAdjointEigenSolver<Matrix6d> eigen(covariance);

@@ -160,10 +160,10 @@ std::string UncertaintySummary(const PoseUncertainty& uncertainty, const std::st
 // A = dg/d delta (6m x 6m, all frames), the derivative of the reduced gradient
 // g_f = sum_j J_fj^T (I_f(p_fj) - mu_j) with respect to the poses, by forward differences
 // of the samples (the slow twin of SumForUncertainty's A, which takes the same derivative
-// from the interpolants' slopes at each sample, in one pass): frame f's samples are moved by step_mm[f] along each translation axis and
-// step_rad[f] about each rotation axis, mu_j follows, the other frames' samples stay (the
-// samples are trilinear, linear along each axis inside a cell, so a small forward step is
-// as good as a central one and costs half).
+// from the interpolants' slopes at each sample, in one pass): frame f's samples are moved by
+// step_mm[f] along each translation axis and step_rad[f] about each rotation axis, mu_j follows,
+// the other frames' samples stay (the samples are trilinear, linear along each axis inside a cell,
+// so a small forward step is as good as a central one and costs half).
 //   own block  (f, f): Gauss-Newton's J^T J (1 - 1/k) plus sum_j r_fj dJ_fj / d delta_f,
 //   other block (f, b): -sum_j J_fj^T (d I_b(p_bj) / d delta_b) / k_j.
 // Not the Gauss-Newton matrix: J is the interpolated gradient volume, not the derivative of
@@ -180,7 +180,8 @@ Eigen::MatrixXd GradientJacobian(const std::vector<Frame>& frames,
 
 // The expected mean displacement over `points_in_frame` (mm) of a pose error with
 // covariance `covariance` (see above); deterministic.
-double PredictedTre(const Matrix6d& covariance, const std::vector<Eigen::Vector3d>& points_in_frame);
+double PredictedTre(const Matrix6d& covariance,
+                    const std::vector<Eigen::Vector3d>& points_in_frame);
 
 // The normalised squared error e^T Cov^-1 e of a pose estimate against the truth, with
 // e = Log(T_est T_true^-1) (both relative to frame 0): about 6 on average when the

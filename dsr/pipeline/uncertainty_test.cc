@@ -26,13 +26,15 @@ TEST(PredictedTre, MatchesClosedFormsOfGaussianErrors) {
   Matrix6d c = Matrix6d::Zero();
   c.topLeftCorner<3, 3>() = 0.01 * Eigen::Matrix3d::Identity();
   const std::vector<Eigen::Vector3d> points = {Eigen::Vector3d(1, 2, 3), Eigen::Vector3d(-4, 0, 2)};
-  EXPECT_NEAR(PredictedTre(c, points), 0.1 * std::sqrt(8.0 / M_PI), 0.05 * 0.1 * std::sqrt(8.0 / M_PI));
+  EXPECT_NEAR(PredictedTre(c, points), 0.1 * std::sqrt(8.0 / M_PI),
+              0.05 * 0.1 * std::sqrt(8.0 / M_PI));
   // Rotation about z only, points on a circle of radius 20 mm in the xy plane: each moves
   // by |phi_z| 20, a half-normal of mean sigma 20 sqrt(2 / pi).
   c.setZero();
   c(5, 5) = 1e-6;
   std::vector<Eigen::Vector3d> ring;
-  for (int a = 0; a < 16; ++a) ring.emplace_back(20.0 * std::cos(a * M_PI / 8), 20.0 * std::sin(a * M_PI / 8), 0.0);
+  for (int a = 0; a < 16; ++a)
+    ring.emplace_back(20.0 * std::cos(a * M_PI / 8), 20.0 * std::sin(a * M_PI / 8), 0.0);
   const double expected = 1e-3 * 20.0 * std::sqrt(2.0 / M_PI);
   EXPECT_NEAR(PredictedTre(c, ring), expected, 0.06 * expected);
   EXPECT_EQ(PredictedTre(c, {}), 0.0);
@@ -108,7 +110,8 @@ Eigen::VectorXd GradientOver(const std::vector<Frame>& frames, const CandidateSe
     if (k < 2) continue;
     double mean = 0.0;
     for (double x : value) mean += x / k;
-    for (int a = 0; a < k; ++a) g.segment<6>(6 * frame[a]) += jacobian[a].transpose() * (value[a] - mean);
+    for (int a = 0; a < k; ++a)
+      g.segment<6>(6 * frame[a]) += jacobian[a].transpose() * (value[a] - mean);
   }
   return g;
 }
@@ -153,7 +156,8 @@ TEST(PoseUncertainty, GradientJacobianIsTheDerivativeOfTheGradient) {
     const std::vector<Eigen::Isometry3d> plus = moved_pose(f, c);
     std::vector<std::vector<bool>> use(candidates.num_voxels(), std::vector<bool>(m));
     for (int64_t v = 0; v < candidates.num_voxels(); ++v) {
-      for (int b = 0; b < m; ++b) use[v][b] = valid(v, b, poses[b]) && (b != f || valid(v, b, plus[b]));
+      for (int b = 0; b < m; ++b)
+        use[v][b] = valid(v, b, poses[b]) && (b != f || valid(v, b, plus[b]));
     }
     numeric.col(k) = (GradientOver(frames, candidates, plus, use) -
                       GradientOver(frames, candidates, poses, use)) /

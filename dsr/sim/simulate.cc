@@ -610,7 +610,8 @@ bool SimulationOptions::Validate(std::string* error) const {
   } else if (!range(beat_amplitude_mm, 0.0, kMaxBeatAmplitudeMm)) {
     s << "beat_amplitude_mm=" << beat_amplitude_mm << ": must be in [0, " << kMaxBeatAmplitudeMm
       << "]";
-  } else if (!(beat_radius_mm == 0.0 || range(beat_radius_mm, kMinBeatRadiusMm, kMaxBeatRadiusMm))) {
+  } else if (!(beat_radius_mm == 0.0 ||
+               range(beat_radius_mm, kMinBeatRadiusMm, kMaxBeatRadiusMm))) {
     s << "beat_radius_mm=" << beat_radius_mm << ": must be 0 (a quarter of the frame depth) or in ["
       << kMinBeatRadiusMm << ", " << kMaxBeatRadiusMm << "]";
   } else if (!beat_center_offset_mm.allFinite()) {
@@ -659,8 +660,8 @@ Eigen::Matrix3d BeatPullbackJacobian(const BeatRegion& region, double t,
   if (rho2 >= 1.0) return Eigen::Matrix3d::Identity();
   const double beta = region.amplitude_mm * BeatCycleWeight(t) * kBeatKappa / region.radius_mm;
   const double s = 1.0 - rho2;
-  return Eigen::Matrix3d::Identity() +
-         beta * (s * s * s * Eigen::Matrix3d::Identity() - (6.0 * s * s / radius2) * r * r.transpose());
+  return Eigen::Matrix3d::Identity() + beta * (s * s * s * Eigen::Matrix3d::Identity() -
+                                               (6.0 * s * s / radius2) * r * r.transpose());
 }
 
 ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& o) {

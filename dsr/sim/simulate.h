@@ -116,8 +116,8 @@
 // poses-and-noise generator, speckle, gain and offset), so it is the still sequence bit for
 // bit (with a world-fixed speckle part: when the region's ball lies inside the box of the
 // fields of view, as it does for the defaults; else the world grid grows to hold it,
-// SpeckleWorldGrid). Each later phase (view i, phase p >= 1) draws its own Gaussian noise from a generator
-// of its own (seed, "phase_no", i, p; voxel order) and its own per-frame speckle part
+// SpeckleWorldGrid). Each later phase (view i, phase p >= 1) draws its own Gaussian noise from a
+// generator of its own (seed, "phase_no", i, p; voxel order) and its own per-frame speckle part
 // (seed, "speckleP", i, p, look, padded slice); the world-fixed speckle part (rho > 0) is the
 // tissue's, so it moves with it: phase p samples the world field at psi_p(world point). The
 // gain and offset of a view are shared by its phases. Cost per later phase and view: one

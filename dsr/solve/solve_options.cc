@@ -63,8 +63,8 @@ void SolveOptions::ToCeres(ceres::LinearSolverType mode_default,
   out->function_tolerance = function_tolerance;
   out->gradient_tolerance = gradient_tolerance;
   out->parameter_tolerance = parameter_tolerance;
-  out->num_threads = num_threads > 0 ? num_threads
-                                     : static_cast<int>(std::max(1L, sysconf(_SC_NPROCESSORS_ONLN)));
+  out->num_threads =
+      num_threads > 0 ? num_threads : static_cast<int>(std::max(1L, sysconf(_SC_NPROCESSORS_ONLN)));
   out->min_relative_decrease = min_relative_decrease;
   out->minimizer_progress_to_stdout = false;
   out->logging_type = ceres::SILENT;

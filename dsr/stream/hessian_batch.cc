@@ -40,7 +40,9 @@ void AddGroupHessianPortableOf(const HessianGroup& group,
 }
 
 template <int W>
-void AddGroupGradientPortableOf(const HessianGroup& group, const double* const* residuals, double* g) {
+void AddGroupGradientPortableOf(const HessianGroup& group,
+                                const double* const* residuals,
+                                double* g) {
   for (int a = 0; a < group.k; ++a) {
     double sum[W] = {};
     for (int r = 0; r < group.num_rows; ++r) {
@@ -66,7 +68,9 @@ void AddGroupHessianPortable(const HessianGroup& group,
   }
 }
 
-void AddGroupGradientPortable(const HessianGroup& group, const double* const* residuals, double* g) {
+void AddGroupGradientPortable(const HessianGroup& group,
+                              const double* const* residuals,
+                              double* g) {
   if (group.width == kWideJacobianSize) {
     AddGroupGradientPortableOf<kWideJacobianSize>(group, residuals, g);
   } else {
@@ -162,7 +166,8 @@ void AddBatchHessian(KernelPath requested,
   const double* residuals[VoxelBatch::kMaxVoxels];  // and its residuals (with g)
   for (int t = 0; t < batch.num_voxels; ++t) {
     const int r = fill[voxel_group[t]]++;
-    rows[r] = width == kWideJacobianSize ? batch.wide_jac[batch.begin[t]] : batch.jac[batch.begin[t]];
+    rows[r] =
+        width == kWideJacobianSize ? batch.wide_jac[batch.begin[t]] : batch.jac[batch.begin[t]];
     residuals[r] = batch.residual + batch.begin[t];
   }
 
@@ -170,7 +175,8 @@ void AddBatchHessian(KernelPath requested,
   for (int g = 0; g < num_groups; ++g) {
     int frame[kMaxFrames];
     int k = 0;
-    for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1) frame[k++] = __builtin_ctz(bits);
+    for (uint32_t bits = group_key[g]; bits != 0; bits &= bits - 1)
+      frame[k++] = __builtin_ctz(bits);
     DCHECK_GE(k, 2);
     internal::HessianGroup group{rows + group_start[g], group_size[g], k, frame, width};
     HessianWeights form = weights != nullptr ? weights[k] : HessianWeights();

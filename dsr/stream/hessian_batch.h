@@ -83,8 +83,8 @@ inline double BlockScale(const HessianGroup& group, const HessianWeights& weight
 
 // Adds scale_ab * sum_r J_a^T J_b to block (frame[a], frame[b]) (width x width, at rows
 // and columns width * frame) of the row-major n x n `h` for a <= b, with scale_ab =
-// BlockScale(group, weights, a, b). Every kernel path (stream/kernels/kernels_avx2.h, stream/kernels/kernels_avx512.h)
-// has this contract.
+// BlockScale(group, weights, a, b). Every kernel path (stream/kernels/kernels_avx2.h,
+// stream/kernels/kernels_avx512.h) has this contract.
 void AddGroupHessianPortable(const HessianGroup& group,
                              const HessianWeights& weights,
                              double* h,

@@ -117,7 +117,8 @@ void CompareWithTwin(int m,
     const HessianWeights& w = weights[k];
     const double(*jac)[kJacobianSize] = batch->jac + first;
     for (int a = 0; a < k; ++a) {
-      AddGradient(twin_gradient.data(), batch->frame[first + a], jac[a], batch->residual[first + a]);
+      AddGradient(twin_gradient.data(), batch->frame[first + a], jac[a],
+                  batch->residual[first + a]);
       AddOuter(twin.data(), n, batch->frame[first + a], batch->frame[first + a], jac[a], jac[a],
                w.diagonal + w.shared);
       for (int b = a + 1; b < k; ++b) {
@@ -132,12 +133,14 @@ void CompareWithTwin(int m,
                     factor_data);
     double gradient_diff = 0.0, gradient_norm = 0.0;
     for (int r = 0; r < n; ++r) {
-      gradient_diff += (batched_gradient[r] - twin_gradient[r]) * (batched_gradient[r] - twin_gradient[r]);
+      gradient_diff +=
+          (batched_gradient[r] - twin_gradient[r]) * (batched_gradient[r] - twin_gradient[r]);
       gradient_norm += twin_gradient[r] * twin_gradient[r];
     }
     ASSERT_GT(gradient_norm, 0.0);
     EXPECT_LT(std::sqrt(gradient_diff / gradient_norm), kRelativeTolerance)
-        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
+        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets
+        << " voxels=" << num_voxels;
     // Compare the upper triangle (what the stream reads).
     double diff = 0.0, norm = 0.0;
     for (int r = 0; r < n; ++r) {
@@ -148,7 +151,8 @@ void CompareWithTwin(int m,
     }
     ASSERT_GT(norm, 0.0);
     EXPECT_LT(std::sqrt(diff / norm), kRelativeTolerance)
-        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets << " voxels=" << num_voxels;
+        << KernelPathToString(path) << " m=" << m << " sets=" << num_sets
+        << " voxels=" << num_voxels;
   }
 }
 

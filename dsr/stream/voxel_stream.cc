@@ -29,7 +29,10 @@ inline FrameView MakeFrameView(const PosedFrame& f, const double ahead[4]) { ret
 
 // J_ij = grad I_i(p_ij)^T [I_3, -[p_ij]x] from an index-space gradient `gu` at world p,
 // portable.
-void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu[3], double jac[6]) {
+void ObservationJacobian(const PosedFrame& f,
+                         const double p[3],
+                         const double gu[3],
+                         double jac[6]) {
   double grad[3], q[3];
   for (int d = 0; d < 3; ++d) {
     grad[d] = f.g[0][d] * gu[0] + f.g[1][d] * gu[1] + f.g[2][d] * gu[2];
@@ -44,12 +47,16 @@ void ObservationJacobian(const PosedFrame& f, const double p[3], const double gu
   jac[5] = q[0] * grad[1] - q[1] * grad[0];
 }
 
-inline void JacobianOne(const FrameView& view, const Point& p, const double sample[4], double jac[6]) {
+inline void JacobianOne(const FrameView& view,
+                        const Point& p,
+                        const double sample[4],
+                        double jac[6]) {
   ObservationJacobian(*view.f, p.p, sample + 1, jac);
 }
 
 // Continuous index of p in f and its cell; false outside the grid or for non-finite u.
-inline bool CellOf(const PosedFrame& f, const double p[3], double u[3], double fl[3], int64_t* cell) {
+inline bool CellOf(
+    const PosedFrame& f, const double p[3], double u[3], double fl[3], int64_t* cell) {
   for (int d = 0; d < 3; ++d) {
     u[d] = f.a[0][d] * p[0] + f.a[1][d] * p[1] + f.a[2][d] * p[2] + f.a[3][d];
     fl[d] = std::floor(u[d]);
@@ -77,7 +84,8 @@ inline bool SampleOne(const FrameView& view, const Point& p, double sample[4]) {
         f.a[0][d] * p.p[0] + f.a[1][d] * p.p[1] + f.a[2][d] * p.p[2] + f.a[3][d] + ahead[d];
     later[d] = std::min(std::max(0.0, std::floor(u)), f.max_cell[d]);  // NaN -> 0
   }
-  const int64_t cell = static_cast<int64_t>(later[0]) + f.stride_y * static_cast<int64_t>(later[1]) +
+  const int64_t cell = static_cast<int64_t>(later[0]) +
+                       f.stride_y * static_cast<int64_t>(later[1]) +
                        f.stride_z * static_cast<int64_t>(later[2]);
   const float* c = f.values + cell;
   __builtin_prefetch(c);

@@ -129,7 +129,8 @@ class BadInputCatalogue : public ::testing::Test {
     ASSERT_TRUE(WriteImage(zero, In("mask_empty.nii.gz"), &error)) << error;
     // Poses files.
     std::ofstream(In("not_json.json")) << "{\"frames\": [ this is not json";
-    std::ofstream(In("wrong_shape.json")) << R"({"frames":[{"image":"a","T":[[1,0,0],[0,1,0],[0,0,1]]}]})";
+    std::ofstream(In("wrong_shape.json"))
+        << R"({"frames":[{"image":"a","T":[[1,0,0],[0,1,0],[0,0,1]]}]})";
     std::ofstream(In("non_rigid.json"))
         << R"({"frames":[{"image":"a","T":[[2,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},)"
         << R"({"image":"b","T":[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]},)"
@@ -173,7 +174,8 @@ class BadInputCatalogue : public ::testing::Test {
     const fs::path out = Root() / ("out_" + std::to_string(++entry_));
     fs::create_directories(out);
     std::string args = args_with_out;
-    for (size_t at; (at = args.find("@OUT")) != std::string::npos;) args.replace(at, 4, out.string());
+    for (size_t at; (at = args.find("@OUT")) != std::string::npos;)
+      args.replace(at, 4, out.string());
     const ToolRun run = RunTool(binary, args, Root());
     SCOPED_TRACE(binary + " " + args);
     if (getenv("DSR_TEST_LOG") != nullptr) {
@@ -254,7 +256,8 @@ TEST_F(BadInputCatalogue, PosesFiles) {
   Register(base + " --init=" + In("two_frames.json"), "two_frames.json");
   Register(base + " --gt_poses=" + In("two_frames.json"), "--gt_poses");
   // Poses are matched to the images by name: names of other images are refused.
-  Register(base + " --init=" + In("strangers.json"), "--init=" + In("strangers.json") + ": no entry names");
+  Register(base + " --init=" + In("strangers.json"),
+           "--init=" + In("strangers.json") + ": no entry names");
   Register(base + " --gt_poses=" + In("strangers.json"), "--gt_poses=");
 }
 
@@ -303,7 +306,8 @@ TEST_F(BadInputCatalogue, FlagValues) {
 }
 
 TEST_F(BadInputCatalogue, OutputPaths) {
-  const std::string images = "--images=" + Frames() + " --masks=" + Masks() + " --progress=false --pyramid_levels=1";
+  const std::string images =
+      "--images=" + Frames() + " --masks=" + Masks() + " --progress=false --pyramid_levels=1";
   // Output equal to an input (the input stays as it was).
   const std::string before = testing_cli::ReadText(In("frame_02.nii.gz"));
   Expect(DSR_REGISTER_BIN, images + " --out_poses=" + In("frame_02.nii.gz"), "--out_poses");
@@ -323,17 +327,23 @@ TEST_F(BadInputCatalogue, Simulator) {
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_reject=255", "--echo_reject");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_edge_sigma_mm=-1", "--echo_edge_sigma_mm");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --echo_edge_weight=2", "--echo_edge_weight");
-  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("truncated.nii.gz"), "truncated.nii.gz");
+  Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("truncated.nii.gz"),
+         "truncated.nii.gz");
   Expect(DSR_SIMULATE_BIN, "--out_dir=@OUT/s --source=" + In("missing.nii.gz"), "missing.nii.gz");
 }
 
 TEST_F(BadInputCatalogue, Fuse) {
   const std::string base = "--images=" + Frames() + " --masks=" + Masks();
-  Expect(DSR_FUSE_BIN, base + " --poses=" + In("two_frames.json") + " --out=@OUT/p.nii.gz", "--poses");
-  Expect(DSR_FUSE_BIN, base + " --poses=" + In("non_rigid.json") + " --out=@OUT/p.nii.gz", "non_rigid.json");
-  Expect(DSR_FUSE_BIN, base + " --poses=" + In("missing.json") + " --out=@OUT/p.nii.gz", "missing.json");
-  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=@OUT/p.nii.gz --blend=max", "--blend");
-  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=" + In("frame_01.nii.gz"), "--out");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("two_frames.json") + " --out=@OUT/p.nii.gz",
+         "--poses");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("non_rigid.json") + " --out=@OUT/p.nii.gz",
+         "non_rigid.json");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("missing.json") + " --out=@OUT/p.nii.gz",
+         "missing.json");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=@OUT/p.nii.gz --blend=max",
+         "--blend");
+  Expect(DSR_FUSE_BIN, base + " --poses=" + In("apart.json") + " --out=" + In("frame_01.nii.gz"),
+         "--out");
   Expect(DSR_FUSE_BIN, "--images=" + In("frame_00.nii.gz") + "," + In("nan.mha") + " --poses=" +
                            In("two_frames.json") + " --out=@OUT/p.nii.gz",
          "nan.mha");
@@ -342,7 +352,8 @@ TEST_F(BadInputCatalogue, Fuse) {
 TEST_F(BadInputCatalogue, Compare) {
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --methods=dsr,magic", "--methods");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=random", "--init");
-  Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --init=global --max_misfit_ratio=0 --min_kept_overlap=0",
+  Expect(DSR_COMPARE_BIN,
+         "--out_dir=@OUT/c --init=global --max_misfit_ratio=0 --min_kept_overlap=0",
          "--max_recoveries");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --num_sequences=0", "--num_sequences");
   Expect(DSR_COMPARE_BIN, "--out_dir=@OUT/c --max_misfit_ratio=1", "--max_misfit_ratio");

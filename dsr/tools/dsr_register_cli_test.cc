@@ -392,7 +392,8 @@ TEST_F(DsrRegisterCli, BadInputsGiveOneErrorLineAndExitCode2) {
   ExpectBadInput(images + " --min_kept_overlap=1.5", "--min_kept_overlap");
   ExpectBadInput(images + " --max_misfit_ratio=0.5", "--max_misfit_ratio");
   ExpectBadInput(images + " --unknown_flag=3", "unknown_flag");
-  ExpectBadInput(images + " --photometric=linear", "--photometric=linear: must be none, affine or auto");
+  ExpectBadInput(images + " --photometric=linear",
+                 "--photometric=linear: must be none, affine or auto");
   ExpectBadInput(images + " --loss=tukey", "--loss");
   ExpectBadInput(images + " --loss=huber", "--loss_scale");  // no scale
   ExpectBadInput(images + " --loss=cauchy --loss_scale=-1", "--loss_scale");

@@ -34,7 +34,8 @@ constexpr int kAddressSpaceKiB = 3000000;
 // AddressSanitizer reserves terabytes of address space for its shadow memory, so a tool
 // built with it cannot start under `ulimit -v`: those cases run in the plain build only.
 constexpr bool kUnderAsan = testing_support::kUnderAddressSanitizer;
-#define DSR_SKIP_UNDER_ASAN() DSR_SKIP_UNDER_SANITIZER("ulimit -v cannot hold an AddressSanitizer build")
+#define DSR_SKIP_UNDER_ASAN() \
+  DSR_SKIP_UNDER_SANITIZER("ulimit -v cannot hold an AddressSanitizer build")
 
 std::string Join(const std::vector<std::string>& items) {
   std::string joined;

@@ -89,7 +89,8 @@ DSR_TARGET_AVX2 inline RowCorners CellRow(__m128 row, __m128 y_before, __m128 y_
 // The linear indices of the cells whose lowest corners are `a` and `b` (integer-valued,
 // inside the grid): one dot product with (1, n_x, n_x n_y, 0) each, summed across lanes
 // together. Exact: the products and sums are integers far below 2^53.
-DSR_TARGET_AVX2 inline void TwoCells(const FrameView& f, __m256d a, __m256d b, int64_t* ca, int64_t* cb) {
+DSR_TARGET_AVX2 inline void TwoCells(
+    const FrameView& f, __m256d a, __m256d b, int64_t* ca, int64_t* cb) {
   // [a0 + a1, b0 + b1, a2 + a3, b2 + b3], then the two halves added.
   const __m256d pairs = _mm256_hadd_pd(_mm256_mul_pd(a, f.strides), _mm256_mul_pd(b, f.strides));
   const __m128d sums = _mm_add_pd(_mm256_castpd256_pd128(pairs), _mm256_extractf128_pd(pairs, 1));

@@ -36,7 +36,10 @@ int64_t SampleVoxelBatchAvx2(const std::vector<PosedFrame>& posed,
                              bool with_jacobian,
                              VoxelBatch* batch);
 
-void AddGroupHessianAvx2(const HessianGroup& group, const HessianWeights& weights, double* h, int n);
+void AddGroupHessianAvx2(const HessianGroup& group,
+                         const HessianWeights& weights,
+                         double* h,
+                         int n);
 // AddGroupGradientPortable's contract (stream/hessian_batch.h); the AVX-512 path uses it too.
 void AddGroupGradientAvx2(const HessianGroup& group, const double* const* residuals, double* g);
 #endif

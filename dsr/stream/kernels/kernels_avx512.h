@@ -23,7 +23,10 @@ struct HessianGroup;  // stream/hessian_batch.h
 
 #ifdef DSR_HAVE_AVX512_KERNELS
 // Same contract as AddGroupHessianPortable (stream/hessian_batch.h).
-void AddGroupHessianAvx512(const HessianGroup& group, const HessianWeights& weights, double* h, int n);
+void AddGroupHessianAvx512(const HessianGroup& group,
+                           const HessianWeights& weights,
+                           double* h,
+                           int n);
 #endif
 
 }  // namespace internal

@@ -32,7 +32,8 @@ int main() {
   double worst_mm = 0.0;
   for (int i = 1; i < 3; ++i) {
     const Eigen::Isometry3d truth = sequence.frame_from_world[i] * frame0.inverse();
-    worst_mm = std::max(worst_mm, (result.frame_from_world[i].translation() - truth.translation()).norm());
+    worst_mm =
+        std::max(worst_mm, (result.frame_from_world[i].translation() - truth.translation()).norm());
   }
   std::printf("consumer: registered 3 frames, largest translation error %.4f mm\n", worst_mm);
   return worst_mm < 0.5 ? 0 : 1;

@@ -1,7 +1,8 @@
 // libFuzzer target: the image-loading wrapper (io/io_image.h ReadImage and ReadMask,
-// io/io_phases.h ReadPhases, ITK underneath) on arbitrary bytes. The first byte picks the format (.nii, .nii.gz,
-// .mha, .nrrd); the rest is the file. Any outcome but a crash, a sanitizer report or a leak
-// is fine; an accepted image (each accepted phase) must have a valid grid and finite voxels.
+// io/io_phases.h ReadPhases, ITK underneath) on arbitrary bytes. The first byte picks the
+// format (.nii, .nii.gz, .mha, .nrrd); the rest is the file. Any outcome but a crash, a
+// sanitizer report or a leak is fine; an accepted image (each accepted phase) must have a
+// valid grid and finite voxels.
 #include <cmath>
 #include <cstdint>
 #include <cstdio>

@@ -60,7 +60,9 @@ class FrameFromWorldNearMatcher {
   FrameFromWorldNearMatcher(const Eigen::Isometry3d& expected,
                             double max_angle_rad,
                             double max_translation_mm)
-      : expected_(expected), max_angle_rad_(max_angle_rad), max_translation_mm_(max_translation_mm) {}
+      : expected_(expected),
+        max_angle_rad_(max_angle_rad),
+        max_translation_mm_(max_translation_mm) {}
 
   bool MatchAndExplain(const Eigen::Isometry3d& actual, std::ostream* os) const {
     const PoseError e = FrameFromWorldError(actual, expected_);
@@ -92,7 +94,9 @@ class FramesFromWorldNearMatcher {
   FramesFromWorldNearMatcher(const std::vector<Eigen::Isometry3d>& expected,
                              double max_angle_rad,
                              double max_translation_mm)
-      : expected_(expected), max_angle_rad_(max_angle_rad), max_translation_mm_(max_translation_mm) {}
+      : expected_(expected),
+        max_angle_rad_(max_angle_rad),
+        max_translation_mm_(max_translation_mm) {}
 
   bool MatchAndExplain(const std::vector<Eigen::Isometry3d>& actual, std::ostream* os) const {
     if (actual.size() != expected_.size()) {
@@ -138,9 +142,10 @@ inline FrameFromWorldNearMatcher FrameFromWorldNear(const Eigen::Isometry3d& exp
 }
 
 // A sequence of poses, frame by frame, as FrameFromWorldNear (and the same number of them).
-inline FramesFromWorldNearMatcher FramesFromWorldNear(const std::vector<Eigen::Isometry3d>& expected,
-                                                      double max_angle_rad,
-                                                      double max_translation_mm) {
+inline FramesFromWorldNearMatcher FramesFromWorldNear(
+    const std::vector<Eigen::Isometry3d>& expected,
+    double max_angle_rad,
+    double max_translation_mm) {
   return FramesFromWorldNearMatcher(expected, max_angle_rad, max_translation_mm);
 }
 
