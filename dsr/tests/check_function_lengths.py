@@ -13,7 +13,8 @@ import pathlib
 import re
 import sys
 
-_NOT_A_FUNCTION = re.compile(r"(namespace|struct|class|enum|union|extern|typedef|template\s*<[^>]*>\s*(struct|class)|#|//|\}|using)")
+_NOT_A_FUNCTION = re.compile(r"(namespace|struct|class|enum|union|extern|typedef|"
+                             r"template\s*<[^>]*>\s*(struct|class)|#|//|\}|using)")
 _CODE = re.compile(r'//.*|"(?:\\.|[^"\\])*"|\'(?:\\.|[^\'\\])*\'')
 
 

@@ -1016,7 +1016,7 @@ def _run(studies: List[Study], out: str, options: Dict[str, str], workers: int,
                 records[study.study] = _record_failure(
                     out, study, "the worker process running it died twice (killed or out of "
                     "memory)")
-            except Exception as error:  # noqa: BLE001 (a study's, never the cohort's end)
+            except Exception as error:  # a study's, never the cohort's end
                 records[study.study] = _record_failure(
                     out, study, f"{type(error).__name__}: {error}")
             if bar is not None:

@@ -483,7 +483,7 @@ def test_a_full_disk_fails_the_studies_it_stops_and_keeps_the_results(frames, tm
     """On a full disk no study is ok with damaged files, each study it stopped is failed
     with the reason (and done again by a rerun), results.csv and index.html are written (their
     space was taken before the studies), and the command ends with one line, exit 1."""
-    folder, paths = frames
+    _, paths = frames
     manifest = tmp_path / "many.csv"
     manifest.write_text("study,images\n" + "".join(f"k{i},{';'.join(paths)}\n"
                                                     for i in range(8)))

@@ -3,11 +3,13 @@ reference come from it with the same names, defaults and help; flagfiles get the
 line's checks; registrations in two threads do not share options."""
 import html
 import importlib.util
+import inspect
 import json
 import os
 import pathlib
 import re
 import stat
+import typing
 
 import numpy as np
 import pytest
@@ -89,12 +91,14 @@ def test_python_functions_take_their_options_and_refuse_the_others(tmp_path):
 
 
 def test_the_docs_reference_lists_every_option_with_its_default_and_help(tmp_path):
-    spec = importlib.util.spec_from_file_location("gen_options", ROOT / "docs" / "gen_options.py")
+    spec = importlib.util.spec_from_file_location("gen_options",
+                                                  ROOT / "docs" / "gen_options.py")
     gen = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(gen)
     table = table_json()
     (tmp_path / "table.json").write_text(json.dumps(table))
-    assert gen.main([str(tmp_path / "table.json"), "--out", str(tmp_path / "options.md")]) in (0, None)
+    assert gen.main([str(tmp_path / "table.json"),
+                     "--out", str(tmp_path / "options.md")]) in (0, None)
     page = html.unescape((tmp_path / "options.md").read_text())
     for option in table:
         assert option["name"] in page
@@ -147,7 +151,8 @@ def small():
 
 
 def test_simulate_refuses_up_front_what_would_not_fit():
-    with pytest.raises(ValueError, match=r"--frame_size=2048,2048,2048 --num_frames=2: needs about"):
+    with pytest.raises(ValueError,
+                       match=r"--frame_size=2048,2048,2048 --num_frames=2: needs about"):
         dsr.simulate(frame_size=(2048, 2048, 2048), num_frames=2, phantom_size=16)
 
 
@@ -203,9 +208,6 @@ def test_writes_never_replace_a_registrations_inputs(tmp_path, small):
 
 
 def test_keyword_arguments_are_typed_and_documented_from_the_table():
-    import inspect
-    import typing
-
     table = dsr.options()
     for function, front_end in [(dsr.register, "python:register"), (dsr.fuse, "python:fuse"),
                                 (dsr.simulate, "python:simulate")]:

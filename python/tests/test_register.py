@@ -1,10 +1,13 @@
 """The Python package against the command-line tools it fronts: the same registration bit for
 bit, the same one-line messages for bad input, and its own inputs (arrays, in-memory
 simulation) giving the same results as files."""
+import collections.abc
+import inspect
 import os
 import pathlib
 import threading
 import time
+import typing
 
 import numpy as np
 import pytest
@@ -125,10 +128,10 @@ def test_arrays_register_as_their_files_do(sequence):
 @pytest.mark.parametrize("reader", ["SimpleITK", "nibabel"])
 def test_simpleitk_and_nibabel_images_register_as_their_files_do(sequence, reader):
     if reader == "SimpleITK":
-        import SimpleITK as sitk
+        import SimpleITK as sitk  # noqa: PLC0415 (optional, only for this reader)
         read = sitk.ReadImage
     else:
-        import nibabel
+        import nibabel  # noqa: PLC0415 (optional, only for this reader)
         read = nibabel.load
     from_files = dsr.register(files(sequence, "frame"), files(sequence, "mask"), **LEVELS)
     images = [read(p) for p in files(sequence, "frame")]
@@ -354,7 +357,7 @@ def test_fuse_writes_dsr_fuses_panorama(sequence, tmp_path):
             assert np.array_equal(count.array, dsr.read_image(tmp_path / "n.nii.gz").array)
             assert count.array.max() == 3
     # As SimpleITK images: the same voxels and grid as dsr_fuse's file.
-    import SimpleITK as sitk
+    import SimpleITK as sitk  # noqa: PLC0415 (optional dependency)
     mean, count = dsr.fuse(frames, result, masks, blend="mean")
     written = sitk.ReadImage(str(tmp_path / "pano.nii.gz"))
     ours = mean.to_simpleitk()
@@ -394,8 +397,6 @@ def test_every_public_annotation_resolves():
     """The package's annotations resolve (typing.get_type_hints), so type checkers and
     documentation tools can read them: dsr.Sequence, the simulator's sequence, does not
     shadow typing.Sequence."""
-    import inspect
-    import typing
     for name in dsr.__all__:
         item = getattr(dsr, name)
         if inspect.isfunction(item):
@@ -403,6 +404,5 @@ def test_every_public_annotation_resolves():
         elif inspect.isclass(item):
             for _, method in inspect.getmembers(item, inspect.isfunction):
                 typing.get_type_hints(method)
-    import collections.abc
     images = typing.get_type_hints(dsr.register)["images"]
     assert typing.get_origin(images) is collections.abc.Sequence

@@ -135,7 +135,6 @@ def test_outputs_that_cannot_be_written_are_refused_before_any_work(sequence, tm
 
 
 def test_a_flag_without_its_value_does_not_swallow_the_next(sequence, tmp_path):
-    _, frames, _ = sequence
     line = error_line("dsr_register", "--images", f"--out_poses={tmp_path / 'p.json'}")
     assert line.startswith("--images: needs a value") and "is a flag of its own" in line
 

@@ -59,7 +59,10 @@ PHASES = 3
 def phase_values(phases=PHASES, interleaved=False):
     """Small integers, different in every phase: phase-major, or phase-fastest."""
     count = PHASE_SIZE[0] * PHASE_SIZE[1] * PHASE_SIZE[2]
-    value = lambda t, v: float((5 * v + 3 * t) % 13)
+
+    def value(t, v):
+        return float((5 * v + 3 * t) % 13)
+
     if interleaved:
         return [value(t, v) for v in range(count) for t in range(phases)]
     return [value(t, v) for t in range(phases) for v in range(count)]
