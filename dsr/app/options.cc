@@ -98,10 +98,20 @@ void ApplyNumThreads(const OptionValue& v, RunConfig* c) {
   +[](const OptionValue& v) { return Rule(condition, rule); }
 #define DSR_CHECK(expression) +[](const OptionValue& v) { return expression; }
 #define DSR_APPLY(statement) +[](const OptionValue& v, RunConfig* c) { statement; }
-#define DSR_FIELD(path) DSR_APPLY(Assign(v, &c->path))
-#define DSR_NAMED_FIELD(path, parse) DSR_APPLY(parse(S(v), &c->path))
+// A field's apply and keeps_library_default (two members of an OptionSpec).
+#define DSR_WRITES(path, write)                           \
+  DSR_APPLY(write(&c->path)), +[](const OptionValue& v) { \
+    const RunConfig library;                              \
+    RunConfig c = library;                                \
+    write(&c.path);                                       \
+    return c.path == library.path;                        \
+  }
+#define DSR_FIELD(path) DSR_WRITES(path, [&v](auto* field) { Assign(v, field); })
+#define DSR_NAMED_FIELD(path, parse) DSR_WRITES(path, [&v](auto* field) { parse(S(v), field); })
 
 // The table itself: data, one entry per option, grouped as the option reference lists them.
+// Laid out by hand, one field per line (scripts/lint.sh leaves it to its authors).
+// clang-format off
 const OptionSpec kOptionTable[] = {
   // Inputs
   {"images", OptionType::kString, "", "Inputs", kDsrRegister | kDsrFuse,
@@ -824,12 +834,14 @@ const OptionSpec kOptionTable[] = {
    nullptr,
    nullptr},
 };
+// clang-format on
 
 #undef DSR_RULE
 #undef DSR_CHECK
 #undef DSR_APPLY
 #undef DSR_FIELD
 #undef DSR_NAMED_FIELD
+#undef DSR_WRITES
 
 }  // namespace
 

@@ -58,6 +58,11 @@ struct OptionSpec {
   // Writes the value into its field of a RunConfig; nullptr for an option a front end reads
   // itself (files, outputs) or that needs others to mean something (run_options.cc).
   void (*apply)(const OptionValue& value, RunConfig* config);
+  // For an option that writes one field of a RunConfig: whether `value` written into a
+  // default-constructed RunConfig leaves that field as the library's initialiser set it, so
+  // that a test holds the table's default to the library's (options_test.cc). nullptr for
+  // the others.
+  bool (*keeps_library_default)(const OptionValue& value) = nullptr;
 };
 
 // Every option, in the order of the option reference (by group).

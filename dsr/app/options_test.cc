@@ -2,8 +2,12 @@
 // the options a run is made with (dsr/app/run_options.h).
 #include "dsr/app/options.h"
 
+#include <filesystem>
 #include <fstream>
+#include <map>
+#include <regex>
 #include <set>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -29,6 +33,71 @@ TEST(OptionTable, NamesAreUniqueAndEveryDefaultKeepsItsRule) {
     EXPECT_EQ(FindOption(spec.name), &spec);
   }
   EXPECT_EQ(FindOption("no_such_option"), nullptr);
+}
+
+// Every option that writes a field has the library's default: the value its member
+// initialiser writes, so that a caller of the library and a user of the tools get the same
+// registration.
+TEST(OptionTable, EveryFieldsDefaultIsTheLibrarys) {
+  int fields = 0;
+  for (const OptionSpec& spec : OptionTable()) {
+    if (spec.keeps_library_default == nullptr) continue;
+    ++fields;
+    OptionValue value;
+    std::string error;
+    ASSERT_TRUE(ParseOptionValue(spec, spec.default_text, &value, &error)) << error;
+    EXPECT_TRUE(spec.keeps_library_default(value))
+        << "--" << spec.name << "'s default " << spec.default_text
+        << " is not the library's (the member initialiser of its field)";
+  }
+  EXPECT_GT(fields, 60);
+  // It can tell: another value than the initialiser's is not the library's default.
+  const OptionSpec* levels = FindOption("pyramid_levels");
+  ASSERT_NE(levels->keeps_library_default, nullptr);
+  const int32_t other_levels = RegistrationOptions().pyramid_levels + 1;
+  EXPECT_FALSE(levels->keeps_library_default(OptionValue(other_levels)));
+  const OptionSpec* gauge = FindOption("gauge");
+  ASSERT_NE(gauge->keeps_library_default, nullptr);
+  EXPECT_FALSE(gauge->keeps_library_default(OptionValue(std::string("frame0"))));
+}
+
+// Every option the front ends read by name (settings.Int("num_frames"), ...) is in the
+// table, and read with its type's accessor: a typo or a wrong type would otherwise abort a
+// run only when it reaches that line.
+TEST(OptionTable, EveryNameTheFrontEndsReadIsInTheTableWithItsType) {
+  namespace fs = std::filesystem;
+  const std::regex call(
+      R"re((\.|->)(IsDefault|Value|Bool|Int|Uint64|Double|String|SetDefault|Set))re"
+      R"re(\("([a-z0-9_]+)")re");
+  const std::map<std::string, OptionType> typed = {{"Bool", OptionType::kBool},
+                                                   {"Int", OptionType::kInt32},
+                                                   {"Uint64", OptionType::kUint64},
+                                                   {"Double", OptionType::kDouble},
+                                                   {"String", OptionType::kString}};
+  int reads = 0;
+  for (const char* folder : {"dsr/app", "dsr/tools", "python/src"}) {
+    for (const auto& entry : fs::recursive_directory_iterator(fs::path(DSR_SOURCE_DIR) / folder)) {
+      const std::string path = entry.path().string();
+      const std::string ext = entry.path().extension().string();
+      if ((ext != ".cc" && ext != ".h") || path.find("_test") != std::string::npos) continue;
+      std::ifstream in(path);
+      std::stringstream text;
+      text << in.rdbuf();
+      const std::string source = text.str();
+      for (std::sregex_iterator it(source.begin(), source.end(), call), end; it != end; ++it) {
+        ++reads;
+        const std::string accessor = (*it)[2], name = (*it)[3];
+        const OptionSpec* spec = FindOption(name);
+        ASSERT_NE(spec, nullptr) << path << ": reads \"" << name << "\", which the table lacks";
+        const auto type = typed.find(accessor);
+        if (type != typed.end()) {
+          EXPECT_EQ(spec->type, type->second)
+              << path << ": " << accessor << "(\"" << name << "\") does not read the option's type";
+        }
+      }
+    }
+  }
+  EXPECT_GT(reads, 40);  // the front ends read about 50 options by name
 }
 
 // The table's defaults are the library's where the library names one for the tools.
