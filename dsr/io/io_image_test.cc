@@ -173,7 +173,7 @@ void ReadAsItkReadsIt(const std::string& path, const ImageGeometry& g, Image* im
 }
 
 // A float NIfTI file is decompressed once: the data check copies the voxels out as it
-// scans them (io_itk.cc; a .nii.gz of one gzip member inflated in one call by libdeflate,
+// scans them (io_itk_nifti.cc; a .nii.gz of one gzip member inflated in one call by libdeflate,
 // others by zlib's stream). The voxels and geometry read that way are ITK's own reader's,
 // bit for bit, compressed or not, in 3D and as a 4D file of one volume, and as a file of two
 // gzip members (what gzip writes for concatenated files); a header with scl_slope 2 and

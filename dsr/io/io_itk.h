@@ -1,7 +1,7 @@
 // The ITK side of image IO, kept free of Eigen: ITK 5.2 bundles its own Eigen 3.3, which
 // cannot share a translation unit with the system Eigen 3.4 the rest of dsr uses. Only
-// io_itk.cc includes ITK; io_image.cc converts RawVolume to and from dsr::Volume and owns
-// the rules that need Eigen (geometry validation, masks, atomic writes).
+// the io_itk*.cc files include ITK; io_image.cc converts RawVolume to and from dsr::Volume
+// and owns the rules that need Eigen (geometry validation, masks, atomic writes).
 #ifndef DSR_IO_IO_ITK_H_
 #define DSR_IO_IO_ITK_H_
 

@@ -18,7 +18,7 @@ namespace {
 // Bytes read, inflated or converted at a time.
 constexpr size_t kChunkBytes = size_t{1} << 20;
 
-// Worded as the data checks of io_itk.cc word it.
+// Worded as the data checks of io_itk_checks.cc word it.
 std::string EndsEarly(uint64_t found, uint64_t expected) {
   return "data ends after " + std::to_string(found) + " of " + std::to_string(expected) +
          " bytes; the file is truncated";
@@ -189,7 +189,7 @@ C Load(const unsigned char* bytes, bool swap) {
   return value;
 }
 
-// `count` stored values to float, as ITK's readers and io_itk.cc's conversion give them.
+// `count` stored values to float, as ITK's readers and io_itk.cc's ConvertBuffer give them.
 template <typename C>
 void ConvertAs(const unsigned char* in, size_t count, const Source& source, float* out) {
   for (size_t i = 0; i < count; ++i) {

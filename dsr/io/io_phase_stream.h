@@ -1,9 +1,9 @@
 // Reading chosen phases of a 4D image in one pass over its voxel data, without ITK: the
 // data block is decoded chunk by chunk (read, or inflated for zlib/gzip data) and only the
 // chosen phases are kept, so memory holds those phases and one chunk, never the file's
-// other phases. The ITK adapter (io_itk.cc) describes where a file keeps its voxels (from
-// the header ITK read) and leaves the data block to this reader. Not for use outside
-// dsr/io.
+// other phases. The ITK adapter (io_itk_phase_source.cc) describes where a file keeps its
+// voxels (from the header ITK read) and leaves the data block to this reader. Not for use
+// outside dsr/io.
 #ifndef DSR_IO_IO_PHASE_STREAM_H_
 #define DSR_IO_IO_PHASE_STREAM_H_
 

@@ -1,4 +1,4 @@
-// Force-included (clang -include) into the one ITK translation unit (io/io_itk.cc) of the
+// Force-included (clang -include) into the ITK translation units (io/io_itk*.cc) of the
 // clang fuzz build. Debian's ITK 5.2 headers were generated for GCC only: their
 // itk_compiler_detection.h stops with "Unsupported compiler" under clang. Here that header
 // is read once while the compiler presents itself as GCC 12 (the feature macros it sets are
