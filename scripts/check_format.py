@@ -3,7 +3,8 @@
 and every C++ line added or changed since BASE laid out as the repository's .clang-format
 says (clang-format on those lines only: the code before BASE was laid out by hand, and
 clang-format would re-break some of it). A file moved since BASE counts only its changed
-lines (renames are followed). The working tree counts, so uncommitted lines are checked too.
+lines (renames are followed). The working tree counts, so uncommitted lines are checked too,
+and files git does not track yet count whole.
 
 Usage: check_format.py BASE [CLANG_FORMAT]
 Exit 0 when clean; 1 listing each file and line otherwise (fix with `git clang-format BASE`);
@@ -64,10 +65,17 @@ def main(argv):
               "fetch its history, or set DSR_LINT_BASE)", file=sys.stderr)
         return 2
     tracked = [p for p in git("ls-files").splitlines() if _CPP.search(p)]
-    problems = long_lines(tracked)
+    # Files git does not track yet (and does not ignore) are new: every line counts.
+    untracked = [p for p in git("ls-files", "--others", "--exclude-standard").splitlines()
+                 if _CPP.search(p)]
+    problems = long_lines(tracked + untracked)
     patch = git("diff", "-M", "-U0", "--no-color", "--diff-filter=AMR", base, "--",
                 "*.cc", "*.h", "*.inc")
-    for path, spans in sorted(changed_lines(patch).items()):
+    changed = changed_lines(patch)
+    for path in untracked:
+        with open(path, encoding="utf-8", errors="replace") as f:
+            changed[path] = [(1, max(1, len(f.read().splitlines())))]
+    for path, spans in sorted(changed.items()):
         lines = [f"--lines={first}:{last}" for first, last in spans]
         run = subprocess.run([clang_format, "--dry-run", "-Werror", "--style=file", *lines,
                               path], capture_output=True, text=True)
@@ -81,8 +89,9 @@ def main(argv):
         print(f"check_format.py: {len(problems)} problem(s); `git clang-format {base}` lays "
               "out the changed lines", file=sys.stderr)
         return 1
-    print(f"check_format.py: {len(tracked)} C++ files within {COLUMNS} columns; the lines "
-          f"changed since {base[:12]} in {len(changed_lines(patch))} files as .clang-format says")
+    print(f"check_format.py: {len(tracked) + len(untracked)} C++ files within {COLUMNS} "
+          f"columns; the lines changed since {base[:12]} in {len(changed)} files as "
+          ".clang-format says")
     return 0
 
 

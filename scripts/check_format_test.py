@@ -109,6 +109,14 @@ class InAScratchRepository(unittest.TestCase):
         self.assertEqual(run.returncode, 1)
         self.assertIn("b.h:1: 101 columns", run.stdout)
 
+    def test_a_file_git_does_not_track_yet_counts_whole(self):
+        (self.root / "c.cc").write_text("int h( ) { return 2 ; }\n")
+        run = self.check("HEAD")
+        self.assertEqual(run.returncode, 1, run.stdout + run.stderr)
+        self.assertIn("c.cc:1: not laid out", run.stdout)
+        (self.root / "c.cc").write_text("int h() { return 2; }\n")
+        self.assertEqual(self.check("HEAD").returncode, 0)
+
     def test_an_unknown_base_is_an_error_of_its_own(self):
         self.assertEqual(self.check("0" * 40).returncode, 2)
 
