@@ -1,4 +1,9 @@
 // The paper's simulation protocol (docs/design.md section 6); conventions in simulate.h.
+// This file holds the options (their names and Validate), the random streams' seeds, the
+// frames' sampling of the source and the sequence assembly (Simulate). The pose models are in
+// pose_models.cc, the speckle in speckle.cc, the beat in heartbeat.cc, the frame grid and its
+// field of view in frame_field_of_view.cc, the intensity effects in intensity_effects.cc;
+// what they share in simulate_internal.h.
 #include "dsr/sim/simulate.h"
 
 #include <algorithm>
@@ -15,6 +20,7 @@
 #include "dsr/image/frame.h"
 #include "dsr/sim/echo_artifacts.h"
 #include "dsr/sim/echo_mapping.h"
+#include "dsr/sim/simulate_internal.h"
 #include "dsr/util/clock.h"
 #include "dsr/util/option_fields.h"
 #include "dsr/util/parallel.h"
@@ -22,16 +28,18 @@
 namespace dsr {
 namespace {
 
+using sim_internal::ApplyEffectsAndNoise;
+using sim_internal::DrawPoses;
+using sim_internal::kGainOffsetStream;
+using sim_internal::kPhaseNoiseStream;
+using sim_internal::Moves;
+using sim_internal::ResolveBeat;
+using sim_internal::StreamSeed;
+
 constexpr int kMaxFrames = 1000;
 constexpr int kMaxFrameSize = 2048;
 
 constexpr int kMaxMaskErosion = 50;
-
-// Bisection steps that clamp a walk's rotation step to the Euler-angle box: 2^-50 of a step.
-constexpr int kClampBisections = 50;
-// Rounding slack of the Euler-angle box test: angles recomputed from a rotation matrix that
-// was built from in-box angles may exceed the bound by a few ulps.
-constexpr double kEulerSlack = 1e-12;
 
 // Ranges of the ultrasound-like effects (simulate.h).
 constexpr double kMaxGainRange = 0.9;  // keeps every gain >= 0.1
@@ -44,25 +52,6 @@ constexpr double kMaxAttenuationDbPerCm = 10.0;
 // every structure the simulator's sources have.
 constexpr double kMaxEchoReject = 250.0;
 constexpr double kMaxEchoEdgeSigmaMm = 20.0;
-// Largest world speckle grid per axis, in voxels: far beyond any grid that fits in memory,
-// it only keeps the index arithmetic in int.
-constexpr int64_t kMaxSpeckleWorldSize = int64_t{1} << 24;
-
-// The speckle kernel is cut at this many standard deviations. The cut weights would carry
-// < 1e-4 of the kernel's squared sum; the kept ones are rescaled to a unit squared sum, so
-// the speckle's mean stays exactly 1 and the cut only trims the far tail of its
-// correlation.
-constexpr double kSpeckleKernelSigmas = 3.0;
-
-// Tags of the effects' random streams (ASCII "gain_off", "speckle_", "speckleW"). Fixed for
-// good: they decide every seed's gains, offsets and speckle.
-constexpr uint64_t kGainOffsetStream = 0x6761696e5f6f6666ull;
-constexpr uint64_t kSpeckleStream = 0x737065636b6c655full;
-constexpr uint64_t kSpeckleWorldStream = 0x737065636b6c6557ull;
-// The beating source's later phases (ASCII "phase_no", "speckleP"): each phase's noise and
-// per-frame speckle part.
-constexpr uint64_t kPhaseNoiseStream = 0x70686173655f6e6full;
-constexpr uint64_t kSpecklePhaseStream = 0x737065636b6c6550ull;
 
 // The lateral point-spread function's largest standard deviation (simulate.h), mm.
 constexpr double kMaxPsfLateralMm = 20.0;
@@ -74,8 +63,6 @@ constexpr int kMaxPhases = 64;
 constexpr double kMaxBeatAmplitudeMm = 50.0;
 constexpr double kMinBeatRadiusMm = 1e-3;
 constexpr double kMaxBeatRadiusMm = 1e6;
-// kappa = sqrt(7) (7/6)^3: 1 / max over rho in [0, 1] of rho (1 - rho^2)^3 (at 1/sqrt(7)).
-const double kBeatKappa = std::sqrt(7.0) * (343.0 / 216.0);
 
 // SplitMix64's output function: a bijection of 64-bit words in which every input bit
 // changes about half the output bits, so that neighbouring seeds and indices give unrelated
@@ -85,123 +72,6 @@ uint64_t Mix64(uint64_t x) {
   x = (x ^ (x >> 30)) * 0xbf58476d1ce4e5b9ull;
   x = (x ^ (x >> 27)) * 0x94d049bb133111ebull;
   return x ^ (x >> 31);
-}
-
-// The seed of one effect's generator: the run's seed, the effect's tag and the indices
-// (frame, look, slice, ...) folded in one after the other. Independent of the
-// poses-and-noise generator, which is seeded with `seed` itself.
-uint64_t StreamSeed(uint64_t seed, uint64_t tag, std::initializer_list<uint64_t> indices) {
-  uint64_t h = Mix64(seed ^ Mix64(tag));
-  for (uint64_t index : indices) h = Mix64(h ^ Mix64(index));
-  return h;
-}
-
-// The generator seed of one padded slice k of look `look` of frame `frame_index`'s per-frame
-// speckle: the still frame's stream for phase 0, a stream of its own for each later phase.
-uint64_t FrameSpeckleSeed(uint64_t seed, int frame_index, int phase, int look, int64_t k) {
-  const uint64_t f = static_cast<uint64_t>(frame_index), l = static_cast<uint64_t>(look);
-  const uint64_t slice = static_cast<uint64_t>(k);
-  return phase == 0
-             ? StreamSeed(seed, kSpeckleStream, {f, l, slice})
-             : StreamSeed(seed, kSpecklePhaseStream, {f, static_cast<uint64_t>(phase), l, slice});
-}
-
-// Whether phase `phase` of a sequence with `beat` moves anything.
-bool Moves(const BeatRegion* beat, int phase) {
-  return beat != nullptr && phase > 0 && beat->amplitude_mm > 0.0;
-}
-
-// Translate(c_f) * R * Translate(t - c_s).
-Eigen::Isometry3d FrameFromWorld(const Eigen::Matrix3d& rotation,
-                                 const Eigen::Vector3d& shift_mm,
-                                 const Eigen::Vector3d& frame_center,
-                                 const Eigen::Vector3d& source_center) {
-  Eigen::Isometry3d frame_from_world = Eigen::Isometry3d::Identity();
-  frame_from_world.linear() = rotation;
-  frame_from_world.translation() = frame_center + rotation * (shift_mm - source_center);
-  return frame_from_world;
-}
-
-// Whether R = Rz(gamma) Ry(beta) Rx(alpha) for some angles all within [-max, max]. The
-// principal angles (beta in [-pi/2, pi/2]) and their only alternative
-// (alpha +- pi, pi - beta, gamma +- pi) are both tried, so bounds >= 90 degrees work too.
-bool InEulerBox(const Eigen::Matrix3d& r, double max_angle) {
-  const double beta = -std::asin(std::clamp(r(2, 0), -1.0, 1.0));
-  const double alpha = std::atan2(r(2, 1), r(2, 2));
-  const double gamma = std::atan2(r(1, 0), r(0, 0));
-  const double bound = max_angle + kEulerSlack;
-  auto in = [bound](double a, double b, double g) {
-    return std::abs(a) <= bound && std::abs(b) <= bound && std::abs(g) <= bound;
-  };
-  auto flip = [](double angle) { return angle > 0.0 ? angle - M_PI : angle + M_PI; };
-  return in(alpha, beta, gamma) ||
-         in(flip(alpha), (beta >= 0.0 ? M_PI : -M_PI) - beta, flip(gamma));
-}
-
-// A unit vector uniform on the sphere from two draws: z = u, azimuth = pi u.
-Eigen::Vector3d DrawDirection(std::uniform_real_distribution<double>* u, std::mt19937_64* rng) {
-  const double z = (*u)(*rng);
-  const double azimuth = M_PI * (*u)(*rng);
-  const double rho = std::sqrt(std::max(0.0, 1.0 - z * z));
-  return Eigen::Vector3d(rho * std::cos(azimuth), rho * std::sin(azimuth), z);
-}
-
-std::vector<Eigen::Isometry3d> DrawPoses(const ImageGeometry& source,
-                                         const ImageGeometry& frame,
-                                         const SimulationOptions& o,
-                                         std::mt19937_64* rng) {
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  const Eigen::Vector3d source_center =
-      source.IndexToPhysical(0.5 * (source.size.cast<double>() - Eigen::Vector3d::Ones()));
-  const Eigen::Vector3d frame_center =
-      frame.IndexToPhysical(0.5 * (frame.size.cast<double>() - Eigen::Vector3d::Ones()));
-  const double max_angle = o.max_rotation_deg * M_PI / 180.0;
-  const double max_shift_mm = o.max_translation_voxels * frame.spacing_mm[0];
-  const double step_angle = o.step_rotation_deg * M_PI / 180.0;
-  const double step_shift_mm = o.step_translation_voxels * frame.spacing_mm[0];
-  std::vector<Eigen::Isometry3d> poses;
-  // The current frame's R and t (frame 0 draws them; the walk steps from them).
-  Eigen::Matrix3d rotation = Eigen::Matrix3d::Identity();
-  Eigen::Vector3d shift_mm = Eigen::Vector3d::Zero();
-  for (int f = 0; f < o.num_frames; ++f) {
-    if (f == 0 || o.pose_model == PoseModel::kRandom) {
-      // Sequenced draws (argument evaluation order is unspecified in C++).
-      const double alpha = max_angle * u(*rng);
-      const double beta = max_angle * u(*rng);
-      const double gamma = max_angle * u(*rng);
-      for (int a = 0; a < 3; ++a) shift_mm[a] = max_shift_mm * u(*rng);
-      rotation = (Eigen::AngleAxisd(gamma, Eigen::Vector3d::UnitZ()) *
-                  Eigen::AngleAxisd(beta, Eigen::Vector3d::UnitY()) *
-                  Eigen::AngleAxisd(alpha, Eigen::Vector3d::UnitX()))
-                     .toRotationMatrix();
-    } else {
-      const Eigen::Vector3d axis = DrawDirection(&u, rng);
-      const double angle = step_angle * 0.5 * (1.0 + u(*rng));
-      const Eigen::Vector3d direction = DrawDirection(&u, rng);
-      const double length_mm = step_shift_mm * 0.5 * (1.0 + u(*rng));
-      // R_i = R_{i-1} Q^T: Q acts on world_from_frame = R^T about the point the frame
-      // centre sees (c_s - t), which the rotation leaves where it is.
-      auto stepped = [&](double theta) {
-        return Eigen::Matrix3d(rotation * Eigen::AngleAxisd(-theta, axis).toRotationMatrix());
-      };
-      double inside = angle;
-      if (!InEulerBox(stepped(angle), max_angle)) {
-        // theta = 0 (the previous rotation) is inside the box; keep the inside end.
-        double lo = 0.0, hi = angle;
-        for (int i = 0; i < kClampBisections; ++i) {
-          const double mid = 0.5 * (lo + hi);
-          (InEulerBox(stepped(mid), max_angle) ? lo : hi) = mid;
-        }
-        inside = lo;
-      }
-      rotation = stepped(inside);
-      // t_i = t_{i-1} - d, clamped per axis to the box (moves each component towards the
-      // previous, in-box value, so |t_i - t_{i-1}| <= |d|).
-      shift_mm = (shift_mm - length_mm * direction).cwiseMax(-max_shift_mm).cwiseMin(max_shift_mm);
-    }
-    poses.push_back(FrameFromWorld(rotation, shift_mm, frame_center, source_center));
-  }
-  return poses;
 }
 
 // Keys' cubic convolution weights (a = -0.5) of the taps at offsets -1, 0, 1, 2 from
@@ -214,234 +84,17 @@ void KeysWeights(double t, double w[4]) {
   w[3] = 0.5 * (t3 - t2);
 }
 
-// The speckle's 1-D kernel: weights exp(-d^2 / (2 c^2)), |d| <= radius = ceil(3 c), scaled
-// to sum w_d^2 = 1. The 3-D kernel (their product) then has a unit squared sum, so a
-// smoothed unit-variance white field keeps its variance, E|z|^2 = 2 with N(0, 1) real and
-// imaginary parts (c = 0: the single weight 1, no smoothing).
-std::vector<double> SpeckleKernel(double c) {
-  const int radius = static_cast<int>(std::ceil(kSpeckleKernelSigmas * c));
-  const int taps = 2 * radius + 1;
-  std::vector<double> w(taps, 1.0);
-  if (radius > 0) {
-    double squares = 0.0;
-    for (int t = 0; t < taps; ++t) {
-      const double d = t - radius;
-      w[t] = std::exp(-d * d / (2.0 * c * c));
-      squares += w[t] * w[t];
-    }
-    for (double& weight : w) weight /= std::sqrt(squares);
-  }
-  return w;
-}
-
-// Scratch of one frame look's smoothing (complex, interleaved [re, im], x fastest), reused
-// over looks and frames.
-struct FrameLookScratch {
-  std::vector<double> white;    // the padded grid
-  std::vector<double> along_x;  // x smoothed: n_x by the padded y and z
-  std::vector<double> along_y;  // x and y smoothed: n_x n_y by the padded z
-};
-
-// Look `look` of frame `frame_index`'s per-frame complex field (of phase `phase`: seeds by
-// FrameSpeckleSeed) on the frame grid `g`: white
-// N(0, 1) components drawn on g padded by the kernel radius on every side (one generator
-// per padded slice, its re and im draws in voxel order, so the draws do not depend on which
-// thread takes the slice), then the three separable passes of `w`, each dropping the
-// padding of one axis, so that every frame voxel sees the whole kernel. The last pass hands
-// each frame voxel's smoothed value to add(k, j, i, re, im), in parallel over k: `add`
-// must write only voxel (i, j, k)'s outputs.
-template <typename Add>
-void FrameSpeckleLook(const ImageGeometry& g,
-                      const std::vector<double>& w,
-                      uint64_t seed,
-                      int frame_index,
-                      int phase,
-                      int look,
-                      int num_threads,
-                      FrameLookScratch* scratch,
-                      const Add& add) {
-  const int taps = static_cast<int>(w.size());
-  const int radius = taps / 2;
-  const Eigen::Vector3i& n = g.size;
-  const Eigen::Vector3i p = n + Eigen::Vector3i::Constant(2 * radius);
-  const int64_t p_slice = int64_t{p[0]} * p[1];
-  std::vector<double>& white = scratch->white;
-  std::vector<double>& along_x = scratch->along_x;
-  std::vector<double>& along_y = scratch->along_y;
-  white.resize(2 * p_slice * p[2]);
-  along_x.resize(2 * int64_t{n[0]} * p[1] * p[2]);
-  along_y.resize(2 * int64_t{n[0]} * n[1] * p[2]);
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    std::mt19937_64 rng(FrameSpeckleSeed(seed, frame_index, phase, look, k));
-    // Each component N(0, 1): |z|^2 / 2 then has mean 1 after the unit-norm kernel.
-    std::normal_distribution<double> normal(0.0, 1.0);
-    double* slice = white.data() + 2 * k * p_slice;
-    for (int64_t v = 0; v < 2 * p_slice; ++v) slice[v] = normal(rng);
-  });
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    for (int j = 0; j < p[1]; ++j) {
-      const double* in = white.data() + 2 * (k * p_slice + int64_t{j} * p[0]);
-      double* out = along_x.data() + 2 * ((k * p[1] + j) * int64_t{n[0]});
-      for (int i = 0; i < n[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          re += w[t] * in[2 * (i + t)];
-          im += w[t] * in[2 * (i + t) + 1];
-        }
-        out[2 * i] = re;
-        out[2 * i + 1] = im;
-      }
-    }
-  });
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    for (int j = 0; j < n[1]; ++j) {
-      double* out = along_y.data() + 2 * ((k * n[1] + j) * int64_t{n[0]});
-      for (int i = 0; i < n[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          const int64_t in = 2 * ((k * p[1] + j + t) * int64_t{n[0]} + i);
-          re += w[t] * along_x[in];
-          im += w[t] * along_x[in + 1];
-        }
-        out[2 * i] = re;
-        out[2 * i + 1] = im;
-      }
-    }
-  });
-  ParallelFor(0, n[2], num_threads, [&](int64_t k) {
-    for (int j = 0; j < n[1]; ++j) {
-      for (int i = 0; i < n[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          const int64_t in = 2 * (((k + t) * n[1] + j) * int64_t{n[0]} + i);
-          re += w[t] * along_y[in];
-          im += w[t] * along_y[in + 1];
-        }
-        add(k, j, i, re, im);
-      }
-    }
-  });
-}
-
-// Look `look`'s world-fixed complex field on a world grid of `size` voxels, in `field`
-// (resized; interleaved [re, im]): white N(0, 1) components drawn on the grid padded by the
-// kernel radius R on every side (one generator per padded slice k, seeded from (seed,
-// "speckleW", look, k), draws in voxel order), then smoothed in place by the three
-// separable passes of `w`. The field keeps the padded strides: world voxel (i, j, k) is at
-// 2 (i + p_x (j + p_y k)), p = size + 2R. In place is safe because output i of a line reads
-// inputs i .. i + 2R only and the lines are walked upwards: the x and y passes own a slice
-// each, the z pass a row j through every slice.
-void WorldSpeckleLook(const Eigen::Vector3i& size,
-                      const std::vector<double>& w,
-                      uint64_t seed,
-                      int look,
-                      int num_threads,
-                      std::vector<double>* field) {
-  const int taps = static_cast<int>(w.size());
-  const int radius = taps / 2;
-  const Eigen::Vector3i p = size + Eigen::Vector3i::Constant(2 * radius);
-  const int64_t p_slice = int64_t{p[0]} * p[1];
-  field->resize(2 * p_slice * p[2]);
-  double* z = field->data();
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    std::mt19937_64 rng(StreamSeed(
-        seed, kSpeckleWorldStream, {static_cast<uint64_t>(look), static_cast<uint64_t>(k)}));
-    std::normal_distribution<double> normal(0.0, 1.0);
-    double* slice = z + 2 * k * p_slice;
-    for (int64_t v = 0; v < 2 * p_slice; ++v) slice[v] = normal(rng);
-  });
-  if (radius == 0) return;  // c = 0: white
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    for (int j = 0; j < p[1]; ++j) {
-      double* line = z + 2 * (k * p_slice + int64_t{j} * p[0]);
-      for (int i = 0; i < size[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          re += w[t] * line[2 * (i + t)];
-          im += w[t] * line[2 * (i + t) + 1];
-        }
-        line[2 * i] = re;
-        line[2 * i + 1] = im;
-      }
-    }
-  });
-  const int64_t row = 2 * int64_t{p[0]};  // doubles per padded row
-  ParallelFor(0, p[2], num_threads, [&](int64_t k) {
-    double* slice = z + 2 * k * p_slice;
-    for (int j = 0; j < size[1]; ++j) {
-      for (int i = 0; i < size[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          const double* in = slice + (j + t) * row + 2 * i;
-          re += w[t] * in[0];
-          im += w[t] * in[1];
-        }
-        slice[j * row + 2 * i] = re;
-        slice[j * row + 2 * i + 1] = im;
-      }
-    }
-  });
-  ParallelFor(0, size[1], num_threads, [&](int64_t j) {
-    for (int k = 0; k < size[2]; ++k) {
-      for (int i = 0; i < size[0]; ++i) {
-        double re = 0.0, im = 0.0;
-        for (int t = 0; t < taps; ++t) {
-          const double* in = z + 2 * ((k + t) * p_slice + j * p[0] + i);
-          re += w[t] * in[0];
-          im += w[t] * in[1];
-        }
-        double* out = z + 2 * (k * p_slice + j * p[0] + i);
-        out[0] = re;
-        out[1] = im;
-      }
-    }
-  });
-}
-
-// The world field of one look sampled at a continuous world-grid index u: the trilinear
-// interpolant divided by the root of its variance factor, so that it has the variance of a
-// grid value (SpeckleFields in simulate.h). Per axis the factor is
-// (1 - t)^2 + t^2 + 2 t (1 - t) r1 = 1 - 2 t (1 - t) (1 - r1). An index off the grid (by
-// rounding only: the grid holds every field-of-view voxel) reads the nearest border point.
-struct WorldLookSampler {
-  const double* field = nullptr;  // WorldSpeckleLook's layout
-  Eigen::Vector3i size;           // the world grid's
-  int64_t stride_y = 0;           // complex values per padded row
-  int64_t stride_z = 0;           // complex values per padded slice
-  double neighbour_correlation = 0.0;  // r1 = sum_d w_d w_d+1
-
-  void Sample(const Eigen::Vector3d& u, double* re, double* im) const {
-    int lower[3];
-    double t[3];
-    int64_t step[3];
-    double variance = 1.0;
-    for (int a = 0; a < 3; ++a) {
-      const double x = std::clamp(u[a], 0.0, static_cast<double>(size[a] - 1));
-      lower[a] = std::min(static_cast<int>(x), std::max(size[a] - 2, 0));
-      t[a] = x - lower[a];
-      step[a] = lower[a] + 1 < size[a] ? 1 : 0;
-      variance *= 1.0 - 2.0 * t[a] * (1.0 - t[a]) * (1.0 - neighbour_correlation);
-    }
-    // Offsets in doubles ([re, im] interleaved) of the upper neighbour along each axis.
-    const int64_t sx = 2 * step[0], sy = 2 * step[1] * stride_y, sz = 2 * step[2] * stride_z;
-    const double* base = field + 2 * (lower[0] + lower[1] * stride_y + lower[2] * stride_z);
-    const auto lerp = [](double a, double b, double s) { return a + s * (b - a); };
-    double value[2];
-    for (int part = 0; part < 2; ++part) {
-      const double* c = base + part;
-      const double x00 = lerp(c[0], c[sx], t[0]);
-      const double x10 = lerp(c[sy], c[sy + sx], t[0]);
-      const double x01 = lerp(c[sz], c[sz + sx], t[0]);
-      const double x11 = lerp(c[sz + sy], c[sz + sy + sx], t[0]);
-      value[part] = lerp(lerp(x00, x10, t[1]), lerp(x01, x11, t[1]), t[2]);
-    }
-    const double scale = 1.0 / std::sqrt(variance);
-    *re = value[0] * scale;
-    *im = value[1] * scale;
-  }
-};
-
 }  // namespace
+
+namespace sim_internal {
+
+uint64_t StreamSeed(uint64_t seed, uint64_t tag, std::initializer_list<uint64_t> indices) {
+  uint64_t h = Mix64(seed ^ Mix64(tag));
+  for (uint64_t index : indices) h = Mix64(h ^ Mix64(index));
+  return h;
+}
+
+}  // namespace sim_internal
 
 const char* SourceInterpolationToString(SourceInterpolation interpolation) {
   switch (interpolation) {
@@ -629,306 +282,6 @@ bool SimulationOptions::Validate(std::string* error) const {
   return false;
 }
 
-BeatRegion SimulatedBeatRegion(const ImageGeometry& source, const SimulationOptions& o) {
-  BeatRegion region;
-  region.center_mm =
-      source.IndexToPhysical(0.5 * (source.size.cast<double>() - Eigen::Vector3d::Ones())) +
-      o.beat_center_offset_mm;
-  region.radius_mm = o.beat_radius_mm > 0.0
-                         ? o.beat_radius_mm
-                         : 0.25 * o.frame_size[2] * SimulatedFrameGeometry(source, o).spacing_mm[0];
-  region.amplitude_mm = o.beat_amplitude_mm;
-  return region;
-}
-
-double BeatCycleWeight(double t) { return 0.5 * (1.0 - std::cos(2.0 * M_PI * t)); }
-
-Eigen::Vector3d BeatDisplacement(const BeatRegion& region, double t, const Eigen::Vector3d& x_mm) {
-  const Eigen::Vector3d r = x_mm - region.center_mm;
-  const double rho2 = r.squaredNorm() / (region.radius_mm * region.radius_mm);
-  if (rho2 >= 1.0) return Eigen::Vector3d::Zero();
-  const double q = (1.0 - rho2) * (1.0 - rho2) * (1.0 - rho2);
-  const double beta = region.amplitude_mm * BeatCycleWeight(t) * kBeatKappa / region.radius_mm;
-  return -beta * q * r;
-}
-
-Eigen::Matrix3d BeatPullbackJacobian(const BeatRegion& region, double t,
-                                     const Eigen::Vector3d& x_mm) {
-  const Eigen::Vector3d r = x_mm - region.center_mm;
-  const double radius2 = region.radius_mm * region.radius_mm;
-  const double rho2 = r.squaredNorm() / radius2;
-  if (rho2 >= 1.0) return Eigen::Matrix3d::Identity();
-  const double beta = region.amplitude_mm * BeatCycleWeight(t) * kBeatKappa / region.radius_mm;
-  const double s = 1.0 - rho2;
-  return Eigen::Matrix3d::Identity() + beta * (s * s * s * Eigen::Matrix3d::Identity() -
-                                               (6.0 * s * s / radius2) * r * r.transpose());
-}
-
-ImageGeometry SimulatedFrameGeometry(const ImageGeometry& source, const SimulationOptions& o) {
-  ImageGeometry g;
-  g.size = o.frame_size;
-  g.spacing_mm = Eigen::Vector3d::Constant(o.frame_spacing > 0.0 ? o.frame_spacing
-                                                                    : source.spacing_mm[0]);
-  return g;  // origin 0, identity direction
-}
-
-Mask PyramidFieldOfView(const ImageGeometry& g, const SimulationOptions& o) {
-  Mask mask(g, 0);
-  const double cx = 0.5 * (g.size[0] - 1), cy = 0.5 * (g.size[1] - 1);
-  const double tan_azimuth = std::tan(0.5 * o.azimuth_deg * M_PI / 180.0);
-  const double tan_elevation = std::tan(0.5 * o.elevation_deg * M_PI / 180.0);
-  // Voxels exactly on a pyramid face are inside; the slack absorbs tan's rounding (e.g.
-  // tan(45 deg) = 1 - 1e-16), so the shape does not depend on the last bit.
-  constexpr double kSlack = 1e-9;
-  for (int k = 0; k < g.size[2]; ++k) {
-    if (k + kSlack < o.min_depth_voxels) continue;
-    for (int j = 0; j < g.size[1]; ++j) {
-      if (std::abs(j - cy) > k * tan_elevation + kSlack) continue;
-      for (int i = 0; i < g.size[0]; ++i) {
-        mask.at(i, j, k) = std::abs(i - cx) <= k * tan_azimuth + kSlack ? 1 : 0;
-      }
-    }
-  }
-  return mask;
-}
-
-Mask ErodeFieldOfView(const Mask& fov, int erosion_voxels) {
-  CHECK_GE(erosion_voxels, 0);
-  const Eigen::Vector3i& n = fov.geometry.size;
-  Mask mask = fov;
-  for (int pass = 0; pass < erosion_voxels; ++pass) {
-    const Mask m = mask;
-    std::fill(mask.voxels.begin(), mask.voxels.end(), 0);
-    for (int k = 1; k + 1 < n[2]; ++k) {
-      for (int j = 1; j + 1 < n[1]; ++j) {
-        for (int i = 1; i + 1 < n[0]; ++i) {
-          mask.at(i, j, k) = m.at(i, j, k) && m.at(i - 1, j, k) && m.at(i + 1, j, k) &&
-                                     m.at(i, j - 1, k) && m.at(i, j + 1, k) &&
-                                     m.at(i, j, k - 1) && m.at(i, j, k + 1)
-                                 ? 1
-                                 : 0;
-        }
-      }
-    }
-  }
-  return mask;
-}
-
-std::vector<Eigen::Isometry3d> SimulatedPoses(const ImageGeometry& source,
-                                              const SimulationOptions& options) {
-  std::string error;
-  CHECK(options.Validate(&error)) << error;
-  std::mt19937_64 rng(options.seed);
-  return DrawPoses(source, SimulatedFrameGeometry(source, options), options, &rng);
-}
-
-void Frame0IntensityCorrections(const std::vector<double>& gain,
-                                const std::vector<double>& offset,
-                                std::vector<double>* corrected_gain,
-                                std::vector<double>* corrected_offset) {
-  CHECK(corrected_gain != nullptr);
-  CHECK(corrected_offset != nullptr);
-  CHECK_EQ(gain.size(), offset.size());
-  CHECK(!gain.empty());
-  corrected_gain->assign(gain.size(), 1.0);
-  corrected_offset->assign(gain.size(), 0.0);
-  // Frame 0 is set, not computed: o_0 - g_0 o_0 / g_0 need not round to 0.
-  for (size_t i = 1; i < gain.size(); ++i) {
-    CHECK_GT(gain[i], 0.0) << "frame " << i;
-    (*corrected_gain)[i] = gain[0] / gain[i];
-    (*corrected_offset)[i] = offset[0] - gain[0] * offset[i] / gain[i];
-  }
-}
-
-Image SpeckleField(const ImageGeometry& g,
-                   const SimulationOptions& options,
-                   int frame_index,
-                   int num_threads,
-                   int phase) {
-  std::string error;
-  CHECK(options.Validate(&error)) << error;
-  CHECK_GE(options.speckle_looks, 1);
-  CHECK_EQ(options.speckle_world_fraction, 0.0) << "a world-fixed part needs SpeckleFields";
-  CHECK_GE(frame_index, 0);
-  CHECK_GE(phase, 0);
-  const std::vector<double> w = SpeckleKernel(options.speckle_correlation_voxels);
-  FrameLookScratch scratch;
-  std::vector<double> sum(g.NumVoxels(), 0.0);
-  for (int look = 0; look < options.speckle_looks; ++look) {
-    // Each voxel adds its looks in look order: the same sum for any thread count.
-    FrameSpeckleLook(g,
-                     w,
-                     options.seed,
-                     frame_index,
-                     phase,
-                     look,
-                     num_threads,
-                     &scratch,
-                     [&](int64_t k, int j, int i, double re, double im) {
-                       sum[g.LinearIndex(i, j, static_cast<int>(k))] += 0.5 * (re * re + im * im);
-                     });
-  }
-  Image speckle(g, 0.0f);
-  for (size_t l = 0; l < sum.size(); ++l) {
-    speckle.voxels[l] = static_cast<float>(sum[l] / options.speckle_looks);
-  }
-  return speckle;
-}
-
-ImageGeometry SpeckleWorldGrid(const ImageGeometry& g,
-                               const std::vector<Eigen::Isometry3d>& frame_from_world,
-                               const SimulationOptions& options,
-                               const BeatRegion* beat) {
-  std::string error;
-  CHECK(options.Validate(&error)) << error;
-  CHECK(!frame_from_world.empty());
-  CHECK((g.spacing_mm.array() == g.spacing_mm[0]).all())
-      << "the frame spacing must be isotropic: " << g.spacing_mm.transpose();
-  const double s = g.spacing_mm[0];
-  const Mask fov = PyramidFieldOfView(g, options);
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-  Eigen::Vector3d hi = -lo;
-  for (const Eigen::Isometry3d& frame_from_world_i : frame_from_world) {
-    const Eigen::Isometry3d world_from_frame = frame_from_world_i.inverse();
-    const auto extend = [&](int i, int j, int k) {
-      const Eigen::Vector3d x_in_world =
-          world_from_frame * g.IndexToPhysical(Eigen::Vector3d(i, j, k));
-      lo = lo.cwiseMin(x_in_world);
-      hi = hi.cwiseMax(x_in_world);
-    };
-    // The map is affine, so the box of the voxel centres is the box of each row's two
-    // ends (they include every vertex of the set's convex hull).
-    bool any = false;
-    for (int k = 0; k < g.size[2]; ++k) {
-      for (int j = 0; j < g.size[1]; ++j) {
-        int first = -1, last = -1;
-        for (int i = 0; i < g.size[0]; ++i) {
-          if (!fov.at(i, j, k)) continue;
-          if (first < 0) first = i;
-          last = i;
-        }
-        if (first < 0) continue;
-        any = true;
-        extend(first, j, k);
-        extend(last, j, k);
-      }
-    }
-    if (!any) {  // an empty field of view: the whole frame grid
-      for (int corner = 0; corner < 8; ++corner) {
-        extend(corner & 1 ? g.size[0] - 1 : 0,
-               corner & 2 ? g.size[1] - 1 : 0,
-               corner & 4 ? g.size[2] - 1 : 0);
-      }
-    }
-  }
-  if (beat != nullptr) {  // psi_p keeps the ball's points in the ball (simulate.h)
-    lo = lo.cwiseMin(beat->center_mm - Eigen::Vector3d::Constant(beat->radius_mm));
-    hi = hi.cwiseMax(beat->center_mm + Eigen::Vector3d::Constant(beat->radius_mm));
-  }
-  ImageGeometry world;
-  world.spacing_mm = Eigen::Vector3d::Constant(s);
-  for (int a = 0; a < 3; ++a) {
-    const double first = std::floor(lo[a] / s), last = std::ceil(hi[a] / s);
-    CHECK(std::isfinite(first) && std::isfinite(last) && last - first < kMaxSpeckleWorldSize)
-        << "world speckle grid from " << lo.transpose() << " to " << hi.transpose() << " mm";
-    world.size[a] = static_cast<int>(last - first) + 1;
-    world.origin_mm[a] = first * s;
-  }
-  return world;
-}
-
-std::vector<Image> SpeckleFields(const ImageGeometry& g,
-                                 const std::vector<Eigen::Isometry3d>& frame_from_world,
-                                 const SimulationOptions& options,
-                                 int num_threads,
-                                 int phase,
-                                 const BeatRegion* beat) {
-  std::string error;
-  CHECK(options.Validate(&error)) << error;
-  CHECK_GE(options.speckle_looks, 1);
-  CHECK(!frame_from_world.empty());
-  CHECK_GE(phase, 0);
-  CHECK(phase == 0 || (beat != nullptr && phase < options.num_phases)) << phase;
-  const int num_frames = static_cast<int>(frame_from_world.size());
-  std::vector<Image> fields;
-  const double rho = options.speckle_world_fraction;
-  if (rho == 0.0) {
-    for (int f = 0; f < num_frames; ++f) {
-      fields.push_back(SpeckleField(g, options, f, num_threads, phase));
-    }
-    return fields;
-  }
-  const bool moves = Moves(beat, phase);
-  const double t = static_cast<double>(phase) / options.num_phases;
-  const std::vector<double> w = SpeckleKernel(options.speckle_correlation_voxels);
-  const int radius = static_cast<int>(w.size()) / 2;
-  const ImageGeometry world = SpeckleWorldGrid(g, frame_from_world, options, beat);
-  WorldLookSampler sampler;
-  sampler.size = world.size;
-  sampler.stride_y = world.size[0] + 2 * radius;
-  sampler.stride_z = sampler.stride_y * (world.size[1] + 2 * radius);
-  for (size_t t = 0; t + 1 < w.size(); ++t) sampler.neighbour_correlation += w[t] * w[t + 1];
-  // Frame index -> world-grid index, u = index_from_frame * ijk + shift.
-  std::vector<Eigen::Matrix3d> index_from_frame(num_frames);
-  std::vector<Eigen::Vector3d> shift(num_frames);
-  std::vector<Eigen::Isometry3d> world_from_frames(num_frames);  // for a moving phase
-  for (int f = 0; f < num_frames; ++f) {
-    const Eigen::Isometry3d world_from_frame = frame_from_world[f].inverse();
-    world_from_frames[f] = world_from_frame;
-    index_from_frame[f] =
-        world.PhysicalToIndexMatrix() * world_from_frame.linear() * g.IndexToPhysicalMatrix();
-    shift[f] = world.PhysicalToIndex(world_from_frame * g.origin_mm);
-  }
-  // The looks' |z|^2 / 2 are summed in each frame's returned field (float: the field is
-  // returned as float anyway, and 64 float additions lose < 1e-5 of it), in the field of
-  // view only: Simulate uses nothing else, and the world sampling is most of the cost.
-  const Mask fov = PyramidFieldOfView(g, options);
-  for (int f = 0; f < num_frames; ++f) fields.emplace_back(g, 0.0f);
-  const double world_weight = std::sqrt(rho), frame_weight = std::sqrt(1.0 - rho);
-  std::vector<double> world_field;  // one look at a time
-  FrameLookScratch scratch;
-  for (int look = 0; look < options.speckle_looks; ++look) {
-    WorldSpeckleLook(world.size, w, options.seed, look, num_threads, &world_field);
-    sampler.field = world_field.data();
-    for (int f = 0; f < num_frames; ++f) {
-      float* sum = fields[f].voxels.data();
-      const auto add = [&](int64_t k, int j, int i, double re, double im) {
-        const int64_t l = g.LinearIndex(i, j, static_cast<int>(k));
-        if (!fov.voxels[l]) return;
-        double world_re = 0.0, world_im = 0.0;
-        const Eigen::Vector3d ijk(i, j, static_cast<double>(k));
-        if (moves) {  // the tissue's scatterers: the world field at psi_p(x)
-          const Eigen::Vector3d x = world_from_frames[f] * g.IndexToPhysical(ijk);
-          sampler.Sample(world.PhysicalToIndex(x - BeatDisplacement(*beat, t, x)), &world_re,
-                         &world_im);
-        } else {
-          sampler.Sample(index_from_frame[f] * ijk + shift[f], &world_re, &world_im);
-        }
-        const double z_re = world_weight * world_re + frame_weight * re;
-        const double z_im = world_weight * world_im + frame_weight * im;
-        sum[l] = static_cast<float>(sum[l] + 0.5 * (z_re * z_re + z_im * z_im));
-      };
-      if (rho < 1.0) {
-        FrameSpeckleLook(g, w, options.seed, f, phase, look, num_threads, &scratch, add);
-      } else {  // the per-frame fields have weight 0: not drawn
-        ParallelFor(0, g.size[2], num_threads, [&](int64_t k) {
-          for (int j = 0; j < g.size[1]; ++j) {
-            for (int i = 0; i < g.size[0]; ++i) add(k, j, i, 0.0, 0.0);
-          }
-        });
-      }
-    }
-  }
-  for (Image& field : fields) {
-    for (size_t l = 0; l < field.voxels.size(); ++l) {
-      field.voxels[l] =
-          fov.voxels[l] ? static_cast<float>(double{field.voxels[l]} / options.speckle_looks)
-                        : 1.0f;
-    }
-  }
-  return fields;
-}
-
 namespace {
 
 // What a frame samples and how (Simulate): the source or its echo map, as a Frame for the
@@ -992,43 +345,6 @@ bool SampleFrame(const SourceSampler& source, const ImageGeometry& g, const Mask
     return false;
   }
   return true;
-}
-
-// Source value x attenuation x speckle, x gain + offset (0 where `lost`: a dropout), + noise,
-// clamped, in the field of view, in voxel order: each step skipped when off, so that a
-// sequence without effects is bit for bit the former one. `normal` and `rng` carry on from
-// frame to frame.
-void ApplyEffectsAndNoise(const Mask& fov, const std::vector<double>& attenuation,
-                          const Image& speckle, double gain, double offset, double sigma,
-                          const std::vector<uint8_t>& lost,
-                          std::normal_distribution<double>* normal, std::mt19937_64* rng,
-                          Image* frame) {
-  for (size_t l = 0; l < frame->voxels.size(); ++l) {
-    if (!fov.voxels[l]) continue;
-    double value = frame->voxels[l];
-    if (!attenuation.empty()) value *= attenuation[l];
-    if (!speckle.empty()) value *= speckle.voxels[l];
-    if (gain != 1.0 || offset != 0.0) value = value * gain + offset;
-    if (!lost.empty() && lost[l]) value = 0.0;  // a dropout: only the noise remains
-    const double noisy = value + sigma * (*normal)(*rng);
-    frame->voxels[l] = static_cast<float>(std::clamp(noisy, 0.0, 255.0));
-  }
-}
-
-// The beat's region for a beating sequence (num_phases >= 2), checked against folding once
-// its radius is known; false with `error` naming beat_amplitude_mm.
-bool ResolveBeat(const ImageGeometry& source, const SimulationOptions& options,
-                 BeatRegion* region, std::string* error) {
-  *region = SimulatedBeatRegion(source, options);
-  if (region->amplitude_mm <= kMaxBeatAmplitudeRatio * region->radius_mm) return true;
-  std::ostringstream s;
-  s << "beat_amplitude_mm=" << options.beat_amplitude_mm << ": must be at most "
-    << kMaxBeatAmplitudeRatio << " times the beat's radius, " << region->radius_mm << " mm"
-    << (options.beat_radius_mm > 0.0 ? "" : " (beat_radius_mm=0: a quarter of the frame depth)")
-    << ", i.e. <= " << kMaxBeatAmplitudeRatio * region->radius_mm
-    << " (a larger beat would fold the tissue); decrease it or set beat_radius_mm";
-  *error = s.str();
-  return false;
 }
 
 }  // namespace
