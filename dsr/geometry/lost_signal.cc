@@ -6,6 +6,8 @@
 #include <cmath>
 #include <vector>
 
+#include "dsr/util/parallel.h"
+
 namespace dsr {
 namespace {
 
@@ -221,20 +223,27 @@ double Median(std::vector<double> values) {
   return values[values.size() / 2];
 }
 
-// The lost bins of an nu x nv grid of beam bins (header comment): the cores, judged bins
-// without structure whose mean is below kDropoutCoreRatio of `median`, grown through
-// 8-neighbours whose mean is below the geometric mean of the cores' median level and
-// `median` (closer to the lost level than to the view's, in decibels); a grown region of
-// fewer than kMinDropoutShare of the `judged` bins is left in.
-std::vector<uint8_t> LostBins(const std::vector<BinVerdict>& verdicts, int nu, int nv,
-                              double median, int judged) {
+// Whether a bin is a core: judged, without structure, and darker than `core_cut`.
+bool IsCore(const BinVerdict& v, double core_cut) {
+  return v.judged && v.z < kLostSignalZ && v.mean < core_cut;
+}
+
+// The lost bins of an nu x nv grid of beam bins (header comment): the cores (IsCore),
+// grown through 8-neighbours whose mean is below the geometric mean of the cores' median
+// level and `median` (closer to the lost level than to the view's, in decibels); a grown
+// region of fewer than kMinDropoutShare of the `judged` bins is left in.
+std::vector<uint8_t> LostBins(const std::vector<BinVerdict>& verdicts,
+                              int nu,
+                              int nv,
+                              double median,
+                              double core_cut,
+                              int judged) {
   const int nbins = nu * nv;
   std::vector<uint8_t> core(nbins, 0), lost(nbins, 0), seen(nbins, 0);
   std::vector<double> core_means;
   for (int b = 0; b < nbins; ++b) {
-    const BinVerdict& v = verdicts[b];
-    core[b] = v.judged && v.z < kLostSignalZ && v.mean < kDropoutCoreRatio * median;
-    if (core[b]) core_means.push_back(v.mean);
+    core[b] = IsCore(verdicts[b], core_cut);
+    if (core[b]) core_means.push_back(verdicts[b].mean);
   }
   if (core_means.empty()) return lost;
   const double cut = std::sqrt(std::max(0.0, Median(core_means)) * median);
@@ -269,6 +278,88 @@ int SampleStride(const ImageGeometry& g) {
   return std::max(1, static_cast<int>(std::lround(std::cbrt(share))));
 }
 
+// A view's beam bins, judged (the statistics' pass).
+struct ViewBeams {
+  Sector sector;
+  BeamGrid grid;
+  std::vector<BinVerdict> verdicts;
+  double median = 0.0;  // of the judged bins' means
+  int judged = 0;
+  int64_t fov_voxels = 0;
+};
+
+ViewBeams JudgeBeams(const Image& image, const Mask& fov) {
+  ViewBeams view;
+  view.fov_voxels = CountInside(fov);
+  view.sector = FindSector(fov);
+  if (!view.sector.found) return view;
+  const int stride = SampleStride(fov.geometry);
+  view.grid = MakeBeamGrid(fov, view.sector, stride);
+  const BeamGrid& grid = view.grid;
+  const int nbins = grid.nu * grid.nv;
+  if (nbins == 0) return view;
+  std::vector<double> sum(static_cast<size_t>(nbins) * grid.slabs, 0.0);
+  std::vector<int> count(sum.size(), 0);
+  ForEachInside(fov, stride, [&](int i, int j, int k, int64_t l) {
+    int slab = 0;
+    const int b = grid.Bin(i, j, k, &slab);
+    if (b < 0) return;
+    const size_t at = static_cast<size_t>(b) * grid.slabs + slab;
+    sum[at] += image.voxels[l];
+    ++count[at];
+  });
+  view.verdicts.resize(nbins);
+  std::vector<double> means;
+  for (int b = 0; b < nbins; ++b) {
+    const size_t at = static_cast<size_t>(b) * grid.slabs;
+    view.verdicts[b] = JudgeProfile(&sum[at], &count[at], grid.slabs);
+    if (view.verdicts[b].judged) means.push_back(view.verdicts[b].mean);
+  }
+  view.judged = static_cast<int>(means.size());
+  if (!means.empty()) view.median = Median(means);
+  return view;
+}
+
+// The level of noise alone the views share: the median of every view's cores by
+// kDropoutCoreRatio of its median; 0 when no view has one.
+double SharedLevel(const std::vector<ViewBeams>& views) {
+  std::vector<double> pooled;
+  for (const ViewBeams& view : views) {
+    for (const BinVerdict& v : view.verdicts) {
+      if (IsCore(v, kDropoutCoreRatio * view.median)) pooled.push_back(v.mean);
+    }
+  }
+  return pooled.empty() ? 0.0 : Median(pooled);
+}
+
+// A view's lost beams from its judged bins, labelled voxel by voxel. `shared_level` > 0:
+// the level of noise alone the views share; a core may then be as bright as the geometric
+// mean of that level and the view's median, where that is above kDropoutCoreRatio of it.
+LostSignal LabelLost(const ViewBeams& view, const Mask& fov, double shared_level) {
+  LostSignal out;
+  out.sector = view.sector;
+  out.fov_voxels = view.fov_voxels;
+  out.judged_bins = view.judged;
+  if (view.judged == 0) return out;
+  double core_cut = kDropoutCoreRatio * view.median;
+  if (shared_level > 0.0) core_cut = std::max(core_cut, std::sqrt(shared_level * view.median));
+  const BeamGrid& grid = view.grid;
+  const std::vector<uint8_t> lost_bin =
+      LostBins(view.verdicts, grid.nu, grid.nv, view.median, core_cut, view.judged);
+  out.lost_bins = static_cast<int>(std::count(lost_bin.begin(), lost_bin.end(), 1));
+  if (out.lost_bins == 0) return out;
+  out.lost = Mask(fov.geometry, 0);
+  ForEachInside(fov, 1, [&](int i, int j, int k, int64_t l) {
+    int slab = 0;
+    const int b = grid.Bin(i, j, k, &slab);
+    if (b >= 0 && lost_bin[b]) {
+      out.lost.voxels[l] = 1;
+      ++out.lost_voxels;
+    }
+  });
+  return out;
+}
+
 }  // namespace
 
 Sector FindSector(const Mask& fov) {
@@ -284,46 +375,20 @@ Sector FindSector(const Mask& fov) {
 }
 
 LostSignal FindLostSignal(const Image& image, const Mask& fov) {
-  LostSignal out;
-  out.fov_voxels = CountInside(fov);
-  out.sector = FindSector(fov);
-  if (!out.sector.found) return out;
-  const int stride = SampleStride(fov.geometry);
-  const BeamGrid grid = MakeBeamGrid(fov, out.sector, stride);
-  const int nbins = grid.nu * grid.nv;
-  if (nbins == 0) return out;
-  std::vector<double> sum(static_cast<size_t>(nbins) * grid.slabs, 0.0);
-  std::vector<int> count(sum.size(), 0);
-  ForEachInside(fov, stride, [&](int i, int j, int k, int64_t l) {
-    int slab = 0;
-    const int b = grid.Bin(i, j, k, &slab);
-    if (b < 0) return;
-    const size_t at = static_cast<size_t>(b) * grid.slabs + slab;
-    sum[at] += image.voxels[l];
-    ++count[at];
-  });
-  std::vector<BinVerdict> verdicts(nbins);
-  std::vector<double> means;
-  for (int b = 0; b < nbins; ++b) {
-    const size_t at = static_cast<size_t>(b) * grid.slabs;
-    verdicts[b] = JudgeProfile(&sum[at], &count[at], grid.slabs);
-    if (verdicts[b].judged) means.push_back(verdicts[b].mean);
-  }
-  out.judged_bins = static_cast<int>(means.size());
-  if (means.empty()) return out;
-  const std::vector<uint8_t> lost_bin =
-      LostBins(verdicts, grid.nu, grid.nv, Median(means), out.judged_bins);
-  out.lost_bins = static_cast<int>(std::count(lost_bin.begin(), lost_bin.end(), 1));
-  if (out.lost_bins == 0) return out;
-  out.lost = Mask(fov.geometry, 0);
-  ForEachInside(fov, 1, [&](int i, int j, int k, int64_t l) {
-    int slab = 0;
-    const int b = grid.Bin(i, j, k, &slab);
-    if (b >= 0 && lost_bin[b]) {
-      out.lost.voxels[l] = 1;
-      ++out.lost_voxels;
-    }
-  });
+  std::vector<ViewBeams> view(1, JudgeBeams(image, fov));
+  return LabelLost(view[0], fov, SharedLevel(view));
+}
+
+std::vector<LostSignal> FindLostSignalInViews(const std::vector<Image>& images,
+                                              const std::vector<Mask>& fovs,
+                                              int num_threads) {
+  const int m = static_cast<int>(images.size());
+  std::vector<ViewBeams> views(m);
+  ParallelFor(0, m, num_threads, [&](int64_t i) { views[i] = JudgeBeams(images[i], fovs[i]); });
+  const double shared_level = SharedLevel(views);
+  std::vector<LostSignal> out(m);
+  ParallelFor(0, m, num_threads,
+              [&](int64_t i) { out[i] = LabelLost(views[i], fovs[i], shared_level); });
   return out;
 }
 

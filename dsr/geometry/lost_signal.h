@@ -31,6 +31,14 @@
 // than kMinLostSignalSlabs slabs are not judged. The statistics read every s-th voxel along
 // each axis (kLostSignalSampleVoxels); only a view with lost bins is labelled voxel by voxel.
 //
+// The views of one acquisition (FindLostSignalInViews) share the level of noise alone: lost
+// contact returns the receiver's noise, whatever the tissue, while a view's median is its
+// tissue's. In a view of mostly dark tissue a wedge's mean can exceed a quarter of that
+// median (chest-CT views of the lungs: 6 grey levels in the wedge against a median of 12),
+// so a core may also be as bright as the geometric mean of the shared level (the median of
+// every view's cores by the rule above) and the view's median. One view (FindLostSignal)
+// gives that level itself.
+//
 // A view alone cannot tell lost contact from tissue that returns nothing over a whole beam
 // (a blood pool, a lung, the black background of a raw image): both are noise alone at the
 // dark level. The pipeline therefore asks for it only where told (RegistrationOptions::
@@ -39,6 +47,7 @@
 #define DSR_GEOMETRY_LOST_SIGNAL_H_
 
 #include <cstdint>
+#include <vector>
 
 #include <Eigen/Core>
 
@@ -85,8 +94,15 @@ struct LostSignal {
   int lost_bins = 0;
 };
 
-// The beams of `image` inside `fov` along which only noise remains (header comment).
+// The beams of `image` inside `fov` along which only noise remains (header comment): one
+// view, which gives the level of noise alone itself.
 LostSignal FindLostSignal(const Image& image, const Mask& fov);
+
+// The same for the views of one acquisition, with the level of noise alone they share
+// (header comment); `num_threads` views at a time (0: every hardware thread).
+std::vector<LostSignal> FindLostSignalInViews(const std::vector<Image>& images,
+                                              const std::vector<Mask>& fovs,
+                                              int num_threads);
 
 }  // namespace dsr
 

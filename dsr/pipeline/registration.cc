@@ -628,16 +628,14 @@ bool TransformLaterPhases(const std::vector<std::vector<Image>>& later_phases,
   return true;
 }
 
-// The views' masks less their dropouts (geometry/lost_signal.h), one view per task;
+// The views' masks less their dropouts (geometry/lost_signal.h: FindLostSignalInViews);
 // empty when no view has one. `fractions`: each view's share of its field of view left out.
 std::vector<Mask> MasksLessDropouts(const std::vector<Image>& images,
                                     const std::vector<Mask>& masks,
                                     int num_threads,
                                     std::vector<double>* fractions) {
   const int m = static_cast<int>(images.size());
-  std::vector<LostSignal> found(m);
-  ParallelFor(0, m, num_threads,
-              [&](int64_t i) { found[i] = FindLostSignal(images[i], masks[i]); });
+  const std::vector<LostSignal> found = FindLostSignalInViews(images, masks, num_threads);
   fractions->assign(m, 0.0);
   bool any = false;
   for (int i = 0; i < m; ++i) {
