@@ -320,13 +320,18 @@ ViewBeams JudgeBeams(const Image& image, const Mask& fov) {
   return view;
 }
 
-// The level of noise alone the views share: the median of every view's cores by
-// kDropoutCoreRatio of its median; 0 when no view has one.
+// The level of noise alone the views share: the median of the core bins of the dropouts
+// found in each view by its own rule (kDropoutCoreRatio of its median); 0 when no view has
+// one. Isolated dark bins that form no dropout (dark tissue) do not count.
 double SharedLevel(const std::vector<ViewBeams>& views) {
   std::vector<double> pooled;
   for (const ViewBeams& view : views) {
-    for (const BinVerdict& v : view.verdicts) {
-      if (IsCore(v, kDropoutCoreRatio * view.median)) pooled.push_back(v.mean);
+    if (view.judged == 0) continue;
+    const double core_cut = kDropoutCoreRatio * view.median;
+    const std::vector<uint8_t> lost =
+        LostBins(view.verdicts, view.grid.nu, view.grid.nv, view.median, core_cut, view.judged);
+    for (size_t b = 0; b < lost.size(); ++b) {
+      if (lost[b] && IsCore(view.verdicts[b], core_cut)) pooled.push_back(view.verdicts[b].mean);
     }
   }
   return pooled.empty() ? 0.0 : Median(pooled);

@@ -36,8 +36,8 @@
 // tissue's. In a view of mostly dark tissue a wedge's mean can exceed a quarter of that
 // median (chest-CT views of the lungs: 6 grey levels in the wedge against a median of 12),
 // so a core may also be as bright as the geometric mean of the shared level (the median of
-// every view's cores by the rule above) and the view's median. One view (FindLostSignal)
-// gives that level itself.
+// the cores of the dropouts the rule above finds in every view; none found: no shared level)
+// and the view's median. One view (FindLostSignal) gives that level itself.
 //
 // A view alone cannot tell lost contact from tissue that returns nothing over a whole beam
 // (a blood pool, a lung, the black background of a raw image): both are noise alone at the
