@@ -2,7 +2,7 @@
 # Builds the Python package (python/) against the Release build's libraries and runs its
 # pytest suite (python/tests). The libraries are installed into BUILD/python-prefix
 # (cmake --install: static, position-independent) and the extension module links them, so
-# only python/src/module.cc is compiled here. The package goes
+# only python/src/*.cc are compiled here. The package goes
 # into .venv (scripts/python_env.sh); scikit-build-core comes from PyPI (Debian has none),
 # pybind11 from Debian; SimpleITK and tqdm (and nibabel, python_env.sh) for the tests that
 # pass their images and show a bar, Dask distributed for the cohort runner (dsr.cohort). Called by scripts/test.sh after the Release ctest.
