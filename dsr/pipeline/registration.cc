@@ -635,7 +635,7 @@ std::vector<Mask> MasksLessDropouts(const std::vector<Image>& images,
                                     int num_threads,
                                     std::vector<double>* fractions) {
   const int m = static_cast<int>(images.size());
-  const std::vector<LostSignal> found = FindLostSignalInViews(images, masks, num_threads);
+  std::vector<LostSignal> found = FindLostSignalInViews(images, masks, num_threads);
   fractions->assign(m, 0.0);
   bool any = false;
   for (int i = 0; i < m; ++i) {
@@ -648,13 +648,19 @@ std::vector<Mask> MasksLessDropouts(const std::vector<Image>& images,
               << found[i].sector.widening << ")";
   }
   if (!any) return {};
-  std::vector<Mask> out = masks;
-  for (int i = 0; i < m; ++i) {
-    const Mask& lost = found[i].lost;
-    for (size_t l = 0; l < lost.voxels.size(); ++l) {
-      if (lost.voxels[l]) out[i].voxels[l] = 0;
+  // A view's dropout mask becomes its mask less the dropout in place: one more set of masks
+  // in memory, not two.
+  std::vector<Mask> out(m);
+  ParallelFor(0, m, num_threads, [&](int64_t i) {
+    if (found[i].lost_voxels == 0) {
+      out[i] = masks[i];
+      return;
     }
-  }
+    out[i] = std::move(found[i].lost);
+    std::vector<uint8_t>& voxels = out[i].voxels;
+    const std::vector<uint8_t>& given = masks[i].voxels;
+    for (size_t l = 0; l < voxels.size(); ++l) voxels[l] = given[l] && !voxels[l];
+  });
   return out;
 }
 
