@@ -7,6 +7,7 @@ lines (renames are followed). The working tree counts, so uncommitted lines are 
 and files git does not track yet count whole.
 
 Usage: check_format.py BASE [CLANG_FORMAT]
+       check_format.py --columns-only   (the column rule alone, where no base is known)
 Exit 0 when clean; 1 listing each file and line otherwise (fix with `git clang-format BASE`);
 2 when BASE is not a commit of this clone.
 """
@@ -58,6 +59,12 @@ def git(*args):
 def main(argv):
     if len(argv) not in (2, 3):
         sys.exit(__doc__)
+    if argv[1] == "--columns-only":
+        tracked = [p for p in git("ls-files").splitlines() if _CPP.search(p)]
+        problems = long_lines(tracked)
+        print("\n".join(problems) or f"check_format.py: {len(tracked)} C++ files within "
+              f"{COLUMNS} columns")
+        return 1 if problems else 0
     base, clang_format = argv[1], argv[2] if len(argv) == 3 else "clang-format"
     if subprocess.run(["git", "cat-file", "-e", base + "^{commit}"],
                       capture_output=True).returncode != 0:
