@@ -286,6 +286,8 @@ struct ViewBeams {
   double median = 0.0;  // of the judged bins' means
   int judged = 0;
   int64_t fov_voxels = 0;
+  // The view's lost bins by its own rule (cores below kDropoutCoreRatio of the median).
+  std::vector<uint8_t> own_lost;
 };
 
 ViewBeams JudgeBeams(const Image& image, const Mask& fov) {
@@ -316,7 +318,10 @@ ViewBeams JudgeBeams(const Image& image, const Mask& fov) {
     if (view.verdicts[b].judged) means.push_back(view.verdicts[b].mean);
   }
   view.judged = static_cast<int>(means.size());
-  if (!means.empty()) view.median = Median(means);
+  if (means.empty()) return view;
+  view.median = Median(means);
+  view.own_lost = LostBins(view.verdicts, grid.nu, grid.nv, view.median,
+                           kDropoutCoreRatio * view.median, view.judged);
   return view;
 }
 
@@ -326,12 +331,11 @@ ViewBeams JudgeBeams(const Image& image, const Mask& fov) {
 double SharedLevel(const std::vector<ViewBeams>& views) {
   std::vector<double> pooled;
   for (const ViewBeams& view : views) {
-    if (view.judged == 0) continue;
     const double core_cut = kDropoutCoreRatio * view.median;
-    const std::vector<uint8_t> lost =
-        LostBins(view.verdicts, view.grid.nu, view.grid.nv, view.median, core_cut, view.judged);
-    for (size_t b = 0; b < lost.size(); ++b) {
-      if (lost[b] && IsCore(view.verdicts[b], core_cut)) pooled.push_back(view.verdicts[b].mean);
+    for (size_t b = 0; b < view.own_lost.size(); ++b) {
+      if (view.own_lost[b] && IsCore(view.verdicts[b], core_cut)) {
+        pooled.push_back(view.verdicts[b].mean);
+      }
     }
   }
   return pooled.empty() ? 0.0 : Median(pooled);
@@ -346,11 +350,15 @@ LostSignal LabelLost(const ViewBeams& view, const Mask& fov, double shared_level
   out.fov_voxels = view.fov_voxels;
   out.judged_bins = view.judged;
   if (view.judged == 0) return out;
-  double core_cut = kDropoutCoreRatio * view.median;
-  if (shared_level > 0.0) core_cut = std::max(core_cut, std::sqrt(shared_level * view.median));
+  const double own_cut = kDropoutCoreRatio * view.median;
+  const double core_cut =
+      shared_level > 0.0 ? std::max(own_cut, std::sqrt(shared_level * view.median)) : own_cut;
   const BeamGrid& grid = view.grid;
+  // The view's own verdict stands where the shared level does not widen its cores.
   const std::vector<uint8_t> lost_bin =
-      LostBins(view.verdicts, grid.nu, grid.nv, view.median, core_cut, view.judged);
+      core_cut == own_cut
+          ? view.own_lost
+          : LostBins(view.verdicts, grid.nu, grid.nv, view.median, core_cut, view.judged);
   out.lost_bins = static_cast<int>(std::count(lost_bin.begin(), lost_bin.end(), 1));
   if (out.lost_bins == 0) return out;
   out.lost = Mask(fov.geometry, 0);
